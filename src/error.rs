@@ -1,0 +1,44 @@
+//! The library's error type. Every variant that concerns a file names the file; the CLI adds
+//! context with `anyhow` and prints the whole chain once.
+
+use std::path::{Path, PathBuf};
+
+/// Errors returned by the `denser` library.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The operating system refused an I/O operation on `path`.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file or directory involved.
+        path: PathBuf,
+        /// The underlying I/O error.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A file was read but its content is wrong (malformed, truncated, inconsistent).
+    #[error("{path}: {message}")]
+    BadInput {
+        /// The offending file.
+        path: PathBuf,
+        /// What is wrong with it, in words a user can act on.
+        message: String,
+    },
+    /// A parameter or argument is out of its valid range.
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+}
+
+impl Error {
+    /// An I/O error on `path`.
+    pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
+        Error::Io { path: path.as_ref().to_path_buf(), source }
+    }
+
+    /// A content error in `path`.
+    pub fn bad_input(path: impl AsRef<Path>, message: impl Into<String>) -> Self {
+        Error::BadInput { path: path.as_ref().to_path_buf(), message: message.into() }
+    }
+}
+
+/// Result alias for the library.
+pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -1,0 +1,183 @@
+//! A block of 8×8×8 voxels stored as a structure of arrays.
+//!
+//! Bytes per voxel: TSDF `i16` (2) + weight and Ω packed in one `u8` (1) + RGB (3) = 6, plus 2 for
+//! the regularised field `u` once a block has been regularised (8 in all), plus the hash entry
+//! shared by 512 voxels.
+
+use super::index::VOXELS_PER_BLOCK;
+
+/// Largest stored weight (observation count). Bit 7 of the packed byte is the Ω flag.
+pub const MAX_WEIGHT: u8 = 127;
+/// The Ω bit in [`Block::weight_omega`]: set when a range sensor directly observed the voxel.
+pub const OMEGA_BIT: u8 = 0x80;
+
+const TSDF_SCALE: f32 = 32767.0;
+
+/// Quantises a normalised TSDF value (clamped to [−1, 1]).
+#[inline]
+pub fn encode_tsdf(f: f32) -> i16 {
+    (f.clamp(-1.0, 1.0) * TSDF_SCALE).round() as i16
+}
+
+/// The normalised TSDF value of a quantised one.
+#[inline]
+pub fn decode_tsdf(q: i16) -> f32 {
+    q as f32 / TSDF_SCALE
+}
+
+/// One block: every array is indexed by `linear_index(x, y, z)`.
+#[derive(Clone, PartialEq)]
+pub struct Block {
+    /// Raw fused TSDF `f` = truncated SDF / μ, quantised with [`encode_tsdf`].
+    pub tsdf: [i16; VOXELS_PER_BLOCK],
+    /// Bits 0–6: weight (observations, ≤ [`MAX_WEIGHT`]); bit 7: Ω ([`OMEGA_BIT`]).
+    pub weight_omega: [u8; VOXELS_PER_BLOCK],
+    /// Running mean colour (sRGB).
+    pub color: [[u8; 3]; VOXELS_PER_BLOCK],
+    /// Regularised TSDF `u` (same quantisation as `tsdf`), present once the block was regularised.
+    pub regularized: Option<Box<[i16; VOXELS_PER_BLOCK]>>,
+}
+
+/// A decoded view of one voxel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Voxel {
+    /// Normalised TSDF f ∈ [−1, 1].
+    pub tsdf: f32,
+    /// Observation count.
+    pub weight: u8,
+    /// Directly observed by a range sensor.
+    pub omega: bool,
+    /// Colour.
+    pub color: [u8; 3],
+}
+
+impl Default for Block {
+    fn default() -> Self {
+        Block {
+            tsdf: [encode_tsdf(1.0); VOXELS_PER_BLOCK],
+            weight_omega: [0; VOXELS_PER_BLOCK],
+            color: [[0; 3]; VOXELS_PER_BLOCK],
+            regularized: None,
+        }
+    }
+}
+
+impl std::fmt::Debug for Block {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Block")
+            .field("observed_voxels", &self.observed_count())
+            .field("regularized", &self.regularized.is_some())
+            .finish()
+    }
+}
+
+impl Block {
+    /// A fresh block: f = +1 (free), weight 0, outside Ω.
+    pub fn new_boxed() -> Box<Block> {
+        Box::default()
+    }
+
+    /// Weight of voxel `i`.
+    #[inline]
+    pub fn weight(&self, i: usize) -> u8 {
+        self.weight_omega[i] & !OMEGA_BIT
+    }
+
+    /// Whether voxel `i` is in Ω.
+    #[inline]
+    pub fn omega(&self, i: usize) -> bool {
+        self.weight_omega[i] & OMEGA_BIT != 0
+    }
+
+    /// Decoded voxel `i`.
+    #[inline]
+    pub fn voxel(&self, i: usize) -> Voxel {
+        Voxel {
+            tsdf: decode_tsdf(self.tsdf[i]),
+            weight: self.weight(i),
+            omega: self.omega(i),
+            color: self.color[i],
+        }
+    }
+
+    /// The regularised value of voxel `i` if present, else the raw one.
+    #[inline]
+    pub fn regularized_or_raw(&self, i: usize) -> f32 {
+        match &self.regularized {
+            Some(u) => decode_tsdf(u[i]),
+            None => decode_tsdf(self.tsdf[i]),
+        }
+    }
+
+    /// Number of voxels in Ω.
+    pub fn observed_count(&self) -> usize {
+        self.weight_omega.iter().filter(|&&w| w & OMEGA_BIT != 0).count()
+    }
+
+    /// Fuses one observation into voxel `i`: the paper's running average
+    /// `f_k = (u + w_{k−1} f_{k−1}) / (w_{k−1} + 1)` with `u` the normalised truncated SDF, the
+    /// same for colour, and sets Ω. At [`MAX_WEIGHT`] the weight stays and the average keeps
+    /// moving (an exponential average with factor 1/128).
+    #[inline]
+    pub fn fuse(&mut self, i: usize, tsdf_normalized: f32, color: Option<[u8; 3]>) {
+        let w_old = self.weight(i) as f32;
+        let w_new = w_old + 1.0;
+        let f_old = decode_tsdf(self.tsdf[i]);
+        self.tsdf[i] = encode_tsdf((tsdf_normalized + w_old * f_old) / w_new);
+        if let Some(c) = color {
+            let old = self.color[i];
+            let mut mixed = [0u8; 3];
+            for k in 0..3 {
+                mixed[k] = ((c[k] as f32 + w_old * old[k] as f32) / w_new).round() as u8;
+            }
+            self.color[i] = mixed;
+        }
+        let w = (self.weight(i) + 1).min(MAX_WEIGHT);
+        self.weight_omega[i] = w | OMEGA_BIT;
+        // The raw field changed: a stored regularised value no longer matches it.
+        if let Some(u) = self.regularized.as_mut() {
+            u[i] = self.tsdf[i];
+        }
+    }
+
+    /// Bytes this block occupies in memory (heap included), not counting its hash entry.
+    pub fn heap_bytes(&self) -> usize {
+        std::mem::size_of::<Block>()
+            + self.regularized.as_ref().map_or(0, |_| std::mem::size_of::<[i16; VOXELS_PER_BLOCK]>())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fuse_is_the_running_mean() {
+        let mut b = Block::default();
+        for (k, u) in [0.5f32, -0.25, 0.1].iter().enumerate() {
+            b.fuse(3, *u, Some([30 * (k as u8 + 1), 0, 255]));
+        }
+        assert!((b.voxel(3).tsdf - (0.5 - 0.25 + 0.1) / 3.0).abs() < 1e-4);
+        assert_eq!(b.weight(3), 3);
+        assert!(b.omega(3));
+        assert_eq!(b.color[3], [60, 0, 255]);
+        assert!(!b.omega(4));
+    }
+
+    #[test]
+    fn weight_saturates() {
+        let mut b = Block::default();
+        for _ in 0..300 {
+            b.fuse(0, -1.0, None);
+        }
+        assert_eq!(b.weight(0), MAX_WEIGHT);
+        assert!(b.omega(0));
+        assert_eq!(b.tsdf[0], encode_tsdf(-1.0));
+    }
+
+    #[test]
+    fn six_bytes_per_voxel_raw() {
+        // 3072 bytes of voxel data + the Option<Box> pointer.
+        assert_eq!(std::mem::size_of::<Block>(), VOXELS_PER_BLOCK * 6 + 8);
+    }
+}

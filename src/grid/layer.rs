@@ -1,0 +1,195 @@
+//! The layer: the hash map from block coordinates to blocks, plus the grid parameters.
+//!
+//! Stages reach blocks only through a layer. Bulk updates check blocks out with
+//! [`Layer::take_blocks`], work on them in parallel, and check them back in with
+//! [`Layer::put_blocks`]; a pager can do the same to move blocks to disk and back without the
+//! stages knowing.
+
+use super::block::Block;
+use super::index::{BlockIndex, GridParams, VoxelIndex, VOXELS_PER_BLOCK};
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+/// Block indices a stage touched, sorted and without duplicates.
+pub type TouchedBlocks = Vec<BlockIndex>;
+
+/// Hasher for [`BlockIndex`] keys: the key's `Hash` impl writes one packed `u64`; `finish` applies
+/// the splitmix64 finaliser so that every bit of the hash depends on every coordinate bit.
+#[derive(Default, Clone, Copy)]
+pub struct BlockHasher(u64);
+
+impl Hasher for BlockHasher {
+    #[inline]
+    fn finish(&self) -> u64 {
+        let mut z = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    #[inline]
+    fn write(&mut self, bytes: &[u8]) {
+        // Not used by BlockIndex; a plain FNV-1a keeps the hasher correct for any key.
+        for &b in bytes {
+            self.0 = (self.0 ^ b as u64).wrapping_mul(0x0100_0000_01B3);
+        }
+    }
+
+    #[inline]
+    fn write_u64(&mut self, v: u64) {
+        self.0 = v;
+    }
+}
+
+type BlockMap = HashMap<BlockIndex, Box<Block>, BuildHasherDefault<BlockHasher>>;
+
+/// A layer of TSDF blocks.
+#[derive(Clone, Debug)]
+pub struct Layer {
+    params: GridParams,
+    blocks: BlockMap,
+}
+
+impl Layer {
+    /// An empty layer.
+    pub fn new(params: GridParams) -> Self {
+        Layer { params, blocks: BlockMap::default() }
+    }
+
+    /// Voxel size and truncation.
+    pub fn params(&self) -> GridParams {
+        self.params
+    }
+
+    /// Number of allocated blocks.
+    pub fn block_count(&self) -> usize {
+        self.blocks.len()
+    }
+
+    /// Number of voxels in Ω over all blocks.
+    pub fn observed_voxel_count(&self) -> usize {
+        self.blocks.values().map(|b| b.observed_count()).sum()
+    }
+
+    /// The block at `index`, if allocated (and resident).
+    #[inline]
+    pub fn get(&self, index: &BlockIndex) -> Option<&Block> {
+        self.blocks.get(index).map(|b| &**b)
+    }
+
+    /// The block at `index`, mutably.
+    #[inline]
+    pub fn get_mut(&mut self, index: &BlockIndex) -> Option<&mut Block> {
+        self.blocks.get_mut(index).map(|b| &mut **b)
+    }
+
+    /// The block at `index`, allocating an empty one if needed.
+    pub fn get_or_allocate(&mut self, index: BlockIndex) -> &mut Block {
+        self.blocks.entry(index).or_insert_with(Block::new_boxed)
+    }
+
+    /// Whether `index` is allocated.
+    pub fn contains(&self, index: &BlockIndex) -> bool {
+        self.blocks.contains_key(index)
+    }
+
+    /// Decoded voxel at a global index, `None` when its block is not allocated.
+    pub fn voxel(&self, v: VoxelIndex) -> Option<super::Voxel> {
+        let (b, i) = BlockIndex::of_voxel(v);
+        self.get(&b).map(|blk| blk.voxel(i))
+    }
+
+    /// All allocated block indices, sorted.
+    pub fn indices_sorted(&self) -> Vec<BlockIndex> {
+        let mut v: Vec<BlockIndex> = self.blocks.keys().copied().collect();
+        v.sort_unstable();
+        v
+    }
+
+    /// Iterates over the blocks in arbitrary order.
+    pub fn iter_unsorted(&self) -> impl Iterator<Item = (&BlockIndex, &Block)> {
+        self.blocks.iter().map(|(k, v)| (k, &**v))
+    }
+
+    /// Checks the blocks at `indices` out of the layer (allocating missing ones), in the order
+    /// given. Give them back with [`Layer::put_blocks`].
+    pub fn take_blocks(&mut self, indices: &[BlockIndex]) -> Vec<(BlockIndex, Box<Block>)> {
+        indices
+            .iter()
+            .map(|&i| (i, self.blocks.remove(&i).unwrap_or_else(Block::new_boxed)))
+            .collect()
+    }
+
+    /// Checks blocks (back) into the layer, replacing any with the same index.
+    pub fn put_blocks(&mut self, blocks: impl IntoIterator<Item = (BlockIndex, Box<Block>)>) {
+        for (i, b) in blocks {
+            self.blocks.insert(i, b);
+        }
+    }
+
+    /// Removes and returns one block.
+    pub fn remove(&mut self, index: &BlockIndex) -> Option<Box<Block>> {
+        self.blocks.remove(index)
+    }
+
+    /// Inserts one block, returning the one it replaced.
+    pub fn insert(&mut self, index: BlockIndex, block: Box<Block>) -> Option<Box<Block>> {
+        self.blocks.insert(index, block)
+    }
+
+    /// Drops every block's regularised field (e.g. before re-regularising with other settings).
+    pub fn clear_regularized(&mut self) {
+        for b in self.blocks.values_mut() {
+            b.regularized = None;
+        }
+    }
+
+    /// Bytes held in RAM: blocks plus the hash table's slots (key, pointer, control byte).
+    pub fn memory_bytes(&self) -> usize {
+        let slot = std::mem::size_of::<BlockIndex>() + std::mem::size_of::<Box<Block>>() + 1;
+        let blocks: usize = self.blocks.values().map(|b| b.heap_bytes()).sum();
+        blocks + self.blocks.capacity() * slot
+    }
+
+    /// RAM bytes per allocated voxel ([`Layer::memory_bytes`] / (blocks · 512)).
+    pub fn bytes_per_voxel(&self) -> f64 {
+        if self.blocks.is_empty() {
+            return 0.0;
+        }
+        self.memory_bytes() as f64 / (self.blocks.len() * VOXELS_PER_BLOCK) as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::hash::{BuildHasher, Hash};
+
+    #[test]
+    fn hash_separates_neighbours() {
+        let bh = BuildHasherDefault::<BlockHasher>::default();
+        let mut seen = std::collections::HashSet::new();
+        for x in -8..8 {
+            for y in -8..8 {
+                for z in -8..8 {
+                    let mut h = bh.build_hasher();
+                    BlockIndex([x, y, z]).hash(&mut h);
+                    seen.insert(h.finish());
+                }
+            }
+        }
+        assert_eq!(seen.len(), 16 * 16 * 16);
+    }
+
+    #[test]
+    fn take_and_put_round_trip() {
+        let mut layer = Layer::new(GridParams { voxel_size_m: 0.1, truncation_m: 1.0 });
+        layer.get_or_allocate(BlockIndex([1, 2, 3])).fuse(5, 0.25, None);
+        let taken = layer.take_blocks(&[BlockIndex([1, 2, 3]), BlockIndex([0, 0, 0])]);
+        assert_eq!(layer.block_count(), 0);
+        assert!(taken[0].1.omega(5));
+        layer.put_blocks(taken);
+        assert_eq!(layer.indices_sorted(), vec![BlockIndex([0, 0, 0]), BlockIndex([1, 2, 3])]);
+        assert_eq!(layer.observed_voxel_count(), 1);
+    }
+}

@@ -1,0 +1,23 @@
+//! `denser`: dense, coloured 3D reconstruction of whole cities from a vehicle's stereo camera and
+//! LiDAR, after the DENSER Cities paper, built as an out-of-core streaming tiler.
+//!
+//! Pipeline (module → stage): [`io`] and [`synth`] read or generate sensor data; [`depth`] turns
+//! stereo pairs into depth maps; [`fusion`] integrates depth maps and LiDAR scans into the hashed
+//! voxel grid ([`grid`]); [`regularize`] runs the Ω-aware TV regulariser; [`mesh`] extracts
+//! coloured surfaces; [`eval`] scores them against ground truth; [`reconstruct`] wires the stages.
+
+pub mod camera;
+pub mod depth;
+pub mod error;
+pub mod eval;
+pub mod frame;
+pub mod fusion;
+pub mod grid;
+pub mod io;
+pub mod mesh;
+pub mod progress;
+pub mod reconstruct;
+pub mod regularize;
+pub mod synth;
+
+pub use error::{Error, Result};

@@ -1,0 +1,29 @@
+//! Surface extraction: marching cubes over the raw (`f`) or regularised (`u`) field.
+
+/// An indexed triangle mesh with per-vertex colour, world coordinates in metres.
+/// Triangles wind counter-clockwise seen from the free-space (positive TSDF) side.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Mesh {
+    /// Vertex positions, metres.
+    pub positions_m: Vec<[f32; 3]>,
+    /// Vertex colours (sRGB), same length as `positions_m`.
+    pub colors: Vec<[u8; 3]>,
+    /// Triangles as vertex indices.
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl Mesh {
+    /// Total triangle area, m².
+    pub fn surface_area_m2(&self) -> f64 {
+        self.triangles
+            .iter()
+            .map(|t| {
+                let p = |i: u32| {
+                    let v = self.positions_m[i as usize];
+                    nalgebra::Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64)
+                };
+                0.5 * (p(t[1]) - p(t[0])).cross(&(p(t[2]) - p(t[0]))).norm()
+            })
+            .sum()
+    }
+}

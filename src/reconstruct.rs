@@ -1,0 +1,1 @@
+//! The `Reconstructor`: wires readers, depth, fusion, regularisation, meshing and evaluation.
