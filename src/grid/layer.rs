@@ -127,6 +127,20 @@ impl Layer {
         }
     }
 
+    /// Checks blocks back in like [`Layer::put_blocks`], but drops blocks with no voxel in Ω
+    /// (allocated for a band whose voxels all fell outside the image, say). Returns the indices
+    /// kept, in the order given.
+    pub fn put_blocks_observed(&mut self, blocks: Vec<(BlockIndex, Box<Block>)>) -> Vec<BlockIndex> {
+        let mut kept = Vec::with_capacity(blocks.len());
+        for (i, b) in blocks {
+            if b.weight_omega.iter().any(|&w| w & super::OMEGA_BIT != 0) {
+                kept.push(i);
+                self.blocks.insert(i, b);
+            }
+        }
+        kept
+    }
+
     /// Removes and returns one block.
     pub fn remove(&mut self, index: &BlockIndex) -> Option<Box<Block>> {
         self.blocks.remove(index)

@@ -1,0 +1,138 @@
+//! Projective fusion of depth maps (the paper's update, with colour).
+
+use super::traverse::traverse_cells;
+use super::FusionStats;
+use crate::frame::DepthFrame;
+use crate::grid::{
+    BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
+};
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+use std::collections::HashSet;
+
+/// Options of depth-map fusion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthFusionParams {
+    /// Depths beyond this are ignored (stereo depth error grows with z²), metres.
+    pub max_depth_m: f32,
+    /// Depths below this are ignored, metres.
+    pub min_depth_m: f32,
+    /// Fuse colour when the frame has it.
+    pub use_color: bool,
+}
+
+impl Default for DepthFusionParams {
+    fn default() -> Self {
+        DepthFusionParams { max_depth_m: 40.0, min_depth_m: 0.1, use_color: true }
+    }
+}
+
+#[inline]
+fn usable(d: f32, p: &DepthFusionParams) -> bool {
+    d.is_finite() && d >= p.min_depth_m && d <= p.max_depth_m
+}
+
+/// The blocks crossed by the truncation band of every usable pixel, sorted. Reads no layer.
+pub fn depth_frame_blocks(grid: &GridParams, frame: &DepthFrame, params: &DepthFusionParams) -> TouchedBlocks {
+    let k = &frame.intrinsics;
+    let w = frame.depth_m.width as usize;
+    let mu = grid.truncation_m as f64;
+    let pose = frame.world_from_camera;
+    let origin = pose.translation.vector;
+    let block = grid.block_size_m();
+    let sets: Vec<HashSet<BlockIndex, std::hash::BuildHasherDefault<crate::grid::BlockHasher>>> = frame
+        .depth_m
+        .data
+        .par_chunks(w)
+        .enumerate()
+        .fold(HashSet::default, |mut set, (v, row)| {
+            for (u, &d) in row.iter().enumerate() {
+                if !usable(d, params) {
+                    continue;
+                }
+                // The ray through the pixel, scaled so that t is the depth (z) along it.
+                let dir = pose.rotation * k.ray(u as f64, v as f64);
+                let (t0, t1) = ((d as f64 - mu).max(0.0), d as f64 + mu);
+                traverse_cells(origin.into(), dir.into(), t0, t1, block, |c| {
+                    set.insert(BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]));
+                    true
+                });
+            }
+            set
+        })
+        .collect();
+    let mut all: Vec<BlockIndex> = sets.into_iter().flatten().collect();
+    all.par_sort_unstable();
+    all.dedup();
+    all
+}
+
+/// Fuses one depth frame into `layer`; returns the touched blocks (sorted) and work counters.
+pub fn integrate_depth(
+    layer: &mut Layer,
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+) -> (TouchedBlocks, FusionStats) {
+    let grid = layer.params();
+    let blocks = depth_frame_blocks(&grid, frame, params);
+    let mut taken = layer.take_blocks(&blocks);
+    let camera_from_world = frame.world_from_camera.inverse();
+    let rot = camera_from_world.rotation.to_rotation_matrix();
+    let vs = grid.voxel_size_m as f64;
+    let mu = grid.truncation_m;
+    let inv_mu = 1.0 / mu;
+    let k = frame.intrinsics;
+    let (wid, hei) = (frame.depth_m.width as i64, frame.depth_m.height as i64);
+    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
+    let depth = &frame.depth_m.data;
+    let color = if params.use_color { frame.color.as_ref() } else { None };
+    // Camera-frame steps for one voxel along each world axis.
+    let ax: Vector3<f32> = (rot * Vector3::x() * vs).cast();
+    let ay: Vector3<f32> = (rot * Vector3::y() * vs).cast();
+    let az: Vector3<f32> = (rot * Vector3::z() * vs).cast();
+    let updates: usize = taken
+        .par_iter_mut()
+        .map(|(index, block)| {
+            let o = grid.block_origin(*index);
+            let centre0 = Point3::new(o[0] + 0.5 * vs, o[1] + 0.5 * vs, o[2] + 0.5 * vs);
+            let base: Vector3<f32> = (camera_from_world * centre0).coords.cast();
+            let mut n = 0usize;
+            let mut i = 0usize;
+            for z in 0..VOXELS_PER_SIDE {
+                for y in 0..VOXELS_PER_SIDE {
+                    let row = base + ay * y as f32 + az * z as f32;
+                    for x in 0..VOXELS_PER_SIDE {
+                        let p = row + ax * x as f32;
+                        let vi = i;
+                        i += 1;
+                        if p.z <= 0.0 {
+                            continue;
+                        }
+                        let u = (fx * p.x / p.z + cx).round() as i64;
+                        let v = (fy * p.y / p.z + cy).round() as i64;
+                        if u < 0 || v < 0 || u >= wid || v >= hei {
+                            continue;
+                        }
+                        let pix = (v * wid + u) as usize;
+                        let d = depth[pix];
+                        if !usable(d, params) {
+                            continue;
+                        }
+                        let sdf = d - p.z;
+                        if sdf < -mu {
+                            continue;
+                        }
+                        block.fuse(vi, sdf.min(mu) * inv_mu, color.map(|c| c.data[pix]));
+                        n += 1;
+                    }
+                }
+            }
+            debug_assert_eq!(i, VOXELS_PER_BLOCK);
+            n
+        })
+        .sum();
+    let measurements = frame.depth_m.data.iter().filter(|&&d| usable(d, params)).count();
+    let touched = layer.put_blocks_observed(taken);
+    let stats = FusionStats { blocks: touched.len(), voxel_updates: updates, measurements };
+    (touched, stats)
+}

@@ -1,0 +1,135 @@
+//! Ray-wise fusion of LiDAR scans: only voxels that a ray traverses inside its truncation band.
+
+use super::traverse::traverse_cells;
+use super::FusionStats;
+use crate::frame::LidarScan;
+use crate::grid::{linear_index, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_SIDE};
+use rayon::prelude::*;
+
+/// Options of LiDAR fusion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LidarFusionParams {
+    /// Returns farther than this are ignored, metres.
+    pub max_range_m: f32,
+    /// Returns nearer than this (the car itself) are ignored, metres.
+    pub min_range_m: f32,
+}
+
+impl Default for LidarFusionParams {
+    fn default() -> Self {
+        LidarFusionParams { max_range_m: 80.0, min_range_m: 2.5 }
+    }
+}
+
+/// A usable ray: direction (unit, world frame) and range.
+struct Ray {
+    dir: [f64; 3],
+    range_m: f64,
+    gray: u8,
+}
+
+fn rays(scan: &LidarScan, params: &LidarFusionParams) -> Vec<Ray> {
+    let rot = scan.world_from_sensor.rotation;
+    scan.points_sensor_m
+        .par_iter()
+        .enumerate()
+        .filter_map(|(k, p)| {
+            let i = scan.intensity.get(k).copied().unwrap_or(0.0);
+            let v = nalgebra::Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            let r = v.norm();
+            if !r.is_finite() || r < params.min_range_m as f64 || r > params.max_range_m as f64 {
+                return None;
+            }
+            let d = rot.transform_vector(&(v / r));
+            let gray = (i.clamp(0.0, 1.0) * 255.0).round() as u8;
+            Some(Ray { dir: d.into(), range_m: r, gray })
+        })
+        .collect()
+}
+
+/// (block, ray) pairs for every block a ray's band crosses, sorted by block then ray.
+fn block_ray_pairs(grid: &GridParams, origin: [f64; 3], rays: &[Ray]) -> Vec<(BlockIndex, u32)> {
+    let mu = grid.truncation_m as f64;
+    let block = grid.block_size_m();
+    let mut pairs: Vec<(BlockIndex, u32)> = rays
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(k, r)| {
+            let mut out = Vec::with_capacity(6);
+            traverse_cells(origin, r.dir, (r.range_m - mu).max(0.0), r.range_m + mu, block, |c| {
+                out.push((BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]), k as u32));
+                true
+            });
+            out
+        })
+        .collect();
+    pairs.par_sort_unstable();
+    pairs
+}
+
+/// The blocks crossed by the truncation band of every usable return, sorted. Reads no layer.
+pub fn lidar_scan_blocks(grid: &GridParams, scan: &LidarScan, params: &LidarFusionParams) -> TouchedBlocks {
+    let origin: [f64; 3] = scan.world_from_sensor.translation.vector.into();
+    let mut blocks: Vec<BlockIndex> =
+        block_ray_pairs(grid, origin, &rays(scan, params)).into_iter().map(|(b, _)| b).collect();
+    blocks.dedup();
+    blocks
+}
+
+/// Fuses one LiDAR scan into `layer`; returns the touched blocks (sorted) and work counters.
+/// Within a block, rays are applied in scan order, so the result does not depend on threading.
+pub fn integrate_lidar(
+    layer: &mut Layer,
+    scan: &LidarScan,
+    params: &LidarFusionParams,
+) -> (TouchedBlocks, FusionStats) {
+    let grid = layer.params();
+    let origin: [f64; 3] = scan.world_from_sensor.translation.vector.into();
+    let rays = rays(scan, params);
+    let pairs = block_ray_pairs(&grid, origin, &rays);
+    // Group the sorted pairs by block.
+    let mut groups: Vec<(BlockIndex, std::ops::Range<usize>)> = Vec::new();
+    let mut start = 0;
+    for i in 1..=pairs.len() {
+        if i == pairs.len() || pairs[i].0 != pairs[start].0 {
+            groups.push((pairs[start].0, start..i));
+            start = i;
+        }
+    }
+    let indices: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
+    let mut taken = layer.take_blocks(&indices);
+    let mu = grid.truncation_m as f64;
+    let vs = grid.voxel_size_m as f64;
+    let s = VOXELS_PER_SIDE as i64;
+    let updates: usize = taken
+        .par_iter_mut()
+        .zip(groups.par_iter())
+        .map(|((index, block), (_, range))| {
+            let lo = [0, 1, 2].map(|a| index.0[a] as i64 * s);
+            let mut n = 0;
+            for &(_, k) in &pairs[range.clone()] {
+                let r = &rays[k as usize];
+                traverse_cells(origin, r.dir, (r.range_m - mu).max(0.0), r.range_m + mu, vs, |c| {
+                    let l = [c[0] - lo[0], c[1] - lo[1], c[2] - lo[2]];
+                    if l.iter().all(|&x| (0..s).contains(&x)) {
+                        // Signed distance along the ray from the voxel centre to the hit.
+                        let t = (0..3)
+                            .map(|a| ((c[a] as f64 + 0.5) * vs - origin[a]) * r.dir[a])
+                            .sum::<f64>();
+                        let sdf = r.range_m - t;
+                        if sdf >= -mu {
+                            let i = linear_index(l[0] as usize, l[1] as usize, l[2] as usize);
+                            block.fuse(i, (sdf.min(mu) / mu) as f32, Some([r.gray; 3]));
+                            n += 1;
+                        }
+                    }
+                    true
+                });
+            }
+            n
+        })
+        .sum();
+    let touched = layer.put_blocks_observed(taken);
+    let stats = FusionStats { blocks: touched.len(), voxel_updates: updates, measurements: rays.len() };
+    (touched, stats)
+}
