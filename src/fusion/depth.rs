@@ -23,7 +23,11 @@ pub struct DepthFusionParams {
 
 impl Default for DepthFusionParams {
     fn default() -> Self {
-        DepthFusionParams { max_depth_m: 40.0, min_depth_m: 0.1, use_color: true }
+        DepthFusionParams {
+            max_depth_m: 40.0,
+            min_depth_m: 0.1,
+            use_color: true,
+        }
     }
 }
 
@@ -33,48 +37,94 @@ fn usable(d: f32, p: &DepthFusionParams) -> bool {
 }
 
 /// The blocks crossed by the truncation band of every usable pixel, sorted. Reads no layer.
-pub fn depth_frame_blocks(grid: &GridParams, frame: &DepthFrame, params: &DepthFusionParams) -> TouchedBlocks {
+pub fn depth_frame_blocks(
+    grid: &GridParams,
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+) -> TouchedBlocks {
     let k = &frame.intrinsics;
     let w = frame.depth_m.width as usize;
     let mu = grid.truncation_m as f64;
     let pose = frame.world_from_camera;
     let origin = pose.translation.vector;
     let block = grid.block_size_m();
-    let sets: Vec<HashSet<BlockIndex, std::hash::BuildHasherDefault<crate::grid::BlockHasher>>> = frame
-        .depth_m
-        .data
-        .par_chunks(w)
-        .enumerate()
-        .fold(HashSet::default, |mut set, (v, row)| {
-            for (u, &d) in row.iter().enumerate() {
-                if !usable(d, params) {
-                    continue;
+    let sets: Vec<HashSet<BlockIndex, std::hash::BuildHasherDefault<crate::grid::BlockHasher>>> =
+        frame
+            .depth_m
+            .data
+            .par_chunks(w)
+            .enumerate()
+            .fold(HashSet::default, |mut set, (v, row)| {
+                for (u, &d) in row.iter().enumerate() {
+                    if !usable(d, params) {
+                        continue;
+                    }
+                    // The ray through the pixel, scaled so that t is the depth (z) along it.
+                    let dir = pose.rotation * k.ray(u as f64, v as f64);
+                    let (t0, t1) = ((d as f64 - mu).max(0.0), d as f64 + mu);
+                    traverse_cells(origin.into(), dir.into(), t0, t1, block, |c| {
+                        set.insert(BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]));
+                        true
+                    });
                 }
-                // The ray through the pixel, scaled so that t is the depth (z) along it.
-                let dir = pose.rotation * k.ray(u as f64, v as f64);
-                let (t0, t1) = ((d as f64 - mu).max(0.0), d as f64 + mu);
-                traverse_cells(origin.into(), dir.into(), t0, t1, block, |c| {
-                    set.insert(BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]));
-                    true
-                });
-            }
-            set
-        })
-        .collect();
+                set
+            })
+            .collect();
     let mut all: Vec<BlockIndex> = sets.into_iter().flatten().collect();
     all.par_sort_unstable();
     all.dedup();
     all
 }
 
-/// Fuses one depth frame into `layer`; returns the touched blocks (sorted) and work counters.
+/// Allocated blocks of `layer` whose bounding sphere meets the camera frustum up to
+/// `max_depth_m + μ`, sorted. These receive the update too (free space carves stale surfaces).
+pub fn visible_blocks(
+    layer: &Layer,
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+) -> TouchedBlocks {
+    let grid = layer.params();
+    let camera_from_world = frame.world_from_camera.inverse();
+    let k = &frame.intrinsics;
+    let half = 0.5 * grid.block_size_m();
+    let radius = half * 3f64.sqrt();
+    let far = params.max_depth_m as f64 + grid.truncation_m as f64 + radius;
+    let mut v: Vec<BlockIndex> = layer
+        .iter_unsorted()
+        .map(|(i, _)| *i)
+        .filter(|i| {
+            let o = grid.block_origin(*i);
+            let c = camera_from_world * Point3::new(o[0] + half, o[1] + half, o[2] + half);
+            if c.z < -radius || c.z > far {
+                return false;
+            }
+            // Conservative: test the pixel bounds widened by the block's projected radius.
+            let z = c.z.max(1e-3);
+            let (u, v) = (k.fx * c.x / z + k.cx, k.fy * c.y / z + k.cy);
+            let r_px = if c.z > radius {
+                k.fx.max(k.fy) * radius / (c.z - radius)
+            } else {
+                f64::INFINITY
+            };
+            u > -r_px && v > -r_px && u < k.width as f64 + r_px && v < k.height as f64 + r_px
+        })
+        .collect();
+    v.sort_unstable();
+    v
+}
+
+/// Fuses one depth frame into `layer`: the blocks crossed by this frame's truncation band plus the
+/// allocated blocks in view. Returns the touched blocks (sorted) and work counters.
 pub fn integrate_depth(
     layer: &mut Layer,
     frame: &DepthFrame,
     params: &DepthFusionParams,
 ) -> (TouchedBlocks, FusionStats) {
     let grid = layer.params();
-    let blocks = depth_frame_blocks(&grid, frame, params);
+    let mut blocks = depth_frame_blocks(&grid, frame, params);
+    blocks.extend(visible_blocks(layer, frame, params));
+    blocks.sort_unstable();
+    blocks.dedup();
     let mut taken = layer.take_blocks(&blocks);
     let camera_from_world = frame.world_from_camera.inverse();
     let rot = camera_from_world.rotation.to_rotation_matrix();
@@ -85,7 +135,11 @@ pub fn integrate_depth(
     let (wid, hei) = (frame.depth_m.width as i64, frame.depth_m.height as i64);
     let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
     let depth = &frame.depth_m.data;
-    let color = if params.use_color { frame.color.as_ref() } else { None };
+    let color = if params.use_color {
+        frame.color.as_ref()
+    } else {
+        None
+    };
     // Camera-frame steps for one voxel along each world axis.
     let ax: Vector3<f32> = (rot * Vector3::x() * vs).cast();
     let ay: Vector3<f32> = (rot * Vector3::y() * vs).cast();
@@ -131,8 +185,17 @@ pub fn integrate_depth(
             n
         })
         .sum();
-    let measurements = frame.depth_m.data.iter().filter(|&&d| usable(d, params)).count();
+    let measurements = frame
+        .depth_m
+        .data
+        .iter()
+        .filter(|&&d| usable(d, params))
+        .count();
     let touched = layer.put_blocks_observed(taken);
-    let stats = FusionStats { blocks: touched.len(), voxel_updates: updates, measurements };
+    let stats = FusionStats {
+        blocks: touched.len(),
+        voxel_updates: updates,
+        measurements,
+    };
     (touched, stats)
 }

@@ -17,7 +17,10 @@ pub struct LidarFusionParams {
 
 impl Default for LidarFusionParams {
     fn default() -> Self {
-        LidarFusionParams { max_range_m: 80.0, min_range_m: 2.5 }
+        LidarFusionParams {
+            max_range_m: 80.0,
+            min_range_m: 2.5,
+        }
     }
 }
 
@@ -42,7 +45,11 @@ fn rays(scan: &LidarScan, params: &LidarFusionParams) -> Vec<Ray> {
             }
             let d = rot.transform_vector(&(v / r));
             let gray = (i.clamp(0.0, 1.0) * 255.0).round() as u8;
-            Some(Ray { dir: d.into(), range_m: r, gray })
+            Some(Ray {
+                dir: d.into(),
+                range_m: r,
+                gray,
+            })
         })
         .collect()
 }
@@ -56,10 +63,20 @@ fn block_ray_pairs(grid: &GridParams, origin: [f64; 3], rays: &[Ray]) -> Vec<(Bl
         .enumerate()
         .flat_map_iter(|(k, r)| {
             let mut out = Vec::with_capacity(6);
-            traverse_cells(origin, r.dir, (r.range_m - mu).max(0.0), r.range_m + mu, block, |c| {
-                out.push((BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]), k as u32));
-                true
-            });
+            traverse_cells(
+                origin,
+                r.dir,
+                (r.range_m - mu).max(0.0),
+                r.range_m + mu,
+                block,
+                |c| {
+                    out.push((
+                        BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]),
+                        k as u32,
+                    ));
+                    true
+                },
+            );
             out
         })
         .collect();
@@ -68,10 +85,16 @@ fn block_ray_pairs(grid: &GridParams, origin: [f64; 3], rays: &[Ray]) -> Vec<(Bl
 }
 
 /// The blocks crossed by the truncation band of every usable return, sorted. Reads no layer.
-pub fn lidar_scan_blocks(grid: &GridParams, scan: &LidarScan, params: &LidarFusionParams) -> TouchedBlocks {
+pub fn lidar_scan_blocks(
+    grid: &GridParams,
+    scan: &LidarScan,
+    params: &LidarFusionParams,
+) -> TouchedBlocks {
     let origin: [f64; 3] = scan.world_from_sensor.translation.vector.into();
-    let mut blocks: Vec<BlockIndex> =
-        block_ray_pairs(grid, origin, &rays(scan, params)).into_iter().map(|(b, _)| b).collect();
+    let mut blocks: Vec<BlockIndex> = block_ray_pairs(grid, origin, &rays(scan, params))
+        .into_iter()
+        .map(|(b, _)| b)
+        .collect();
     blocks.dedup();
     blocks
 }
@@ -109,27 +132,38 @@ pub fn integrate_lidar(
             let mut n = 0;
             for &(_, k) in &pairs[range.clone()] {
                 let r = &rays[k as usize];
-                traverse_cells(origin, r.dir, (r.range_m - mu).max(0.0), r.range_m + mu, vs, |c| {
-                    let l = [c[0] - lo[0], c[1] - lo[1], c[2] - lo[2]];
-                    if l.iter().all(|&x| (0..s).contains(&x)) {
-                        // Signed distance along the ray from the voxel centre to the hit.
-                        let t = (0..3)
-                            .map(|a| ((c[a] as f64 + 0.5) * vs - origin[a]) * r.dir[a])
-                            .sum::<f64>();
-                        let sdf = r.range_m - t;
-                        if sdf >= -mu {
-                            let i = linear_index(l[0] as usize, l[1] as usize, l[2] as usize);
-                            block.fuse(i, (sdf.min(mu) / mu) as f32, Some([r.gray; 3]));
-                            n += 1;
+                traverse_cells(
+                    origin,
+                    r.dir,
+                    (r.range_m - mu).max(0.0),
+                    r.range_m + mu,
+                    vs,
+                    |c| {
+                        let l = [c[0] - lo[0], c[1] - lo[1], c[2] - lo[2]];
+                        if l.iter().all(|&x| (0..s).contains(&x)) {
+                            // Signed distance along the ray from the voxel centre to the hit.
+                            let t = (0..3)
+                                .map(|a| ((c[a] as f64 + 0.5) * vs - origin[a]) * r.dir[a])
+                                .sum::<f64>();
+                            let sdf = r.range_m - t;
+                            if sdf >= -mu {
+                                let i = linear_index(l[0] as usize, l[1] as usize, l[2] as usize);
+                                block.fuse(i, (sdf.min(mu) / mu) as f32, Some([r.gray; 3]));
+                                n += 1;
+                            }
                         }
-                    }
-                    true
-                });
+                        true
+                    },
+                );
             }
             n
         })
         .sum();
     let touched = layer.put_blocks_observed(taken);
-    let stats = FusionStats { blocks: touched.len(), voxel_updates: updates, measurements: rays.len() };
+    let stats = FusionStats {
+        blocks: touched.len(),
+        voxel_updates: updates,
+        measurements: rays.len(),
+    };
     (touched, stats)
 }

@@ -2,7 +2,10 @@
 //!
 //! Each integrator runs in two phases, so that a pager can make blocks resident in between:
 //! 1. `*_blocks(...)` lists (sorted) the blocks the observation touches: those crossed by the
-//!    truncation band `[d − μ, d + μ]` around every measured point. It reads nothing from the layer.
+//!    truncation band `[d − μ, d + μ]` around every measured point (it reads nothing from the
+//!    layer); for depth maps also [`visible_blocks`], the allocated blocks in the view frustum,
+//!    which receive the update too (as InfiniTAM), so free space observed later carves stale or
+//!    outlier surfaces.
 //! 2. `integrate_*(layer, ...)` allocates those blocks, checks them out of the layer, updates their
 //!    voxels in parallel (rayon, one task per block, so no two tasks share a voxel) and checks them
 //!    back in. It returns the touched blocks.
@@ -19,7 +22,7 @@ mod depth;
 mod lidar;
 pub mod traverse;
 
-pub use depth::{depth_frame_blocks, integrate_depth, DepthFusionParams};
+pub use depth::{depth_frame_blocks, integrate_depth, visible_blocks, DepthFusionParams};
 pub use lidar::{integrate_lidar, lidar_scan_blocks, LidarFusionParams};
 
 /// Work counters of one integration call.

@@ -15,7 +15,11 @@ pub fn traverse_cells(
     if !(t1 >= t0) {
         return;
     }
-    let start = [origin[0] + t0 * dir[0], origin[1] + t0 * dir[1], origin[2] + t0 * dir[2]];
+    let start = [
+        origin[0] + t0 * dir[0],
+        origin[1] + t0 * dir[1],
+        origin[2] + t0 * dir[2],
+    ];
     let mut cell = [0i64; 3];
     let mut step = [0i64; 3];
     let mut t_max = [f64::INFINITY; 3];

@@ -53,7 +53,10 @@ pub struct Layer {
 impl Layer {
     /// An empty layer.
     pub fn new(params: GridParams) -> Self {
-        Layer { params, blocks: BlockMap::default() }
+        Layer {
+            params,
+            blocks: BlockMap::default(),
+        }
     }
 
     /// Voxel size and truncation.
@@ -130,7 +133,10 @@ impl Layer {
     /// Checks blocks back in like [`Layer::put_blocks`], but drops blocks with no voxel in Ω
     /// (allocated for a band whose voxels all fell outside the image, say). Returns the indices
     /// kept, in the order given.
-    pub fn put_blocks_observed(&mut self, blocks: Vec<(BlockIndex, Box<Block>)>) -> Vec<BlockIndex> {
+    pub fn put_blocks_observed(
+        &mut self,
+        blocks: Vec<(BlockIndex, Box<Block>)>,
+    ) -> Vec<BlockIndex> {
         let mut kept = Vec::with_capacity(blocks.len());
         for (i, b) in blocks {
             if b.weight_omega.iter().any(|&w| w & super::OMEGA_BIT != 0) {
@@ -197,13 +203,21 @@ mod tests {
 
     #[test]
     fn take_and_put_round_trip() {
-        let mut layer = Layer::new(GridParams { voxel_size_m: 0.1, truncation_m: 1.0 });
-        layer.get_or_allocate(BlockIndex([1, 2, 3])).fuse(5, 0.25, None);
+        let mut layer = Layer::new(GridParams {
+            voxel_size_m: 0.1,
+            truncation_m: 1.0,
+        });
+        layer
+            .get_or_allocate(BlockIndex([1, 2, 3]))
+            .fuse(5, 0.25, None);
         let taken = layer.take_blocks(&[BlockIndex([1, 2, 3]), BlockIndex([0, 0, 0])]);
         assert_eq!(layer.block_count(), 0);
         assert!(taken[0].1.omega(5));
         layer.put_blocks(taken);
-        assert_eq!(layer.indices_sorted(), vec![BlockIndex([0, 0, 0]), BlockIndex([1, 2, 3])]);
+        assert_eq!(
+            layer.indices_sorted(),
+            vec![BlockIndex([0, 0, 0]), BlockIndex([1, 2, 3])]
+        );
         assert_eq!(layer.observed_voxel_count(), 1);
     }
 }

@@ -1,4 +1,10 @@
-//! Surface extraction: marching cubes over the raw (`f`) or regularised (`u`) field.
+//! Surface extraction: marching cubes over the raw (`f`) or regularised (`u`) field, and the
+//! mesh and point types that exporters write.
+
+mod marching_cubes;
+pub mod tables;
+
+pub use marching_cubes::{extract_mesh, Field};
 
 /// An indexed triangle mesh with per-vertex colour, world coordinates in metres.
 /// Triangles wind counter-clockwise seen from the free-space (positive TSDF) side.
@@ -25,5 +31,19 @@ impl Mesh {
                 0.5 * (p(t[1]) - p(t[0])).cross(&(p(t[2]) - p(t[0]))).norm()
             })
             .sum()
+    }
+}
+
+impl Mesh {
+    /// The vertices as a point cloud (the "surface points" the paper evaluates).
+    pub fn to_point_cloud(&self) -> crate::frame::PointCloud {
+        crate::frame::PointCloud {
+            points_m: self
+                .positions_m
+                .iter()
+                .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+                .collect(),
+            colors: Some(self.colors.clone()),
+        }
     }
 }

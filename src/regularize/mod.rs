@@ -47,7 +47,13 @@ impl TvParams {
     /// The paper's parameters for a voxel size: λ = 0.4 for 20 cm voxels, 0.8 otherwise.
     pub fn paper(voxel_size_m: f32) -> Self {
         let lambda = if voxel_size_m >= 0.15 { 0.4 } else { 0.8 };
-        TvParams { lambda, sigma: 0.5, tau: 1.0 / 6.0, theta: 1.0, iterations: 100 }
+        TvParams {
+            lambda,
+            sigma: 0.5,
+            tau: 1.0 / 6.0,
+            theta: 1.0,
+            iterations: 100,
+        }
     }
 
     /// Checks the step sizes satisfy the convergence condition `σ τ ‖∇‖² ≤ 1` with `‖∇‖² ≤ 12`.
@@ -101,7 +107,11 @@ impl TvProblem {
     /// Gathers `blocks` (any order; sorted internally) from `layer`. Blocks not allocated are
     /// skipped. Voxels in blocks outside the set count as outside Ω.
     pub fn gather(layer: &Layer, blocks: &[BlockIndex]) -> Self {
-        let mut list: Vec<BlockIndex> = blocks.iter().copied().filter(|b| layer.contains(b)).collect();
+        let mut list: Vec<BlockIndex> = blocks
+            .iter()
+            .copied()
+            .filter(|b| layer.contains(b))
+            .collect();
         list.sort_unstable();
         list.dedup();
         let n = list.len() * VOXELS_PER_BLOCK;
@@ -125,10 +135,22 @@ impl TvProblem {
     }
 
     /// Builds a problem from flat arrays over `blocks` (sorted, unique): `f`, `w` and Ω per voxel.
-    pub fn from_arrays(blocks: Vec<BlockIndex>, f: Vec<f32>, w: Vec<f32>, omega: Vec<bool>) -> Self {
+    pub fn from_arrays(
+        blocks: Vec<BlockIndex>,
+        f: Vec<f32>,
+        w: Vec<f32>,
+        omega: Vec<bool>,
+    ) -> Self {
         let n = blocks.len() * VOXELS_PER_BLOCK;
-        assert!(f.len() == n && w.len() == n && omega.len() == n, "array sizes must be blocks × 512");
-        let slot: HashMap<BlockIndex, u32> = blocks.iter().enumerate().map(|(k, b)| (*b, k as u32)).collect();
+        assert!(
+            f.len() == n && w.len() == n && omega.len() == n,
+            "array sizes must be blocks × 512"
+        );
+        let slot: HashMap<BlockIndex, u32> = blocks
+            .iter()
+            .enumerate()
+            .map(|(k, b)| (*b, k as u32))
+            .collect();
         let neighbors: Vec<[u32; 6]> = blocks
             .iter()
             .map(|b| {
@@ -199,7 +221,8 @@ impl TvProblem {
             Some(g + STRIDE[d])
         } else {
             let nb = self.neighbors[b][2 * d];
-            (nb != NONE).then(|| nb as usize * VOXELS_PER_BLOCK + i - (VOXELS_PER_SIDE - 1) * STRIDE[d])
+            (nb != NONE)
+                .then(|| nb as usize * VOXELS_PER_BLOCK + i - (VOXELS_PER_SIDE - 1) * STRIDE[d])
         }
     }
 
@@ -212,7 +235,8 @@ impl TvProblem {
             Some(g - STRIDE[d])
         } else {
             let nb = self.neighbors[b][2 * d + 1];
-            (nb != NONE).then(|| nb as usize * VOXELS_PER_BLOCK + i + (VOXELS_PER_SIDE - 1) * STRIDE[d])
+            (nb != NONE)
+                .then(|| nb as usize * VOXELS_PER_BLOCK + i + (VOXELS_PER_SIDE - 1) * STRIDE[d])
         }
     }
 
@@ -262,19 +286,25 @@ impl TvProblem {
         let (tau, lambda, theta) = (params.tau, params.lambda, params.theta);
         // Dual step: reads ū everywhere, writes p of its own block.
         let mut p = std::mem::take(&mut self.p);
-        p.par_chunks_mut(VOXELS_PER_BLOCK).enumerate().for_each(|(b, pb)| {
-            let base = b * VOXELS_PER_BLOCK;
-            for (i, pv) in pb.iter_mut().enumerate() {
-                let g = base + i;
-                if self.mask[g] & OMEGA == 0 {
-                    continue;
+        p.par_chunks_mut(VOXELS_PER_BLOCK)
+            .enumerate()
+            .for_each(|(b, pb)| {
+                let base = b * VOXELS_PER_BLOCK;
+                for (i, pv) in pb.iter_mut().enumerate() {
+                    let g = base + i;
+                    if self.mask[g] & OMEGA == 0 {
+                        continue;
+                    }
+                    let grad = self.gradient_at(&self.ubar, g);
+                    let q = [
+                        pv[0] + sigma * grad[0],
+                        pv[1] + sigma * grad[1],
+                        pv[2] + sigma * grad[2],
+                    ];
+                    let scale = 1.0 / (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt().max(1.0);
+                    *pv = [q[0] * scale, q[1] * scale, q[2] * scale];
                 }
-                let grad = self.gradient_at(&self.ubar, g);
-                let q = [pv[0] + sigma * grad[0], pv[1] + sigma * grad[1], pv[2] + sigma * grad[2]];
-                let scale = 1.0 / (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt().max(1.0);
-                *pv = [q[0] * scale, q[1] * scale, q[2] * scale];
-            }
-        });
+            });
         self.p = p;
         // Primal step and relaxation: reads p everywhere, writes u and ū of its own block.
         let mut u = std::mem::take(&mut self.u);
@@ -319,8 +349,12 @@ impl TvProblem {
     /// keep their raw value). Blocks not in the problem or not in `layer` are skipped.
     pub fn scatter(&self, layer: &mut Layer, blocks: &[BlockIndex]) {
         for index in blocks {
-            let Ok(slot) = self.blocks.binary_search(index) else { continue };
-            let Some(block) = layer.get_mut(index) else { continue };
+            let Ok(slot) = self.blocks.binary_search(index) else {
+                continue;
+            };
+            let Some(block) = layer.get_mut(index) else {
+                continue;
+            };
             let base = slot * VOXELS_PER_BLOCK;
             let mut out = Box::new(block.tsdf);
             for (i, o) in out.iter_mut().enumerate() {
@@ -350,7 +384,10 @@ pub struct RegularizeStats {
 
 /// Regularises every block of `layer` in one global solve and stores `u` in each block's
 /// `regularized` field. Returns the touched blocks (sorted) and counters.
-pub fn regularize_layer(layer: &mut Layer, params: &TvParams) -> crate::Result<(TouchedBlocks, RegularizeStats)> {
+pub fn regularize_layer(
+    layer: &mut Layer,
+    params: &TvParams,
+) -> crate::Result<(TouchedBlocks, RegularizeStats)> {
     params.validate()?;
     let blocks = layer.indices_sorted();
     let mut problem = TvProblem::gather(layer, &blocks);

@@ -33,7 +33,9 @@ fn random_problem(rng: &mut Rng, omega_fraction: f64) -> TvProblem {
     let blocks = block_set();
     let n = blocks.len() * VOXELS_PER_BLOCK;
     let f: Vec<f32> = (0..n).map(|_| (rng.next() * 2.0 - 1.0) as f32).collect();
-    let w: Vec<f32> = (0..n).map(|_| (1.0 + 4.0 * rng.next()).floor() as f32).collect();
+    let w: Vec<f32> = (0..n)
+        .map(|_| (1.0 + 4.0 * rng.next()).floor() as f32)
+        .collect();
     let omega: Vec<bool> = (0..n).map(|_| rng.next() < omega_fraction).collect();
     TvProblem::from_arrays(blocks, f, w, omega)
 }
@@ -45,8 +47,9 @@ fn divergence_is_minus_gradient_adjoint() {
         let problem = random_problem(&mut rng, frac);
         let n = problem.u.len();
         let u: Vec<f32> = (0..n).map(|_| (rng.next() * 2.0 - 1.0) as f32).collect();
-        let p: Vec<[f32; 3]> =
-            (0..n).map(|_| [0, 1, 2].map(|_| (rng.next() * 2.0 - 1.0) as f32)).collect();
+        let p: Vec<[f32; 3]> = (0..n)
+            .map(|_| [0, 1, 2].map(|_| (rng.next() * 2.0 - 1.0) as f32))
+            .collect();
         let mut lhs = 0.0f64; // ⟨∇u, p⟩
         let mut rhs = 0.0f64; // −⟨u, div p⟩
         let mut cross_border_links = 0;
@@ -61,8 +64,14 @@ fn divergence_is_minus_gradient_adjoint() {
                 cross_border_links += 1;
             }
         }
-        assert!(cross_border_links > 0, "the test must exercise links across block borders");
-        assert!((lhs - rhs).abs() <= 1e-9 * (1.0 + lhs.abs()) + 1e-4, "⟨∇u,p⟩ = {lhs}, −⟨u,div p⟩ = {rhs}");
+        assert!(
+            cross_border_links > 0,
+            "the test must exercise links across block borders"
+        );
+        assert!(
+            (lhs - rhs).abs() <= 1e-9 * (1.0 + lhs.abs()) + 1e-4,
+            "⟨∇u,p⟩ = {lhs}, −⟨u,div p⟩ = {rhs}"
+        );
         assert!(lhs.abs() > 1.0, "non-trivial inner product");
     }
 }
@@ -80,9 +89,16 @@ fn gradient_is_zero_across_omega_boundary() {
     assert_eq!(p.gradient_at(&f, g7)[0], 0.0, "link into a voxel outside Ω");
     let g7y = linear_index(7, 1, 0);
     let expected = f[VOXELS_PER_BLOCK + linear_index(0, 1, 0)] - f[g7y];
-    assert_eq!(p.gradient_at(&f, g7y)[0], expected, "link across the block border");
+    assert_eq!(
+        p.gradient_at(&f, g7y)[0],
+        expected,
+        "link across the block border"
+    );
     // The last voxel of the second block has no +x neighbour block: gradient 0 (Neumann).
-    assert_eq!(p.gradient_at(&f, VOXELS_PER_BLOCK + linear_index(7, 3, 3))[0], 0.0);
+    assert_eq!(
+        p.gradient_at(&f, VOXELS_PER_BLOCK + linear_index(7, 3, 3))[0],
+        0.0
+    );
 }
 
 /// A noisy sphere TSDF on a dense 16³ grid (2×2×2 blocks), fully observed.
@@ -104,7 +120,11 @@ fn noisy_sphere(rng: &mut Rng) -> (Vec<BlockIndex>, Vec<f32>, Vec<f32>, Vec<f32>
         for i in 0..VOXELS_PER_BLOCK {
             let [x, y, z] = crate::grid::local_coords(i);
             let VoxelIndex(v) = b.voxel(x, y, z);
-            let c = [v[0] as f64 + 0.5 - 8.0, v[1] as f64 + 0.5 - 8.0, v[2] as f64 + 0.5 - 8.0];
+            let c = [
+                v[0] as f64 + 0.5 - 8.0,
+                v[1] as f64 + 0.5 - 8.0,
+                v[2] as f64 + 0.5 - 8.0,
+            ];
             let sdf = ((c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt() - 5.0) / 4.0;
             let g = k * VOXELS_PER_BLOCK + i;
             clean[g] = sdf.clamp(-1.0, 1.0) as f32;
@@ -132,7 +152,10 @@ fn energy_falls() {
         assert!(e < last, "energy rose from {last} to {e}");
         last = e;
     }
-    assert!(last < 0.8 * e0, "energy {e0} → {last}: expected a clear decrease");
+    assert!(
+        last < 0.8 * e0,
+        "energy {e0} → {last}: expected a clear decrease"
+    );
 
     // The paper's printed primal sign (u − τ div p) ascends instead: check it, so the test can fail.
     let mut rng = Rng(11);
@@ -151,12 +174,16 @@ fn energy_falls() {
         for g in 0..n {
             let tlw = params.tau * params.lambda * wrong.w[g];
             let old = wrong.u[g];
-            let new = (old - params.tau * wrong.divergence_at(&wrong.p, g) + tlw * wrong.f[g]) / (1.0 + tlw);
+            let new = (old - params.tau * wrong.divergence_at(&wrong.p, g) + tlw * wrong.f[g])
+                / (1.0 + tlw);
             wrong.u[g] = new;
             wrong.ubar[g] = 2.0 * new - old;
         }
     }
-    assert!(wrong.energy(params.lambda) > e_start, "the flipped sign should not descend");
+    assert!(
+        wrong.energy(params.lambda) > e_start,
+        "the flipped sign should not descend"
+    );
 }
 
 /// An independent weighted-ROF solver on a dense grid: projected gradient on the dual
@@ -244,18 +271,26 @@ fn matches_independent_rof_solver_on_dense_grid() {
             to_dense[k * VOXELS_PER_BLOCK + i] = d;
         }
     }
-    let params = TvParams { iterations: 3000, ..TvParams::paper(0.1) };
+    let params = TvParams {
+        iterations: 3000,
+        ..TvParams::paper(0.1)
+    };
     let reference = dense_rof(&f_dense, &w_dense, params.lambda as f64, side, 20000);
     let mut problem = TvProblem::from_arrays(blocks, f.clone(), w, vec![true; n]);
     problem.solve(&params);
-    let max_diff = (0..n).map(|g| (problem.u[g] as f64 - reference[to_dense[g]]).abs()).fold(0.0, f64::max);
+    let max_diff = (0..n)
+        .map(|g| (problem.u[g] as f64 - reference[to_dense[g]]).abs())
+        .fold(0.0, f64::max);
     // Both solvers are run close to convergence (the gap is 2.4e-3 at 1500 / 6000 iterations).
     assert!(max_diff < 2e-3, "max |u − u_ref| = {max_diff}");
 }
 
 #[test]
 fn outside_omega_is_untouched_and_scatter_round_trips() {
-    let grid = crate::grid::GridParams { voxel_size_m: 0.1, truncation_m: 1.0 };
+    let grid = crate::grid::GridParams {
+        voxel_size_m: 0.1,
+        truncation_m: 1.0,
+    };
     let mut layer = Layer::new(grid);
     let mut rng = Rng(5);
     for b in block_set() {
@@ -266,7 +301,10 @@ fn outside_omega_is_untouched_and_scatter_round_trips() {
             }
         }
     }
-    let params = TvParams { iterations: 20, ..TvParams::paper(0.1) };
+    let params = TvParams {
+        iterations: 20,
+        ..TvParams::paper(0.1)
+    };
     let (touched, stats) = regularize_layer(&mut layer, &params).expect("valid parameters");
     assert_eq!(touched, block_set());
     assert!(stats.energy_after < stats.energy_before);

@@ -6,11 +6,204 @@ use std::path::PathBuf;
 /// `../shared/data/<sub>` relative to the project root, or `None` (with a message saying the test
 /// is skipped) when that folder is absent, as on a fresh clone.
 pub fn shared_data(sub: &str) -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data").join(sub);
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data")
+        .join(sub);
     if p.exists() {
         Some(p)
     } else {
-        eprintln!("skipped: {} is absent (real data lives in ../shared/data)", p.display());
+        eprintln!(
+            "skipped: {} is absent (real data lives in ../shared/data)",
+            p.display()
+        );
         None
     }
+}
+
+use denser::camera::PinholeIntrinsics;
+use denser::frame::{DepthFrame, Image, LidarScan};
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+
+/// SplitMix64 with uniform and Gaussian draws: a deterministic generator for tests.
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in [0, 1).
+    pub fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    /// Standard normal (Box–Muller).
+    pub fn gaussian(&mut self) -> f64 {
+        let u1 = self.uniform().max(1e-300);
+        let u2 = self.uniform();
+        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+    }
+}
+
+/// A camera pose at `eye` looking at `target`, y-down world (x right, y down, z forward).
+pub fn look_at(eye: [f64; 3], target: [f64; 3]) -> Isometry3<f64> {
+    let eye = Vector3::from(eye);
+    let z = (Vector3::from(target) - eye).normalize();
+    let x = Vector3::new(0.0, 1.0, 0.0).cross(&z).normalize();
+    let y = z.cross(&x);
+    let r = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
+    Isometry3::from_parts(
+        Translation3::from(eye),
+        UnitQuaternion::from_rotation_matrix(&r),
+    )
+}
+
+/// The analytic test scene: a sphere above a floor (y-down world: the floor is the plane y = floor_y,
+/// free space at y < floor_y).
+#[derive(Clone, Copy, Debug)]
+pub struct SphereScene {
+    pub center: [f64; 3],
+    pub radius: f64,
+    pub floor_y: f64,
+}
+
+impl SphereScene {
+    pub fn standard() -> Self {
+        SphereScene {
+            center: [0.0, 0.0, 0.0],
+            radius: 1.0,
+            floor_y: 1.0,
+        }
+    }
+
+    /// Exact signed distance, positive in free space.
+    pub fn sdf(&self, p: [f64; 3]) -> f64 {
+        let d = Vector3::from(p) - Vector3::from(self.center);
+        (d.norm() - self.radius).min(self.floor_y - p[1])
+    }
+
+    /// Nearest hit along `origin + t·dir` (t > 0), in units of `dir`.
+    pub fn cast(&self, origin: Vector3<f64>, dir: Vector3<f64>) -> Option<f64> {
+        let mut best = f64::INFINITY;
+        let oc = origin - Vector3::from(self.center);
+        let (a, b, c) = (
+            dir.dot(&dir),
+            2.0 * oc.dot(&dir),
+            oc.dot(&oc) - self.radius * self.radius,
+        );
+        let disc = b * b - 4.0 * a * c;
+        if disc >= 0.0 {
+            let t = (-b - disc.sqrt()) / (2.0 * a);
+            if t > 1e-9 {
+                best = t;
+            }
+        }
+        if dir[1] > 1e-12 {
+            let t = (self.floor_y - origin[1]) / dir[1];
+            if t > 1e-9 && t < best {
+                best = t;
+            }
+        }
+        best.is_finite().then_some(best)
+    }
+
+    /// A depth frame seen from `world_from_camera`; Gaussian depth noise of `noise_m` (0 for none).
+    /// Pixels farther than `max_depth_m` are NaN. Colour encodes the hit position.
+    pub fn render(
+        &self,
+        k: &PinholeIntrinsics,
+        world_from_camera: Isometry3<f64>,
+        noise_m: f64,
+        max_depth_m: f64,
+        rng: &mut Rng,
+    ) -> DepthFrame {
+        let mut depth = Image::filled(k.width, k.height, f32::NAN);
+        let mut color = Image::filled(k.width, k.height, [0u8; 3]);
+        let origin = world_from_camera.translation.vector;
+        for v in 0..k.height {
+            for u in 0..k.width {
+                let dir = world_from_camera.rotation * k.ray(u as f64, v as f64);
+                if let Some(t) = self.cast(origin, dir) {
+                    if t <= max_depth_m {
+                        *depth.at_mut(u, v) = (t + noise_m * rng.gaussian()) as f32;
+                        let p = origin + dir * t;
+                        *color.at_mut(u, v) = if p[1] > self.floor_y - 1e-6 {
+                            [90, 90, 90]
+                        } else {
+                            [200, 40, 40]
+                        };
+                    }
+                }
+            }
+        }
+        DepthFrame {
+            intrinsics: *k,
+            world_from_camera,
+            depth_m: depth,
+            color: Some(color),
+        }
+    }
+
+    /// A LiDAR sweep from a sensor at `origin` (axes aligned with the world): `rings` elevations
+    /// in [−30°, +10°] (negative looks down, towards +y) × `steps` azimuths.
+    pub fn lidar(
+        &self,
+        origin: [f64; 3],
+        rings: usize,
+        steps: usize,
+        noise_m: f64,
+        rng: &mut Rng,
+    ) -> LidarScan {
+        let mut scan = LidarScan {
+            world_from_sensor: Isometry3::translation(origin[0], origin[1], origin[2]),
+            ..Default::default()
+        };
+        for r in 0..rings {
+            let elev = (-30.0 + 40.0 * r as f64 / (rings - 1) as f64).to_radians();
+            for s in 0..steps {
+                let az = 2.0 * std::f64::consts::PI * s as f64 / steps as f64;
+                let dir = Vector3::new(elev.cos() * az.cos(), -elev.sin(), elev.cos() * az.sin());
+                if let Some(t) = self.cast(Vector3::from(origin), dir) {
+                    let t = t + noise_m * rng.gaussian();
+                    let p = dir * t;
+                    scan.points_sensor_m
+                        .push([p[0] as f32, p[1] as f32, p[2] as f32]);
+                    scan.intensity.push(0.5);
+                }
+            }
+        }
+        scan
+    }
+}
+
+/// Intrinsics of a 640×480 RGB-D-like camera (fx = fy = 525).
+pub fn vga() -> PinholeIntrinsics {
+    PinholeIntrinsics {
+        fx: 525.0,
+        fy: 525.0,
+        cx: 319.5,
+        cy: 239.5,
+        width: 640,
+        height: 480,
+    }
+}
+
+/// `n` camera poses on a circle of radius `r` around the scene centre, at height `y` (y-down).
+pub fn orbit(n: usize, r: f64, y: f64, target: [f64; 3]) -> Vec<Isometry3<f64>> {
+    (0..n)
+        .map(|k| {
+            let a = 2.0 * std::f64::consts::PI * k as f64 / n as f64;
+            look_at(
+                [target[0] + r * a.cos(), y, target[2] + r * a.sin()],
+                target,
+            )
+        })
+        .collect()
+}
+
+#[allow(unused)]
+pub fn point(p: [f32; 3]) -> Point3<f64> {
+    Point3::new(p[0] as f64, p[1] as f64, p[2] as f64)
 }
