@@ -4,7 +4,7 @@ use super::traverse::traverse_cells;
 use super::FusionStats;
 use crate::frame::DepthFrame;
 use crate::grid::{
-    BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
+    round_i64, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
 };
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
@@ -55,21 +55,35 @@ pub fn depth_frame_blocks(
             .par_chunks(w)
             .enumerate()
             .fold(HashSet::default, |mut set, (v, row)| {
-                for (u, &d) in row.iter().enumerate() {
-                    if !usable(d, params) {
-                        continue;
-                    }
-                    // The ray through the pixel, scaled so that t is the depth (z) along it.
-                    let dir = pose.rotation * k.ray(u as f64, v as f64);
-                    let (t0, t1) = ((d as f64 - mu).max(0.0), d as f64 + mu);
-                    traverse_cells(origin.into(), dir.into(), t0, t1, block, |c| {
-                        set.insert(BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]));
-                        true
-                    });
+            // Neighbouring pixels cross the same blocks: only blocks the previous ray did not
+            // report reach the hash set.
+            let mut previous: Vec<BlockIndex> = Vec::with_capacity(16);
+            let mut current: Vec<BlockIndex> = Vec::with_capacity(16);
+            // World ray directions are affine in u: dir(u) = dir(0) + u·step (z = 1 in the camera).
+            let dir0 = pose.rotation * k.ray(0.0, v as f64);
+            let step = pose.rotation * nalgebra::Vector3::new(1.0 / k.fx, 0.0, 0.0);
+            for (u, &d) in row.iter().enumerate() {
+                if !usable(d, params) {
+                    continue;
                 }
-                set
-            })
-            .collect();
+                // The ray through the pixel, scaled so that t is the depth (z) along it.
+                let dir = dir0 + step * u as f64;
+                let (t0, t1) = ((d as f64 - mu).max(0.0), d as f64 + mu);
+                current.clear();
+                traverse_cells(origin.into(), dir.into(), t0, t1, block, |c| {
+                    current.push(BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]));
+                    true
+                });
+                for b in &current {
+                    if !previous.contains(b) {
+                        set.insert(*b);
+                    }
+                }
+                std::mem::swap(&mut previous, &mut current);
+            }
+            set
+        })
+        .collect();
     let mut all: Vec<BlockIndex> = sets.into_iter().flatten().collect();
     all.par_sort_unstable();
     all.dedup();
@@ -162,8 +176,9 @@ pub fn integrate_depth(
                         if p.z <= 0.0 {
                             continue;
                         }
-                        let u = (fx * p.x / p.z + cx).round() as i64;
-                        let v = (fy * p.y / p.z + cy).round() as i64;
+                        let inv_z = 1.0 / p.z;
+                        let u = round_i64((fx * p.x * inv_z + cx) as f64);
+                        let v = round_i64((fy * p.y * inv_z + cy) as f64);
                         if u < 0 || v < 0 || u >= wid || v >= hei {
                             continue;
                         }

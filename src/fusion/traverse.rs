@@ -1,5 +1,7 @@
 //! Exact traversal of the cells of a regular grid along a ray segment (Amanatides & Woo 1987).
 
+use crate::grid::floor_i64;
+
 /// Visits, in order along the ray `origin + t·dir`, every cell of a grid of edge `cell_size`
 /// (cell `c` covers `[c·s, (c+1)·s)`) that the segment `t ∈ [t0, t1]` passes through. `visit`
 /// receives the cell and returns `false` to stop early. `dir` need not be normalised; `t` is in
@@ -25,18 +27,22 @@ pub fn traverse_cells(
     let mut t_max = [f64::INFINITY; 3];
     let mut t_delta = [f64::INFINITY; 3];
     let mut last = [0i64; 3];
+    let inv_cell = 1.0 / cell_size;
     for a in 0..3 {
-        cell[a] = (start[a] / cell_size).floor() as i64;
+        cell[a] = floor_i64(start[a] * inv_cell);
         let end = origin[a] + t1 * dir[a];
-        last[a] = (end / cell_size).floor() as i64;
-        if dir[a] > 0.0 {
-            step[a] = 1;
-            t_max[a] = t0 + (((cell[a] + 1) as f64) * cell_size - start[a]) / dir[a];
-            t_delta[a] = cell_size / dir[a];
-        } else if dir[a] < 0.0 {
-            step[a] = -1;
-            t_max[a] = t0 + ((cell[a] as f64) * cell_size - start[a]) / dir[a];
-            t_delta[a] = -cell_size / dir[a];
+        last[a] = floor_i64(end * inv_cell);
+        if dir[a] != 0.0 {
+            let inv_dir = 1.0 / dir[a];
+            if dir[a] > 0.0 {
+                step[a] = 1;
+                t_max[a] = t0 + (((cell[a] + 1) as f64) * cell_size - start[a]) * inv_dir;
+                t_delta[a] = cell_size * inv_dir;
+            } else {
+                step[a] = -1;
+                t_max[a] = t0 + ((cell[a] as f64) * cell_size - start[a]) * inv_dir;
+                t_delta[a] = -cell_size * inv_dir;
+            }
         }
     }
     // Bound the walk by the number of cell boundaries between the two end cells.

@@ -69,6 +69,20 @@ impl BlockIndex {
     }
 }
 
+/// `⌊x⌋` as an integer, inline (baseline x86-64 has no SSE4.1 `roundsd`, so `f64::floor` becomes a
+/// library call). Exact for |x| < 2⁶³.
+#[inline(always)]
+pub fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    i - ((i as f64 > x) as i64)
+}
+
+/// Nearest integer to `x` (halves round up), inline.
+#[inline(always)]
+pub fn round_i64(x: f64) -> i64 {
+    floor_i64(x + 0.5)
+}
+
 /// Linear index of local voxel (x, y, z) in a block: x fastest, then y, then z.
 #[inline]
 pub const fn linear_index(x: usize, y: usize, z: usize) -> usize {
@@ -198,6 +212,14 @@ mod tests {
             }
             let (b, _) = BlockIndex::of_voxel(v);
             prop_assert_eq!(b, g.block_of_point(c));
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn fast_floor_matches_std(x in -1e12f64..1e12) {
+            prop_assert_eq!(floor_i64(x), x.floor() as i64);
+            prop_assert_eq!(floor_i64(x.floor()), x.floor() as i64);
         }
     }
 

@@ -1,0 +1,85 @@
+#!/usr/bin/env python3
+"""Side-by-side peer benchmark: Open3D's VoxelBlockGrid integrating the same RGB-D frames that
+`denser bench` fuses (../shared/data/rgbd_5frames_slambook2), at equal voxel size and truncation
+(mu = 8 voxels, Open3D's default trunc_voxel_multiplier). Never a dependency of denser.
+
+Setup:  pip install open3d==0.20.0 numpy   (and Debian libusb-1.0-0 for `import open3d`)
+Usage:  python3 tools/bench_open3d.py [DATA_DIR] [--passes N]
+Prints one JSON line per voxel size: median ms per 640x480 frame (block enumeration + integration).
+"""
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+import open3d.core as o3c
+
+
+def read_pgm16(path: Path) -> np.ndarray:
+    data = path.read_bytes()
+    parts, pos = [], 0
+    while len(parts) < 4:  # magic, width, height, maxval (comments skipped)
+        while data[pos:pos + 1].isspace():
+            pos += 1
+        if data[pos:pos + 1] == b"#":
+            pos = data.index(b"\n", pos) + 1
+            continue
+        end = pos
+        while not data[end:end + 1].isspace():
+            end += 1
+        parts.append(data[pos:end])
+        pos = end
+    pos += 1
+    w, h, maxval = int(parts[1]), int(parts[2]), int(parts[3])
+    dtype = ">u2" if maxval > 255 else "u1"
+    return np.frombuffer(data, dtype=dtype, count=w * h, offset=pos).reshape(h, w).astype(np.uint16)
+
+
+def quat_to_matrix(tx, ty, tz, qx, qy, qz, qw):
+    n = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    qx, qy, qz, qw = qx / n, qy / n, qz / n, qw / n
+    r = np.array([
+        [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+        [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+        [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+    ])
+    m = np.eye(4)
+    m[:3, :3], m[:3, 3] = r, [tx, ty, tz]
+    return m
+
+
+def main():
+    args = [a for a in sys.argv[1:] if not a.startswith("--")]
+    passes = int(sys.argv[sys.argv.index("--passes") + 1]) if "--passes" in sys.argv else 10
+    root = Path(args[0]) if args else Path(__file__).resolve().parents[1] / "../shared/data/rgbd_5frames_slambook2"
+    poses = [quat_to_matrix(*map(float, l.split())) for l in (root / "pose.txt").read_text().split("\n") if l.strip()]
+    intr = o3c.Tensor([[518.0, 0, 325.5], [0, 519.0, 253.5], [0, 0, 1]], dtype=o3c.Dtype.Float64)
+    frames = []
+    for i, pose in enumerate(poses, start=1):
+        depth = o3d.t.geometry.Image(o3c.Tensor(read_pgm16(root / f"depth/{i}.pgm")))
+        color = o3d.t.io.read_image(str(root / f"color/{i}.png")).to(o3c.Dtype.Float32)
+        extr = o3c.Tensor(np.linalg.inv(pose), dtype=o3c.Dtype.Float64)
+        frames.append((depth, color, extr))
+    for voxel in (0.10, 0.05):
+        vbg = o3d.t.geometry.VoxelBlockGrid(
+            attr_names=("tsdf", "weight", "color"),
+            attr_dtypes=(o3c.float32, o3c.float32, o3c.float32),
+            attr_channels=((1), (1), (3)),
+            voxel_size=voxel, block_resolution=8, block_count=100000, device=o3c.Device("CPU:0"))
+        times = []
+        for p in range(passes):
+            for depth, color, extr in frames:
+                t = time.perf_counter()
+                coords = vbg.compute_unique_block_coordinates(depth, intr, extr, 1000.0, 10.0, 8.0)
+                vbg.integrate(coords, depth, color, intr, intr, extr, 1000.0, 10.0, 8.0)
+                times.append(time.perf_counter() - t)
+        times.sort()
+        print(json.dumps({"peer": "open3d " + o3d.__version__, "voxel_size_m": voxel, "truncation_m": 8 * voxel,
+                          "frames": len(times), "median_ms_per_frame": 1e3 * times[len(times) // 2],
+                          "blocks": int(vbg.hashmap().size())}))
+
+
+if __name__ == "__main__":
+    main()
