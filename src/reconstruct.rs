@@ -3,7 +3,9 @@
 //! it frames from readers, stereo or the synthetic city, and evaluate what it returns.
 
 use crate::frame::{DepthFrame, LidarScan};
-use crate::fusion::{integrate_depth, integrate_lidar, DepthFusionParams, FusionStats, LidarFusionParams};
+use crate::fusion::{
+    integrate_depth, integrate_lidar, DepthFusionParams, FusionStats, LidarFusionParams,
+};
 use crate::grid::{GridParams, Layer, TouchedBlocks};
 use crate::mesh::{extract_mesh, Field, Mesh};
 use crate::regularize::{regularize_layer, RegularizeStats, TvParams};
@@ -84,7 +86,11 @@ impl Reconstructor {
     pub fn new(config: ReconstructionConfig) -> crate::Result<Self> {
         config.grid.validate()?;
         config.tv.validate()?;
-        Ok(Reconstructor { layer: Layer::new(config.grid), config, timings: StageTimings::default() })
+        Ok(Reconstructor {
+            layer: Layer::new(config.grid),
+            config,
+            timings: StageTimings::default(),
+        })
     }
 
     /// The configuration.

@@ -7,6 +7,7 @@ Setup:  pip install open3d==0.20.0 numpy   (and Debian libusb-1.0-0 for `import 
 Usage:  python3 tools/bench_open3d.py [DATA_DIR] [--passes N]
 Prints one JSON line per voxel size: median ms per 640x480 frame (block enumeration + integration).
 """
+import argparse
 import json
 import sys
 import time
@@ -51,15 +52,18 @@ def quat_to_matrix(tx, ty, tz, qx, qy, qz, qw):
 
 
 def main():
-    args = [a for a in sys.argv[1:] if not a.startswith("--")]
-    passes = int(sys.argv[sys.argv.index("--passes") + 1]) if "--passes" in sys.argv else 10
-    root = Path(args[0]) if args else Path(__file__).resolve().parents[1] / "../shared/data/rgbd_5frames_slambook2"
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("data", nargs="?", type=Path,
+                        default=Path(__file__).resolve().parents[1] / "../shared/data/rgbd_5frames_slambook2")
+    parser.add_argument("--passes", type=int, default=10)
+    args = parser.parse_args()
+    root, passes = args.data, args.passes
     poses = [quat_to_matrix(*map(float, l.split())) for l in (root / "pose.txt").read_text().split("\n") if l.strip()]
     intr = o3c.Tensor([[518.0, 0, 325.5], [0, 519.0, 253.5], [0, 0, 1]], dtype=o3c.Dtype.Float64)
     frames = []
     for i, pose in enumerate(poses, start=1):
         depth = o3d.t.geometry.Image(o3c.Tensor(read_pgm16(root / f"depth/{i}.pgm")))
-        color = o3d.t.io.read_image(str(root / f"color/{i}.png")).to(o3c.Dtype.Float32)
+        color = o3d.t.io.read_image(str(root / f"color/{i}.png"))  # uint8 with uint16 depth
         extr = o3c.Tensor(np.linalg.inv(pose), dtype=o3c.Dtype.Float64)
         frames.append((depth, color, extr))
     for voxel in (0.10, 0.05):

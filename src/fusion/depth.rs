@@ -48,17 +48,16 @@ pub fn depth_frame_blocks(
     let pose = frame.world_from_camera;
     let origin = pose.translation.vector;
     let block = grid.block_size_m();
-    let sets: Vec<HashSet<BlockIndex, std::hash::BuildHasherDefault<crate::grid::BlockHasher>>> =
-        frame
-            .depth_m
-            .data
-            .par_chunks(w)
-            .enumerate()
-            .fold(HashSet::default, |mut set, (v, row)| {
+    let sets: Vec<HashSet<u64, std::hash::BuildHasherDefault<crate::grid::BlockHasher>>> = frame
+        .depth_m
+        .data
+        .par_chunks(w)
+        .enumerate()
+        .fold(HashSet::default, |mut set, (v, row)| {
             // Neighbouring pixels cross the same blocks: only blocks the previous ray did not
             // report reach the hash set.
-            let mut previous: Vec<BlockIndex> = Vec::with_capacity(16);
-            let mut current: Vec<BlockIndex> = Vec::with_capacity(16);
+            let mut previous: Vec<u64> = Vec::with_capacity(16);
+            let mut current: Vec<u64> = Vec::with_capacity(16);
             // World ray directions are affine in u: dir(u) = dir(0) + u·step (z = 1 in the camera).
             let dir0 = pose.rotation * k.ray(0.0, v as f64);
             let step = pose.rotation * nalgebra::Vector3::new(1.0 / k.fx, 0.0, 0.0);
@@ -71,7 +70,7 @@ pub fn depth_frame_blocks(
                 let (t0, t1) = ((d as f64 - mu).max(0.0), d as f64 + mu);
                 current.clear();
                 traverse_cells(origin.into(), dir.into(), t0, t1, block, |c| {
-                    current.push(BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]));
+                    current.push(BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]).pack());
                     true
                 });
                 for b in &current {
@@ -84,7 +83,7 @@ pub fn depth_frame_blocks(
             set
         })
         .collect();
-    let mut all: Vec<BlockIndex> = sets.into_iter().flatten().collect();
+    let mut all: Vec<BlockIndex> = sets.into_iter().flatten().map(BlockIndex::unpack).collect();
     all.par_sort_unstable();
     all.dedup();
     all

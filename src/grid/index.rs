@@ -18,10 +18,7 @@ impl std::hash::Hash for BlockIndex {
     /// neighbourhood of blocks to only 2518 distinct values out of 4096, so it is not used.
     #[inline]
     fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
-        const MASK: u64 = (1 << 21) - 1;
-        let [x, y, z] = self.0;
-        let packed = (x as u64 & MASK) | ((y as u64 & MASK) << 21) | ((z as u64 & MASK) << 42);
-        state.write_u64(packed);
+        state.write_u64(self.pack());
     }
 }
 
@@ -31,6 +28,22 @@ impl std::hash::Hash for BlockIndex {
 pub struct VoxelIndex(pub [i64; 3]);
 
 impl BlockIndex {
+    /// The coordinates packed into 63 bits (21 bits each, two's complement), injective for
+    /// |coordinate| < 2²⁰; see [`BlockIndex::unpack`].
+    #[inline]
+    pub fn pack(&self) -> u64 {
+        const MASK: u64 = (1 << 21) - 1;
+        let [x, y, z] = self.0;
+        (x as u64 & MASK) | ((y as u64 & MASK) << 21) | ((z as u64 & MASK) << 42)
+    }
+
+    /// Inverse of [`BlockIndex::pack`].
+    #[inline]
+    pub fn unpack(key: u64) -> BlockIndex {
+        let field = |shift: u32| (((key >> shift) << 43) as i64 >> 43) as i32;
+        BlockIndex([field(0), field(21), field(42)])
+    }
+
     /// The block holding global voxel `v`, and the voxel's linear index inside that block.
     #[inline]
     pub fn of_voxel(v: VoxelIndex) -> (BlockIndex, usize) {
@@ -220,6 +233,14 @@ mod tests {
         fn fast_floor_matches_std(x in -1e12f64..1e12) {
             prop_assert_eq!(floor_i64(x), x.floor() as i64);
             prop_assert_eq!(floor_i64(x.floor()), x.floor() as i64);
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn pack_round_trips(x in -(1i32 << 20)..(1 << 20), y in -(1i32 << 20)..(1 << 20), z in -(1i32 << 20)..(1 << 20)) {
+            let b = BlockIndex([x, y, z]);
+            prop_assert_eq!(BlockIndex::unpack(b.pack()), b);
         }
     }
 

@@ -17,7 +17,7 @@ mod layer;
 
 pub use block::{decode_tsdf, encode_tsdf, Block, Voxel, MAX_WEIGHT, OMEGA_BIT};
 pub use index::{
-    floor_i64, linear_index, local_coords, round_i64, BlockIndex, GridParams, VoxelIndex, VOXELS_PER_BLOCK,
-    VOXELS_PER_SIDE,
+    floor_i64, linear_index, local_coords, round_i64, BlockIndex, GridParams, VoxelIndex,
+    VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
 };
 pub use layer::{BlockHasher, Layer, TouchedBlocks};
