@@ -1,2 +1,35 @@
-//! Readers and writers for sensor data and results: KITTI odometry, TUM RGB-D and the simple
-//! RGB-D layout, LAS/LAZ, PLY.
+//! Readers and writers for sensor data and results: KITTI odometry ([`kitti`]), TUM RGB-D and
+//! the simple slambook-style RGB-D layout ([`rgbd`]), LAS/LAZ point clouds ([`las`]), PLY meshes
+//! and point clouds ([`ply`]) and image files ([`image`]).
+//!
+//! What it does: turns files into the crate's in-memory types ([`crate::frame`],
+//! [`crate::mesh::Mesh`]) and back, validating as it goes; every error names the file (and the
+//! line, for text formats). Each submodule documents its byte layout.
+//!
+//! What it does not do: resampling, undistortion, interpolation of poses, or any processing of
+//! the data beyond unit conversion and the frame conventions documented per format.
+
+pub mod image;
+pub mod kitti;
+pub mod las;
+pub mod ply;
+pub mod rgbd;
+mod text;
+
+use crate::error::Result;
+use crate::frame::DepthFrame;
+
+/// A random-access sequence of posed depth frames (RGB-D datasets, stereo depth caches).
+pub trait DepthSequence {
+    /// Number of frames.
+    fn len(&self) -> usize;
+
+    /// True when there are no frames.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Loads frame `i` (0-based): depth in metres (NaN invalid), intrinsics, pose, colour.
+    /// Fails for `i >= len()` or when a file cannot be read.
+    fn frame(&self, i: usize) -> Result<DepthFrame>;
+}

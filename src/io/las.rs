@@ -1,0 +1,232 @@
+//! LAS / LAZ point clouds through the `las` crate.
+//!
+//! What it does: reads every point's coordinates (and RGB when the point format has it) into a
+//! [`PointCloud`], reads the declared linear units from the GeoTIFF keys, and writes a
+//! [`PointCloud`] as LAS 1.2 (compressed LAZ when the path ends in `.laz`).
+//!
+//! What it does not do: reproject between coordinate reference systems, keep classification,
+//! intensity, GPS time or other per-point attributes, or stream files larger than memory.
+//!
+//! # Conventions
+//! * Coordinates: LAS stores `i32` integers `X` with a per-axis `scale` and `offset`; the value is
+//!   `X·scale + offset` in the CRS's units. [`read_point_cloud`] returns those values unchanged
+//!   (international feet for `autzen_trim.las`); [`read_point_cloud_metres`] multiplies them by
+//!   the units declared in the GeoTIFF keys (`ProjLinearUnitsGeoKey` 3076 for x/y,
+//!   `VerticalUnitsGeoKey` 4099 for z, falling back to the horizontal unit), metres when none
+//!   is declared.
+//! * Colour: LAS stores 16-bit RGB. Files whose channels never exceed 255 hold 8-bit values in
+//!   the 16-bit fields (a common writer bug) and are taken as is; otherwise the high byte is
+//!   kept (`v >> 8`). The writer stores `v·257` so that 255 maps to 65535 and reading returns
+//!   the original 8-bit values exactly.
+//! * Writing: LAS 1.2, point format 2 (with RGB) when the cloud has colours, else 0;
+//!   `scale` = 0.001 (1 mm steps, so at most 0.5 mm rounding) and `offset` = the bounding-box
+//!   centre rounded to whole metres, so coordinates within ±2 147 km of the centre fit.
+
+use crate::error::{Error, Result};
+use crate::frame::PointCloud;
+use las::{Builder, Color, Point, Reader, Transform, Vector, Version, Writer};
+use std::path::Path;
+
+/// Quantisation step used by [`write_point_cloud`], metres.
+pub const WRITE_SCALE_M: f64 = 0.001;
+
+fn las_err(path: &Path, e: las::Error) -> Error {
+    match e {
+        las::Error::Io(io) => Error::io(path, io),
+        other => Error::bad_input(path, format!("LAS: {other}")),
+    }
+}
+
+fn open(path: &Path) -> Result<Reader> {
+    // Open the file ourselves so that "not found" is an I/O error naming the path.
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    Reader::new(std::io::BufReader::new(file)).map_err(|e| las_err(path, e))
+}
+
+/// Reads all points of a LAS/LAZ file, coordinates in the file's own units (see the module
+/// doc), colours scaled to 8 bits when the point format has RGB. Fails with the file's name
+/// when it is truncated (fewer point records than the header announces) or malformed.
+pub fn read_point_cloud(path: impl AsRef<Path>) -> Result<PointCloud> {
+    let path = path.as_ref();
+    let mut reader = open(path)?;
+    let expected = reader.header().number_of_points();
+    let data = reader.read_all().map_err(|e| las_err(path, e))?;
+    if (data.len() as u64) < expected {
+        return Err(Error::bad_input(
+            path,
+            format!(
+                "truncated LAS: the header announces {expected} points, only {} could be read",
+                data.len()
+            ),
+        ));
+    }
+    let points_m: Vec<[f64; 3]> = data
+        .x()
+        .zip(data.y())
+        .zip(data.z())
+        .map(|((x, y), z)| [x, y, z])
+        .collect();
+    let colors = data.rgb().map(|rgb| {
+        let raw: Vec<(u16, u16, u16)> = rgb.collect();
+        let max = raw
+            .iter()
+            .map(|&(r, g, b)| r.max(g).max(b))
+            .max()
+            .unwrap_or(0);
+        let shift = if max <= 255 { 0 } else { 8 };
+        raw.into_iter()
+            .map(|(r, g, b)| [(r >> shift) as u8, (g >> shift) as u8, (b >> shift) as u8])
+            .collect()
+    });
+    Ok(PointCloud { points_m, colors })
+}
+
+/// The linear units declared by a LAS file's GeoTIFF keys, metres per unit, as
+/// `(horizontal, vertical)`; `None` when the file declares no horizontal unit. The vertical unit
+/// falls back to the horizontal one. Known codes: 9001 metre, 9002 foot (0.3048), 9003 US
+/// survey foot (1200/3937); other codes are an error.
+pub fn linear_units_m(path: impl AsRef<Path>) -> Result<Option<(f64, f64)>> {
+    let path = path.as_ref();
+    let reader = open(path)?;
+    let Some(vlr) = reader
+        .header()
+        .all_vlrs()
+        .find(|v| v.user_id.trim_end_matches('\0') == "LASF_Projection" && v.record_id == 34735)
+    else {
+        return Ok(None);
+    };
+    let words: Vec<u16> = vlr
+        .data
+        .chunks_exact(2)
+        .map(|c| u16::from_le_bytes([c[0], c[1]]))
+        .collect();
+    let key = |id: u16| -> Option<u16> {
+        let n = *words.get(3)? as usize;
+        (0..n).find_map(|k| {
+            let e = words.get(4 + 4 * k..8 + 4 * k)?;
+            // Location 0 means the value is stored inline in the 4th word.
+            (e[0] == id && e[1] == 0).then_some(e[3])
+        })
+    };
+    let unit = |code: u16| -> Result<f64> {
+        match code {
+            9001 => Ok(1.0),
+            9002 => Ok(0.3048),
+            9003 => Ok(1200.0 / 3937.0),
+            other => Err(Error::bad_input(
+                path,
+                format!("unsupported GeoTIFF linear unit code {other}"),
+            )),
+        }
+    };
+    let Some(h) = key(3076) else { return Ok(None) };
+    let h = unit(h)?;
+    let v = match key(4099) {
+        Some(code) => unit(code)?,
+        None => h,
+    };
+    Ok(Some((h, v)))
+}
+
+/// Reads a LAS/LAZ file with coordinates converted to metres using [`linear_units_m`]
+/// (unchanged when the file declares no unit).
+pub fn read_point_cloud_metres(path: impl AsRef<Path>) -> Result<PointCloud> {
+    let path = path.as_ref();
+    let mut cloud = read_point_cloud(path)?;
+    if let Some((h, v)) = linear_units_m(path)? {
+        for p in &mut cloud.points_m {
+            *p = [p[0] * h, p[1] * h, p[2] * v];
+        }
+    }
+    Ok(cloud)
+}
+
+/// Writes `cloud` as LAS 1.2 (LAZ when `path` ends in `.laz`, any case); see the module doc for
+/// scale, offset and point format. Fails on non-finite coordinates, colour count mismatch, or a
+/// cloud wider than the 32-bit integer range at 1 mm (±2 147 km around its centre).
+pub fn write_point_cloud(path: impl AsRef<Path>, cloud: &PointCloud) -> Result<()> {
+    let path = path.as_ref();
+    if let Some(c) = &cloud.colors {
+        if c.len() != cloud.points_m.len() {
+            return Err(Error::InvalidArgument(format!(
+                "{}: {} points but {} colours",
+                path.display(),
+                cloud.points_m.len(),
+                c.len()
+            )));
+        }
+    }
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in &cloud.points_m {
+        for k in 0..3 {
+            if !p[k].is_finite() {
+                return Err(Error::InvalidArgument(format!(
+                    "{}: non-finite coordinate {p:?}",
+                    path.display()
+                )));
+            }
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let mut offset = [0.0; 3];
+    if !cloud.points_m.is_empty() {
+        for k in 0..3 {
+            offset[k] = (0.5 * (lo[k] + hi[k])).round();
+            let reach = (hi[k] - offset[k]).max(offset[k] - lo[k]) / WRITE_SCALE_M;
+            if reach >= i32::MAX as f64 {
+                return Err(Error::InvalidArgument(format!(
+                    "{}: extent {:.0} m along axis {k} does not fit LAS 32-bit integers at {} m",
+                    path.display(),
+                    hi[k] - lo[k],
+                    WRITE_SCALE_M
+                )));
+            }
+        }
+    }
+    let mut builder = Builder::from(Version::new(1, 2));
+    let format = if cloud.colors.is_some() { 2 } else { 0 };
+    builder.point_format = las::point::Format::new(format).map_err(|e| las_err(path, e))?;
+    builder.generating_software = "denser".into();
+    let t = |k: usize| Transform {
+        scale: WRITE_SCALE_M,
+        offset: offset[k],
+    };
+    builder.transforms = Vector {
+        x: t(0),
+        y: t(1),
+        z: t(2),
+    };
+    builder.point_format.is_compressed = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
+    let header = builder.into_header().map_err(|e| las_err(path, e))?;
+    let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    let mut writer =
+        Writer::new(std::io::BufWriter::new(file), header).map_err(|e| las_err(path, e))?;
+    let mut written = Ok(());
+    for (i, p) in cloud.points_m.iter().enumerate() {
+        let color = cloud.colors.as_ref().map(|c| {
+            let [r, g, b] = c[i];
+            Color::new(r as u16 * 257, g as u16 * 257, b as u16 * 257)
+        });
+        let point = Point {
+            x: p[0],
+            y: p[1],
+            z: p[2],
+            color,
+            ..Default::default()
+        };
+        written = writer.write_point(point);
+        if written.is_err() {
+            break;
+        }
+    }
+    let closed = writer.close();
+    if closed.is_err() {
+        // `las::Writer` panics when dropped unclosed; after a failed close, leak it instead.
+        std::mem::forget(writer);
+    }
+    written.and(closed).map_err(|e| las_err(path, e))
+}
