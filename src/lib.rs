@@ -15,6 +15,7 @@ pub mod fusion;
 pub mod grid;
 pub mod io;
 pub mod mesh;
+pub mod pipeline;
 pub mod progress;
 pub mod reconstruct;
 pub mod regularize;

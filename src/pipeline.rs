@@ -1,0 +1,260 @@
+//! End-to-end jobs used by the CLI: read a sequence, fuse, regularise, mesh, write, evaluate.
+//! Everything here is orchestration; the stages live in their own modules.
+
+use crate::frame::PointCloud;
+use crate::io::kitti::KittiSequence;
+use crate::io::rgbd::{SimpleRgbdOptions, SimpleRgbdSequence, TumOptions, TumRgbdSequence};
+use crate::io::DepthSequence;
+use crate::mesh::{Field, Mesh};
+use crate::reconstruct::{ReconstructionConfig, Reconstructor};
+use crate::regularize::RegularizeStats;
+use crate::{Error, Result};
+use std::path::{Path, PathBuf};
+
+/// The layouts `denser reconstruct` understands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InputKind {
+    /// KITTI odometry: a `sequences/NN` folder with `calib.txt`.
+    Kitti,
+    /// TUM RGB-D: `depth.txt`, `rgb.txt`, `groundtruth.txt`.
+    Tum,
+    /// Numbered RGB-D frames: `depth/N.pgm|png`, `color/N.png`, `pose.txt`.
+    SimpleRgbd,
+}
+
+/// Recognises the layout of `dir`.
+pub fn detect_input(dir: &Path) -> Result<InputKind> {
+    if !dir.is_dir() {
+        return Err(Error::bad_input(
+            dir,
+            "not a directory (expected a KITTI sequence or an RGB-D folder)",
+        ));
+    }
+    if dir.join("calib.txt").is_file() {
+        Ok(InputKind::Kitti)
+    } else if dir.join("depth.txt").is_file() {
+        Ok(InputKind::Tum)
+    } else if dir.join("pose.txt").is_file() && dir.join("depth").is_dir() {
+        Ok(InputKind::SimpleRgbd)
+    } else {
+        Err(Error::bad_input(
+            dir,
+            "unrecognised layout: expected calib.txt (KITTI odometry), depth.txt (TUM RGB-D) or pose.txt with depth/ (simple RGB-D)",
+        ))
+    }
+}
+
+/// Where range data comes from for a KITTI-layout sequence.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum RangeSource {
+    /// Velodyne scans.
+    Lidar,
+    /// Ground-truth depth maps (`depth_gt/`, written by `denser synth`).
+    GroundTruthDepth,
+    /// Depth from the stereo pair (image_2/image_3 or image_0/image_1).
+    Stereo,
+}
+
+/// A `reconstruct` job.
+#[derive(Clone, Debug)]
+pub struct ReconstructJob {
+    /// Sequence folder.
+    pub input: PathBuf,
+    /// KITTI poses file, when not at `<root>/poses/NN.txt`.
+    pub poses: Option<PathBuf>,
+    /// Output folder (created).
+    pub out_dir: PathBuf,
+    /// Range source for KITTI-layout input.
+    pub source: RangeSource,
+    /// Stages' parameters.
+    pub config: ReconstructionConfig,
+    /// First frame and one past the last (all frames when `None`).
+    pub frames: Option<(usize, usize)>,
+    /// Use every n-th frame.
+    pub frame_step: usize,
+}
+
+/// What a reconstruction produced.
+#[derive(Debug)]
+pub struct ReconstructOutcome {
+    /// The map and its timings.
+    pub reconstructor: Reconstructor,
+    /// Mesh of the raw field.
+    pub raw: Mesh,
+    /// Mesh of the regularised field.
+    pub regularized: Mesh,
+    /// Regulariser counters.
+    pub regularize_stats: RegularizeStats,
+    /// Files written.
+    pub written: Vec<PathBuf>,
+    /// Voxels in Ω before regularisation.
+    pub observed_voxels: usize,
+}
+
+fn frame_indices(len: usize, frames: Option<(usize, usize)>, step: usize) -> Vec<usize> {
+    let (a, b) = frames.unwrap_or((0, len));
+    (a.min(len)..b.min(len)).step_by(step.max(1)).collect()
+}
+
+/// Opens an RGB-D folder of either layout as a depth sequence.
+pub fn open_depth_sequence(dir: &Path, kind: InputKind) -> Result<Box<dyn DepthSequence>> {
+    Ok(match kind {
+        InputKind::Tum => Box::new(TumRgbdSequence::open(dir, TumOptions::default())?),
+        InputKind::SimpleRgbd => Box::new(SimpleRgbdSequence::open(
+            dir,
+            SimpleRgbdOptions::slambook2(),
+        )?),
+        InputKind::Kitti => {
+            return Err(Error::bad_input(
+                dir,
+                "a KITTI sequence is not an RGB-D sequence",
+            ))
+        }
+    })
+}
+
+/// All Velodyne scans of the given frames in the world frame: the paper's ground truth.
+pub fn merged_lidar(seq: &KittiSequence, frames: &[usize]) -> Result<PointCloud> {
+    let mut cloud = PointCloud::default();
+    for &i in frames {
+        if !seq.has_velodyne(i) {
+            continue;
+        }
+        let scan = seq.velodyne(i)?;
+        let t = scan.world_from_sensor;
+        cloud.points_m.extend(scan.points_sensor_m.iter().map(|p| {
+            let w = t * nalgebra::Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            [w.x, w.y, w.z]
+        }));
+    }
+    Ok(cloud)
+}
+
+/// Fuses the job's input into a fresh reconstructor (no regularisation yet).
+pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
+    let mut rec = Reconstructor::new(job.config)?;
+    match detect_input(&job.input)? {
+        InputKind::Kitti => {
+            let seq = KittiSequence::open(&job.input, job.poses.as_deref())?;
+            let frames = frame_indices(seq.len(), job.frames, job.frame_step);
+            let bar = crate::progress::bar(frames.len() as u64, "fusing");
+            for &i in &frames {
+                match job.source {
+                    RangeSource::Lidar => {
+                        let scan = seq.velodyne(i)?;
+                        rec.fuse_lidar(&scan);
+                    }
+                    RangeSource::GroundTruthDepth | RangeSource::Stereo => {
+                        return Err(Error::InvalidArgument(format!(
+                            "range source {:?} is not available for {}",
+                            job.source,
+                            job.input.display()
+                        )))
+                    }
+                }
+                bar.inc(1);
+            }
+            bar.finish_and_clear();
+        }
+        kind => {
+            let seq = open_depth_sequence(&job.input, kind)?;
+            let frames = frame_indices(seq.len(), job.frames, job.frame_step);
+            let bar = crate::progress::bar(frames.len() as u64, "fusing");
+            for &i in &frames {
+                let frame = seq.frame(i)?;
+                rec.fuse_depth(&frame);
+                bar.inc(1);
+            }
+            bar.finish_and_clear();
+        }
+    }
+    tracing::info!(
+        blocks = rec.layer().block_count(),
+        ms_per_frame = rec.timings().fusion_ms_per_frame(),
+        "fused {} frames",
+        rec.timings().frames_fused
+    );
+    Ok(rec)
+}
+
+/// Regularises, meshes both fields and writes `mesh_raw.ply`, `mesh_regularized.ply` and the
+/// regularised surface points (`points_regularized.ply`) into `out_dir`.
+pub fn finish(mut rec: Reconstructor, out_dir: &Path) -> Result<ReconstructOutcome> {
+    std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
+    let observed_voxels = rec.layer().observed_voxel_count();
+    let raw = rec.mesh(Field::Raw);
+    let regularize_stats = rec.regularize()?;
+    let regularized = rec.mesh(Field::Regularized);
+    let mut written = Vec::new();
+    for (name, mesh) in [
+        ("mesh_raw.ply", &raw),
+        ("mesh_regularized.ply", &regularized),
+    ] {
+        let path = out_dir.join(name);
+        crate::io::ply::write_mesh_ply(&path, mesh)?;
+        written.push(path);
+    }
+    let points = out_dir.join("points_regularized.ply");
+    crate::io::ply::write_points_ply(&points, &regularized.to_point_cloud())?;
+    written.push(points);
+    Ok(ReconstructOutcome {
+        reconstructor: rec,
+        raw,
+        regularized,
+        regularize_stats,
+        written,
+        observed_voxels,
+    })
+}
+
+/// Fusion, regularisation and marching-cubes throughput on an RGB-D folder, at 10 cm and 5 cm
+/// voxels with μ = 8 voxels (Open3D's default, so `tools/bench_open3d.py` runs the same settings).
+/// Returns a Markdown table. Frames are loaded once; each pass re-fuses all of them.
+pub fn bench_rgbd(dir: &Path, passes: usize) -> Result<String> {
+    let kind = detect_input(dir)?;
+    let seq = open_depth_sequence(dir, kind)?;
+    let frames: Vec<_> = (0..seq.len())
+        .map(|i| seq.frame(i))
+        .collect::<Result<_>>()?;
+    let mut out = String::from(
+        "| voxel | μ | median ms/frame | M voxel updates/s | blocks | bytes/voxel | TV M voxel-it/s | MC ms |\n|---|---|---|---|---|---|---|---|\n",
+    );
+    for voxel in [0.10f32, 0.05] {
+        let mut config = ReconstructionConfig::paper(voxel);
+        config.grid.truncation_m = 8.0 * voxel;
+        config.depth_fusion.max_depth_m = 10.0;
+        config.tv.iterations = 20;
+        let mut rec = Reconstructor::new(config)?;
+        let mut times = Vec::new();
+        let mut updates = 0usize;
+        for _ in 0..passes.max(1) {
+            for f in &frames {
+                let t = std::time::Instant::now();
+                let (_, stats) =
+                    crate::fusion::integrate_depth(rec.layer_mut(), f, &config.depth_fusion);
+                times.push(t.elapsed().as_secs_f64());
+                updates += stats.voxel_updates;
+            }
+        }
+        let total: f64 = times.iter().sum();
+        times.sort_by(f64::total_cmp);
+        let median_ms = 1e3 * times[times.len() / 2];
+        let bytes = rec.layer().bytes_per_voxel();
+        rec.regularize()?;
+        let t = std::time::Instant::now();
+        rec.mesh(Field::Regularized);
+        let mc_ms = 1e3 * t.elapsed().as_secs_f64();
+        out.push_str(&format!(
+            "| {:.0} cm | {:.2} m | {:.2} | {:.1} | {} | {:.2} | {:.1} | {:.1} |\n",
+            voxel * 100.0,
+            config.grid.truncation_m,
+            median_ms,
+            updates as f64 / total / 1e6,
+            rec.layer().block_count(),
+            bytes,
+            rec.timings().voxel_iterations_per_s() / 1e6,
+            mc_ms
+        ));
+    }
+    Ok(out)
+}
