@@ -37,10 +37,41 @@ fn las_err(path: &Path, e: las::Error) -> Error {
     }
 }
 
+/// True when `e` (or an error it wraps, e.g. inside the LAZ decoder) is an unexpected EOF.
+fn is_eof(e: &las::Error) -> bool {
+    if let las::Error::Io(io) = e {
+        return io.kind() == std::io::ErrorKind::UnexpectedEof;
+    }
+    let mut source: Option<&(dyn std::error::Error + 'static)> = std::error::Error::source(e);
+    while let Some(s) = source {
+        if s.downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::UnexpectedEof)
+        {
+            return true;
+        }
+        source = s.source();
+    }
+    false
+}
+
 fn open(path: &Path) -> Result<Reader> {
     // Open the file ourselves so that "not found" is an I/O error naming the path.
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    Reader::new(std::io::BufReader::new(file)).map_err(|e| las_err(path, e))
+    Reader::new(std::io::BufReader::new(file)).map_err(|e| {
+        if is_eof(&e) {
+            Error::bad_input(
+                path,
+                "truncated LAS: the file ends inside its header or VLRs",
+            )
+        } else if matches!(e, las::Error::LasZipError(_)) {
+            Error::bad_input(
+                path,
+                format!("cannot open the LAZ data (truncated or corrupt file?): {e}"),
+            )
+        } else {
+            las_err(path, e)
+        }
+    })
 }
 
 /// Reads all points of a LAS/LAZ file, coordinates in the file's own units (see the module
@@ -50,7 +81,27 @@ pub fn read_point_cloud(path: impl AsRef<Path>) -> Result<PointCloud> {
     let path = path.as_ref();
     let mut reader = open(path)?;
     let expected = reader.header().number_of_points();
-    let data = reader.read_all().map_err(|e| las_err(path, e))?;
+    let compressed = reader.header().point_format().is_compressed;
+    let data = reader.read_all().map_err(|e| {
+        if is_eof(&e) {
+            let size = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+            Error::bad_input(
+                path,
+                format!(
+                    "truncated {}: the header announces {expected} points but the file ends early ({size} bytes)",
+                    if compressed { "LAZ" } else { "LAS" }
+                ),
+            )
+        } else if compressed {
+            // The LAZ decoder wraps its I/O errors without exposing them as a source.
+            Error::bad_input(
+                path,
+                format!("cannot decompress the LAZ points (truncated or corrupt file?): {e}"),
+            )
+        } else {
+            las_err(path, e)
+        }
+    })?;
     if (data.len() as u64) < expected {
         return Err(Error::bad_input(
             path,
