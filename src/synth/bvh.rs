@@ -263,6 +263,42 @@ impl Bvh {
         }
     }
 
+    /// True as soon as `test(primitive, t_max)` reports a hit for any primitive along the ray
+    /// within `[0, t_max)` (shadow rays: no ordering, early exit).
+    #[inline]
+    pub fn any<F: FnMut(u32, f64) -> bool>(&self, ray: &Ray, t_max: f64, mut test: F) -> bool {
+        if self.nodes.is_empty() {
+            return false;
+        }
+        let o = [ray.origin.x, ray.origin.y, ray.origin.z];
+        let inv = [
+            1.0 / ray.direction.x,
+            1.0 / ray.direction.y,
+            1.0 / ray.direction.z,
+        ];
+        let mut stack = [0u32; 128];
+        let mut sp = 1usize;
+        while sp > 0 {
+            sp -= 1;
+            let n = &self.nodes[stack[sp] as usize];
+            if n.bounds.hit(&o, &inv, t_max).is_none() {
+                continue;
+            }
+            if n.count > 0 {
+                for &p in &self.order[n.first as usize..(n.first + n.count) as usize] {
+                    if test(p, t_max) {
+                        return true;
+                    }
+                }
+            } else if sp + 2 <= stack.len() {
+                stack[sp] = n.first + 1;
+                stack[sp + 1] = n.first;
+                sp += 2;
+            }
+        }
+        false
+    }
+
     /// Calls `visit(primitive)` for every primitive whose bounds contain `p`.
     pub fn visit_containing<F: FnMut(u32)>(&self, p: &Point3<f64>, mut visit: F) {
         if self.nodes.is_empty() {

@@ -1151,19 +1151,12 @@ impl City {
 
     /// True when anything blocks `ray` for `t ∈ (0, t_max)`.
     pub fn occluded(&self, ray: &Ray, t_max: f64) -> bool {
-        let mut any = false;
-        self.bvh.closest(ray, t_max, |i, tm| {
-            if any {
-                return None;
-            }
-            let h = self.prims[i as usize]
+        self.bvh.any(ray, t_max, |i, tm| {
+            self.prims[i as usize]
                 .shape
                 .intersect(ray, 1e-9, tm)
-                .map(|h| h.0);
-            any |= h.is_some();
-            h
-        });
-        any
+                .is_some()
+        })
     }
 
     /// Distance from `p` to the nearest primitive surface within `search_m`, metres (infinity
