@@ -130,6 +130,34 @@ pub fn merged_lidar(seq: &KittiSequence, frames: &[usize]) -> Result<PointCloud>
     Ok(cloud)
 }
 
+/// Frame `i` of a KITTI-layout sequence with ground-truth depth (`depth_gt/NNNNNN.png`, 16-bit,
+/// depth·256, 0 invalid, in the left grey camera), coloured from `image_2` when present (the
+/// synthetic rig's colour camera coincides with cam0).
+pub fn kitti_gt_depth_frame(seq: &KittiSequence, i: usize) -> Result<crate::frame::DepthFrame> {
+    let path = seq.dir().join("depth_gt").join(format!("{i:06}.png"));
+    if !path.is_file() {
+        return Err(Error::bad_input(&path, "no ground-truth depth for this frame (only synthetic drives written by `denser synth` have depth_gt/)"));
+    }
+    let depth_m = crate::io::image::read_depth_png_u16(&path, 256.0)?;
+    let mut intrinsics = seq.intrinsics(0)?;
+    intrinsics.width = depth_m.width;
+    intrinsics.height = depth_m.height;
+    let world_from_camera = seq
+        .pose(i)
+        .ok_or_else(|| Error::bad_input(seq.dir(), format!("no pose for frame {i}")))?;
+    let color = if seq.has_image(2, i) && seq.calib().cam_from_cam0_translation_m(2).norm() < 1e-6 {
+        Some(seq.color(2, i)?)
+    } else {
+        None
+    };
+    Ok(crate::frame::DepthFrame {
+        intrinsics,
+        world_from_camera,
+        depth_m,
+        color,
+    })
+}
+
 /// Fuses the job's input into a fresh reconstructor (no regularisation yet).
 pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
     let mut rec = Reconstructor::new(job.config)?;
@@ -144,7 +172,11 @@ pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
                         let scan = seq.velodyne(i)?;
                         rec.fuse_lidar(&scan);
                     }
-                    RangeSource::GroundTruthDepth | RangeSource::Stereo => {
+                    RangeSource::GroundTruthDepth => {
+                        let frame = kitti_gt_depth_frame(&seq, i)?;
+                        rec.fuse_depth(&frame);
+                    }
+                    RangeSource::Stereo => {
                         return Err(Error::InvalidArgument(format!(
                             "range source {:?} is not available for {}",
                             job.source,

@@ -298,7 +298,7 @@ fn kitti_00_trajectory_drives_through_a_city_at_real_scale() {
     let Some(dir) = common::shared_data("kitti_odom_poses_evo") else {
         return;
     };
-    let traj = denser::synth::load_kitti_trajectory(&dir.join("KITTI_00_gt.txt")).unwrap();
+    let traj = denser::io::kitti::read_poses(dir.join("KITTI_00_gt.txt")).unwrap();
     assert_eq!(traj.len(), 4541);
     let city = City::generate(&CityConfig {
         seed: 4,

@@ -32,7 +32,6 @@ pub use city::{City, CityConfig, Footprint, Hit, Material, Primitive, SurfaceSam
 pub use geometry::{Aabb, Ray, Shape};
 pub use lidar::{kitti_cam0_from_velo, LidarConfig, KITTI_00_TR_VELO_TO_CAM};
 pub use render::{albedo_to_srgb, luma, RenderOptions, StereoFrame, StereoRig};
-pub use route::load_kitti_trajectory;
 pub use texture::{FacadeParams, Rgb, WallStyle};
 pub use writer::{
     calib_text, encode_depth_u16, format_sci, write_drive, DriveConfig, DriveSummary,

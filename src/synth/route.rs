@@ -7,7 +7,6 @@ use super::rng::Rng;
 use crate::error::{Error, Result};
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use std::collections::HashSet;
-use std::path::Path;
 
 /// The driven street and the cameras on it.
 #[derive(Clone, Debug)]
@@ -306,61 +305,6 @@ pub(crate) fn along_trajectory(traj: &[Isometry3<f64>], p: &RouteParams) -> Resu
     Ok(Route { centreline, poses })
 }
 
-/// Reads a KITTI pose file (one pose per line: 12 numbers, the row-major 3×4 `world_from_cam0`).
-/// Rotations are re-orthonormalised (the files keep 6–7 significant digits).
-pub fn load_kitti_trajectory(path: &Path) -> Result<Vec<Isometry3<f64>>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    let mut out = Vec::new();
-    for (no, line) in text.lines().enumerate() {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let vals: Vec<f64> = line
-            .split_whitespace()
-            .map(|w| w.parse::<f64>())
-            .collect::<std::result::Result<_, _>>()
-            .map_err(|e| Error::bad_input(path, format!("line {}: not a number ({e})", no + 1)))?;
-        if vals.len() != 12 {
-            return Err(Error::bad_input(
-                path,
-                format!(
-                    "line {}: expected 12 numbers (a 3x4 pose), found {}",
-                    no + 1,
-                    vals.len()
-                ),
-            ));
-        }
-        if vals.iter().any(|v| !v.is_finite()) {
-            return Err(Error::bad_input(
-                path,
-                format!("line {}: non-finite value", no + 1),
-            ));
-        }
-        let m = Matrix3::new(
-            vals[0], vals[1], vals[2], vals[4], vals[5], vals[6], vals[8], vals[9], vals[10],
-        );
-        if (m.determinant() - 1.0).abs() > 1e-2 {
-            return Err(Error::bad_input(
-                path,
-                format!(
-                    "line {}: the 3x3 part is not a rotation (det {:.4})",
-                    no + 1,
-                    m.determinant()
-                ),
-            ));
-        }
-        let r = Rotation3::from_matrix_eps(&m, 1e-12, 100, Rotation3::identity());
-        out.push(Isometry3::from_parts(
-            Translation3::new(vals[3], vals[7], vals[11]),
-            UnitQuaternion::from_rotation_matrix(&r),
-        ));
-    }
-    if out.is_empty() {
-        return Err(Error::bad_input(path, "no poses in the file"));
-    }
-    Ok(out)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -400,25 +344,5 @@ mod tests {
             let down = p.rotation * Vector3::y();
             assert!((down - Vector3::y()).norm() < 1e-9);
         }
-    }
-
-    #[test]
-    fn kitti_reader_rejects_bad_lines_and_names_the_file() {
-        let dir = tempfile::tempdir().unwrap();
-        let f = dir.path().join("poses.txt");
-        std::fs::write(&f, "1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0 0 0 1 0 0 0 0 1\n").unwrap();
-        let e = load_kitti_trajectory(&f).unwrap_err().to_string();
-        assert!(
-            e.contains("poses.txt") && e.contains("line 2") && e.contains("12"),
-            "{e}"
-        );
-        std::fs::write(&f, "1 0 0 0 0 1 0 0 0 0 1 x\n").unwrap();
-        assert!(load_kitti_trajectory(&f)
-            .unwrap_err()
-            .to_string()
-            .contains("not a number"));
-        std::fs::write(&f, "1 0 0 0.5 0 1 0 2 0 0 1 3\n").unwrap();
-        let t = load_kitti_trajectory(&f).unwrap();
-        assert_eq!(t[0].translation.vector, Vector3::new(0.5, 2.0, 3.0));
     }
 }
