@@ -76,7 +76,7 @@ pub fn evaluate_mesh_detailed(
             "surface '{label}' has no vertices: nothing to evaluate"
         )));
     }
-    check_mesh(mesh).map_err(|e| Error::InvalidArgument(format!("surface '{label}': {e}")))?;
+    check_mesh(mesh, &format!("surface '{label}'"))?;
     let points_m = surface_points(mesh, options.surface_sample_spacing_m)?;
     let accuracy_m = ground_truth.nearest_distances_m(&points_m)?;
     let accuracy = ErrorStats::from_distances(&accuracy_m, &options.histogram)?;

@@ -243,7 +243,7 @@ pub fn sample_mesh_surface(mesh: &Mesh, spacing_m: f64) -> Result<Vec<[f64; 3]>>
             "surface sample spacing must be a positive number of metres, got {spacing_m}"
         )));
     }
-    check_mesh(mesh)?;
+    check_mesh(mesh, "mesh")?;
     let vertex = |i: u32| {
         let p = mesh.positions_m[i as usize];
         [p[0] as f64, p[1] as f64, p[2] as f64]
@@ -288,8 +288,8 @@ fn subtriangle_centroids(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], k: usize) -> 
     out
 }
 
-/// Checks every triangle index and vertex coordinate of `mesh`.
-pub(crate) fn check_mesh(mesh: &Mesh) -> Result<()> {
+/// Checks every triangle index and vertex coordinate of `mesh`; errors start with `what`.
+pub(crate) fn check_mesh(mesh: &Mesh, what: &str) -> Result<()> {
     let n = mesh.positions_m.len();
     if let Some((i, t)) = mesh
         .triangles
@@ -298,8 +298,7 @@ pub(crate) fn check_mesh(mesh: &Mesh) -> Result<()> {
         .find(|(_, t)| t.iter().any(|&v| v as usize >= n))
     {
         return Err(Error::InvalidArgument(format!(
-            "mesh triangle {i} refers to vertex {:?} but the mesh has {n} vertices",
-            t
+            "{what}: triangle {i} refers to vertex {t:?} but the mesh has {n} vertices"
         )));
     }
     if let Some(i) = mesh
@@ -308,7 +307,7 @@ pub(crate) fn check_mesh(mesh: &Mesh) -> Result<()> {
         .position(|p| p.iter().any(|v| !v.is_finite()))
     {
         return Err(Error::InvalidArgument(format!(
-            "mesh vertex {i} has a non-finite coordinate {:?}",
+            "{what}: vertex {i} has a non-finite coordinate {:?}",
             mesh.positions_m[i]
         )));
     }
