@@ -1,0 +1,396 @@
+//! Nearest-neighbour distances between point sets with a k-d tree (`kiddo`), and points taken
+//! from a mesh's surface.
+//!
+//! The ground truth is indexed once ([`GroundTruthIndex`]) and queried in parallel (rayon). All
+//! positions are shifted by a common origin (the centre of the ground truth's bounding box) before
+//! they enter a tree, so that georeferenced coordinates (LAS/UTM, ~10⁶ m) keep sub-millimetre
+//! precision; queries use `f64` throughout and return distances as `f32` metres.
+//!
+//! This module does not summarise distances ([`crate::eval::ErrorStats`]) nor read files.
+
+use crate::error::{Error, Result};
+use crate::frame::PointCloud;
+use crate::mesh::Mesh;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Queries handed to one rayon task at a time.
+const QUERY_CHUNK: usize = 4096;
+
+/// A k-d tree over points stored relative to `origin_m`.
+struct PointTree {
+    tree: ImmutableKdTree<f64, 3>,
+}
+
+impl PointTree {
+    /// Builds a tree over `points_local_m` (already relative to the shared origin).
+    fn new(points_local_m: &[[f64; 3]]) -> Result<PointTree> {
+        let tree = ImmutableKdTree::new_from_slice(points_local_m).map_err(|e| {
+            Error::InvalidArgument(format!(
+                "cannot build a k-d tree over {} points: {e}",
+                points_local_m.len()
+            ))
+        })?;
+        Ok(PointTree { tree })
+    }
+
+    /// Distance (metres) from each query (relative to the shared origin) to its nearest point.
+    fn nearest_distances_m(&self, queries_local_m: &[[f64; 3]]) -> Vec<f32> {
+        let mut out = vec![0.0f32; queries_local_m.len()];
+        out.par_chunks_mut(QUERY_CHUNK)
+            .zip(queries_local_m.par_chunks(QUERY_CHUNK))
+            .for_each(|(out, queries)| {
+                for (o, q) in out.iter_mut().zip(queries) {
+                    let nn = self
+                        .tree
+                        .query(q)
+                        .nearest_one::<SquaredEuclidean<f64>>()
+                        .execute();
+                    *o = nn.distance.sqrt() as f32;
+                }
+            });
+        out
+    }
+}
+
+/// The ground-truth point cloud (LiDAR scans merged in the world frame, or dense samples of exact
+/// synthetic surfaces), indexed once for any number of reconstructions.
+pub struct GroundTruthIndex {
+    /// Common origin subtracted from every position before it enters a tree, metres (world).
+    origin_m: [f64; 3],
+    /// Ground-truth points relative to `origin_m`, metres (kept for completeness queries).
+    points_local_m: Vec<[f64; 3]>,
+    /// World-frame bounding box of the ground truth, metres.
+    bounds_m: ([f64; 3], [f64; 3]),
+    /// The k-d tree over `points_local_m`.
+    tree: PointTree,
+}
+
+impl GroundTruthIndex {
+    /// Indexes the points of `cloud` (colours are ignored).
+    ///
+    /// Errors when the cloud is empty or holds a non-finite coordinate.
+    pub fn new(cloud: &PointCloud) -> Result<GroundTruthIndex> {
+        GroundTruthIndex::from_points(&cloud.points_m)
+    }
+
+    /// Indexes `points_m` (world frame, metres).
+    ///
+    /// Errors when there are no points or a coordinate is not finite.
+    pub fn from_points(points_m: &[[f64; 3]]) -> Result<GroundTruthIndex> {
+        if points_m.is_empty() {
+            return Err(Error::InvalidArgument(
+                "the ground truth has no points".into(),
+            ));
+        }
+        let bounds_m = bounds_of(points_m, "ground-truth")?;
+        let origin_m = std::array::from_fn(|k| 0.5 * (bounds_m.0[k] + bounds_m.1[k]));
+        let points_local_m: Vec<[f64; 3]> =
+            points_m.par_iter().map(|p| sub(p, &origin_m)).collect();
+        let tree = PointTree::new(&points_local_m)?;
+        tracing::debug!(points = points_m.len(), "indexed ground truth");
+        Ok(GroundTruthIndex {
+            origin_m,
+            points_local_m,
+            bounds_m,
+            tree,
+        })
+    }
+
+    /// Number of ground-truth points.
+    pub fn len(&self) -> usize {
+        self.points_local_m.len()
+    }
+
+    /// Always false: an index is never built over zero points.
+    pub fn is_empty(&self) -> bool {
+        self.points_local_m.is_empty()
+    }
+
+    /// The origin subtracted from positions before queries, metres (world frame).
+    pub fn origin_m(&self) -> [f64; 3] {
+        self.origin_m
+    }
+
+    /// World-frame bounding box `(min, max)` of the ground truth, metres.
+    pub fn bounds_m(&self) -> ([f64; 3], [f64; 3]) {
+        self.bounds_m
+    }
+
+    /// Accuracy distances: for each of `points_m` (world frame, metres), the Euclidean distance to
+    /// the nearest ground-truth point, metres, in input order. Queries run in parallel.
+    ///
+    /// Errors when a coordinate is not finite.
+    pub fn nearest_distances_m(&self, points_m: &[[f64; 3]]) -> Result<Vec<f32>> {
+        check_finite(points_m, "query")?;
+        let local: Vec<[f64; 3]> = points_m
+            .par_iter()
+            .map(|p| sub(p, &self.origin_m))
+            .collect();
+        Ok(self.tree.nearest_distances_m(&local))
+    }
+
+    /// Completeness distances: for each ground-truth point selected by `region`, the distance to
+    /// the nearest of `reconstructed_points_m` (world frame, metres). Builds a temporary k-d tree
+    /// over the reconstructed points. The result follows the ground truth's order, skipping points
+    /// outside the region; it is empty when no ground-truth point is in the region.
+    ///
+    /// Errors when `reconstructed_points_m` is empty or holds a non-finite coordinate, or when
+    /// the region is malformed.
+    pub fn completeness_distances_m(
+        &self,
+        reconstructed_points_m: &[[f64; 3]],
+        region: &CompletenessRegion,
+    ) -> Result<Vec<f32>> {
+        if reconstructed_points_m.is_empty() {
+            return Err(Error::InvalidArgument(
+                "completeness needs at least one reconstructed point".into(),
+            ));
+        }
+        let recon_bounds = bounds_of(reconstructed_points_m, "reconstructed")?;
+        let (lo, hi) = match *region {
+            CompletenessRegion::All => ([f64::NEG_INFINITY; 3], [f64::INFINITY; 3]),
+            CompletenessRegion::ReconstructionBounds { margin_m } => {
+                if !(margin_m.is_finite() && margin_m >= 0.0) {
+                    return Err(Error::InvalidArgument(format!(
+                        "completeness margin must be finite and ≥ 0 m, got {margin_m}"
+                    )));
+                }
+                (
+                    recon_bounds.0.map(|v| v - margin_m),
+                    recon_bounds.1.map(|v| v + margin_m),
+                )
+            }
+            CompletenessRegion::Aabb { min_m, max_m } => {
+                if (0..3).any(|k| !(min_m[k] <= max_m[k])) {
+                    return Err(Error::InvalidArgument(format!(
+                        "completeness box min {min_m:?} is not ≤ max {max_m:?}"
+                    )));
+                }
+                (min_m, max_m)
+            }
+        };
+        let lo_local = sub(&lo, &self.origin_m);
+        let hi_local = sub(&hi, &self.origin_m);
+        let selected: Vec<[f64; 3]> = self
+            .points_local_m
+            .par_iter()
+            .filter(|p| (0..3).all(|k| p[k] >= lo_local[k] && p[k] <= hi_local[k]))
+            .copied()
+            .collect();
+        if selected.is_empty() {
+            return Ok(Vec::new());
+        }
+        let recon_local: Vec<[f64; 3]> = reconstructed_points_m
+            .par_iter()
+            .map(|p| sub(p, &self.origin_m))
+            .collect();
+        let tree = PointTree::new(&recon_local)?;
+        Ok(tree.nearest_distances_m(&selected))
+    }
+}
+
+/// Which ground-truth points count for completeness (the distance from a ground-truth point to the
+/// nearest reconstructed point). Ground truth usually covers more than one reconstruction saw
+/// (e.g. LiDAR reaches further than stereo), so completeness is normally limited to a region.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum CompletenessRegion {
+    /// Every ground-truth point.
+    All,
+    /// Ground-truth points inside the reconstructed points' axis-aligned bounding box grown by
+    /// `margin_m` metres on every side (bounds inclusive).
+    ReconstructionBounds {
+        /// Growth of the box on each side, metres.
+        margin_m: f64,
+    },
+    /// Ground-truth points inside an explicit world-frame axis-aligned box (bounds inclusive).
+    Aabb {
+        /// Lower corner, metres.
+        min_m: [f64; 3],
+        /// Upper corner, metres.
+        max_m: [f64; 3],
+    },
+}
+
+/// The reconstructed points scored for accuracy: every mesh vertex, followed (when
+/// `sample_spacing_m` is given) by [`sample_mesh_surface`]'s points on the triangles. World frame,
+/// metres.
+pub fn surface_points(mesh: &Mesh, sample_spacing_m: Option<f64>) -> Result<Vec<[f64; 3]>> {
+    let mut points: Vec<[f64; 3]> = mesh
+        .positions_m
+        .iter()
+        .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64])
+        .collect();
+    if let Some(spacing_m) = sample_spacing_m {
+        points.extend(sample_mesh_surface(mesh, spacing_m)?);
+    }
+    Ok(points)
+}
+
+/// Deterministic points on the triangles of `mesh`, metres (world frame), in triangle order.
+///
+/// Each triangle is split into `k²` congruent sub-triangles by dividing every edge into `k` equal
+/// parts, with `k = max(1, ceil(longest edge / spacing_m))`; one point is taken at the centroid of
+/// each sub-triangle. Within a triangle every point stands for the same area, and neighbouring
+/// points are at most about `spacing_m` apart. Vertices are not included (see [`surface_points`]).
+///
+/// Errors when `spacing_m` is not a positive finite number, when a triangle names a missing
+/// vertex, or when a triangle would need more than 10⁶ samples (spacing far too small).
+pub fn sample_mesh_surface(mesh: &Mesh, spacing_m: f64) -> Result<Vec<[f64; 3]>> {
+    if !(spacing_m.is_finite() && spacing_m > 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "surface sample spacing must be a positive number of metres, got {spacing_m}"
+        )));
+    }
+    check_mesh(mesh, "mesh")?;
+    let vertex = |i: u32| {
+        let p = mesh.positions_m[i as usize];
+        [p[0] as f64, p[1] as f64, p[2] as f64]
+    };
+    let per_triangle: Vec<Vec<[f64; 3]>> = mesh
+        .triangles
+        .par_iter()
+        .map(|t| {
+            let (a, b, c) = (vertex(t[0]), vertex(t[1]), vertex(t[2]));
+            let longest = dist(&a, &b).max(dist(&b, &c)).max(dist(&c, &a));
+            let k_f = (longest / spacing_m).ceil().max(1.0);
+            if k_f > 1000.0 {
+                return Err(Error::InvalidArgument(format!(
+                    "triangle edge {longest:.3} m sampled every {spacing_m} m needs more than 10⁶ \
+                     samples; use a larger spacing"
+                )));
+            }
+            Ok(subtriangle_centroids(&a, &b, &c, k_f as usize))
+        })
+        .collect::<Result<_>>()?;
+    Ok(per_triangle.into_iter().flatten().collect())
+}
+
+/// Centroids of the `k²` sub-triangles of triangle `abc` (edges divided into `k` parts).
+fn subtriangle_centroids(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], k: usize) -> Vec<[f64; 3]> {
+    let mut out = Vec::with_capacity(k * k);
+    let kf = k as f64;
+    // Barycentric lattice: vertex (i, j) = a + (i/k)(b − a) + (j/k)(c − a), i + j ≤ k.
+    let point = |u: f64, v: f64| -> [f64; 3] {
+        std::array::from_fn(|d| a[d] + u / kf * (b[d] - a[d]) + v / kf * (c[d] - a[d]))
+    };
+    for i in 0..k {
+        for j in 0..(k - i) {
+            // Upward sub-triangle (i,j), (i+1,j), (i,j+1): centroid at (i + 1/3, j + 1/3).
+            out.push(point(i as f64 + 1.0 / 3.0, j as f64 + 1.0 / 3.0));
+            // Downward sub-triangle (i+1,j), (i,j+1), (i+1,j+1), present when i + j + 2 ≤ k.
+            if i + j + 2 <= k {
+                out.push(point(i as f64 + 2.0 / 3.0, j as f64 + 2.0 / 3.0));
+            }
+        }
+    }
+    out
+}
+
+/// Checks every triangle index and vertex coordinate of `mesh`; errors start with `what`.
+pub(crate) fn check_mesh(mesh: &Mesh, what: &str) -> Result<()> {
+    let n = mesh.positions_m.len();
+    if let Some((i, t)) = mesh
+        .triangles
+        .iter()
+        .enumerate()
+        .find(|(_, t)| t.iter().any(|&v| v as usize >= n))
+    {
+        return Err(Error::InvalidArgument(format!(
+            "{what}: triangle {i} refers to vertex {t:?} but the mesh has {n} vertices"
+        )));
+    }
+    if let Some(i) = mesh
+        .positions_m
+        .iter()
+        .position(|p| p.iter().any(|v| !v.is_finite()))
+    {
+        return Err(Error::InvalidArgument(format!(
+            "{what}: vertex {i} has a non-finite coordinate {:?}",
+            mesh.positions_m[i]
+        )));
+    }
+    Ok(())
+}
+
+/// Bounding box of `points`; errors (naming `what`) on a non-finite coordinate.
+fn bounds_of(points: &[[f64; 3]], what: &str) -> Result<([f64; 3], [f64; 3])> {
+    check_finite(points, what)?;
+    let init = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    Ok(points.iter().fold(init, |(lo, hi), p| {
+        (
+            std::array::from_fn(|k| lo[k].min(p[k])),
+            std::array::from_fn(|k| hi[k].max(p[k])),
+        )
+    }))
+}
+
+/// Errors (naming `what` and the index) when a coordinate is not finite.
+fn check_finite(points: &[[f64; 3]], what: &str) -> Result<()> {
+    match points
+        .par_iter()
+        .position_first(|p| p.iter().any(|v| !v.is_finite()))
+    {
+        Some(i) => Err(Error::InvalidArgument(format!(
+            "{what} point {i} has a non-finite coordinate {:?}",
+            points[i]
+        ))),
+        None => Ok(()),
+    }
+}
+
+#[inline]
+fn sub(p: &[f64; 3], o: &[f64; 3]) -> [f64; 3] {
+    [p[0] - o[0], p[1] - o[1], p[2] - o[2]]
+}
+
+#[inline]
+fn dist(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    let d = sub(a, b);
+    (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn subtriangle_centroids_cover_the_triangle_evenly() {
+        let a = [0.0, 0.0, 0.0];
+        let b = [1.0, 0.0, 0.0];
+        let c = [0.0, 1.0, 0.0];
+        for k in 1..6 {
+            let pts = subtriangle_centroids(&a, &b, &c, k);
+            assert_eq!(pts.len(), k * k);
+            // Mean of equal-area centroids = centroid of the triangle.
+            let mean: [f64; 3] =
+                std::array::from_fn(|d| pts.iter().map(|p| p[d]).sum::<f64>() / pts.len() as f64);
+            assert!((mean[0] - 1.0 / 3.0).abs() < 1e-12 && (mean[1] - 1.0 / 3.0).abs() < 1e-12);
+            // Every point strictly inside.
+            assert!(pts
+                .iter()
+                .all(|p| p[0] > 0.0 && p[1] > 0.0 && p[0] + p[1] < 1.0));
+        }
+    }
+
+    #[test]
+    fn nearest_distances_brute_force() {
+        // Pseudo-random points; compare the tree with brute force.
+        let mut s = 12345u64;
+        let mut rnd = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) * 10.0 + 5.0e5
+        };
+        let gt: Vec<[f64; 3]> = (0..2000).map(|_| [rnd(), rnd(), rnd()]).collect();
+        let q: Vec<[f64; 3]> = (0..300).map(|_| [rnd(), rnd(), rnd()]).collect();
+        let index = GroundTruthIndex::from_points(&gt).unwrap();
+        let d = index.nearest_distances_m(&q).unwrap();
+        for (qi, di) in q.iter().zip(&d) {
+            let brute = gt.iter().map(|g| dist(g, qi)).fold(f64::INFINITY, f64::min);
+            assert!((*di as f64 - brute).abs() < 1e-6, "{di} vs {brute}");
+        }
+    }
+}
