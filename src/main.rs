@@ -27,6 +27,8 @@ enum Command {
     Reconstruct(ReconstructArgs),
     /// Print fusion, regularisation and meshing throughput on real RGB-D frames.
     Bench(BenchArgs),
+    /// Score meshes against ground truth (distance to the nearest ground-truth point, as the paper).
+    Evaluate(EvaluateArgs),
     /// Generate a synthetic city drive with exact ground truth, in the KITTI odometry layout.
     Synth(SynthArgs),
 }
@@ -127,8 +129,41 @@ struct ReconstructArgs {
     /// Use every n-th frame.
     #[arg(long, default_value_t = 1)]
     step: usize,
+    /// Ground truth for the report: a .las/.laz/.ply file, or a KITTI sequence folder whose scans
+    /// are merged (default for KITTI-layout input: its own scans, as the paper).
+    #[arg(long)]
+    gt: Option<PathBuf>,
+    /// Skip the evaluation.
+    #[arg(long)]
+    no_eval: bool,
     #[command(flatten)]
     map: MapArgs,
+}
+
+#[derive(Args)]
+struct EvaluateArgs {
+    /// Meshes to score, as `LABEL=PATH.ply` or `PATH.ply` (label = file stem); the first is the
+    /// baseline for relative changes.
+    #[arg(long = "mesh", required = true)]
+    meshes: Vec<String>,
+    /// Ground truth: .las/.laz/.ply, or a KITTI sequence folder (its scans, merged in the world frame).
+    #[arg(long)]
+    gt: PathBuf,
+    /// KITTI poses file, when not at `<root>/poses/NN.txt`.
+    #[arg(long)]
+    poses: Option<PathBuf>,
+    /// First KITTI scan.
+    #[arg(long, default_value_t = 0)]
+    first: usize,
+    /// One past the last KITTI scan.
+    #[arg(long)]
+    last: Option<usize>,
+    /// Use every n-th KITTI scan.
+    #[arg(long, default_value_t = 1)]
+    step: usize,
+    /// Output folder for report.json, report.md and the pictures.
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
 }
 
 #[derive(Args)]
@@ -154,6 +189,7 @@ fn main() {
         Command::Reconstruct(a) => reconstruct(a),
         Command::Bench(a) => bench(a),
         Command::Synth(a) => synth(a),
+        Command::Evaluate(a) => evaluate(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
@@ -207,6 +243,142 @@ fn reconstruct(a: ReconstructArgs) -> Result<()> {
         outcome.regularized.surface_area_m2()
     );
     for p in &outcome.written {
+        println!("wrote {}", p.display());
+    }
+    if a.no_eval {
+        return Ok(());
+    }
+    let kind = pipeline::detect_input(&a.input)?;
+    let gt = match (&a.gt, kind) {
+        (Some(p), _) => Some(ground_truth_arg(
+            p,
+            job.poses.clone(),
+            job.frames,
+            job.frame_step,
+        )),
+        (None, pipeline::InputKind::Kitti) => Some(pipeline::GroundTruth::KittiLidar {
+            sequence: a.input.clone(),
+            poses: job.poses.clone(),
+            frames: job.frames,
+            step: job.frame_step,
+        }),
+        (None, _) => None,
+    };
+    let Some(gt) = gt else {
+        println!(
+            "no ground truth for {} (pass --gt): evaluation skipped",
+            a.input.display()
+        );
+        return Ok(());
+    };
+    let (report, written) = pipeline::evaluate_outcome(
+        &outcome,
+        &gt,
+        &format!("{} ({:?})", a.input.display(), job.source),
+        &a.out,
+    )
+    .context("evaluating")?;
+    print_summary(&report);
+    for p in written {
+        println!("wrote {}", p.display());
+    }
+    Ok(())
+}
+
+fn ground_truth_arg(
+    path: &std::path::Path,
+    poses: Option<PathBuf>,
+    frames: Option<(usize, usize)>,
+    step: usize,
+) -> pipeline::GroundTruth {
+    if path.is_dir() {
+        pipeline::GroundTruth::KittiLidar {
+            sequence: path.to_path_buf(),
+            poses,
+            frames,
+            step,
+        }
+    } else {
+        pipeline::GroundTruth::File(path.to_path_buf())
+    }
+}
+
+/// Prints the paper's table (median, 75th percentile, mode, area) for each surface.
+fn print_summary(report: &denser::eval::EvaluationReport) {
+    println!(
+        "{:<12} {:>10} {:>10} {:>10} {:>12} {:>12}",
+        "surface", "median m", "p75 m", "mode m", "area m²", "complete m"
+    );
+    for s in &report.surfaces {
+        println!(
+            "{:<12} {:>10.4} {:>10.4} {:>10} {:>12.1} {:>12}",
+            s.label,
+            s.accuracy.median_m,
+            s.accuracy.p75_m,
+            s.accuracy
+                .mode_m
+                .map_or("-".to_string(), |m| format!("{m:.4}")),
+            s.surface_area_m2,
+            s.completeness
+                .as_ref()
+                .map_or("-".to_string(), |c| format!("{:.4}", c.median_m))
+        );
+    }
+    if let (Some(a), Some(b)) = (report.surfaces.first(), report.surfaces.get(1)) {
+        let rel = |x: f64, y: f64| 100.0 * (y - x) / x.max(1e-12);
+        println!(
+            "{} vs {}: median {:+.0} %, p75 {:+.0} %, area {:+.0} %",
+            b.label,
+            a.label,
+            rel(a.accuracy.median_m, b.accuracy.median_m),
+            rel(a.accuracy.p75_m, b.accuracy.p75_m),
+            rel(a.surface_area_m2, b.surface_area_m2)
+        );
+    }
+}
+
+fn evaluate(a: EvaluateArgs) -> Result<()> {
+    let gt = ground_truth_arg(
+        &a.gt,
+        a.poses.clone(),
+        Some((a.first, a.last.unwrap_or(usize::MAX))),
+        a.step,
+    );
+    let cloud = gt
+        .load()
+        .with_context(|| format!("loading ground truth {}", a.gt.display()))?;
+    let mut meshes = Vec::new();
+    for spec in &a.meshes {
+        let (label, path) = match spec.split_once('=') {
+            Some((l, p)) => (l.to_string(), PathBuf::from(p)),
+            None => {
+                let p = PathBuf::from(spec);
+                (
+                    p.file_stem()
+                        .and_then(|s| s.to_str())
+                        .unwrap_or("mesh")
+                        .to_string(),
+                    p,
+                )
+            }
+        };
+        let mesh = denser::io::ply::read_mesh_ply(&path)
+            .with_context(|| format!("reading mesh {}", path.display()))?;
+        meshes.push((label, mesh));
+    }
+    let refs: Vec<(&str, &denser::mesh::Mesh)> =
+        meshes.iter().map(|(l, m)| (l.as_str(), m)).collect();
+    let mut report = denser::eval::EvaluationReport::new(
+        format!(
+            "meshes scored by `denser evaluate`; ground truth: {}",
+            gt.describe()
+        ),
+        cloud.len() as u64,
+    );
+    let written = pipeline::evaluate_meshes(&refs, &cloud, &mut report, None, &a.out)
+        .context("evaluating")?;
+    print_summary(&report);
+    for p in written {
         println!("wrote {}", p.display());
     }
     Ok(())

@@ -290,3 +290,181 @@ pub fn bench_rgbd(dir: &Path, passes: usize) -> Result<String> {
     }
     Ok(out)
 }
+
+/// Ground truth for evaluation.
+#[derive(Clone, Debug)]
+pub enum GroundTruth {
+    /// All Velodyne scans of a KITTI-layout sequence (frames as given) in the world frame — the
+    /// paper's ground truth.
+    KittiLidar {
+        /// Sequence folder.
+        sequence: PathBuf,
+        /// Poses file, when not at the default place.
+        poses: Option<PathBuf>,
+        /// First frame and one past the last.
+        frames: Option<(usize, usize)>,
+        /// Use every n-th scan.
+        step: usize,
+    },
+    /// A point cloud file: `.las`, `.laz` (coordinates converted to metres) or `.ply`.
+    File(PathBuf),
+}
+
+impl GroundTruth {
+    /// Loads the ground-truth points (world frame, metres).
+    pub fn load(&self) -> Result<PointCloud> {
+        match self {
+            GroundTruth::KittiLidar {
+                sequence,
+                poses,
+                frames,
+                step,
+            } => {
+                let seq = KittiSequence::open(sequence, poses.as_deref())?;
+                merged_lidar(&seq, &frame_indices(seq.len(), *frames, *step))
+            }
+            GroundTruth::File(path) => {
+                let ext = path
+                    .extension()
+                    .and_then(|e| e.to_str())
+                    .unwrap_or("")
+                    .to_ascii_lowercase();
+                match ext.as_str() {
+                    "las" | "laz" => crate::io::las::read_point_cloud_metres(path),
+                    "ply" => Ok(crate::io::ply::read_ply(path)?.0),
+                    _ => Err(Error::bad_input(
+                        path,
+                        "ground truth must be .las, .laz or .ply",
+                    )),
+                }
+            }
+        }
+    }
+
+    /// A short description for reports.
+    pub fn describe(&self) -> String {
+        match self {
+            GroundTruth::KittiLidar { sequence, .. } => {
+                format!("LiDAR scans of {}", sequence.display())
+            }
+            GroundTruth::File(p) => p.display().to_string(),
+        }
+    }
+}
+
+/// Peak resident memory of this process (Linux `VmHWM`), bytes.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Scores labelled meshes against `ground_truth` and writes `report.json`, `report.md`,
+/// `error_histogram.png` and `top_view_<label>.png` into `out_dir`. The first mesh is the
+/// baseline of the relative changes. `voxels` gives (voxel count, bytes per voxel) for surfaces
+/// made from a map.
+pub fn evaluate_meshes(
+    meshes: &[(&str, &Mesh)],
+    ground_truth: &PointCloud,
+    report: &mut crate::eval::EvaluationReport,
+    voxels: Option<(u64, f64)>,
+    out_dir: &Path,
+) -> Result<Vec<PathBuf>> {
+    use crate::eval::{
+        evaluate_mesh_detailed, plot_error_histograms_png, plot_top_view_png, EvalOptions,
+        GroundTruthIndex, UpAxis,
+    };
+    std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
+    let t = std::time::Instant::now();
+    let index = GroundTruthIndex::new(ground_truth)?;
+    let options = EvalOptions::default();
+    let mut written = Vec::new();
+    let mut evaluations = Vec::new();
+    for (label, mesh) in meshes {
+        let mut e = evaluate_mesh_detailed(label, mesh, &index, &options)?;
+        if let Some((count, bpv)) = voxels {
+            e.report = e.report.with_voxels(count, bpv);
+        }
+        let top = out_dir.join(format!("top_view_{label}.png"));
+        plot_top_view_png(&top, &e.points_m, &e.accuracy_m, UpAxis::NegY, 0.5, 1600)?;
+        written.push(top);
+        evaluations.push(e);
+    }
+    let series: Vec<(&str, &crate::eval::ErrorStats)> = evaluations
+        .iter()
+        .map(|e| (e.report.label.as_str(), &e.report.accuracy))
+        .collect();
+    let hist = out_dir.join("error_histogram.png");
+    plot_error_histograms_png(&hist, &series, 0.5)?;
+    written.push(hist);
+    report
+        .surfaces
+        .extend(evaluations.into_iter().map(|e| e.report));
+    report
+        .timings_s
+        .push(("evaluation".into(), t.elapsed().as_secs_f64()));
+    if let Some(rss) = peak_rss_bytes() {
+        report
+            .memory_bytes
+            .push(("peak resident (process)".into(), rss));
+    }
+    let json = out_dir.join("report.json");
+    report.write_json(&json)?;
+    let md = out_dir.join("report.md");
+    report.write_markdown(&md)?;
+    written.extend([json, md]);
+    Ok(written)
+}
+
+/// Evaluates a finished reconstruction (raw and regularised meshes) and writes the report.
+pub fn evaluate_outcome(
+    outcome: &ReconstructOutcome,
+    ground_truth: &GroundTruth,
+    source: &str,
+    out_dir: &Path,
+) -> Result<(crate::eval::EvaluationReport, Vec<PathBuf>)> {
+    let t = std::time::Instant::now();
+    let gt = ground_truth.load()?;
+    let load_s = t.elapsed().as_secs_f64();
+    let mut report = crate::eval::EvaluationReport::new(
+        format!("{source}; ground truth: {}", ground_truth.describe()),
+        gt.len() as u64,
+    );
+    let timings = outcome.reconstructor.timings();
+    report.timings_s.extend([
+        ("fusion".to_string(), timings.fusion_s),
+        ("regularisation".to_string(), timings.regularize_s),
+        ("marching cubes (both fields)".to_string(), timings.mesh_s),
+        ("loading ground truth".to_string(), load_s),
+    ]);
+    let layer = outcome.reconstructor.layer();
+    report
+        .memory_bytes
+        .push(("voxel map (RAM)".into(), layer.memory_bytes() as u64));
+    let config = outcome.reconstructor.config();
+    report.parameters = serde_json::json!({
+        "voxel_size_m": config.grid.voxel_size_m,
+        "truncation_m": config.grid.truncation_m,
+        "tv": config.tv,
+        "frames_fused": timings.frames_fused,
+        "fusion_ms_per_frame": timings.fusion_ms_per_frame(),
+        "voxel_updates_per_s": timings.voxel_updates_per_s(),
+        "regularizer_voxel_iterations_per_s": timings.voxel_iterations_per_s(),
+        "allocated_blocks": layer.block_count(),
+        "omega_voxels": outcome.observed_voxels,
+        "energy_before": outcome.regularize_stats.energy_before,
+        "energy_after": outcome.regularize_stats.energy_after,
+    });
+    // The map's size: allocated voxels (blocks × 512) and RAM bytes per allocated voxel.
+    let allocated = (layer.block_count() * crate::grid::VOXELS_PER_BLOCK) as u64;
+    let voxels = Some((allocated, layer.bytes_per_voxel()));
+    let written = evaluate_meshes(
+        &[("raw", &outcome.raw), ("regularized", &outcome.regularized)],
+        &gt,
+        &mut report,
+        voxels,
+        out_dir,
+    )?;
+    Ok((report, written))
+}
