@@ -172,33 +172,33 @@ pub fn census_transform(image: &GreyImage, params: &CensusParams) -> Result<Cens
                     p
                 })
                 .collect();
-            for u in 0..w {
-                let c = padded[ry as usize][u + rx as usize];
-                let mut sig = [0u64; 2];
-                let mut bit = 0usize;
-                for &(dx, dy) in &offsets {
-                    let n = padded[(dy + ry) as usize][(u as isize + dx + rx) as usize];
-                    match kind {
-                        CensusKind::Binary => {
-                            if n < c {
-                                sig[bit >> 6] |= 1u64 << (bit & 63);
-                            }
-                            bit += 1;
+            // One pass over the row per neighbour offset, so the comparisons vectorise.
+            let rxu = rx as usize;
+            let centre = &padded[ry as usize][rxu..rxu + w];
+            let mut sig = vec![[0u64; 2]; w];
+            for (i, &(dx, dy)) in offsets.iter().enumerate() {
+                let start = (dx + rx) as usize;
+                let nb = &padded[(dy + ry) as usize][start..start + w];
+                match kind {
+                    CensusKind::Binary => {
+                        let (word, shift) = (i >> 6, i & 63);
+                        for ((s, &n), &c) in sig.iter_mut().zip(nb).zip(centre) {
+                            s[word] |= ((n < c) as u64) << shift;
                         }
-                        CensusKind::Ternary { threshold } => {
-                            let t = threshold as i16;
+                    }
+                    CensusKind::Ternary { threshold } => {
+                        // Bits 2i and 2i + 1 always share a word.
+                        let (word, shift) = ((2 * i) >> 6, (2 * i) & 63);
+                        let t = threshold as i16;
+                        for ((s, &n), &c) in sig.iter_mut().zip(nb).zip(centre) {
                             let diff = n as i16 - c as i16;
-                            if diff > t {
-                                sig[bit >> 6] |= 1u64 << (bit & 63);
-                            }
-                            if diff < -t {
-                                sig[(bit + 1) >> 6] |= 1u64 << ((bit + 1) & 63);
-                            }
-                            bit += 2;
+                            s[word] |= (((diff > t) as u64) | (((diff < -t) as u64) << 1)) << shift;
                         }
                     }
                 }
-                out_row[u * words..(u + 1) * words].copy_from_slice(&sig[..words]);
+            }
+            for (u, s) in sig.iter().enumerate() {
+                out_row[u * words..(u + 1) * words].copy_from_slice(&s[..words]);
             }
         });
     Ok(CensusImage {
@@ -281,5 +281,82 @@ mod tests {
             c.data.iter().all(|&w| w == 0),
             "a flat image has all-similar signatures"
         );
+    }
+
+    /// Direct per-pixel definition, for comparison with the row-vectorised transform.
+    fn reference(img: &GreyImage, p: &CensusParams, u: i64, v: i64) -> [u64; 2] {
+        let (rx, ry) = ((p.window_width / 2) as i64, (p.window_height / 2) as i64);
+        let px = |x: i64, y: i64| {
+            let x = x.clamp(0, img.width as i64 - 1) as u32;
+            let y = y.clamp(0, img.height as i64 - 1) as u32;
+            img.at(x, y) as i16
+        };
+        let c = px(u, v);
+        let mut sig = [0u64; 2];
+        let mut bit = 0;
+        for dy in -ry..=ry {
+            for dx in -rx..=rx {
+                if dx == 0 && dy == 0 {
+                    continue;
+                }
+                let n = px(u + dx, v + dy);
+                match p.kind {
+                    CensusKind::Binary => {
+                        sig[bit / 64] |= ((n < c) as u64) << (bit % 64);
+                        bit += 1;
+                    }
+                    CensusKind::Ternary { threshold } => {
+                        let t = threshold as i16;
+                        sig[bit / 64] |= ((n - c > t) as u64) << (bit % 64);
+                        sig[(bit + 1) / 64] |= ((n - c < -t) as u64) << ((bit + 1) % 64);
+                        bit += 2;
+                    }
+                }
+            }
+        }
+        sig
+    }
+
+    #[test]
+    fn matches_the_per_pixel_definition_on_random_images() {
+        let mut state = 0x1234_5678_9abc_def0u64;
+        let data: Vec<u8> = (0..23 * 17)
+            .map(|_| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (state >> 56) as u8
+            })
+            .collect();
+        let img = Image {
+            width: 23,
+            height: 17,
+            data,
+        };
+        for p in [
+            CensusParams::default(),
+            CensusParams {
+                window_width: 7,
+                window_height: 7,
+                kind: CensusKind::Ternary { threshold: 3 },
+            },
+            CensusParams {
+                window_width: 9,
+                window_height: 7,
+                kind: CensusKind::Ternary { threshold: 0 },
+            },
+        ] {
+            let c = census_transform(&img, &p).unwrap();
+            for v in 0..17 {
+                for u in 0..23 {
+                    let r = reference(&img, &p, u as i64, v as i64);
+                    assert_eq!(
+                        c.signature(u, v),
+                        &r[..c.words_per_pixel],
+                        "{p:?} at ({u}, {v})"
+                    );
+                }
+            }
+        }
     }
 }

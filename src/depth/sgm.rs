@@ -255,19 +255,28 @@ fn cost_row_impl(
     out: &mut [u8],
 ) {
     let w = l.len() / words;
+    out.fill(max_cost);
     for x in 0..w {
         let o = &mut out[x * nd..(x + 1) * nd];
-        for (k, c) in o.iter_mut().enumerate() {
-            let xr = x as i64 - dmin as i64 - k as i64;
-            *c = if xr < 0 || xr >= w as i64 {
-                max_cost
-            } else if words == 1 {
-                (l[x] ^ r[xr as usize]).count_ones() as u8
-            } else {
-                let a = &l[x * 2..x * 2 + 2];
-                let b = &r[xr as usize * 2..xr as usize * 2 + 2];
-                ((a[0] ^ b[0]).count_ones() + (a[1] ^ b[1]).count_ones()) as u8
-            };
+        // Slices k ∈ [k0, k1) have their right pixel x − dmin − k inside [0, w).
+        let k0 = (x as i64 - dmin as i64 - (w as i64 - 1)).max(0) as usize;
+        let k1 = ((x as i64 - dmin as i64 + 1).max(0) as usize).min(nd);
+        if k0 >= k1 {
+            continue;
+        }
+        // Right pixel of slice k is xr0 − k.
+        let xr0 = (x as i64 - dmin as i64) as usize;
+        if words == 1 {
+            let a = l[x];
+            for (k, c) in o[k0..k1].iter_mut().enumerate() {
+                *c = (a ^ r[xr0 - (k0 + k)]).count_ones() as u8;
+            }
+        } else {
+            let (a0, a1) = (l[2 * x], l[2 * x + 1]);
+            for (k, c) in o[k0..k1].iter_mut().enumerate() {
+                let xr = xr0 - (k0 + k);
+                *c = ((a0 ^ r[2 * xr]).count_ones() + (a1 ^ r[2 * xr + 1]).count_ones()) as u8;
+            }
         }
     }
 }
