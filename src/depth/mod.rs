@@ -1,1 +1,184 @@
 //! Depth maps from rectified stereo pairs.
+//!
+//! - [`DisparityEstimator`]: the interface every stereo matcher implements (left image is the
+//!   reference; disparity `d = x_left − x_right` in pixels; NaN = invalid). [`StereoMethod`]
+//!   names the available matchers and builds them; the baseline is [`sgm::SgmMatcher`] (census +
+//!   semi-global matching), which the variational TGV estimator will use as its initialisation
+//!   and fallback.
+//! - [`census`]: census and ternary census signatures, Hamming cost.
+//! - [`metrics`]: Middlebury/KITTI disparity scores (bad-k, D1, EPE, density).
+//! - [`disparity_io`]: KITTI 16-bit disparity PNG, and a reader that picks PFM or PNG.
+//! - [`ground_truth`]: sparse disparity ground truth from LiDAR points.
+//! - [`disparity_to_depth`]: `z = f·B / d`.
+//!
+//! Does not rectify images, estimate calibration, or fill invalid pixels.
+
+pub mod census;
+pub mod disparity_io;
+pub mod ground_truth;
+pub mod metrics;
+pub mod sgm;
+
+pub use ground_truth::disparity_from_points;
+pub use metrics::{evaluate_disparity, StereoMetrics};
+pub use sgm::{SgmMatcher, SgmParams};
+
+use crate::error::{Error, Result};
+use crate::frame::{DepthImage, GreyImage, Image};
+use std::fmt;
+use std::str::FromStr;
+
+/// A disparity map for the left image of a rectified pair.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DisparityMap {
+    /// Disparity `x_left − x_right`, pixels; NaN where invalid (occluded, ambiguous,
+    /// inconsistent). Same size as the left image.
+    pub disparity_px: Image<f32>,
+    /// Optional per-pixel confidence in [0, 1] (1 = certain), 0 where invalid; same size.
+    pub confidence: Option<Image<f32>>,
+}
+
+impl DisparityMap {
+    /// Number of valid (finite) disparities.
+    pub fn valid_count(&self) -> usize {
+        self.disparity_px
+            .data
+            .iter()
+            .filter(|d| d.is_finite())
+            .count()
+    }
+}
+
+/// A stereo matcher: rectified grey left/right images of equal size in, disparity map of the left
+/// image out. Implementations are deterministic and `Send + Sync` so a pipeline can share them.
+pub trait DisparityEstimator: Send + Sync {
+    /// Short name, as accepted by [`StereoMethod::from_str`] (e.g. `"sgm"`).
+    fn name(&self) -> &str;
+    /// Estimates the disparity of every pixel of `left`; invalid pixels are NaN.
+    fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap>;
+}
+
+/// The stereo matchers `denser` offers (the CLI's `--method`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum StereoMethod {
+    /// Census + semi-global matching ([`sgm::SgmMatcher`]).
+    Sgm,
+}
+
+impl StereoMethod {
+    /// Every method, in the order shown to users.
+    pub const ALL: &'static [StereoMethod] = &[StereoMethod::Sgm];
+
+    /// The CLI name.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            StereoMethod::Sgm => "sgm",
+        }
+    }
+
+    /// A matcher of this kind searching `num_disparities` disparities from 0, other parameters at
+    /// their defaults.
+    pub fn estimator(&self, num_disparities: usize) -> Result<Box<dyn DisparityEstimator>> {
+        match self {
+            StereoMethod::Sgm => Ok(Box::new(SgmMatcher::new(SgmParams {
+                num_disparities,
+                ..SgmParams::default()
+            })?)),
+        }
+    }
+}
+
+impl fmt::Display for StereoMethod {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for StereoMethod {
+    type Err = Error;
+
+    /// Parses a CLI name, case-insensitively (`sgm`).
+    fn from_str(s: &str) -> Result<Self> {
+        let lower = s.trim().to_ascii_lowercase();
+        StereoMethod::ALL
+            .iter()
+            .copied()
+            .find(|m| m.as_str() == lower)
+            .ok_or_else(|| {
+                let names: Vec<&str> = StereoMethod::ALL.iter().map(|m| m.as_str()).collect();
+                Error::InvalidArgument(format!(
+                    "unknown stereo method `{s}`; expected one of: {}",
+                    names.join(", ")
+                ))
+            })
+    }
+}
+
+/// Converts disparities (pixels) to depth (metres) with `z = fx_px · baseline_m / d`.
+///
+/// Pixels with NaN, non-finite or non-positive disparity are invalid (NaN) in the result. For
+/// Middlebury-style calibrations with a principal-point offset `doffs`, pass `d + doffs`.
+pub fn disparity_to_depth(disparity: &DisparityMap, fx_px: f64, baseline_m: f64) -> DepthImage {
+    let fb = fx_px * baseline_m;
+    let img = &disparity.disparity_px;
+    Image {
+        width: img.width,
+        height: img.height,
+        data: img
+            .data
+            .iter()
+            .map(|&d| {
+                if d.is_finite() && d > 0.0 {
+                    let z = fb / d as f64;
+                    if z.is_finite() && z > 0.0 {
+                        z as f32
+                    } else {
+                        f32::NAN
+                    }
+                } else {
+                    f32::NAN
+                }
+            })
+            .collect(),
+    }
+}
+
+/// Converts an RGB image to grey with the Rec. 601 luma weights (0.299, 0.587, 0.114), rounded.
+pub fn grey_from_rgb(rgb: &crate::frame::RgbImage) -> GreyImage {
+    Image {
+        width: rgb.width,
+        height: rgb.height,
+        data: rgb
+            .data
+            .iter()
+            .map(|&[r, g, b]| {
+                ((299 * r as u32 + 587 * g as u32 + 114 * b as u32 + 500) / 1000) as u8
+            })
+            .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn method_names_round_trip() {
+        for m in StereoMethod::ALL {
+            assert_eq!(m.as_str().parse::<StereoMethod>().unwrap(), *m);
+        }
+        assert_eq!(" SGM ".parse::<StereoMethod>().unwrap(), StereoMethod::Sgm);
+        let err = "elas".parse::<StereoMethod>().unwrap_err().to_string();
+        assert!(err.contains("elas") && err.contains("sgm"), "{err}");
+    }
+
+    #[test]
+    fn grey_weights() {
+        let rgb = Image {
+            width: 3,
+            height: 1,
+            data: vec![[255, 0, 0], [0, 255, 0], [10, 10, 10]],
+        };
+        assert_eq!(grey_from_rgb(&rgb).data, vec![76, 150, 10]);
+    }
+}

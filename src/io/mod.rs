@@ -12,6 +12,7 @@
 pub mod image;
 pub mod kitti;
 pub mod las;
+pub mod pfm;
 pub mod ply;
 pub mod rgbd;
 mod text;
