@@ -17,7 +17,6 @@ mod layer;
 
 pub use block::{decode_tsdf, encode_tsdf, Block, Voxel, MAX_WEIGHT, OMEGA_BIT};
 pub use index::{
-    linear_index, local_coords, BlockIndex, GridParams, VoxelIndex, VOXELS_PER_BLOCK,
-    VOXELS_PER_SIDE,
+    linear_index, local_coords, BlockIndex, GridParams, VoxelIndex, VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
 };
 pub use layer::{Layer, TouchedBlocks};
