@@ -136,6 +136,12 @@ struct ReconstructArgs {
     /// Skip the evaluation.
     #[arg(long)]
     no_eval: bool,
+    /// Stereo matcher (with `--depth stereo`): sgm.
+    #[arg(long, default_value = "sgm")]
+    method: String,
+    /// Disparity search range, pixels (128 sees down to ~3 m on KITTI).
+    #[arg(long, default_value_t = 128)]
+    num_disparities: usize,
     #[command(flatten)]
     map: MapArgs,
 }
@@ -213,6 +219,8 @@ fn reconstruct(a: ReconstructArgs) -> Result<()> {
         config: a.map.config(),
         frames: Some((a.first, a.last.unwrap_or(usize::MAX))),
         frame_step: a.step,
+        stereo_method: a.method.parse()?,
+        num_disparities: a.num_disparities,
     };
     let rec = pipeline::fuse_input(&job)
         .with_context(|| format!("reconstructing {}", a.input.display()))?;

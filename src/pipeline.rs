@@ -72,6 +72,10 @@ pub struct ReconstructJob {
     pub frames: Option<(usize, usize)>,
     /// Use every n-th frame.
     pub frame_step: usize,
+    /// Stereo matcher for [`RangeSource::Stereo`].
+    pub stereo_method: crate::depth::StereoMethod,
+    /// Disparity search range, pixels.
+    pub num_disparities: usize,
 }
 
 /// What a reconstruction produced.
@@ -130,6 +134,48 @@ pub fn merged_lidar(seq: &KittiSequence, frames: &[usize]) -> Result<PointCloud>
     Ok(cloud)
 }
 
+/// Depth frames from a KITTI-layout sequence's rectified grey pair (image_0, image_1), with
+/// `z = fx·B/d`. Colour comes from image_2 where the colour camera coincides with cam0 (synthetic
+/// drives); otherwise the grey value is used as colour.
+pub struct StereoDepth {
+    estimator: Box<dyn crate::depth::DisparityEstimator>,
+    /// Seconds spent matching.
+    pub matching_s: std::cell::Cell<f64>,
+}
+
+impl StereoDepth {
+    /// A stereo depth source using `method` over `num_disparities` disparities.
+    pub fn new(method: crate::depth::StereoMethod, num_disparities: usize) -> Result<Self> {
+        Ok(StereoDepth { estimator: method.estimator(num_disparities)?, matching_s: Default::default() })
+    }
+
+    /// The depth frame of frame `i`.
+    pub fn frame(&self, seq: &KittiSequence, i: usize) -> Result<crate::frame::DepthFrame> {
+        let left = seq.grey(0, i)?;
+        let right = seq.grey(1, i)?;
+        let t = std::time::Instant::now();
+        let disparity = self.estimator.estimate(&left, &right)?;
+        self.matching_s.set(self.matching_s.get() + t.elapsed().as_secs_f64());
+        let mut intrinsics = seq.intrinsics(0)?;
+        intrinsics.width = left.width;
+        intrinsics.height = left.height;
+        let baseline_m = seq.calib().baseline_m(0, 1);
+        if !(baseline_m.is_finite() && baseline_m > 0.0) {
+            return Err(Error::bad_input(seq.dir().join("calib.txt"), format!("stereo baseline P0→P1 must be positive, got {baseline_m} m")));
+        }
+        let depth_m = crate::depth::disparity_to_depth(&disparity, intrinsics.fx, baseline_m);
+        let world_from_camera = seq
+            .pose(i)
+            .ok_or_else(|| Error::bad_input(seq.dir(), format!("no pose for frame {i}")))?;
+        let color = if seq.has_image(2, i) && seq.calib().cam_from_cam0_translation_m(2).norm() < 1e-6 {
+            Some(seq.color(2, i)?)
+        } else {
+            Some(crate::frame::Image { width: left.width, height: left.height, data: left.data.iter().map(|&g| [g; 3]).collect() })
+        };
+        Ok(crate::frame::DepthFrame { intrinsics, world_from_camera, depth_m, color })
+    }
+}
+
 /// Frame `i` of a KITTI-layout sequence with ground-truth depth (`depth_gt/NNNNNN.png`, 16-bit,
 /// depth·256, 0 invalid, in the left grey camera), coloured from `image_2` when present (the
 /// synthetic rig's colour camera coincides with cam0).
@@ -165,6 +211,7 @@ pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
         InputKind::Kitti => {
             let seq = KittiSequence::open(&job.input, job.poses.as_deref())?;
             let frames = frame_indices(seq.len(), job.frames, job.frame_step);
+            let stereo = StereoDepth::new(job.stereo_method, job.num_disparities)?;
             let bar = crate::progress::bar(frames.len() as u64, "fusing");
             for &i in &frames {
                 match job.source {
@@ -177,11 +224,8 @@ pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
                         rec.fuse_depth(&frame);
                     }
                     RangeSource::Stereo => {
-                        return Err(Error::InvalidArgument(format!(
-                            "range source {:?} is not available for {}",
-                            job.source,
-                            job.input.display()
-                        )))
+                        let frame = stereo.frame(&seq, i)?;
+                        rec.fuse_depth(&frame);
                     }
                 }
                 bar.inc(1);

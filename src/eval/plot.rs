@@ -8,6 +8,7 @@
 use crate::error::{Error, Result};
 use crate::eval::stats::ErrorStats;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use plotters::style::{register_font, FontStyle};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -241,14 +242,116 @@ pub fn plot_error_histograms_png(
     save_png(path, &buf, (w, h))
 }
 
+/// Splat radius (pixels) that closes the gaps between neighbouring points: half the typical point
+/// spacing, estimated from the density of filled pixels inside the 8 × 8-pixel cells that hold any
+/// point; between 1 and 6.
+fn splat_radius_px(
+    count: &[u32],
+    width: usize,
+    px_range: &std::ops::Range<i32>,
+    py_range: &std::ops::Range<i32>,
+) -> i32 {
+    const CELL: i32 = 8;
+    let cells_x = ((px_range.end - px_range.start + CELL - 1) / CELL).max(1) as usize;
+    let cells_y = ((py_range.end - py_range.start + CELL - 1) / CELL).max(1) as usize;
+    let mut cell_used = vec![false; cells_x * cells_y];
+    let mut filled = 0usize;
+    for py in py_range.clone() {
+        for px in px_range.clone() {
+            if count[py as usize * width + px as usize] > 0 {
+                filled += 1;
+                let cx = ((px - px_range.start) / CELL) as usize;
+                let cy = ((py - py_range.start) / CELL) as usize;
+                cell_used[cy * cells_x + cx] = true;
+            }
+        }
+    }
+    let footprint = cell_used.iter().filter(|&&u| u).count() * (CELL * CELL) as usize;
+    if filled == 0 || footprint == 0 {
+        return 1;
+    }
+    let spacing_px = (footprint as f64 / filled as f64).sqrt();
+    ((spacing_px / 2.0 + 0.5).round() as i32).clamp(1, 6)
+}
+
+/// Draws a vertical colour bar for errors `0 ..= max_error_m` (bottom to top) with its left edge
+/// at pixel column `x0`, spanning the rows `rows` (with room above for its title), tick labels
+/// on its right; the top label reads "≥ max" when the maximum is a tick, since colours clamp.
+fn draw_colour_bar<DB: DrawingBackend>(
+    root: &DrawingArea<DB, plotters::coord::Shift>,
+    x0: u32,
+    rows: &std::ops::Range<i32>,
+    max_error_m: f64,
+) -> std::result::Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let (x0, x1) = (x0 as i32, x0 as i32 + 24);
+    let (top, bottom) = (rows.start + 30, rows.end - 1);
+    if bottom <= top + 10 {
+        return Ok(());
+    }
+    let span = (bottom - top) as f64;
+    let row_of = |e: f64| bottom - ((e / max_error_m) * span).round() as i32;
+    for y in top..=bottom {
+        let t = (bottom - y) as f32 / span as f32;
+        root.draw(&Rectangle::new(
+            [(x0, y), (x1, y + 1)],
+            rgb(error_colour(t)).filled(),
+        ))?;
+    }
+    root.draw(&Rectangle::new(
+        [(x0, top), (x1, bottom + 1)],
+        BLACK.stroke_width(1),
+    ))?;
+    let title = TextStyle::from((FONT, 16)).pos(Pos::new(HPos::Left, VPos::Bottom));
+    root.draw(&Text::new("error (m)", (x0 - 10, top - 8), title))?;
+    // Ticks at a "nice" step giving at most 6 intervals.
+    let raw_step = max_error_m / 6.0;
+    let magnitude = 10f64.powf(raw_step.log10().floor());
+    let step = [1.0, 2.0, 2.5, 5.0, 10.0]
+        .iter()
+        .map(|m| m * magnitude)
+        .find(|s| *s >= raw_step)
+        .unwrap_or(10.0 * magnitude);
+    let decimals = (-(step.log10().floor()) as i32 + i32::from((step / magnitude) == 2.5)).max(0);
+    let label_style = TextStyle::from((FONT, 14)).pos(Pos::new(HPos::Left, VPos::Center));
+    let ticks = (max_error_m / step + 1e-9).floor() as i64;
+    for i in 0..=ticks {
+        let e = i as f64 * step;
+        let y = row_of(e);
+        root.draw(&PathElement::new(
+            vec![(x1, y), (x1 + 5, y)],
+            BLACK.stroke_width(1),
+        ))?;
+        let mut text = format!("{e:.prec$}", prec = decimals as usize);
+        if (e - max_error_m).abs() < 1e-9 * max_error_m.max(1.0) {
+            text = format!("\u{2265} {text}");
+        }
+        root.draw(&Text::new(text, (x1 + 8, y), label_style.clone()))?;
+    }
+    Ok(())
+}
+
+/// A round offset (multiple of 1 km) near the middle of `values` when they lie 10 km or more
+/// from zero, else 0.
+fn axis_offset(values: impl Iterator<Item = f64>) -> f64 {
+    let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+        (lo.min(v), hi.max(v))
+    });
+    if lo.abs().max(hi.abs()) < 10_000.0 {
+        0.0
+    } else {
+        (0.5 * (lo + hi) / 1000.0).round() * 1000.0
+    }
+}
+
 /// Width of the colour-bar panel on the right of a top view, pixels.
 const BAR_PANEL_PX: u32 = 140;
 
 /// Top view of `points_m` (world frame, metres) coloured by `errors_m` (metres, one per point):
 /// an orthographic view looking down `up_axis`, equal scale on both image axes (metres per pixel),
 /// each pixel coloured by the mean error of the points falling into it with [`error_colour`]
-/// (clamped at `max_error_m`), empty pixels within `max(1, size_px / 800)` pixels of filled ones
-/// filled from their neighbours (splatting), axes in metres, and a colour bar.
+/// (clamped at `max_error_m`), empty pixels near filled ones (within half the typical point
+/// spacing, 1–6 pixels) coloured like their nearest filled pixel (splatting), axes in metres,
+/// and a colour bar.
 ///
 /// `size_px` is the image width (at least 400); the height follows the points' aspect ratio
 /// (the map area is kept between 1:4 and 4:1). Errors when the slices differ in length, are
@@ -301,7 +404,14 @@ pub fn plot_top_view_png(
 
     // Image-plane coordinates (right, up) of every point, and their extent.
     let ((ri, rs), (ui, us)) = up_axis.image_axes();
-    let plane: Vec<(f64, f64)> = points_m.iter().map(|p| (rs * p[ri], us * p[ui])).collect();
+    // Georeferenced coordinates (≥ 10 km) are shown relative to a round offset so that tick
+    // labels stay short; the offset is named in the axis title.
+    let offset_x = axis_offset(points_m.iter().map(|p| rs * p[ri]));
+    let offset_y = axis_offset(points_m.iter().map(|p| us * p[ui]));
+    let plane: Vec<(f64, f64)> = points_m
+        .iter()
+        .map(|p| (rs * p[ri] - offset_x, us * p[ui] - offset_y))
+        .collect();
     let (mut x0, mut x1, mut y0, mut y1) = (
         f64::INFINITY,
         f64::NEG_INFINITY,
@@ -336,6 +446,7 @@ pub fn plot_top_view_png(
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(&err)?;
         let body = root
+            .margin(8, 0, 0, 0)
             .titled(
                 &format!(
                     "Top view: distance to the nearest ground-truth point ({} points)",
@@ -344,15 +455,30 @@ pub fn plot_top_view_png(
                 (FONT, 22),
             )
             .map_err(&err)?;
-        let (map_area, bar_area) = body.split_horizontally(w - BAR_PANEL_PX);
-        let axis_name = |(i, s): (usize, f64)| {
+        let (map_area, _bar_area) = body.split_horizontally(w - BAR_PANEL_PX);
+        let axis_name = |(i, s): (usize, f64), offset: f64| {
             let n = ["x", "y", "z"][i];
-            if s < 0.0 {
-                format!("\u{2212}{n} (m)")
+            let sign = if s < 0.0 { "\u{2212}" } else { "" };
+            if offset == 0.0 {
+                format!("{sign}{n} (m)")
+            } else if offset > 0.0 {
+                format!("{sign}{n} \u{2212} {offset:.0} (m)")
             } else {
-                format!("{n} (m)")
+                format!("{sign}{n} + {:.0} (m)", -offset)
             }
         };
+        let decimals = |extent: f64| {
+            if extent >= 50.0 {
+                0
+            } else if extent >= 5.0 {
+                1
+            } else {
+                2
+            }
+        };
+        let (dx, dy) = (decimals(extent_x), decimals(extent_y));
+        let fmt_x = move |v: &f64| format!("{v:.dx$}");
+        let fmt_y = move |v: &f64| format!("{v:.dy$}");
         // Measure the plotting area, then choose ranges with equal metres per pixel.
         let (pw, ph) = ChartBuilder::on(&map_area)
             .margin(margin_px)
@@ -375,8 +501,10 @@ pub fn plot_top_view_png(
         chart
             .configure_mesh()
             .disable_mesh()
-            .x_desc(axis_name(up_axis.image_axes().0))
-            .y_desc(axis_name(up_axis.image_axes().1))
+            .x_desc(axis_name(up_axis.image_axes().0, offset_x))
+            .y_desc(axis_name(up_axis.image_axes().1, offset_y))
+            .x_label_formatter(&fmt_x)
+            .y_label_formatter(&fmt_y)
             .axis_desc_style((FONT, 18))
             .label_style((FONT, 15))
             .draw()
@@ -391,58 +519,32 @@ pub fn plot_top_view_png(
             }
         }
 
-        // Colour bar: 0 .. max_error_m, bottom to top.
-        let mut bar = ChartBuilder::on(&bar_area)
-            .margin_top(margin_px + 10)
-            .margin_bottom(margin_px + x_label_px)
-            .margin_right(55)
-            .y_label_area_size(65)
-            .build_cartesian_2d(0f64..1f64, 0f64..max_error_m)
-            .map_err(&err)?;
-        bar.configure_mesh()
-            .disable_mesh()
-            .disable_x_axis()
-            .y_desc("error (m)")
-            .axis_desc_style((FONT, 18))
-            .label_style((FONT, 15))
-            .draw()
-            .map_err(&err)?;
-        let steps = 256;
-        bar.draw_series((0..steps).map(|i| {
-            let lo = max_error_m * i as f64 / steps as f64;
-            let hi = max_error_m * (i + 1) as f64 / steps as f64;
-            let c = error_colour((i as f32 + 0.5) / steps as f32);
-            Rectangle::new([(0.0, lo), (1.0, hi)], rgb(c).filled())
-        }))
-        .map_err(&err)?;
+        draw_colour_bar(&root, w - BAR_PANEL_PX + 20, &py_range, max_error_m).map_err(&err)?;
         root.present().map_err(&err)?;
     }
 
-    // Splat: colour each pixel of the plotting area by its own mean error, or by the mean of its
-    // filled neighbours within `radius` pixels when it is empty.
-    let radius = (size_px / 800).max(1) as i32;
+    // Splat: colour each pixel of the plotting area by its own mean error or, when it is empty,
+    // by its nearest filled pixel in the (2·radius + 1)² window around it (nearest, not averaged, so that no false
+    // intermediate colours appear where the error jumps).
+    let radius = splat_radius_px(&count, w as usize, &px_range, &py_range);
+    let mut offsets: Vec<(i32, i32)> = (-radius..=radius)
+        .flat_map(|dy| (-radius..=radius).map(move |dx| (dx, dy)))
+        .filter(|&o| o != (0, 0))
+        .collect();
+    offsets.sort_by_key(|&(dx, dy)| (dx * dx + dy * dy, dy, dx));
     let max_e = max_error_m as f32;
+    let mean_at = |k: usize| (count[k] > 0).then(|| sum[k] / count[k] as f64);
     for py in py_range.clone() {
         for px in px_range.clone() {
             let k = py as usize * w as usize + px as usize;
-            let mean = if count[k] > 0 {
-                Some(sum[k] / count[k] as f64)
-            } else {
-                let (mut s, mut n) = (0.0f64, 0u32);
-                for dy in -radius..=radius {
-                    for dx in -radius..=radius {
-                        let (qx, qy) = (px + dx, py + dy);
-                        if px_range.contains(&qx) && py_range.contains(&qy) {
-                            let q = qy as usize * w as usize + qx as usize;
-                            if count[q] > 0 {
-                                s += sum[q] / count[q] as f64;
-                                n += 1;
-                            }
-                        }
-                    }
-                }
-                (n > 0).then(|| s / n as f64)
-            };
+            let mean = mean_at(k).or_else(|| {
+                offsets.iter().find_map(|&(dx, dy)| {
+                    let (qx, qy) = (px + dx, py + dy);
+                    (px_range.contains(&qx) && py_range.contains(&qy))
+                        .then(|| mean_at(qy as usize * w as usize + qx as usize))
+                        .flatten()
+                })
+            });
             if let Some(mean) = mean {
                 let c = error_colour(mean as f32 / max_e);
                 buf[3 * k..3 * k + 3].copy_from_slice(&c);
