@@ -44,7 +44,11 @@ impl PinholeIntrinsics {
     /// The point at depth `depth_m` (z) through pixel (u, v), in the camera frame.
     #[inline]
     pub fn unproject(&self, u: f64, v: f64, depth_m: f64) -> Point3<f64> {
-        Point3::new((u - self.cx) / self.fx * depth_m, (v - self.cy) / self.fy * depth_m, depth_m)
+        Point3::new(
+            (u - self.cx) / self.fx * depth_m,
+            (v - self.cy) / self.fy * depth_m,
+            depth_m,
+        )
     }
 
     /// Direction (not normalised, z = 1) of the ray through pixel (u, v), camera frame.

@@ -31,12 +31,18 @@ pub enum Error {
 impl Error {
     /// An I/O error on `path`.
     pub fn io(path: impl AsRef<Path>, source: std::io::Error) -> Self {
-        Error::Io { path: path.as_ref().to_path_buf(), source }
+        Error::Io {
+            path: path.as_ref().to_path_buf(),
+            source,
+        }
     }
 
     /// A content error in `path`.
     pub fn bad_input(path: impl AsRef<Path>, message: impl Into<String>) -> Self {
-        Error::BadInput { path: path.as_ref().to_path_buf(), message: message.into() }
+        Error::BadInput {
+            path: path.as_ref().to_path_buf(),
+            message: message.into(),
+        }
     }
 }
 

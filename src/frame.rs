@@ -18,7 +18,11 @@ pub struct Image<T> {
 impl<T: Copy> Image<T> {
     /// An image filled with `value`.
     pub fn filled(width: u32, height: u32, value: T) -> Self {
-        Image { width, height, data: vec![value; width as usize * height as usize] }
+        Image {
+            width,
+            height,
+            data: vec![value; width as usize * height as usize],
+        }
     }
 
     /// Pixel at column `u`, row `v` (panics when out of bounds).

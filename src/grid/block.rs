@@ -111,7 +111,10 @@ impl Block {
 
     /// Number of voxels in Ω.
     pub fn observed_count(&self) -> usize {
-        self.weight_omega.iter().filter(|&&w| w & OMEGA_BIT != 0).count()
+        self.weight_omega
+            .iter()
+            .filter(|&&w| w & OMEGA_BIT != 0)
+            .count()
     }
 
     /// Fuses one observation into voxel `i`: the paper's running average
@@ -143,7 +146,10 @@ impl Block {
     /// Bytes this block occupies in memory (heap included), not counting its hash entry.
     pub fn heap_bytes(&self) -> usize {
         std::mem::size_of::<Block>()
-            + self.regularized.as_ref().map_or(0, |_| std::mem::size_of::<[i16; VOXELS_PER_BLOCK]>())
+            + self
+                .regularized
+                .as_ref()
+                .map_or(0, |_| std::mem::size_of::<[i16; VOXELS_PER_BLOCK]>())
     }
 }
 

@@ -48,8 +48,16 @@ impl BlockIndex {
     #[inline]
     pub fn of_voxel(v: VoxelIndex) -> (BlockIndex, usize) {
         let s = VOXELS_PER_SIDE as i64;
-        let b = [v.0[0].div_euclid(s), v.0[1].div_euclid(s), v.0[2].div_euclid(s)];
-        let l = [v.0[0].rem_euclid(s), v.0[1].rem_euclid(s), v.0[2].rem_euclid(s)];
+        let b = [
+            v.0[0].div_euclid(s),
+            v.0[1].div_euclid(s),
+            v.0[2].div_euclid(s),
+        ];
+        let l = [
+            v.0[0].rem_euclid(s),
+            v.0[1].rem_euclid(s),
+            v.0[2].rem_euclid(s),
+        ];
         (
             BlockIndex([b[0] as i32, b[1] as i32, b[2] as i32]),
             linear_index(l[0] as usize, l[1] as usize, l[2] as usize),
@@ -97,7 +105,11 @@ pub const fn linear_index(x: usize, y: usize, z: usize) -> usize {
 /// Local (x, y, z) of a linear voxel index in a block.
 #[inline]
 pub const fn local_coords(i: usize) -> [usize; 3] {
-    [i % VOXELS_PER_SIDE, (i / VOXELS_PER_SIDE) % VOXELS_PER_SIDE, i / (VOXELS_PER_SIDE * VOXELS_PER_SIDE)]
+    [
+        i % VOXELS_PER_SIDE,
+        (i / VOXELS_PER_SIDE) % VOXELS_PER_SIDE,
+        i / (VOXELS_PER_SIDE * VOXELS_PER_SIDE),
+    ]
 }
 
 /// Geometry of a grid: voxel size and TSDF truncation.
@@ -113,8 +125,15 @@ impl GridParams {
     /// The paper's pairing of voxel size and truncation: 10 cm → μ = 1.0 m, 20 cm → μ = 1.6 m,
     /// otherwise μ = 10 voxels.
     pub fn paper(voxel_size_m: f32) -> Self {
-        let truncation_m = if (voxel_size_m - 0.2).abs() < 1e-6 { 1.6 } else { 10.0 * voxel_size_m };
-        GridParams { voxel_size_m, truncation_m }
+        let truncation_m = if (voxel_size_m - 0.2).abs() < 1e-6 {
+            1.6
+        } else {
+            10.0 * voxel_size_m
+        };
+        GridParams {
+            voxel_size_m,
+            truncation_m,
+        }
     }
 
     /// Edge length of a block, metres.
@@ -127,21 +146,33 @@ impl GridParams {
     #[inline]
     pub fn voxel_of_point(&self, p: [f64; 3]) -> VoxelIndex {
         let s = self.voxel_size_m as f64;
-        VoxelIndex([(p[0] / s).floor() as i64, (p[1] / s).floor() as i64, (p[2] / s).floor() as i64])
+        VoxelIndex([
+            (p[0] / s).floor() as i64,
+            (p[1] / s).floor() as i64,
+            (p[2] / s).floor() as i64,
+        ])
     }
 
     /// The block containing world point `p` (metres).
     #[inline]
     pub fn block_of_point(&self, p: [f64; 3]) -> BlockIndex {
         let s = self.block_size_m();
-        BlockIndex([(p[0] / s).floor() as i32, (p[1] / s).floor() as i32, (p[2] / s).floor() as i32])
+        BlockIndex([
+            (p[0] / s).floor() as i32,
+            (p[1] / s).floor() as i32,
+            (p[2] / s).floor() as i32,
+        ])
     }
 
     /// World position of the centre of voxel `v`, metres.
     #[inline]
     pub fn voxel_center(&self, v: VoxelIndex) -> [f64; 3] {
         let s = self.voxel_size_m as f64;
-        [(v.0[0] as f64 + 0.5) * s, (v.0[1] as f64 + 0.5) * s, (v.0[2] as f64 + 0.5) * s]
+        [
+            (v.0[0] as f64 + 0.5) * s,
+            (v.0[1] as f64 + 0.5) * s,
+            (v.0[2] as f64 + 0.5) * s,
+        ]
     }
 
     /// World position of the minimum corner of block `b`, metres.

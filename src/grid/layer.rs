@@ -53,7 +53,10 @@ pub struct Layer {
 impl Layer {
     /// An empty layer.
     pub fn new(params: GridParams) -> Self {
-        Layer { params, blocks: BlockMap::default() }
+        Layer {
+            params,
+            blocks: BlockMap::default(),
+        }
     }
 
     /// Voxel size and truncation.
@@ -200,13 +203,21 @@ mod tests {
 
     #[test]
     fn take_and_put_round_trip() {
-        let mut layer = Layer::new(GridParams { voxel_size_m: 0.1, truncation_m: 1.0 });
-        layer.get_or_allocate(BlockIndex([1, 2, 3])).fuse(5, 0.25, None);
+        let mut layer = Layer::new(GridParams {
+            voxel_size_m: 0.1,
+            truncation_m: 1.0,
+        });
+        layer
+            .get_or_allocate(BlockIndex([1, 2, 3]))
+            .fuse(5, 0.25, None);
         let taken = layer.take_blocks(&[BlockIndex([1, 2, 3]), BlockIndex([0, 0, 0])]);
         assert_eq!(layer.block_count(), 0);
         assert!(taken[0].1.omega(5));
         layer.put_blocks(taken);
-        assert_eq!(layer.indices_sorted(), vec![BlockIndex([0, 0, 0]), BlockIndex([1, 2, 3])]);
+        assert_eq!(
+            layer.indices_sorted(),
+            vec![BlockIndex([0, 0, 0]), BlockIndex([1, 2, 3])]
+        );
         assert_eq!(layer.observed_voxel_count(), 1);
     }
 }
