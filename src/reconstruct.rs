@@ -42,6 +42,8 @@ impl ReconstructionConfig {
 /// Wall-clock seconds and work per stage.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct StageTimings {
+    /// Seconds spent producing depth frames or scans (reading files, stereo matching).
+    pub input_s: f64,
     /// Seconds spent fusing.
     pub fusion_s: f64,
     /// Frames or scans fused.
@@ -111,6 +113,11 @@ impl Reconstructor {
     /// Timings so far.
     pub fn timings(&self) -> &StageTimings {
         &self.timings
+    }
+
+    /// Adds time spent producing input (reading, stereo) to the timings.
+    pub fn add_input_time(&mut self, seconds: f64) {
+        self.timings.input_s += seconds;
     }
 
     fn record(&mut self, started: Instant, stats: FusionStats) {
