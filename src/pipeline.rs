@@ -146,7 +146,6 @@ impl StereoDepth {
     pub fn new(method: crate::depth::StereoMethod, num_disparities: usize) -> Result<Self> {
         Ok(StereoDepth {
             estimator: method.estimator(num_disparities)?,
-            matching_s: Default::default(),
         })
     }
 
@@ -154,10 +153,7 @@ impl StereoDepth {
     pub fn frame(&self, seq: &KittiSequence, i: usize) -> Result<crate::frame::DepthFrame> {
         let left = seq.grey(0, i)?;
         let right = seq.grey(1, i)?;
-        let t = std::time::Instant::now();
         let disparity = self.estimator.estimate(&left, &right)?;
-        self.matching_s
-            .set(self.matching_s.get() + t.elapsed().as_secs_f64());
         let mut intrinsics = seq.intrinsics(0)?;
         intrinsics.width = left.width;
         intrinsics.height = left.height;
