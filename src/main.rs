@@ -55,7 +55,11 @@ struct SynthArgs {
     /// Keep at most this many frames.
     #[arg(long)]
     max_frames: Option<usize>,
-    /// Spacing of the exact ground-truth surface samples, metres (the voxel-level ground truth).
+    /// Also write dense samples of the exact scene surfaces (`ground_truth/surface.ply`) for
+    /// evaluation at voxel level; without it the LiDAR scans are the ground truth, as in the paper.
+    #[arg(long)]
+    voxel_gt: bool,
+    /// Spacing of the exact surface samples, metres (with `--voxel-gt`).
     #[arg(long, default_value_t = 0.05)]
     gt_spacing_m: f64,
     /// Do not write LiDAR scans.
@@ -436,8 +440,12 @@ fn synth(a: SynthArgs) -> Result<()> {
     if a.no_lidar {
         config.lidar = None;
     }
-    if let Some(s) = config.surface.as_mut() {
-        s.spacing_m = a.gt_spacing_m;
+    if a.voxel_gt {
+        if let Some(s) = config.surface.as_mut() {
+            s.spacing_m = a.gt_spacing_m;
+        }
+    } else {
+        config.surface = None;
     }
     let summary = denser::synth::write_drive(&config, &a.out, true)
         .with_context(|| format!("writing the drive to {}", a.out.display()))?;
