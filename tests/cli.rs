@@ -74,6 +74,7 @@ fn synthetic_drive_end_to_end() {
             "40",
             "--frame-spacing-m",
             "8",
+            "--voxel-gt",
             "--gt-spacing-m",
             "0.5",
         ],
