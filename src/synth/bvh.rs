@@ -28,6 +28,11 @@ pub struct Bvh {
     pub order: Vec<u32>,
 }
 
+/// Traversal stacks hold at most one entry per level (plus one), so the builder makes every node
+/// at this depth a leaf, however many primitives it holds: the fixed 128-entry stacks below can
+/// never overflow (a degenerate scene gets slower, never wrong).
+const MAX_DEPTH: usize = 120;
+
 impl Bvh {
     /// Builds the hierarchy over the primitives' bounds.
     pub fn build(bounds: &[Aabb]) -> Bvh {
@@ -42,9 +47,9 @@ impl Bvh {
             first: 0,
             count: 0,
         });
-        // Work list of (node index, start, end).
-        let mut work = vec![(0usize, 0usize, bounds.len())];
-        while let Some((ni, start, end)) = work.pop() {
+        // Work list of (node index, start, end, depth).
+        let mut work = vec![(0usize, 0usize, bounds.len(), 0usize)];
+        while let Some((ni, start, end, depth)) = work.pop() {
             let mut nb = Aabb::empty();
             let mut cb = Aabb::empty();
             for &i in &order[start..end] {
@@ -53,13 +58,13 @@ impl Bvh {
             }
             nodes[ni].bounds = nb;
             let n = end - start;
-            let split = if n <= MAX_LEAF {
+            let split = if n <= MAX_LEAF || depth >= MAX_DEPTH {
                 None
             } else {
                 Self::find_split(&order[start..end], bounds, &centroids, &cb, nb.area())
             };
             let Some((axis, pos)) = split else {
-                if n <= MAX_LEAF || !Self::can_median_split(&cb) {
+                if n <= MAX_LEAF || depth >= MAX_DEPTH || !Self::can_median_split(&cb) {
                     nodes[ni].first = start as u32;
                     nodes[ni].count = n as u32;
                     continue;
@@ -70,7 +75,7 @@ impl Bvh {
                     centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
                 });
                 let mid = start + n / 2;
-                Self::push_children(&mut nodes, &mut work, ni, start, mid, end);
+                Self::push_children(&mut nodes, &mut work, ni, (start, mid, end), depth + 1);
                 continue;
             };
             let slice = &mut order[start..end];
@@ -86,18 +91,17 @@ impl Bvh {
             } else {
                 start + left
             };
-            Self::push_children(&mut nodes, &mut work, ni, start, mid, end);
+            Self::push_children(&mut nodes, &mut work, ni, (start, mid, end), depth + 1);
         }
         Bvh { nodes, order }
     }
 
     fn push_children(
         nodes: &mut Vec<Node>,
-        work: &mut Vec<(usize, usize, usize)>,
+        work: &mut Vec<(usize, usize, usize, usize)>,
         ni: usize,
-        start: usize,
-        mid: usize,
-        end: usize,
+        (start, mid, end): (usize, usize, usize),
+        depth: usize,
     ) {
         let li = nodes.len();
         nodes.push(Node {
@@ -112,8 +116,8 @@ impl Bvh {
         });
         nodes[ni].first = li as u32;
         nodes[ni].count = 0;
-        work.push((li, start, mid));
-        work.push((li + 1, mid, end));
+        work.push((li, start, mid, depth));
+        work.push((li + 1, mid, end, depth));
     }
 
     fn widest(cb: &Aabb) -> usize {
@@ -346,5 +350,55 @@ impl Bvh {
     /// Number of nodes.
     pub fn node_count(&self) -> usize {
         self.nodes.len()
+    }
+}
+
+#[cfg(test)]
+mod depth_tests {
+    use super::*;
+
+    fn depth(bvh: &Bvh, node: usize) -> usize {
+        let n = &bvh.nodes[node];
+        if n.count > 0 {
+            1
+        } else {
+            1 + depth(bvh, n.first as usize).max(depth(bvh, n.first as usize + 1))
+        }
+    }
+
+    #[test]
+    fn degenerate_scenes_stay_within_the_stack() {
+        // Boxes at exponentially growing distances invite a chain-shaped tree.
+        let bounds: Vec<Aabb> = (0..2000)
+            .map(|k| {
+                let x = 1.02f64.powi(k);
+                Aabb {
+                    min: [x, 0.0, 0.0],
+                    max: [x + 1e-3, 1.0, 1.0],
+                }
+            })
+            .collect();
+        let bvh = Bvh::build(&bounds);
+        assert!(depth(&bvh, 0) <= MAX_DEPTH + 1, "depth {}", depth(&bvh, 0));
+        // Every box is still found: the nearest along +x from the origin is box 0, and from
+        // just past box k it is box k + 1.
+        for k in [0usize, 500, 1500, 1998] {
+            let start = if k == 0 {
+                -1.0
+            } else {
+                1.02f64.powi(k as i32) + 2e-3
+            };
+            let ray = Ray::new(
+                nalgebra::Point3::new(start, 0.5, 0.5),
+                nalgebra::Vector3::new(1.0, 0.0, 0.0),
+            );
+            let inv = [1.0, f64::INFINITY, f64::INFINITY];
+            let o = [start, 0.5, 0.5];
+            let hit = bvh.closest(&ray, f64::INFINITY, |p, t_max| {
+                bounds[p as usize].hit(&o, &inv, t_max)
+            });
+            let want = if k == 0 { 0 } else { k + 1 };
+            assert_eq!(hit.map(|h| h.1), Some(want as u32), "from box {k}");
+        }
     }
 }
