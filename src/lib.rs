@@ -20,5 +20,6 @@ pub mod progress;
 pub mod reconstruct;
 pub mod regularize;
 pub mod synth;
+pub mod tiles;
 
 pub use error::{Error, Result};

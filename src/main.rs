@@ -7,6 +7,8 @@ use denser::pipeline::{self, RangeSource, ReconstructJob};
 use denser::reconstruct::ReconstructionConfig;
 use std::path::PathBuf;
 
+mod cli_map;
+
 #[derive(Parser)]
 #[command(
     name = "denser",
@@ -33,6 +35,12 @@ enum Command {
     Evaluate(EvaluateArgs),
     /// Generate a synthetic city drive with exact ground truth, in the KITTI odometry layout.
     Synth(SynthArgs),
+    /// Re-regularise a stored map region by region within a memory budget (resumable).
+    Regularize(cli_map::RegularizeArgs),
+    /// Convert a stored map, tile by tile, to one mesh (PLY) or point cloud (PLY, LAS, LAZ).
+    Export(cli_map::ExportArgs),
+    /// Summarise a stored map (chunks, blocks, voxels, bytes) and verify its checksums.
+    Inspect(cli_map::InspectArgs),
 }
 
 #[derive(Args)]
@@ -65,6 +73,10 @@ struct SynthArgs {
     /// Do not write LiDAR scans.
     #[arg(long)]
     no_lidar: bool,
+    /// Write poses, calibration and LiDAR scans only (no stereo images or depth): fast long
+    /// drives for LiDAR reconstruction.
+    #[arg(long, conflicts_with = "no_lidar")]
+    lidar_only: bool,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -150,6 +162,8 @@ struct ReconstructArgs {
     num_disparities: usize,
     #[command(flatten)]
     map: MapArgs,
+    #[command(flatten)]
+    stream: cli_map::StreamArgs,
 }
 
 #[derive(Args)]
@@ -222,6 +236,9 @@ fn main() {
         Command::Synth(a) => synth(a),
         Command::Evaluate(a) => evaluate(a),
         Command::Demo(a) => demo(a),
+        Command::Regularize(a) => cli_map::regularize(a),
+        Command::Export(a) => cli_map::export(a),
+        Command::Inspect(a) => cli_map::inspect(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
@@ -248,6 +265,9 @@ fn reconstruct(a: ReconstructArgs) -> Result<()> {
         stereo_method: a.method.parse()?,
         num_disparities: a.num_disparities,
     };
+    if let Some(dir) = &a.stream.map {
+        return reconstruct_streamed(&job, dir, &a.stream);
+    }
     let rec = pipeline::fuse_input(&job)
         .with_context(|| format!("reconstructing {}", a.input.display()))?;
     let outcome = pipeline::finish(rec, &a.out)
@@ -316,6 +336,89 @@ fn reconstruct(a: ReconstructArgs) -> Result<()> {
     for p in written {
         println!("wrote {}", p.display());
     }
+    Ok(())
+}
+
+fn reconstruct_streamed(
+    job: &ReconstructJob,
+    dir: &std::path::Path,
+    s: &cli_map::StreamArgs,
+) -> Result<()> {
+    let map = pipeline::MapJob {
+        dir: dir.to_path_buf(),
+        budget_bytes: s.memory_budget,
+        chunk_blocks: s.chunk_blocks,
+        checkpoint_every: s.checkpoint_every,
+        region_chunks: s.region_chunks,
+        overrun: if s.allow_overrun {
+            denser::tiles::pager::OverrunPolicy::Warn
+        } else {
+            denser::tiles::pager::OverrunPolicy::Error
+        },
+        export_meshes: true,
+    };
+    let o = pipeline::reconstruct_map(job, &map).with_context(|| {
+        format!(
+            "reconstructing {} into map {}",
+            job.input.display(),
+            dir.display()
+        )
+    })?;
+    let new_frames = o.frames_fused - o.resumed_from_frame;
+    if o.resumed_from_frame > 0 {
+        println!("resumed after {} committed frames", o.resumed_from_frame);
+    }
+    println!(
+        "fused {} frames: fusion {:.1} ms/frame, paging {:.1} ms/frame ({:.1} % of fusion), input {:.1} ms/frame",
+        new_frames,
+        1e3 * o.fusion_s / new_frames.max(1) as f64,
+        1e3 * o.paging_s / new_frames.max(1) as f64,
+        100.0 * o.paging_s / o.fusion_s.max(1e-9),
+        1e3 * o.input_s / new_frames.max(1) as f64
+    );
+    println!(
+        "pager: budget {} MiB, peak {:.1} MiB resident+writing, {} chunks evicted, {} written ({:.1} MiB), {} read back, {} over budget",
+        s.memory_budget >> 20,
+        o.pager.peak_bytes as f64 / (1u64 << 20) as f64,
+        o.pager.chunks_evicted,
+        o.pager.chunks_written,
+        o.pager.bytes_written as f64 / (1u64 << 20) as f64,
+        o.pager.chunks_read,
+        o.pager.budget_overruns
+    );
+    println!(
+        "map: {} chunks, {} blocks, {} voxels ({} in Ω), {:.1} MiB on disk, {:.3} bytes/voxel on disk",
+        o.summary.chunks,
+        o.summary.blocks,
+        o.summary.voxels,
+        o.summary.observed_voxels,
+        o.summary.bytes_on_disk as f64 / (1u64 << 20) as f64,
+        o.summary.bytes_per_voxel()
+    );
+    println!(
+        "regularised {} regions ({} already done) in {:.1} s: {:.2} s per million Ω voxels",
+        o.regularize.regions,
+        o.regularize.regions_skipped,
+        o.regularize.seconds,
+        o.regularize.seconds / (o.regularize.core_omega_voxels.max(1) as f64 / 1e6)
+    );
+    for (p, e) in &o.exports {
+        println!(
+            "wrote {} ({} vertices, {} triangles, {:.2} s)",
+            p.display(),
+            e.vertices,
+            e.triangles,
+            e.seconds
+        );
+    }
+    if let Some(rss) = o.peak_rss_bytes {
+        println!("peak RSS {:.1} MiB", rss as f64 / (1u64 << 20) as f64);
+    }
+    let report = job.out_dir.join("map_report.json");
+    std::fs::create_dir_all(&job.out_dir)?;
+    std::fs::write(&report, serde_json::to_string_pretty(&o)?)
+        .with_context(|| format!("writing {}", report.display()))?;
+    println!("wrote {}", report.display());
     Ok(())
 }
 
@@ -440,6 +543,7 @@ fn synth(a: SynthArgs) -> Result<()> {
     if a.no_lidar {
         config.lidar = None;
     }
+    config.images = !a.lidar_only;
     if a.voxel_gt {
         if let Some(s) = config.surface.as_mut() {
             s.spacing_m = a.gt_spacing_m;

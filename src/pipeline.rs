@@ -215,36 +215,53 @@ pub fn kitti_gt_depth_frame(seq: &KittiSequence, i: usize) -> Result<crate::fram
     })
 }
 
-/// Fuses the job's input into a fresh reconstructor (no regularisation yet).
-pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
-    let mut rec = Reconstructor::new(job.config)?;
+/// One range measurement of a job's input, ready to fuse.
+pub enum RangeInput {
+    /// A depth map with pose (RGB-D, ground-truth depth, or stereo).
+    Depth(crate::frame::DepthFrame),
+    /// A LiDAR scan with pose.
+    Lidar(crate::frame::LidarScan),
+}
+
+/// The frames a job fuses, in order (indices into its sequence).
+pub fn job_frame_count(job: &ReconstructJob) -> Result<usize> {
+    Ok(match detect_input(&job.input)? {
+        InputKind::Kitti => {
+            let seq = KittiSequence::open(&job.input, job.poses.as_deref())?;
+            frame_indices(seq.len(), job.frames, job.frame_step).len()
+        }
+        kind => {
+            let seq = open_depth_sequence(&job.input, kind)?;
+            frame_indices(seq.len(), job.frames, job.frame_step).len()
+        }
+    })
+}
+
+/// Reads (and for stereo, computes) the job's inputs one at a time, skipping the first `skip` of
+/// its frames (already fused by a resumed run), and hands each to `sink` with the seconds spent
+/// producing it. Nothing is held beyond the current frame.
+pub fn for_each_input(
+    job: &ReconstructJob,
+    skip: usize,
+    mut sink: impl FnMut(RangeInput, f64) -> Result<()>,
+) -> Result<()> {
     match detect_input(&job.input)? {
         InputKind::Kitti => {
             let seq = KittiSequence::open(&job.input, job.poses.as_deref())?;
             let frames = frame_indices(seq.len(), job.frames, job.frame_step);
             let stereo = StereoDepth::new(job.stereo_method, job.num_disparities)?;
             let bar = crate::progress::bar(frames.len() as u64, "fusing");
-            for &i in &frames {
-                match job.source {
-                    RangeSource::Lidar => {
-                        let t = std::time::Instant::now();
-                        let scan = seq.velodyne(i)?;
-                        rec.add_input_time(t.elapsed().as_secs_f64());
-                        rec.fuse_lidar(&scan);
-                    }
+            bar.inc(skip.min(frames.len()) as u64);
+            for &i in frames.iter().skip(skip) {
+                let t = std::time::Instant::now();
+                let input = match job.source {
+                    RangeSource::Lidar => RangeInput::Lidar(seq.velodyne(i)?),
                     RangeSource::GroundTruthDepth => {
-                        let t = std::time::Instant::now();
-                        let frame = kitti_gt_depth_frame(&seq, i)?;
-                        rec.add_input_time(t.elapsed().as_secs_f64());
-                        rec.fuse_depth(&frame);
+                        RangeInput::Depth(kitti_gt_depth_frame(&seq, i)?)
                     }
-                    RangeSource::Stereo => {
-                        let t = std::time::Instant::now();
-                        let frame = stereo.frame(&seq, i)?;
-                        rec.add_input_time(t.elapsed().as_secs_f64());
-                        rec.fuse_depth(&frame);
-                    }
-                }
+                    RangeSource::Stereo => RangeInput::Depth(stereo.frame(&seq, i)?),
+                };
+                sink(input, t.elapsed().as_secs_f64())?;
                 bar.inc(1);
             }
             bar.finish_and_clear();
@@ -253,16 +270,30 @@ pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
             let seq = open_depth_sequence(&job.input, kind)?;
             let frames = frame_indices(seq.len(), job.frames, job.frame_step);
             let bar = crate::progress::bar(frames.len() as u64, "fusing");
-            for &i in &frames {
+            bar.inc(skip.min(frames.len()) as u64);
+            for &i in frames.iter().skip(skip) {
                 let t = std::time::Instant::now();
                 let frame = seq.frame(i)?;
-                rec.add_input_time(t.elapsed().as_secs_f64());
-                rec.fuse_depth(&frame);
+                sink(RangeInput::Depth(frame), t.elapsed().as_secs_f64())?;
                 bar.inc(1);
             }
             bar.finish_and_clear();
         }
     }
+    Ok(())
+}
+
+/// Fuses the job's input into a fresh reconstructor (no regularisation yet).
+pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
+    let mut rec = Reconstructor::new(job.config)?;
+    for_each_input(job, 0, |input, input_s| {
+        rec.add_input_time(input_s);
+        match input {
+            RangeInput::Depth(f) => rec.fuse_depth(&f),
+            RangeInput::Lidar(s) => rec.fuse_lidar(&s),
+        };
+        Ok(())
+    })?;
     tracing::info!(
         blocks = rec.layer().block_count(),
         ms_per_frame = rec.timings().fusion_ms_per_frame(),
@@ -641,5 +672,209 @@ pub fn demo(demo: &DemoConfig) -> Result<DemoOutcome> {
         report,
         written,
         total_s,
+    })
+}
+
+/// Out-of-core settings of `reconstruct --map`.
+#[derive(Clone, Debug)]
+pub struct MapJob {
+    /// The map directory (created, or resumed when it holds a map of the same job).
+    pub dir: PathBuf,
+    /// Bytes of voxel blocks kept in RAM at most (fusion, regularisation regions).
+    pub budget_bytes: u64,
+    /// Chunk edge, blocks.
+    pub chunk_blocks: u32,
+    /// Commit a checkpoint every this many frames (0: only at the end).
+    pub checkpoint_every: u64,
+    /// Regularisation region edge, chunks.
+    pub region_chunks: u32,
+    /// What to do when one frame's working set exceeds the budget.
+    pub overrun: crate::tiles::pager::OverrunPolicy,
+    /// Export meshes (raw and regularised) into the job's output folder at the end.
+    pub export_meshes: bool,
+}
+
+/// What a streamed reconstruction did.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MapOutcome {
+    /// Frames fused in all (this run and the runs it resumed).
+    pub frames_fused: u64,
+    /// Frames already committed when this run started (0 for a fresh map).
+    pub resumed_from_frame: u64,
+    /// Seconds producing inputs (reading, stereo).
+    pub input_s: f64,
+    /// Seconds in fusion proper.
+    pub fusion_s: f64,
+    /// Seconds paging (reads, evictions, waits, checkpoints).
+    pub paging_s: f64,
+    /// Voxel updates in this run.
+    pub voxel_updates: usize,
+    /// Pager counters.
+    pub pager: crate::tiles::pager::PagerStats,
+    /// Offline regularisation counters.
+    pub regularize: crate::tiles::regional::MapRegularizeStats,
+    /// The map on disk.
+    pub summary: crate::tiles::store::MapSummary,
+    /// Exported files and their counters.
+    pub exports: Vec<(PathBuf, crate::tiles::export::ExportStats)>,
+    /// Peak resident set of the process, bytes (Linux).
+    pub peak_rss_bytes: Option<u64>,
+}
+
+/// Identity of the job that made a map, stored as `job.json` beside the manifest so a resumed run
+/// refuses to continue a map made from other data or settings.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+struct MapJobRecord {
+    input: String,
+    source: String,
+    frames: Option<(usize, usize)>,
+    frame_step: usize,
+    voxel_size_m: f32,
+    truncation_m: f32,
+    max_depth_m: f32,
+    stereo: String,
+    num_disparities: usize,
+}
+
+impl MapJobRecord {
+    fn of(job: &ReconstructJob) -> Self {
+        MapJobRecord {
+            input: std::fs::canonicalize(&job.input)
+                .unwrap_or_else(|_| job.input.clone())
+                .display()
+                .to_string(),
+            source: format!("{:?}", job.source),
+            frames: job.frames,
+            frame_step: job.frame_step,
+            voxel_size_m: job.config.grid.voxel_size_m,
+            truncation_m: job.config.grid.truncation_m,
+            max_depth_m: job.config.depth_fusion.max_depth_m,
+            stereo: job.stereo_method.as_str().to_string(),
+            num_disparities: job.num_disparities,
+        }
+    }
+}
+
+/// `reconstruct --map`: fuses the job's input through the pager into a chunked map on disk
+/// (resuming a killed run of the same job from its last checkpoint), regularises it region by
+/// region, and exports both meshes tile by tile. Memory is bounded by `map.budget_bytes` plus a
+/// fixed overhead, whatever the length of the drive.
+pub fn reconstruct_map(job: &ReconstructJob, map: &MapJob) -> Result<MapOutcome> {
+    use crate::tiles::{export, pager, regional, store::MapStore, stream::StreamingFusion};
+    let record = MapJobRecord::of(job);
+    let record_path = map.dir.join("job.json");
+    let store = if map.dir.join(crate::tiles::store::MANIFEST_FILE).exists() {
+        let stored: MapJobRecord = serde_json::from_slice(
+            &std::fs::read(&record_path).map_err(|e| Error::io(&record_path, e))?,
+        )
+        .map_err(|e| Error::bad_input(&record_path, e.to_string()))?;
+        if stored != record {
+            return Err(Error::bad_input(
+                &record_path,
+                format!("this map was made by another job ({stored:?}); use a new --map folder to reconstruct {record:?}"),
+            ));
+        }
+        MapStore::open(&map.dir)?
+    } else {
+        let s = MapStore::create(&map.dir, job.config.grid, map.chunk_blocks)?;
+        crate::tiles::store::write_atomically(
+            &record_path,
+            serde_json::to_string_pretty(&record)
+                .expect("job record serialises")
+                .as_bytes(),
+        )?;
+        s
+    };
+    let resumed_from_frame = store.manifest().header.frames_committed;
+    let total = job_frame_count(job)? as u64;
+    if resumed_from_frame > total {
+        return Err(Error::bad_input(
+            &map.dir,
+            format!(
+                "the map has {resumed_from_frame} frames committed but the job has only {total}"
+            ),
+        ));
+    }
+    if resumed_from_frame > 0 {
+        tracing::info!(
+            "resuming {} after {resumed_from_frame} committed frames",
+            map.dir.display()
+        );
+    }
+    let pager = pager::Pager::new(
+        store,
+        pager::PagerConfig {
+            budget_bytes: map.budget_bytes,
+            overrun: map.overrun,
+            writer_threads: 2,
+        },
+    );
+    let mut fusion = StreamingFusion::new(
+        pager,
+        job.config.depth_fusion,
+        job.config.lidar_fusion,
+        map.checkpoint_every,
+    );
+    let mut input_s = 0.0;
+    for_each_input(job, resumed_from_frame as usize, |input, s| {
+        input_s += s;
+        match input {
+            RangeInput::Depth(f) => fusion.fuse_depth(&f)?,
+            RangeInput::Lidar(scan) => fusion.fuse_lidar(&scan)?,
+        };
+        Ok(())
+    })?;
+    let (fusion_s, paging_s, voxel_updates, frames_fused) = (
+        fusion.fusion_s,
+        fusion.paging_s,
+        fusion.voxel_updates,
+        fusion.frames_fused(),
+    );
+    let (mut store, pager_stats) = fusion.finish()?;
+    let bar = crate::progress::bar(0, "regularising");
+    let regularize = regional::regularize_map(
+        &mut store,
+        &job.config.tv,
+        &regional::RegionalOptions {
+            region_chunks: map.region_chunks,
+            budget_bytes: map.budget_bytes,
+            halo_blocks: None,
+        },
+        |done, total| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+            true
+        },
+    )?;
+    bar.finish_and_clear();
+    let mut exports = Vec::new();
+    if map.export_meshes {
+        std::fs::create_dir_all(&job.out_dir).map_err(|e| Error::io(&job.out_dir, e))?;
+        for (name, field) in [
+            ("mesh_raw.ply", Field::Raw),
+            ("mesh_regularized.ply", Field::Regularized),
+        ] {
+            let path = job.out_dir.join(name);
+            let st = export::export(
+                &store,
+                field,
+                None,
+                &export::ExportTarget::Mesh(path.clone()),
+            )?;
+            exports.push((path, st));
+        }
+    }
+    Ok(MapOutcome {
+        frames_fused,
+        resumed_from_frame,
+        input_s,
+        fusion_s,
+        paging_s,
+        voxel_updates,
+        pager: pager_stats,
+        regularize,
+        summary: store.summary(),
+        exports,
+        peak_rss_bytes: peak_rss_bytes(),
     })
 }

@@ -89,37 +89,71 @@ pub fn depth_frame_blocks(
     all
 }
 
+/// The view volume of a depth frame as half-spaces (camera frame: near `z > 0`, far
+/// `z < max_depth + μ`, and the four planes through the optical centre and the image borders
+/// widened by one pixel). [`ViewFrustum::meets_sphere`] is conservative and monotone: a sphere
+/// that contains a passing sphere passes too, so a pager can select chunks with the same test that
+/// selects blocks and page in every block fusion could update.
+#[derive(Clone, Copy, Debug)]
+pub struct ViewFrustum {
+    camera_from_world: nalgebra::Isometry3<f64>,
+    /// Unit inward normals of the side planes (through the camera centre), camera frame.
+    sides: [Vector3<f64>; 4],
+    far_m: f64,
+}
+
+impl ViewFrustum {
+    /// The frustum of `frame` for fusion with `params` and truncation `truncation_m`.
+    pub fn new(frame: &DepthFrame, params: &DepthFusionParams, truncation_m: f64) -> Self {
+        let k = &frame.intrinsics;
+        let (w, h) = (k.width as f64, k.height as f64);
+        // Rays through the widened image corners (z = 1).
+        let x0 = (-1.0 - k.cx) / k.fx;
+        let x1 = (w + 1.0 - k.cx) / k.fx;
+        let y0 = (-1.0 - k.cy) / k.fy;
+        let y1 = (h + 1.0 - k.cy) / k.fy;
+        // Inward normals: x - x0·z ≥ 0, x1·z - x ≥ 0, same for y.
+        let sides = [
+            Vector3::new(1.0, 0.0, -x0).normalize(),
+            Vector3::new(-1.0, 0.0, x1).normalize(),
+            Vector3::new(0.0, 1.0, -y0).normalize(),
+            Vector3::new(0.0, -1.0, y1).normalize(),
+        ];
+        ViewFrustum {
+            camera_from_world: frame.world_from_camera.inverse(),
+            sides,
+            far_m: params.max_depth_m as f64 + truncation_m,
+        }
+    }
+
+    /// Whether the sphere of `radius_m` around world point `centre` meets every half-space.
+    pub fn meets_sphere(&self, centre: [f64; 3], radius_m: f64) -> bool {
+        let c = self.camera_from_world * Point3::new(centre[0], centre[1], centre[2]);
+        if c.z < -radius_m || c.z > self.far_m + radius_m {
+            return false;
+        }
+        self.sides.iter().all(|n| n.dot(&c.coords) > -radius_m)
+    }
+}
+
 /// Allocated blocks of `layer` whose bounding sphere meets the camera frustum up to
-/// `max_depth_m + μ`, sorted. These receive the update too (free space carves stale surfaces).
+/// `max_depth_m + μ` ([`ViewFrustum`]), sorted. These receive the update too (free space carves
+/// stale surfaces).
 pub fn visible_blocks(
     layer: &Layer,
     frame: &DepthFrame,
     params: &DepthFusionParams,
 ) -> TouchedBlocks {
     let grid = layer.params();
-    let camera_from_world = frame.world_from_camera.inverse();
-    let k = &frame.intrinsics;
+    let frustum = ViewFrustum::new(frame, params, grid.truncation_m as f64);
     let half = 0.5 * grid.block_size_m();
     let radius = half * 3f64.sqrt();
-    let far = params.max_depth_m as f64 + grid.truncation_m as f64 + radius;
     let mut v: Vec<BlockIndex> = layer
         .iter_unsorted()
         .map(|(i, _)| *i)
         .filter(|i| {
             let o = grid.block_origin(*i);
-            let c = camera_from_world * Point3::new(o[0] + half, o[1] + half, o[2] + half);
-            if c.z < -radius || c.z > far {
-                return false;
-            }
-            // Conservative: test the pixel bounds widened by the block's projected radius.
-            let z = c.z.max(1e-3);
-            let (u, v) = (k.fx * c.x / z + k.cx, k.fy * c.y / z + k.cy);
-            let r_px = if c.z > radius {
-                k.fx.max(k.fy) * radius / (c.z - radius)
-            } else {
-                f64::INFINITY
-            };
-            u > -r_px && v > -r_px && u < k.width as f64 + r_px && v < k.height as f64 + r_px
+            frustum.meets_sphere([o[0] + half, o[1] + half, o[2] + half], radius)
         })
         .collect();
     v.sort_unstable();
@@ -133,8 +167,20 @@ pub fn integrate_depth(
     frame: &DepthFrame,
     params: &DepthFusionParams,
 ) -> (TouchedBlocks, FusionStats) {
+    let band = depth_frame_blocks(&layer.params(), frame, params);
+    integrate_depth_band(layer, frame, params, band)
+}
+
+/// [`integrate_depth`] with the frame's band blocks already listed by [`depth_frame_blocks`]
+/// (a pager lists them first to page in their chunks).
+pub fn integrate_depth_band(
+    layer: &mut Layer,
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+    band: TouchedBlocks,
+) -> (TouchedBlocks, FusionStats) {
     let grid = layer.params();
-    let mut blocks = depth_frame_blocks(&grid, frame, params);
+    let mut blocks = band;
     blocks.extend(visible_blocks(layer, frame, params));
     blocks.sort_unstable();
     blocks.dedup();

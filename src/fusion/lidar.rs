@@ -106,10 +106,45 @@ pub fn integrate_lidar(
     scan: &LidarScan,
     params: &LidarFusionParams,
 ) -> (TouchedBlocks, FusionStats) {
+    let plan = LidarPlan::new(&layer.params(), scan, params);
+    integrate_lidar_plan(layer, &plan)
+}
+
+/// A scan's usable rays and the (block, ray) pairs of their truncation bands: what
+/// [`integrate_lidar_plan`] applies. A pager builds it first to page in [`LidarPlan::blocks`].
+pub struct LidarPlan {
+    origin: [f64; 3],
+    rays: Vec<Ray>,
+    pairs: Vec<(BlockIndex, u32)>,
+}
+
+impl LidarPlan {
+    /// Lists the rays and band blocks of `scan` on `grid`.
+    pub fn new(grid: &GridParams, scan: &LidarScan, params: &LidarFusionParams) -> Self {
+        let origin: [f64; 3] = scan.world_from_sensor.translation.vector.into();
+        let rays = rays(scan, params);
+        let pairs = block_ray_pairs(grid, origin, &rays);
+        LidarPlan {
+            origin,
+            rays,
+            pairs,
+        }
+    }
+
+    /// The blocks the scan will update, sorted.
+    pub fn blocks(&self) -> TouchedBlocks {
+        let mut b: Vec<BlockIndex> = self.pairs.iter().map(|p| p.0).collect();
+        b.dedup();
+        b
+    }
+}
+
+/// Applies a [`LidarPlan`] to `layer` (see [`integrate_lidar`]).
+pub fn integrate_lidar_plan(layer: &mut Layer, plan: &LidarPlan) -> (TouchedBlocks, FusionStats) {
     let grid = layer.params();
-    let origin: [f64; 3] = scan.world_from_sensor.translation.vector.into();
-    let rays = rays(scan, params);
-    let pairs = block_ray_pairs(&grid, origin, &rays);
+    let origin = plan.origin;
+    let rays = &plan.rays;
+    let pairs = &plan.pairs;
     // Group the sorted pairs by block.
     let mut groups: Vec<(BlockIndex, std::ops::Range<usize>)> = Vec::new();
     let mut start = 0;

@@ -22,8 +22,13 @@ mod depth;
 mod lidar;
 pub mod traverse;
 
-pub use depth::{depth_frame_blocks, integrate_depth, visible_blocks, DepthFusionParams};
-pub use lidar::{integrate_lidar, lidar_scan_blocks, LidarFusionParams};
+pub use depth::{
+    depth_frame_blocks, integrate_depth, integrate_depth_band, visible_blocks, DepthFusionParams,
+    ViewFrustum,
+};
+pub use lidar::{
+    integrate_lidar, integrate_lidar_plan, lidar_scan_blocks, LidarFusionParams, LidarPlan,
+};
 
 /// Work counters of one integration call.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

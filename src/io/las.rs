@@ -236,32 +236,67 @@ pub fn write_point_cloud(path: impl AsRef<Path>, cloud: &PointCloud) -> Result<(
             }
         }
     }
-    let mut builder = Builder::from(Version::new(1, 2));
-    let format = if cloud.colors.is_some() { 2 } else { 0 };
-    builder.point_format = las::point::Format::new(format).map_err(|e| las_err(path, e))?;
-    builder.generating_software = "denser".into();
-    let t = |k: usize| Transform {
-        scale: WRITE_SCALE_M,
-        offset: offset[k],
-    };
-    builder.transforms = Vector {
-        x: t(0),
-        y: t(1),
-        z: t(2),
-    };
-    builder.point_format.is_compressed = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
-    let header = builder.into_header().map_err(|e| las_err(path, e))?;
-    let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
-    let mut writer =
-        Writer::new(std::io::BufWriter::new(file), header).map_err(|e| las_err(path, e))?;
-    let mut written = Ok(());
+    let mut writer = LasPointWriter::create(path, offset, cloud.colors.is_some())?;
     for (i, p) in cloud.points_m.iter().enumerate() {
-        let color = cloud.colors.as_ref().map(|c| {
-            let [r, g, b] = c[i];
-            Color::new(r as u16 * 257, g as u16 * 257, b as u16 * 257)
-        });
+        writer.write(*p, cloud.colors.as_ref().map(|c| c[i]))?;
+    }
+    writer.close()
+}
+
+/// A LAS/LAZ file written point by point (for exports larger than memory): LAS 1.2, point format
+/// 2 with colour or 0 without, scale [`WRITE_SCALE_M`] around a fixed offset; LAZ when the path
+/// ends in `.laz`. Header bounds and counts are filled in by [`LasPointWriter::close`].
+pub struct LasPointWriter {
+    path: std::path::PathBuf,
+    writer: Option<Writer<std::io::BufWriter<std::fs::File>>>,
+    offset_m: [f64; 3],
+}
+
+impl LasPointWriter {
+    /// Creates the file; points must lie within ±2 147 km of `offset_m`.
+    pub fn create(path: &Path, offset_m: [f64; 3], colors: bool) -> Result<Self> {
+        let mut builder = Builder::from(Version::new(1, 2));
+        let format = if colors { 2 } else { 0 };
+        builder.point_format = las::point::Format::new(format).map_err(|e| las_err(path, e))?;
+        builder.generating_software = "denser".into();
+        let t = |k: usize| Transform {
+            scale: WRITE_SCALE_M,
+            offset: offset_m[k],
+        };
+        builder.transforms = Vector {
+            x: t(0),
+            y: t(1),
+            z: t(2),
+        };
+        builder.point_format.is_compressed = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
+        let header = builder.into_header().map_err(|e| las_err(path, e))?;
+        let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+        let writer =
+            Writer::new(std::io::BufWriter::new(file), header).map_err(|e| las_err(path, e))?;
+        Ok(LasPointWriter {
+            path: path.to_path_buf(),
+            writer: Some(writer),
+            offset_m,
+        })
+    }
+
+    /// Appends one point (metres) with an optional sRGB colour.
+    pub fn write(&mut self, p: [f64; 3], color: Option<[u8; 3]>) -> Result<()> {
+        for k in 0..3 {
+            if !p[k].is_finite()
+                || ((p[k] - self.offset_m[k]) / WRITE_SCALE_M).abs() >= i32::MAX as f64
+            {
+                return Err(Error::InvalidArgument(format!(
+                    "{}: coordinate {p:?} is not finite or too far from the offset {:?} for LAS 32-bit integers",
+                    self.path.display(),
+                    self.offset_m
+                )));
+            }
+        }
+        let color =
+            color.map(|[r, g, b]| Color::new(r as u16 * 257, g as u16 * 257, b as u16 * 257));
         let point = Point {
             x: p[0],
             y: p[1],
@@ -269,15 +304,28 @@ pub fn write_point_cloud(path: impl AsRef<Path>, cloud: &PointCloud) -> Result<(
             color,
             ..Default::default()
         };
-        written = writer.write_point(point);
-        if written.is_err() {
-            break;
+        let w = self.writer.as_mut().expect("open until closed");
+        w.write_point(point).map_err(|e| las_err(&self.path, e))
+    }
+
+    /// Finishes the file (header bounds and counts).
+    pub fn close(mut self) -> Result<()> {
+        let mut w = self.writer.take().expect("open until closed");
+        let closed = w.close();
+        if closed.is_err() {
+            // `las::Writer` panics when dropped unclosed; after a failed close, leak it instead.
+            std::mem::forget(w);
+        }
+        closed.map_err(|e| las_err(&self.path, e))
+    }
+}
+
+impl Drop for LasPointWriter {
+    fn drop(&mut self) {
+        if let Some(mut w) = self.writer.take() {
+            if w.close().is_err() {
+                std::mem::forget(w);
+            }
         }
     }
-    let closed = writer.close();
-    if closed.is_err() {
-        // `las::Writer` panics when dropped unclosed; after a failed close, leak it instead.
-        std::mem::forget(writer);
-    }
-    written.and(closed).map_err(|e| las_err(path, e))
 }

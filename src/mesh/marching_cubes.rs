@@ -72,7 +72,8 @@ fn gather(layer: &Layer, index: BlockIndex, field: Field) -> Samples {
 }
 
 /// A vertex keyed by its edge: (lower corner voxel, axis).
-type EdgeKey = (VoxelIndex, u8);
+/// A vertex's identity: the global voxel index of its cube edge's lower corner and the edge's axis.
+pub type EdgeKey = (VoxelIndex, u8);
 
 struct BlockMesh {
     vertices: Vec<(EdgeKey, [f32; 3], [u8; 3])>,
@@ -148,6 +149,16 @@ fn mesh_block(layer: &Layer, index: BlockIndex, field: Field) -> BlockMesh {
 /// `blocks` is `None`), with colours. Vertices and triangles come in block order, so the result is
 /// deterministic.
 pub fn extract_mesh(layer: &Layer, field: Field, blocks: Option<&[BlockIndex]>) -> Mesh {
+    extract_mesh_keyed(layer, field, blocks).0
+}
+
+/// [`extract_mesh`], also returning each vertex's [`EdgeKey`] (same order as the vertices), so
+/// meshes extracted tile by tile can be stitched without duplicate vertices.
+pub fn extract_mesh_keyed(
+    layer: &Layer,
+    field: Field,
+    blocks: Option<&[BlockIndex]>,
+) -> (Mesh, Vec<EdgeKey>) {
     let list: Vec<BlockIndex> = match blocks {
         Some(b) => {
             let mut v = b.to_vec();
@@ -162,6 +173,7 @@ pub fn extract_mesh(layer: &Layer, field: Field, blocks: Option<&[BlockIndex]>) 
         .map(|&b| mesh_block(layer, b, field))
         .collect();
     let mut mesh = Mesh::default();
+    let mut keys = Vec::new();
     let mut global: HashMap<EdgeKey, u32> = HashMap::new();
     for part in parts {
         let remap: Vec<u32> = part
@@ -171,6 +183,7 @@ pub fn extract_mesh(layer: &Layer, field: Field, blocks: Option<&[BlockIndex]>) 
                 *global.entry(*key).or_insert_with(|| {
                     mesh.positions_m.push(*p);
                     mesh.colors.push(*c);
+                    keys.push(*key);
                     (mesh.positions_m.len() - 1) as u32
                 })
             })
@@ -178,5 +191,5 @@ pub fn extract_mesh(layer: &Layer, field: Field, blocks: Option<&[BlockIndex]>) 
         mesh.triangles
             .extend(part.triangles.iter().map(|t| t.map(|i| remap[i as usize])));
     }
-    mesh
+    (mesh, keys)
 }

@@ -4,7 +4,7 @@
 mod marching_cubes;
 pub mod tables;
 
-pub use marching_cubes::{extract_mesh, Field};
+pub use marching_cubes::{extract_mesh, extract_mesh_keyed, EdgeKey, Field};
 
 /// An indexed triangle mesh with per-vertex colour, world coordinates in metres.
 /// Triangles wind counter-clockwise seen from the free-space (positive TSDF) side.

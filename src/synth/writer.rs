@@ -43,6 +43,9 @@ pub struct DriveConfig {
     pub surface: Option<SurfaceSampling>,
     /// Time between frames, seconds (KITTI: about 0.1).
     pub frame_period_s: f64,
+    /// Render and write the stereo images and ground-truth depth (false: poses, calibration and
+    /// LiDAR only, for long LiDAR drives).
+    pub images: bool,
 }
 
 impl Default for DriveConfig {
@@ -54,6 +57,7 @@ impl Default for DriveConfig {
             lidar: Some(LidarConfig::default()),
             surface: Some(SurfaceSampling::default()),
             frame_period_s: 0.1,
+            images: true,
         }
     }
 }
@@ -165,10 +169,27 @@ pub fn encode_depth_u16(depth_m: f32) -> u16 {
 fn write_frame(
     seq: &Path,
     index: usize,
-    frame: &StereoFrame,
+    frame: Option<&StereoFrame>,
     scan: Option<&LidarScan>,
 ) -> Result<()> {
     let name = format!("{index:06}");
+    if let Some(frame) = frame {
+        write_images(seq, &name, frame)?;
+    }
+    if let Some(scan) = scan {
+        let path = seq.join("velodyne").join(format!("{name}.bin"));
+        let mut bytes = Vec::with_capacity(scan.points_sensor_m.len() * 16);
+        for (p, i) in scan.points_sensor_m.iter().zip(&scan.intensity) {
+            for v in [p[0], p[1], p[2], *i] {
+                bytes.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        std::fs::write(&path, bytes).map_err(io_err(&path))?;
+    }
+    Ok(())
+}
+
+fn write_images(seq: &Path, name: &str, frame: &StereoFrame) -> Result<()> {
     let (w, h) = (frame.left_grey.width, frame.left_grey.height);
     write_png(
         &seq.join("image_0").join(format!("{name}.png")),
@@ -210,18 +231,7 @@ fn write_frame(
         h,
         bytemuck::cast_slice(&depth),
         ExtendedColorType::L16,
-    )?;
-    if let Some(scan) = scan {
-        let path = seq.join("velodyne").join(format!("{name}.bin"));
-        let mut bytes = Vec::with_capacity(scan.points_sensor_m.len() * 16);
-        for (p, i) in scan.points_sensor_m.iter().zip(&scan.intensity) {
-            for v in [p[0], p[1], p[2], *i] {
-                bytes.extend_from_slice(&v.to_le_bytes());
-            }
-        }
-        std::fs::write(&path, bytes).map_err(io_err(&path))?;
-    }
-    Ok(())
+    )
 }
 
 /// Writes a binary little-endian PLY of the city's surface samples (x, y, z as double, colour as
@@ -295,19 +305,22 @@ pub fn write_drive(config: &DriveConfig, out_dir: &Path, progress: bool) -> Resu
     } else {
         indicatif::ProgressBar::hidden()
     };
-    let (tx, rx) = std::sync::mpsc::sync_channel::<(usize, StereoFrame, Option<LidarScan>)>(2);
+    type Job = (usize, Option<StereoFrame>, Option<LidarScan>);
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Job>(2);
     let seq_w = seq.clone();
     let writer = std::thread::spawn(move || -> Result<usize> {
         let mut lidar_points = 0;
         for (i, frame, scan) in rx {
-            write_frame(&seq_w, i, &frame, scan.as_ref())?;
+            write_frame(&seq_w, i, frame.as_ref(), scan.as_ref())?;
             lidar_points += scan.map_or(0, |s| s.points_sensor_m.len());
         }
         Ok(lidar_points)
     });
     for (i, pose) in poses.iter().enumerate() {
         let seed = city.frame_seed(i);
-        let frame = city.render_stereo(pose, &config.rig, &config.render, seed);
+        let frame = config
+            .images
+            .then(|| city.render_stereo(pose, &config.rig, &config.render, seed));
         let scan = config
             .lidar
             .map(|l| city.scan_lidar(pose, &l, seed ^ 0x11DA));

@@ -1,0 +1,461 @@
+//! The chunk codec: pure functions between a chunk's blocks and the bytes of a chunk file
+//! (`formats/chunk.md` is the byte-level spec; keep the two in sync).
+//!
+//! No I/O and no residency here: [`encode_chunk`] turns blocks into bytes, [`decode_chunk`] checks
+//! and turns bytes back into blocks. Decoding never panics on arbitrary input (fuzzed by a
+//! property test): every length is checked before it is used, both CRCs are verified, and the
+//! decompressed size is bounded by what the header's block count allows.
+//!
+//! Layout of the compressed payload (columnar, so zstd sees long runs of similar bytes): block
+//! coordinates, block flags, then each voxel field as byte planes. TSDF values are stored as the
+//! zigzag-coded difference to the previous voxel in the block's linear order (x fastest), low
+//! bytes then high bytes; the regularised field as the zigzag-coded difference `u − f`.
+
+use super::ChunkIndex;
+use crate::grid::{Block, BlockIndex, VOXELS_PER_BLOCK};
+
+/// First 8 bytes of every chunk file.
+pub const CHUNK_MAGIC: [u8; 8] = *b"DNSRCHNK";
+/// Chunk format version written by this build (readers reject others by name).
+pub const CHUNK_VERSION: u16 = 1;
+/// Size of the fixed header, bytes.
+pub const CHUNK_HEADER_BYTES: usize = 64;
+/// Header flag bit 0: at least one block carries a regularised field.
+pub const FLAG_HAS_REGULARIZED: u16 = 1;
+/// Block flag bit 0: this block carries a regularised field.
+pub const BLOCK_HAS_REGULARIZED: u8 = 1;
+/// zstd level used by [`encode_chunk`] (3 = zstd's default: fast, ~4–5× on TSDF blocks).
+pub const DEFAULT_ZSTD_LEVEL: i32 = 3;
+
+/// What a chunk header says, apart from the payload.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ChunkHeader {
+    /// Edge of a voxel, metres (must match the map's).
+    pub voxel_size_m: f32,
+    /// Truncation distance μ, metres (must match the map's).
+    pub truncation_m: f32,
+    /// The chunk's coordinate (in chunks).
+    pub chunk: ChunkIndex,
+    /// Edge of a chunk, blocks (1..=256).
+    pub chunk_blocks: u32,
+    /// Blocks stored in this chunk.
+    pub block_count: u32,
+    /// Header flags ([`FLAG_HAS_REGULARIZED`]).
+    pub flags: u16,
+    /// Length of the payload once decompressed, bytes.
+    pub payload_raw_bytes: u32,
+    /// Length of the zstd payload that follows the header, bytes.
+    pub payload_zstd_bytes: u32,
+    /// CRC-32 (IEEE) of the zstd payload.
+    pub payload_crc32: u32,
+}
+
+/// Why a chunk could not be decoded. The store adds the file name.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum CodecError {
+    /// Shorter than a header, or shorter than the header says.
+    #[error("truncated: {0}")]
+    Truncated(String),
+    /// The first 8 bytes are not `DNSRCHNK`.
+    #[error("not a denser chunk file (bad magic)")]
+    BadMagic,
+    /// A version this build cannot read.
+    #[error(
+        "chunk format version {found} is not supported (this build reads version {CHUNK_VERSION})"
+    )]
+    UnsupportedVersion {
+        /// Version found in the header.
+        found: u16,
+    },
+    /// The header CRC does not match: the header is corrupted.
+    #[error("header checksum mismatch (stored {stored:#010x}, computed {computed:#010x})")]
+    HeaderChecksum {
+        /// CRC stored in the file.
+        stored: u32,
+        /// CRC of the bytes read.
+        computed: u32,
+    },
+    /// The payload CRC does not match: the payload is corrupted.
+    #[error("payload checksum mismatch (stored {stored:#010x}, computed {computed:#010x})")]
+    PayloadChecksum {
+        /// CRC stored in the header.
+        stored: u32,
+        /// CRC of the bytes read.
+        computed: u32,
+    },
+    /// The header or payload is self-consistent by checksum but violates the format.
+    #[error("malformed: {0}")]
+    Malformed(String),
+}
+
+/// Bytes of the decompressed payload for `n` blocks of which `n_reg` carry a regularised field.
+pub fn payload_raw_bytes(n: usize, n_reg: usize) -> usize {
+    n * (3 + 1) + n * VOXELS_PER_BLOCK * (2 + 1 + 3) + n_reg * VOXELS_PER_BLOCK * 2
+}
+
+#[inline]
+fn zigzag(d: i16) -> u16 {
+    ((d << 1) ^ (d >> 15)) as u16
+}
+
+#[inline]
+fn unzigzag(z: u16) -> i16 {
+    ((z >> 1) as i16) ^ -((z & 1) as i16)
+}
+
+/// Encodes `blocks` (all inside `header.chunk`, any order, no duplicates) into a complete chunk
+/// file. `header.block_count`, `flags`, payload lengths and CRC are filled in here; the other
+/// header fields are taken as given.
+///
+/// Panics if a block lies outside the chunk or appears twice (a caller bug, not bad input).
+pub fn encode_chunk(
+    header: &ChunkHeader,
+    blocks: &[(BlockIndex, &Block)],
+    zstd_level: i32,
+) -> Vec<u8> {
+    let cb = header.chunk_blocks as i32;
+    let origin = header.chunk.origin_block(header.chunk_blocks);
+    let mut order: Vec<([u8; 3], &Block)> = blocks
+        .iter()
+        .map(|(b, blk)| {
+            let l = [0, 1, 2].map(|a| b.0[a] - origin[a]);
+            assert!(
+                l.iter().all(|&c| (0..cb).contains(&c)),
+                "block {b:?} is outside chunk {:?}",
+                header.chunk
+            );
+            ([l[0] as u8, l[1] as u8, l[2] as u8], *blk)
+        })
+        .collect();
+    order.sort_unstable_by_key(|(l, _)| *l);
+    assert!(
+        order.windows(2).all(|w| w[0].0 != w[1].0),
+        "duplicate block in chunk"
+    );
+    let n = order.len();
+    let n_reg = order
+        .iter()
+        .filter(|(_, b)| b.regularized.is_some())
+        .count();
+    let mut raw = Vec::with_capacity(payload_raw_bytes(n, n_reg));
+    for (l, _) in &order {
+        raw.extend_from_slice(l);
+    }
+    for (_, b) in &order {
+        raw.push(if b.regularized.is_some() {
+            BLOCK_HAS_REGULARIZED
+        } else {
+            0
+        });
+    }
+    push_i16_planes(&mut raw, order.iter().map(|(_, b)| tsdf_deltas(&b.tsdf)));
+    for (_, b) in &order {
+        raw.extend_from_slice(&b.weight_omega);
+    }
+    for c in 0..3 {
+        for (_, b) in &order {
+            raw.extend(b.color.iter().map(|rgb| rgb[c]));
+        }
+    }
+    push_i16_planes(
+        &mut raw,
+        order.iter().filter_map(|(_, b)| {
+            b.regularized.as_ref().map(|u| {
+                let mut z = [0u16; VOXELS_PER_BLOCK];
+                for i in 0..VOXELS_PER_BLOCK {
+                    z[i] = zigzag(u[i].wrapping_sub(b.tsdf[i]));
+                }
+                z
+            })
+        }),
+    );
+    debug_assert_eq!(raw.len(), payload_raw_bytes(n, n_reg));
+    let zstd_payload =
+        zstd::bulk::compress(&raw, zstd_level).expect("zstd compression of an in-memory buffer");
+    let h = ChunkHeader {
+        block_count: n as u32,
+        flags: if n_reg > 0 { FLAG_HAS_REGULARIZED } else { 0 },
+        payload_raw_bytes: raw.len() as u32,
+        payload_zstd_bytes: zstd_payload.len() as u32,
+        payload_crc32: crc32fast::hash(&zstd_payload),
+        ..*header
+    };
+    let mut out = Vec::with_capacity(CHUNK_HEADER_BYTES + zstd_payload.len());
+    out.extend_from_slice(&encode_header(&h));
+    out.extend_from_slice(&zstd_payload);
+    out
+}
+
+fn tsdf_deltas(t: &[i16; VOXELS_PER_BLOCK]) -> [u16; VOXELS_PER_BLOCK] {
+    let mut z = [0u16; VOXELS_PER_BLOCK];
+    let mut prev = 0i16;
+    for i in 0..VOXELS_PER_BLOCK {
+        z[i] = zigzag(t[i].wrapping_sub(prev));
+        prev = t[i];
+    }
+    z
+}
+
+fn push_i16_planes(raw: &mut Vec<u8>, rows: impl Iterator<Item = [u16; VOXELS_PER_BLOCK]> + Clone) {
+    for r in rows.clone() {
+        raw.extend(r.iter().map(|z| (*z & 0xff) as u8));
+    }
+    for r in rows {
+        raw.extend(r.iter().map(|z| (*z >> 8) as u8));
+    }
+}
+
+/// The 64 header bytes of `h` (CRC of bytes 0..60 in bytes 60..64).
+pub fn encode_header(h: &ChunkHeader) -> [u8; CHUNK_HEADER_BYTES] {
+    let mut b = [0u8; CHUNK_HEADER_BYTES];
+    b[0..8].copy_from_slice(&CHUNK_MAGIC);
+    b[8..10].copy_from_slice(&CHUNK_VERSION.to_le_bytes());
+    b[10..12].copy_from_slice(&h.flags.to_le_bytes());
+    b[12..16].copy_from_slice(&(CHUNK_HEADER_BYTES as u32).to_le_bytes());
+    b[16..20].copy_from_slice(&h.voxel_size_m.to_le_bytes());
+    b[20..24].copy_from_slice(&h.truncation_m.to_le_bytes());
+    for a in 0..3 {
+        b[24 + 4 * a..28 + 4 * a].copy_from_slice(&h.chunk.0[a].to_le_bytes());
+    }
+    b[36..40].copy_from_slice(&h.chunk_blocks.to_le_bytes());
+    b[40..44].copy_from_slice(&h.block_count.to_le_bytes());
+    b[44..48].copy_from_slice(&h.payload_raw_bytes.to_le_bytes());
+    b[48..52].copy_from_slice(&h.payload_zstd_bytes.to_le_bytes());
+    b[52..56].copy_from_slice(&h.payload_crc32.to_le_bytes());
+    // 56..60 reserved, zero.
+    let crc = crc32fast::hash(&b[0..60]);
+    b[60..64].copy_from_slice(&crc.to_le_bytes());
+    b
+}
+
+fn le_u16(b: &[u8], at: usize) -> u16 {
+    u16::from_le_bytes([b[at], b[at + 1]])
+}
+fn le_u32(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
+}
+
+/// Checks and parses the header at the start of `bytes` (magic, version, header CRC, ranges).
+pub fn decode_header(bytes: &[u8]) -> Result<ChunkHeader, CodecError> {
+    if bytes.len() < 8 || bytes[0..8] != CHUNK_MAGIC {
+        if bytes.len() < 8 && CHUNK_MAGIC.starts_with(bytes) {
+            return Err(CodecError::Truncated(format!(
+                "{} bytes, header needs {CHUNK_HEADER_BYTES}",
+                bytes.len()
+            )));
+        }
+        return Err(CodecError::BadMagic);
+    }
+    if bytes.len() < CHUNK_HEADER_BYTES {
+        return Err(CodecError::Truncated(format!(
+            "{} bytes, header needs {CHUNK_HEADER_BYTES}",
+            bytes.len()
+        )));
+    }
+    let version = le_u16(bytes, 8);
+    if version != CHUNK_VERSION {
+        return Err(CodecError::UnsupportedVersion { found: version });
+    }
+    let stored = le_u32(bytes, 60);
+    let computed = crc32fast::hash(&bytes[0..60]);
+    if stored != computed {
+        return Err(CodecError::HeaderChecksum { stored, computed });
+    }
+    let header_len = le_u32(bytes, 12);
+    if header_len as usize != CHUNK_HEADER_BYTES {
+        return Err(CodecError::Malformed(format!(
+            "header length {header_len}, expected {CHUNK_HEADER_BYTES}"
+        )));
+    }
+    if bytes[56..60] != [0; 4] {
+        return Err(CodecError::Malformed(
+            "reserved header bytes 56..60 are not zero".into(),
+        ));
+    }
+    let h = ChunkHeader {
+        flags: le_u16(bytes, 10),
+        voxel_size_m: f32::from_le_bytes(bytes[16..20].try_into().expect("4 bytes")),
+        truncation_m: f32::from_le_bytes(bytes[20..24].try_into().expect("4 bytes")),
+        chunk: ChunkIndex([0, 1, 2].map(|a| le_u32(bytes, 24 + 4 * a) as i32)),
+        chunk_blocks: le_u32(bytes, 36),
+        block_count: le_u32(bytes, 40),
+        payload_raw_bytes: le_u32(bytes, 44),
+        payload_zstd_bytes: le_u32(bytes, 48),
+        payload_crc32: le_u32(bytes, 52),
+    };
+    if h.flags & !FLAG_HAS_REGULARIZED != 0 {
+        return Err(CodecError::Malformed(format!(
+            "unknown header flags {:#06x}",
+            h.flags
+        )));
+    }
+    if !(h.voxel_size_m.is_finite()
+        && h.voxel_size_m > 0.0
+        && h.truncation_m.is_finite()
+        && h.truncation_m > 0.0)
+    {
+        return Err(CodecError::Malformed(format!(
+            "voxel size {} m / truncation {} m must be positive",
+            h.voxel_size_m, h.truncation_m
+        )));
+    }
+    if !(1..=256).contains(&h.chunk_blocks) {
+        return Err(CodecError::Malformed(format!(
+            "chunk edge {} blocks is outside 1..=256",
+            h.chunk_blocks
+        )));
+    }
+    let max_blocks = (h.chunk_blocks as u64).pow(3);
+    if h.block_count as u64 > max_blocks {
+        return Err(CodecError::Malformed(format!(
+            "{} blocks in a chunk of {} blocks",
+            h.block_count, max_blocks
+        )));
+    }
+    let n = h.block_count as usize;
+    let lo = payload_raw_bytes(n, 0);
+    let hi = payload_raw_bytes(n, n);
+    if (h.payload_raw_bytes as usize) < lo || h.payload_raw_bytes as usize > hi {
+        return Err(CodecError::Malformed(format!(
+            "payload of {} bytes cannot hold {n} blocks",
+            h.payload_raw_bytes
+        )));
+    }
+    Ok(h)
+}
+
+/// A decoded chunk: its header and its blocks, sorted by block index.
+#[derive(Clone, PartialEq)]
+pub struct DecodedChunk {
+    /// The header as stored.
+    pub header: ChunkHeader,
+    /// The blocks, sorted by [`BlockIndex`].
+    pub blocks: Vec<(BlockIndex, Box<Block>)>,
+}
+
+/// Checks and decodes a complete chunk file (header + payload; trailing bytes are an error).
+pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
+    let h = decode_header(bytes)?;
+    let body = &bytes[CHUNK_HEADER_BYTES..];
+    let zlen = h.payload_zstd_bytes as usize;
+    if body.len() < zlen {
+        return Err(CodecError::Truncated(format!(
+            "payload has {} of {zlen} bytes",
+            body.len()
+        )));
+    }
+    if body.len() > zlen {
+        return Err(CodecError::Malformed(format!(
+            "{} bytes after the payload",
+            body.len() - zlen
+        )));
+    }
+    let computed = crc32fast::hash(body);
+    if computed != h.payload_crc32 {
+        return Err(CodecError::PayloadChecksum {
+            stored: h.payload_crc32,
+            computed,
+        });
+    }
+    let cap = h.payload_raw_bytes as usize;
+    let raw = zstd::bulk::decompress(body, cap)
+        .map_err(|e| CodecError::Malformed(format!("zstd: {e}")))?;
+    if raw.len() != cap {
+        return Err(CodecError::Malformed(format!(
+            "payload decompressed to {} bytes, header says {cap}",
+            raw.len()
+        )));
+    }
+    let n = h.block_count as usize;
+    let mut at = 0usize;
+    let mut take = |len: usize| -> Result<&[u8], CodecError> {
+        let s = raw
+            .get(at..at + len)
+            .ok_or_else(|| CodecError::Malformed("payload shorter than its fields".into()))?;
+        at += len;
+        Ok(s)
+    };
+    let coords = take(3 * n)?;
+    let flags = take(n)?;
+    let origin = h.chunk.origin_block(h.chunk_blocks);
+    let mut blocks: Vec<(BlockIndex, Box<Block>)> = Vec::with_capacity(n);
+    let mut prev: Option<[u8; 3]> = None;
+    for i in 0..n {
+        let l = [coords[3 * i], coords[3 * i + 1], coords[3 * i + 2]];
+        if l.iter().any(|&c| c as u32 >= h.chunk_blocks) {
+            return Err(CodecError::Malformed(format!(
+                "block {i} at {l:?} is outside the chunk"
+            )));
+        }
+        if prev.is_some_and(|p| p >= l) {
+            return Err(CodecError::Malformed(format!(
+                "block {i} at {l:?} is out of order or repeated"
+            )));
+        }
+        prev = Some(l);
+        if flags[i] & !BLOCK_HAS_REGULARIZED != 0 {
+            return Err(CodecError::Malformed(format!(
+                "block {i} has unknown flags {:#04x}",
+                flags[i]
+            )));
+        }
+        let index = BlockIndex([0, 1, 2].map(|a| origin[a] + l[a] as i32));
+        blocks.push((index, Block::new_boxed()));
+    }
+    let n_reg = flags
+        .iter()
+        .filter(|f| **f & BLOCK_HAS_REGULARIZED != 0)
+        .count();
+    if n_reg > 0 && h.flags & FLAG_HAS_REGULARIZED == 0
+        || n_reg == 0 && h.flags & FLAG_HAS_REGULARIZED != 0
+    {
+        return Err(CodecError::Malformed(
+            "header and block flags disagree about the regularised field".into(),
+        ));
+    }
+    if cap != payload_raw_bytes(n, n_reg) {
+        return Err(CodecError::Malformed(format!(
+            "payload of {cap} bytes, {n} blocks with {n_reg} regularised need {}",
+            payload_raw_bytes(n, n_reg)
+        )));
+    }
+    let vb = VOXELS_PER_BLOCK;
+    let lo = take(n * vb)?;
+    let hi = take(n * vb)?;
+    for (k, (_, b)) in blocks.iter_mut().enumerate() {
+        let mut prev = 0i16;
+        for i in 0..vb {
+            let z = lo[k * vb + i] as u16 | (hi[k * vb + i] as u16) << 8;
+            prev = prev.wrapping_add(unzigzag(z));
+            b.tsdf[i] = prev;
+        }
+    }
+    let w = take(n * vb)?;
+    for (k, (_, b)) in blocks.iter_mut().enumerate() {
+        b.weight_omega.copy_from_slice(&w[k * vb..(k + 1) * vb]);
+    }
+    for c in 0..3 {
+        let plane = take(n * vb)?;
+        for (k, (_, b)) in blocks.iter_mut().enumerate() {
+            for i in 0..vb {
+                b.color[i][c] = plane[k * vb + i];
+            }
+        }
+    }
+    let lo = take(n_reg * vb)?;
+    let hi = take(n_reg * vb)?;
+    let mut r = 0;
+    for (k, (_, b)) in blocks.iter_mut().enumerate() {
+        if flags[k] & BLOCK_HAS_REGULARIZED == 0 {
+            continue;
+        }
+        let mut u = Box::new([0i16; VOXELS_PER_BLOCK]);
+        for i in 0..vb {
+            let z = lo[r * vb + i] as u16 | (hi[r * vb + i] as u16) << 8;
+            u[i] = b.tsdf[i].wrapping_add(unzigzag(z));
+        }
+        b.regularized = Some(u);
+        r += 1;
+    }
+    Ok(DecodedChunk { header: h, blocks })
+}

@@ -1,0 +1,359 @@
+//! Tile-by-tile export of a stored map to one mesh (PLY) or one point cloud (PLY, LAS, LAZ).
+//!
+//! Chunks are meshed one at a time, each with the one-voxel layer it reads from its +x/+y/+z
+//! neighbours, so memory holds at most eight chunks plus the vertices on chunk faces. Marching
+//! cubes keys vertices by cube edge ([`EdgeKey`]); a vertex can be shared by cubes of two chunks
+//! only when its edge lies on a chunk face, so only those keys are remembered across chunks, and
+//! the stitched mesh has neither cracks nor duplicate vertices at chunk borders (tested against a
+//! whole-map extraction). Vertices and faces stream to temporary files that are joined under the
+//! PLY header at the end; the output appears under its name only when complete.
+
+use super::store::MapStore;
+use super::ChunkIndex;
+use crate::error::{Error, Result};
+use crate::grid::{BlockIndex, Layer, VOXELS_PER_SIDE};
+use crate::io::las::LasPointWriter;
+use crate::mesh::{extract_mesh_keyed, EdgeKey, Field};
+use std::collections::HashMap;
+use std::io::{BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+/// An axis-aligned box in world coordinates, metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bbox {
+    /// Lower corner.
+    pub min_m: [f64; 3],
+    /// Upper corner.
+    pub max_m: [f64; 3],
+}
+
+impl Bbox {
+    /// Parses `xmin,ymin,zmin,xmax,ymax,zmax`.
+    pub fn parse(s: &str) -> Result<Self> {
+        let v: Vec<f64> = s
+            .split(',')
+            .map(|t| t.trim().parse::<f64>())
+            .collect::<std::result::Result<_, _>>()
+            .map_err(|e| Error::InvalidArgument(format!("--bbox {s:?}: {e}")))?;
+        if v.len() != 6 || (0..3).any(|a| !(v[a] <= v[a + 3])) {
+            return Err(Error::InvalidArgument(format!(
+                "--bbox {s:?}: expected xmin,ymin,zmin,xmax,ymax,zmax with min ≤ max"
+            )));
+        }
+        Ok(Bbox {
+            min_m: [v[0], v[1], v[2]],
+            max_m: [v[3], v[4], v[5]],
+        })
+    }
+
+    /// Whether `p` lies inside (bounds included).
+    pub fn contains(&self, p: [f64; 3]) -> bool {
+        (0..3).all(|a| p[a] >= self.min_m[a] && p[a] <= self.max_m[a])
+    }
+
+    fn meets(&self, lo: [f64; 3], hi: [f64; 3]) -> bool {
+        (0..3).all(|a| hi[a] >= self.min_m[a] && lo[a] <= self.max_m[a])
+    }
+}
+
+/// What an export wrote.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct ExportStats {
+    /// Chunks meshed.
+    pub chunks: usize,
+    /// Vertices (or points) written.
+    pub vertices: u64,
+    /// Triangles written (0 for point clouds).
+    pub triangles: u64,
+    /// Voxels (blocks · 512) in the chunks meshed.
+    pub voxels: u64,
+    /// Vertex keys remembered on chunk faces at the end (the stitching state).
+    pub face_keys: usize,
+    /// Wall time, seconds.
+    pub seconds: f64,
+}
+
+/// Output of [`export`].
+#[derive(Clone, Debug, PartialEq)]
+pub enum ExportTarget {
+    /// A binary PLY mesh (vertices with colour, triangles).
+    Mesh(PathBuf),
+    /// Surface points (mesh vertices) as PLY, LAS or LAZ, chosen by the extension.
+    Points(PathBuf),
+}
+
+/// Whether a vertex on this edge can be shared with a cube of another chunk.
+fn on_chunk_face(key: &EdgeKey, chunk_voxels: i64) -> bool {
+    let (v, axis) = (key.0 .0, key.1 as usize);
+    (0..3).any(|b| b != axis && v[b].rem_euclid(chunk_voxels) == 0)
+}
+
+fn chunk_bounds_m(store: &MapStore, c: ChunkIndex) -> ([f64; 3], [f64; 3]) {
+    let chunk_m = store.grid().block_size_m() * store.chunk_blocks() as f64;
+    let lo = [0, 1, 2].map(|a| c.0[a] as f64 * chunk_m);
+    let hi = [0, 1, 2].map(|a| (c.0[a] + 1) as f64 * chunk_m);
+    (lo, hi)
+}
+
+enum Sink {
+    Ply {
+        vertices: BufWriter<std::fs::File>,
+        faces: BufWriter<std::fs::File>,
+        tmp_v: PathBuf,
+        tmp_f: PathBuf,
+    },
+    Las(LasPointWriter),
+}
+
+/// Exports `field` of the stored map tile by tile (all chunks, or those meeting `bbox`; with a box,
+/// triangles are kept when their centroid is inside, points when inside).
+pub fn export(
+    store: &MapStore,
+    field: Field,
+    bbox: Option<Bbox>,
+    target: &ExportTarget,
+) -> Result<ExportStats> {
+    let t0 = std::time::Instant::now();
+    let (path, mesh) = match target {
+        ExportTarget::Mesh(p) => (p.clone(), true),
+        ExportTarget::Points(p) => (p.clone(), false),
+    };
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    if mesh && ext != "ply" {
+        return Err(Error::InvalidArgument(format!(
+            "{}: meshes are written as .ply",
+            path.display()
+        )));
+    }
+    if !mesh && !matches!(ext.as_str(), "ply" | "las" | "laz") {
+        return Err(Error::InvalidArgument(format!(
+            "{}: points are written as .ply, .las or .laz",
+            path.display()
+        )));
+    }
+    let chunks: Vec<ChunkIndex> = store
+        .chunk_indices()
+        .into_iter()
+        .filter(|c| {
+            let (lo, hi) = chunk_bounds_m(store, *c);
+            bbox.map_or(true, |b| b.meets(lo, hi))
+        })
+        .collect();
+    let partial = path.with_extension(format!("partial.{ext}"));
+    let mut sink = if ext == "ply" {
+        let tmp_v = path.with_extension("vertices.tmp");
+        let tmp_f = path.with_extension("faces.tmp");
+        let open = |p: &Path| -> Result<BufWriter<std::fs::File>> {
+            Ok(BufWriter::new(
+                std::fs::File::create(p).map_err(|e| Error::io(p, e))?,
+            ))
+        };
+        Sink::Ply {
+            vertices: open(&tmp_v)?,
+            faces: open(&tmp_f)?,
+            tmp_v,
+            tmp_f,
+        }
+    } else {
+        // Offset at the centre of the map's chunks: every point is within ±2 147 km of it.
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for c in &chunks {
+            let (l, h) = chunk_bounds_m(store, *c);
+            for a in 0..3 {
+                lo[a] = lo[a].min(l[a]);
+                hi[a] = hi[a].max(h[a]);
+            }
+        }
+        let offset = if chunks.is_empty() {
+            [0.0; 3]
+        } else {
+            [0, 1, 2].map(|a| (0.5 * (lo[a] + hi[a])).round())
+        };
+        Sink::Las(LasPointWriter::create(&partial, offset, true)?)
+    };
+    let cb = store.chunk_blocks();
+    let chunk_voxels = cb as i64 * VOXELS_PER_SIDE as i64;
+    let mut face_ids: HashMap<EdgeKey, u32> = HashMap::new();
+    let mut stats = ExportStats::default();
+    let mut next_id: u64 = 0;
+    let bar = crate::progress::bar(chunks.len() as u64, "exporting");
+    for &c in &chunks {
+        let mut layer = Layer::new(store.grid());
+        let mut own: Vec<BlockIndex> = Vec::new();
+        let hi_block = c.origin_block(cb).map(|o| o + cb as i32);
+        for d in 0..8i32 {
+            let off = [d & 1, (d >> 1) & 1, (d >> 2) & 1];
+            let Some(dec) = store.read_chunk(c.offset(off))? else {
+                continue;
+            };
+            for (b, block) in dec.blocks {
+                if d == 0 {
+                    own.push(b);
+                    layer.insert(b, block);
+                } else if (0..3).all(|a| off[a] == 0 || b.0[a] == hi_block[a]) {
+                    // Only the neighbour blocks touching this chunk's +faces are read by its cubes.
+                    layer.insert(b, block);
+                }
+            }
+        }
+        stats.voxels += own.len() as u64 * 512;
+        let (m, keys) = extract_mesh_keyed(&layer, field, Some(&own));
+        drop(layer);
+        // Keep triangles (and the vertices they use) inside the box.
+        let keep_tri: Vec<bool> = m
+            .triangles
+            .iter()
+            .map(|t| {
+                bbox.map_or(true, |b| {
+                    let cen = [0, 1, 2].map(|a| {
+                        t.iter()
+                            .map(|&i| m.positions_m[i as usize][a] as f64)
+                            .sum::<f64>()
+                            / 3.0
+                    });
+                    b.contains(cen)
+                })
+            })
+            .collect();
+        let mut used = vec![!mesh; m.positions_m.len()];
+        if mesh {
+            for (t, k) in m.triangles.iter().zip(&keep_tri) {
+                if *k {
+                    for &i in t {
+                        used[i as usize] = true;
+                    }
+                }
+            }
+        }
+        let mut ids = vec![u32::MAX; m.positions_m.len()];
+        for (i, key) in keys.iter().enumerate() {
+            if !used[i] {
+                continue;
+            }
+            let p = m.positions_m[i];
+            let p64 = [p[0] as f64, p[1] as f64, p[2] as f64];
+            if !mesh && bbox.is_some_and(|b| !b.contains(p64)) {
+                continue;
+            }
+            let shared = on_chunk_face(key, chunk_voxels);
+            if shared {
+                if let Some(&id) = face_ids.get(key) {
+                    ids[i] = id;
+                    continue;
+                }
+            }
+            if next_id >= i32::MAX as u64 {
+                return Err(Error::InvalidArgument(format!(
+                    "{}: more than 2^31 vertices; export a --bbox at a time",
+                    path.display()
+                )));
+            }
+            let id = next_id as u32;
+            next_id += 1;
+            ids[i] = id;
+            if shared {
+                face_ids.insert(*key, id);
+            }
+            let color = m.colors[i];
+            match &mut sink {
+                Sink::Ply {
+                    vertices, tmp_v, ..
+                } => {
+                    let mut rec = [0u8; 15];
+                    for a in 0..3 {
+                        rec[4 * a..4 * a + 4].copy_from_slice(&p[a].to_le_bytes());
+                    }
+                    rec[12..15].copy_from_slice(&color);
+                    vertices
+                        .write_all(&rec)
+                        .map_err(|e| Error::io(&*tmp_v, e))?;
+                }
+                Sink::Las(w) => w.write(p64, Some(color))?,
+            }
+        }
+        if mesh {
+            if let Sink::Ply { faces, tmp_f, .. } = &mut sink {
+                for (t, k) in m.triangles.iter().zip(&keep_tri) {
+                    if !*k {
+                        continue;
+                    }
+                    let mut rec = [3u8; 13];
+                    for j in 0..3 {
+                        rec[1 + 4 * j..5 + 4 * j]
+                            .copy_from_slice(&(ids[t[j] as usize] as i32).to_le_bytes());
+                    }
+                    faces.write_all(&rec).map_err(|e| Error::io(&*tmp_f, e))?;
+                    stats.triangles += 1;
+                }
+            }
+        }
+        stats.chunks += 1;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    stats.vertices = next_id;
+    stats.face_keys = face_ids.len();
+    match sink {
+        Sink::Las(w) => w.close()?,
+        Sink::Ply {
+            vertices,
+            faces,
+            tmp_v,
+            tmp_f,
+        } => {
+            let flush = |w: BufWriter<std::fs::File>, p: &Path| -> Result<()> {
+                w.into_inner()
+                    .map_err(|e| Error::io(p, e.into_error()))?
+                    .sync_all()
+                    .map_err(|e| Error::io(p, e))
+            };
+            flush(vertices, &tmp_v)?;
+            flush(faces, &tmp_f)?;
+            let mut out = BufWriter::new(
+                std::fs::File::create(&partial).map_err(|e| Error::io(&partial, e))?,
+            );
+            let mut header = format!(
+                "ply\nformat binary_little_endian 1.0\ncomment written by denser export\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n",
+                stats.vertices
+            );
+            if mesh {
+                header.push_str(&format!(
+                    "element face {}\nproperty list uchar int vertex_indices\n",
+                    stats.triangles
+                ));
+            }
+            header.push_str("end_header\n");
+            out.write_all(header.as_bytes())
+                .map_err(|e| Error::io(&partial, e))?;
+            for p in [&tmp_v, &tmp_f] {
+                if p == &tmp_f && !mesh {
+                    continue;
+                }
+                let mut f = std::fs::File::open(p).map_err(|e| Error::io(p, e))?;
+                let mut buf = vec![0u8; 1 << 20];
+                loop {
+                    let n = f.read(&mut buf).map_err(|e| Error::io(p, e))?;
+                    if n == 0 {
+                        break;
+                    }
+                    out.write_all(&buf[..n])
+                        .map_err(|e| Error::io(&partial, e))?;
+                }
+            }
+            out.into_inner()
+                .map_err(|e| Error::io(&partial, e.into_error()))?
+                .sync_all()
+                .map_err(|e| Error::io(&partial, e))?;
+            for p in [&tmp_v, &tmp_f] {
+                std::fs::remove_file(p).map_err(|e| Error::io(p, e))?;
+            }
+        }
+    }
+    std::fs::rename(&partial, &path).map_err(|e| Error::io(&path, e))?;
+    stats.seconds = t0.elapsed().as_secs_f64();
+    Ok(stats)
+}

@@ -1,0 +1,76 @@
+//! Out of core: the map as a directory of compressed chunk files, paged around the camera.
+//!
+//! - [`codec`]: pure chunk encoder/decoder (`formats/chunk.md`).
+//! - [`manifest`]: the map's manifest, the commit point of every write (`formats/manifest.md`).
+//! - [`store`]: the map directory: crash-safe chunk writes (new file, fsync, rename), memory-mapped
+//!   reads, checkpoints that commit a manifest, verification.
+//! - [`pager`]: residency around the camera within a byte budget; evicted chunks are encoded and
+//!   written by background workers; revisited chunks are read back.
+//! - [`regional`]: offline regularisation of a stored map region by region with exact halos, and
+//!   tile-by-tile export of meshes and point clouds.
+//!
+//! A chunk is a cube of `chunk_blocks`³ blocks (default 16³ = 128³ voxels). Nothing here changes
+//! voxel values: fusing with paging gives the same bits as fusing in memory (tested).
+
+pub mod codec;
+pub mod export;
+pub mod manifest;
+pub mod pager;
+pub mod regional;
+pub mod store;
+pub mod stream;
+
+use crate::grid::BlockIndex;
+use serde::{Deserialize, Serialize};
+
+/// Default edge of a chunk, blocks.
+pub const DEFAULT_CHUNK_BLOCKS: u32 = 16;
+
+/// Integer coordinate of a chunk: block `b` lies in chunk `floor(b / chunk_blocks)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct ChunkIndex(pub [i32; 3]);
+
+impl ChunkIndex {
+    /// The chunk holding block `b`.
+    pub fn of_block(b: BlockIndex, chunk_blocks: u32) -> Self {
+        let c = chunk_blocks as i32;
+        ChunkIndex([
+            b.0[0].div_euclid(c),
+            b.0[1].div_euclid(c),
+            b.0[2].div_euclid(c),
+        ])
+    }
+
+    /// The smallest block index inside this chunk.
+    pub fn origin_block(&self, chunk_blocks: u32) -> [i32; 3] {
+        let c = chunk_blocks as i32;
+        [self.0[0] * c, self.0[1] * c, self.0[2] * c]
+    }
+
+    /// Whether block `b` lies in this chunk.
+    pub fn contains(&self, b: BlockIndex, chunk_blocks: u32) -> bool {
+        Self::of_block(b, chunk_blocks) == *self
+    }
+
+    /// The chunk `d` chunks away.
+    pub fn offset(&self, d: [i32; 3]) -> Self {
+        ChunkIndex([self.0[0] + d[0], self.0[1] + d[1], self.0[2] + d[2]])
+    }
+}
+
+/// Groups block indices by chunk (chunks sorted, blocks sorted within each).
+pub fn group_by_chunk(
+    blocks: impl IntoIterator<Item = BlockIndex>,
+    chunk_blocks: u32,
+) -> std::collections::BTreeMap<ChunkIndex, Vec<BlockIndex>> {
+    let mut m: std::collections::BTreeMap<ChunkIndex, Vec<BlockIndex>> = Default::default();
+    for b in blocks {
+        m.entry(ChunkIndex::of_block(b, chunk_blocks))
+            .or_default()
+            .push(b);
+    }
+    for v in m.values_mut() {
+        v.sort_unstable();
+    }
+    m
+}

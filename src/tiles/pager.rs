@@ -1,0 +1,469 @@
+//! Residency: which chunks live in RAM while the camera moves, within a byte budget.
+//!
+//! Before each frame the caller names the chunks the frame needs ([`Pager::page_in`]); chunks on
+//! disk are read back (a revisit), new ones start empty. After the frame, [`Pager::evict_to_budget`]
+//! moves the chunks farthest from the camera out of the layer and hands them to background writer
+//! threads (crossbeam channel), which encode and write them (crash-safely, see [`super::store`]).
+//! Chunks still being written count against the budget. The chunks the current frame needs are
+//! never evicted; if they alone exceed the budget the overrun is reported (an error, or a counted
+//! warning with [`OverrunPolicy::Warn`]), never ignored.
+//!
+//! [`Pager::checkpoint`] writes every dirty resident chunk, waits for the writers and commits the
+//! manifest with the number of frames fused, which is where a killed run resumes.
+//!
+//! The pager never changes voxel values: fusing through it gives the same bits as fusing into one
+//! in-memory layer, provided the caller pages in every chunk the frame can update (tested).
+
+use super::store::{ChunkWriter, MapStore, WrittenChunk};
+use super::{group_by_chunk, ChunkIndex};
+use crate::error::{Error, Result};
+use crate::grid::{Block, BlockIndex, Layer};
+use crossbeam::channel::{bounded, unbounded, Receiver, Sender};
+use std::collections::{HashMap, HashSet};
+
+/// What to do when the chunks one frame needs do not fit in the budget.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OverrunPolicy {
+    /// Stop with an error that says how much was needed.
+    Error,
+    /// Go on over budget, log a warning and count it in [`PagerStats::budget_overruns`].
+    Warn,
+}
+
+/// Pager settings.
+#[derive(Clone, Copy, Debug)]
+pub struct PagerConfig {
+    /// Bytes of voxel blocks (resident plus being written) the pager keeps at most.
+    pub budget_bytes: u64,
+    /// Reaction to a frame whose working set exceeds the budget.
+    pub overrun: OverrunPolicy,
+    /// Background writer threads.
+    pub writer_threads: usize,
+}
+
+impl PagerConfig {
+    /// A budget with the default policy (error on overrun) and two writer threads.
+    pub fn with_budget(budget_bytes: u64) -> Self {
+        PagerConfig {
+            budget_bytes,
+            overrun: OverrunPolicy::Error,
+            writer_threads: 2,
+        }
+    }
+}
+
+/// Counters of a paging run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PagerStats {
+    /// Chunks read back from disk (revisits, loops, resumes).
+    pub chunks_read: u64,
+    /// Chunk files written (evictions and checkpoints).
+    pub chunks_written: u64,
+    /// Chunks evicted from RAM.
+    pub chunks_evicted: u64,
+    /// Bytes of chunk files written.
+    pub bytes_written: u64,
+    /// Largest resident + in-flight block bytes seen after a frame's eviction.
+    pub peak_bytes: u64,
+    /// Frames whose working set alone exceeded the budget.
+    pub budget_overruns: u64,
+    /// Seconds the caller's thread spent reading chunks.
+    pub read_s: f64,
+    /// Seconds the caller's thread waited for writers (back-pressure and checkpoints).
+    pub wait_s: f64,
+}
+
+struct WriteJob {
+    chunk: ChunkIndex,
+    seq: u64,
+    blocks: Vec<(BlockIndex, Box<Block>)>,
+    bytes: u64,
+}
+
+struct WriteDone {
+    chunk: ChunkIndex,
+    bytes: u64,
+    result: Result<WrittenChunk>,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Resident {
+    dirty: bool,
+}
+
+/// RAM bytes of one resident block with its hash slot (regularised field not included: the
+/// pager runs during fusion, before `u` exists).
+pub const BLOCK_RESIDENT_BYTES: u64 = (std::mem::size_of::<Block>()
+    + std::mem::size_of::<BlockIndex>()
+    + std::mem::size_of::<Box<Block>>()
+    + 1) as u64;
+
+/// The paging state around one layer of resident blocks.
+pub struct Pager {
+    store: MapStore,
+    layer: Layer,
+    config: PagerConfig,
+    resident: HashMap<ChunkIndex, Resident>,
+    in_flight: HashMap<ChunkIndex, u64>,
+    in_flight_bytes: u64,
+    jobs: Option<Sender<WriteJob>>,
+    done: Receiver<WriteDone>,
+    workers: Vec<std::thread::JoinHandle<()>>,
+    stats: PagerStats,
+    first_error: Option<Error>,
+}
+
+impl Pager {
+    /// A pager over `store` (its committed chunks stay on disk until needed).
+    pub fn new(store: MapStore, config: PagerConfig) -> Self {
+        let layer = Layer::new(store.grid());
+        let (jobs_tx, jobs_rx) = bounded::<WriteJob>(config.writer_threads.max(1) * 2);
+        let (done_tx, done_rx) = unbounded::<WriteDone>();
+        let workers = (0..config.writer_threads.max(1))
+            .map(|k| {
+                let rx = jobs_rx.clone();
+                let tx = done_tx.clone();
+                let writer: ChunkWriter = store.writer();
+                std::thread::Builder::new()
+                    .name(format!("denser-chunk-writer-{k}"))
+                    .spawn(move || {
+                        for job in rx {
+                            let refs: Vec<(BlockIndex, &Block)> =
+                                job.blocks.iter().map(|(i, b)| (*i, &**b)).collect();
+                            let result = writer.write(job.chunk, job.seq, &refs, 0);
+                            drop(refs);
+                            drop(job.blocks);
+                            if tx
+                                .send(WriteDone {
+                                    chunk: job.chunk,
+                                    bytes: job.bytes,
+                                    result,
+                                })
+                                .is_err()
+                            {
+                                break;
+                            }
+                        }
+                    })
+                    .expect("spawning a chunk writer thread")
+            })
+            .collect();
+        Pager {
+            store,
+            layer,
+            config,
+            resident: HashMap::new(),
+            in_flight: HashMap::new(),
+            in_flight_bytes: 0,
+            jobs: Some(jobs_tx),
+            done: done_rx,
+            workers,
+            stats: PagerStats::default(),
+            first_error: None,
+        }
+    }
+
+    /// The resident blocks (fusion runs on this layer).
+    pub fn layer(&self) -> &Layer {
+        &self.layer
+    }
+
+    /// Mutable access to the resident blocks. Call [`Pager::mark_dirty`] with what was touched.
+    pub fn layer_mut(&mut self) -> &mut Layer {
+        &mut self.layer
+    }
+
+    /// The store behind the pager.
+    pub fn store(&self) -> &MapStore {
+        &self.store
+    }
+
+    /// Mutable access to the store (progress fields of the manifest).
+    pub fn store_mut(&mut self) -> &mut MapStore {
+        &mut self.store
+    }
+
+    /// Counters so far.
+    pub fn stats(&self) -> PagerStats {
+        self.stats
+    }
+
+    /// Chunk edge, blocks.
+    pub fn chunk_blocks(&self) -> u32 {
+        self.store.chunk_blocks()
+    }
+
+    /// Whether chunk `c` exists anywhere (resident, being written, or on disk).
+    pub fn knows(&self, c: ChunkIndex) -> bool {
+        self.resident.contains_key(&c) || self.in_flight.contains_key(&c) || self.store.contains(c)
+    }
+
+    /// Every chunk that exists (resident, in flight or on disk), unsorted.
+    pub fn known_chunks(&self) -> HashSet<ChunkIndex> {
+        let mut s: HashSet<ChunkIndex> = self.store.chunk_indices().into_iter().collect();
+        s.extend(self.resident.keys().copied());
+        s.extend(self.in_flight.keys().copied());
+        s
+    }
+
+    /// Bytes of blocks resident or being written.
+    pub fn used_bytes(&self) -> u64 {
+        self.layer.block_count() as u64 * BLOCK_RESIDENT_BYTES + self.in_flight_bytes
+    }
+
+    fn absorb(&mut self, d: WriteDone) {
+        self.in_flight_bytes -= d.bytes;
+        self.in_flight.remove(&d.chunk);
+        match d.result {
+            Ok(w) => {
+                self.stats.chunks_written += 1;
+                self.stats.bytes_written += w.entry.file_bytes;
+                self.store.record(w);
+            }
+            Err(e) => {
+                if self.first_error.is_none() {
+                    self.first_error = Some(e);
+                }
+            }
+        }
+    }
+
+    fn drain_done(&mut self) -> Result<()> {
+        while let Ok(d) = self.done.try_recv() {
+            self.absorb(d);
+        }
+        self.take_error()
+    }
+
+    fn take_error(&mut self) -> Result<()> {
+        match self.first_error.take() {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    fn wait_for(&mut self, pred: impl Fn(&Self) -> bool) -> Result<()> {
+        let t = std::time::Instant::now();
+        while !pred(self) {
+            match self.done.recv() {
+                Ok(d) => self.absorb(d),
+                Err(_) => break,
+            }
+        }
+        self.stats.wait_s += t.elapsed().as_secs_f64();
+        self.take_error()
+    }
+
+    /// Makes every chunk in `chunks` resident: read back from disk when the map holds it (after
+    /// its pending write, if it is being written), empty otherwise.
+    pub fn page_in(&mut self, chunks: &[ChunkIndex]) -> Result<()> {
+        self.drain_done()?;
+        for &c in chunks {
+            if self.resident.contains_key(&c) {
+                continue;
+            }
+            if self.in_flight.contains_key(&c) {
+                self.wait_for(|p| !p.in_flight.contains_key(&c))?;
+            }
+            let t = std::time::Instant::now();
+            if let Some(d) = self.store.read_chunk(c)? {
+                self.layer.put_blocks(d.blocks);
+                self.stats.chunks_read += 1;
+            }
+            self.stats.read_s += t.elapsed().as_secs_f64();
+            self.resident.insert(c, Resident { dirty: false });
+        }
+        Ok(())
+    }
+
+    /// Marks the chunks of `touched` blocks as modified (they will be written before eviction and
+    /// at checkpoints), and counts their blocks.
+    pub fn mark_dirty(&mut self, touched: &[BlockIndex]) {
+        let cb = self.chunk_blocks();
+        for (c, _) in group_by_chunk(touched.iter().copied(), cb) {
+            self.resident
+                .entry(c)
+                .or_insert(Resident { dirty: true })
+                .dirty = true;
+        }
+    }
+
+    fn blocks_of(&self, c: ChunkIndex) -> Vec<BlockIndex> {
+        let cb = self.chunk_blocks();
+        let o = c.origin_block(cb);
+        let n = cb as i32;
+        let mut v = Vec::new();
+        // Walk the layer's blocks when the chunk is large relative to what is resident.
+        if (n as usize).pow(3) > self.layer.block_count() {
+            v.extend(
+                self.layer
+                    .iter_unsorted()
+                    .map(|(i, _)| *i)
+                    .filter(|i| c.contains(*i, cb)),
+            );
+        } else {
+            for z in 0..n {
+                for y in 0..n {
+                    for x in 0..n {
+                        let b = BlockIndex([o[0] + x, o[1] + y, o[2] + z]);
+                        if self.layer.contains(&b) {
+                            v.push(b);
+                        }
+                    }
+                }
+            }
+        }
+        v.sort_unstable();
+        v
+    }
+
+    /// Evicts chunks, farthest from `camera_world_m` first, until the used bytes fit the budget;
+    /// chunks in `keep` (the current frame's working set) stay. Dirty chunks go to the writers;
+    /// clean ones are dropped (their file is current).
+    pub fn evict_to_budget(
+        &mut self,
+        camera_world_m: [f64; 3],
+        keep: &HashSet<ChunkIndex>,
+    ) -> Result<()> {
+        self.drain_done()?;
+        if self.used_bytes() > self.config.budget_bytes {
+            let grid = self.store.grid();
+            let chunk_m = grid.block_size_m() * self.chunk_blocks() as f64;
+            let mut order: Vec<(f64, ChunkIndex)> = self
+                .resident
+                .keys()
+                .filter(|c| !keep.contains(c))
+                .map(|c| {
+                    let d2: f64 = (0..3)
+                        .map(|a| ((c.0[a] as f64 + 0.5) * chunk_m - camera_world_m[a]).powi(2))
+                        .sum();
+                    (d2, *c)
+                })
+                .collect();
+            order.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+            for (_, c) in order {
+                if self.used_bytes() <= self.config.budget_bytes {
+                    break;
+                }
+                self.evict(c)?;
+            }
+        }
+        let used = self.used_bytes();
+        self.stats.peak_bytes = self.stats.peak_bytes.max(used);
+        if used > self.config.budget_bytes {
+            self.stats.budget_overruns += 1;
+            let msg = format!(
+                "memory budget of {} MiB exceeded: the current frame's {} chunks need {:.1} MiB resident; raise --memory-budget",
+                self.config.budget_bytes >> 20,
+                keep.len(),
+                used as f64 / (1u64 << 20) as f64
+            );
+            match self.config.overrun {
+                OverrunPolicy::Error => return Err(Error::InvalidArgument(msg)),
+                OverrunPolicy::Warn => tracing::warn!("{msg}"),
+            }
+        }
+        Ok(())
+    }
+
+    fn evict(&mut self, c: ChunkIndex) -> Result<()> {
+        let Some(r) = self.resident.remove(&c) else {
+            return Ok(());
+        };
+        let indices = self.blocks_of(c);
+        let blocks = self.layer.take_blocks(&indices);
+        self.stats.chunks_evicted += 1;
+        if !r.dirty || blocks.is_empty() {
+            return Ok(());
+        }
+        let bytes = blocks.len() as u64 * BLOCK_RESIDENT_BYTES;
+        let seq = self.store.allocate_seq();
+        self.in_flight.insert(c, bytes);
+        self.in_flight_bytes += bytes;
+        self.send(WriteJob {
+            chunk: c,
+            seq,
+            blocks,
+            bytes,
+        })
+    }
+
+    fn send(&mut self, job: WriteJob) -> Result<()> {
+        let t = std::time::Instant::now();
+        let tx = self.jobs.clone().expect("writers alive until finish");
+        let mut job = job;
+        loop {
+            match tx.try_send(job) {
+                Ok(()) => break,
+                Err(crossbeam::channel::TrySendError::Full(j)) => {
+                    job = j;
+                    // Back-pressure: absorb a finished write while the queue is full.
+                    if let Ok(d) = self.done.recv_timeout(std::time::Duration::from_millis(50)) {
+                        self.absorb(d);
+                    }
+                }
+                Err(crossbeam::channel::TrySendError::Disconnected(_)) => {
+                    return Err(Error::InvalidArgument(
+                        "chunk writer threads stopped".into(),
+                    ));
+                }
+            }
+        }
+        self.stats.wait_s += t.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// Writes every dirty resident chunk (blocks stay resident), waits for all writes and commits
+    /// the manifest with `frames_committed`.
+    pub fn checkpoint(&mut self, frames_committed: u64) -> Result<()> {
+        let mut dirty: Vec<ChunkIndex> = self
+            .resident
+            .iter()
+            .filter(|(_, r)| r.dirty)
+            .map(|(c, _)| *c)
+            .collect();
+        dirty.sort_unstable();
+        for c in dirty {
+            let indices = self.blocks_of(c);
+            if indices.is_empty() {
+                continue;
+            }
+            let blocks: Vec<(BlockIndex, Box<Block>)> = indices
+                .iter()
+                .map(|i| {
+                    (
+                        *i,
+                        Box::new(self.layer.get(i).expect("listed block").clone()),
+                    )
+                })
+                .collect();
+            let bytes = blocks.len() as u64 * BLOCK_RESIDENT_BYTES;
+            let seq = self.store.allocate_seq();
+            self.in_flight.insert(c, bytes);
+            self.in_flight_bytes += bytes;
+            self.send(WriteJob {
+                chunk: c,
+                seq,
+                blocks,
+                bytes,
+            })?;
+            if let Some(r) = self.resident.get_mut(&c) {
+                r.dirty = false;
+            }
+        }
+        self.wait_for(|p| p.in_flight.is_empty())?;
+        self.store.header_mut().frames_committed = frames_committed;
+        self.store.commit()
+    }
+
+    /// Final checkpoint; stops the writers and returns the store and the counters.
+    pub fn finish(mut self, frames_committed: u64) -> Result<(MapStore, PagerStats)> {
+        self.checkpoint(frames_committed)?;
+        // Dropping the sender ends the writers' loops; they are idle after the checkpoint.
+        self.jobs = None;
+        for w in self.workers.drain(..) {
+            let _ = w.join();
+        }
+        Ok((self.store, self.stats))
+    }
+}

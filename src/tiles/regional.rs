@@ -1,0 +1,200 @@
+//! Offline regularisation of a stored map, region by region, within a memory budget, resumable.
+//!
+//! A region is a cube of `region_chunks`³ chunks. Each region is solved together with every stored
+//! block within [`RegionPlan::exact_halo_blocks`] of it (read from the neighbouring chunk files),
+//! and only the region's own chunks are written back (new files carrying `u`). The solve reads
+//! only `f`, `w` and Ω, which regularisation never changes, so regions are independent and the
+//! result equals one global in-memory solve of the same iterations (tested within one `i16`
+//! quantisation step), seams included.
+//!
+//! Progress is part of the manifest: a pass number and its parameters in the header, and per chunk
+//! the pass that wrote it. The manifest is committed after every region, so a killed run resumes
+//! with the first region not committed; a run with other parameters starts a new pass.
+
+use super::pager::BLOCK_RESIDENT_BYTES;
+use super::store::MapStore;
+use super::ChunkIndex;
+use crate::error::{Error, Result};
+use crate::grid::{Block, BlockIndex, Layer, VOXELS_PER_BLOCK};
+use crate::regularize::{RegionPlan, TvParams, TvProblem};
+use std::collections::BTreeMap;
+
+/// Bytes per voxel the solver's arrays take while a region is solved (f, w, u, ū, p, mask,
+/// neighbour links), an upper estimate used for the budget check.
+pub const SOLVER_BYTES_PER_VOXEL: u64 = 48;
+
+/// Counters of an offline regularisation run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct MapRegularizeStats {
+    /// Pass number written into the manifest.
+    pub pass: u32,
+    /// Regions solved in this run.
+    pub regions: usize,
+    /// Regions found already done (resumed run).
+    pub regions_skipped: usize,
+    /// Blocks written.
+    pub core_blocks: usize,
+    /// Blocks solved, halos included.
+    pub solved_blocks: usize,
+    /// Ω voxels written.
+    pub core_omega_voxels: u64,
+    /// Largest estimated working memory of one region, bytes.
+    pub peak_region_bytes: u64,
+    /// Halo thickness used, blocks.
+    pub halo_blocks: i32,
+    /// Wall time, seconds.
+    pub seconds: f64,
+    /// The caller stopped the run early (progress returned false); what was done is committed.
+    pub interrupted: bool,
+}
+
+/// How [`regularize_map`] tiles and bounds its work.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RegionalOptions {
+    /// Region edge, chunks.
+    pub region_chunks: u32,
+    /// Working-memory bound of one region, bytes.
+    pub budget_bytes: u64,
+    /// Halo thickness, blocks; `None` for the exact halo of the iteration count. A thinner halo
+    /// leaves seams (kept for the test that shows it).
+    pub halo_blocks: Option<i32>,
+}
+
+fn region_of(c: ChunkIndex, r: i32) -> [i32; 3] {
+    [0, 1, 2].map(|a| c.0[a].div_euclid(r))
+}
+
+/// Regularises every chunk of `store` with `params`, regions of `region_chunks`³ chunks, keeping
+/// each region's working memory under `budget_bytes` (an error says so when one region does not
+/// fit: use smaller regions). `progress(done, total)` is called after each region; returning
+/// false stops the run there (everything done so far is committed, a later call resumes).
+pub fn regularize_map(
+    store: &mut MapStore,
+    params: &TvParams,
+    options: &RegionalOptions,
+    mut progress: impl FnMut(usize, usize) -> bool,
+) -> Result<MapRegularizeStats> {
+    params.validate()?;
+    let (region_chunks, budget_bytes) = (options.region_chunks, options.budget_bytes);
+    if region_chunks == 0 {
+        return Err(Error::InvalidArgument(
+            "--region-chunks must be at least 1".into(),
+        ));
+    }
+    let t0 = std::time::Instant::now();
+    let cb = store.chunk_blocks() as i32;
+    let r = region_chunks as i32;
+    let h = store.manifest().header;
+    let all_done = |s: &MapStore| {
+        s.manifest()
+            .chunks
+            .values()
+            .all(|e| e.reg_pass == s.manifest().header.reg_pass)
+    };
+    let pass = if h.reg_pass > 0 && h.reg_params == *params {
+        h.reg_pass
+    } else {
+        let hm = store.header_mut();
+        hm.reg_pass += 1;
+        hm.reg_params = *params;
+        store.commit()?;
+        store.manifest().header.reg_pass
+    };
+    let halo = options
+        .halo_blocks
+        .unwrap_or_else(|| RegionPlan::exact_halo_blocks(params.iterations))
+        .max(0);
+    let mut stats = MapRegularizeStats {
+        pass,
+        halo_blocks: halo,
+        ..Default::default()
+    };
+    if all_done(store) {
+        stats.seconds = t0.elapsed().as_secs_f64();
+        return Ok(stats);
+    }
+    let mut regions: BTreeMap<[i32; 3], Vec<ChunkIndex>> = BTreeMap::new();
+    for c in store.chunk_indices() {
+        regions.entry(region_of(c, r)).or_default().push(c);
+    }
+    let total = regions.len();
+    let reach = (halo + cb - 1) / cb; // chunks of halo around a region
+    for (k, (key, core)) in regions.iter().enumerate() {
+        if core
+            .iter()
+            .all(|c| store.manifest().chunks[c].reg_pass == pass)
+        {
+            stats.regions_skipped += 1;
+            if !progress(k + 1, total) {
+                stats.interrupted = true;
+                break;
+            }
+            continue;
+        }
+        let lo = [0, 1, 2].map(|a| key[a] * r * cb - halo);
+        let hi = [0, 1, 2].map(|a| (key[a] + 1) * r * cb - 1 + halo);
+        let mut layer = Layer::new(store.grid());
+        let mut gathered: Vec<BlockIndex> = Vec::new();
+        let mut core_blocks: BTreeMap<ChunkIndex, Vec<BlockIndex>> = BTreeMap::new();
+        let c_lo = [0, 1, 2].map(|a| key[a] * r - reach);
+        let c_hi = [0, 1, 2].map(|a| key[a] * r + r - 1 + reach);
+        for cz in c_lo[2]..=c_hi[2] {
+            for cy in c_lo[1]..=c_hi[1] {
+                for cx in c_lo[0]..=c_hi[0] {
+                    let c = ChunkIndex([cx, cy, cz]);
+                    let Some(d) = store.read_chunk(c)? else {
+                        continue;
+                    };
+                    let is_core = region_of(c, r) == *key;
+                    for (b, block) in d.blocks {
+                        if (0..3).all(|a| b.0[a] >= lo[a] && b.0[a] <= hi[a]) {
+                            if is_core {
+                                core_blocks.entry(c).or_default().push(b);
+                            }
+                            gathered.push(b);
+                            layer.insert(b, block);
+                        }
+                    }
+                }
+            }
+            let bytes = gathered.len() as u64
+                * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
+            if bytes > budget_bytes {
+                return Err(Error::InvalidArgument(format!(
+                    "region {key:?} with its {halo}-block halo needs about {} MiB, over the {} MiB budget; use a smaller --region-chunks or a larger --memory-budget",
+                    bytes >> 20,
+                    budget_bytes >> 20
+                )));
+            }
+        }
+        let bytes = gathered.len() as u64
+            * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
+        stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
+        let mut problem = TvProblem::gather(&layer, &gathered);
+        problem.solve(params);
+        let core_list: Vec<BlockIndex> = core_blocks.values().flatten().copied().collect();
+        problem.scatter(&mut layer, &core_list);
+        stats.solved_blocks += problem.blocks().len();
+        drop(problem);
+        for (c, blocks) in &core_blocks {
+            let refs: Vec<(BlockIndex, &Block)> = blocks
+                .iter()
+                .map(|b| (*b, layer.get(b).expect("gathered block")))
+                .collect();
+            stats.core_omega_voxels += refs
+                .iter()
+                .map(|(_, b)| b.observed_count() as u64)
+                .sum::<u64>();
+            stats.core_blocks += refs.len();
+            store.write_chunk(*c, &refs, pass)?;
+        }
+        store.commit()?;
+        stats.regions += 1;
+        if !progress(k + 1, total) {
+            stats.interrupted = k + 1 < total;
+            break;
+        }
+    }
+    stats.seconds = t0.elapsed().as_secs_f64();
+    Ok(stats)
+}
