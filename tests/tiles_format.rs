@@ -75,6 +75,13 @@ fn sample_chunk() -> (ChunkHeader, Vec<(BlockIndex, Box<Block>)>) {
             BlockIndex([o[0] + 1, o[1] + 3, o[2] + 3]),
             plane_block(0.5, 2, true, 3),
         ),
+        (BlockIndex([o[0] + 2, o[1] + 1, o[2] + 1]), {
+            // Dense: empty voxels off their defaults (kept exactly all the same).
+            let mut b = plane_block(2.0, 4, true, 4);
+            b.tsdf[7] = -5;
+            b.color[63] = [1, 2, 3];
+            b
+        }),
     ];
     (h, blocks)
 }
@@ -90,11 +97,11 @@ fn chunk_round_trip_is_exact_and_sorted() {
     let bytes = encode(&h, &blocks);
     let d = decode_chunk(&bytes).expect("decode");
     assert_eq!(d.header.chunk, h.chunk);
-    assert_eq!(d.header.block_count, 3);
+    assert_eq!(d.header.block_count, 4);
     assert_eq!(d.header.flags, 1, "has regularised blocks");
     let mut want = blocks.clone();
     want.sort_by_key(|(i, _)| *i);
-    assert_eq!(d.blocks.len(), 3);
+    assert_eq!(d.blocks.len(), 4);
     for ((a, ba), (b, bb)) in d.blocks.iter().zip(&want) {
         assert_eq!(a, b);
         assert!(**ba == **bb, "block {a:?} differs after the round trip");
@@ -114,7 +121,7 @@ fn chunk_header_golden_bytes() {
         chunk_blocks: 16,
         block_count: 5,
         flags: 1,
-        payload_raw_bytes: 0x4414, // 5 blocks, 2 with u: 5·4 + 5·3072 + 2·1024
+        payload_raw_bytes: 0x4414, // within 5·516 ..= 5·516 + 2560·7 for 5 blocks
         payload_zstd_bytes: 0x0000_6789,
         payload_crc32: 0xDEAD_BEEF,
     };
@@ -143,34 +150,55 @@ fn chunk_header_golden_bytes() {
 
 #[test]
 fn chunk_payload_golden_layout() {
-    // One block at local (1, 2, 3) of chunk (0,0,0), edge 4: check the payload columns of the spec.
+    // One block at local (1, 2, 3) of chunk (0,0,0), edge 4, with two observed voxels: only they
+    // carry TSDF and colour (the columns of formats/chunk.md).
     let mut b = Block::new_boxed();
-    b.tsdf[0] = 100;
     b.tsdf[1] = 90;
+    b.tsdf[2] = 95;
     b.weight_omega[1] = OMEGA_BIT | 3;
+    b.weight_omega[2] = OMEGA_BIT | 5;
     b.color[1] = [10, 20, 30];
-    let blocks = vec![(BlockIndex([1, 2, 3]), b)];
+    b.color[2] = [11, 21, 31];
+    let raw = payload_of(vec![(BlockIndex([1, 2, 3]), b.clone())]);
+    assert_eq!(&raw[0..3], &[1, 2, 3], "local block coordinates");
+    assert_eq!(raw[3], 0, "block flags: sparse, no u");
+    let w = 4;
+    assert_eq!(
+        (raw[w], raw[w + 1], raw[w + 2]),
+        (0, 0x83, 0x85),
+        "weights with Ω"
+    );
+    let t = w + 512; // TSDF of the 2 coded voxels: low bytes, then high bytes
+    assert_eq!(
+        &raw[t..t + 4],
+        &[180, 10, 0, 0],
+        "zigzag(90) = 180, zigzag(95 − 90) = 10"
+    );
+    let c = t + 4; // colour planes R, G, B over the coded voxels
+    assert_eq!(&raw[c..c + 6], &[10, 11, 20, 21, 30, 31]);
+    assert_eq!(raw.len(), c + 6);
+
+    // An empty voxel that is not at its defaults makes the block dense: all 512 voxels coded.
+    b.tsdf[0] = 100;
+    let raw = payload_of(vec![(BlockIndex([1, 2, 3]), b)]);
+    assert_eq!(raw[3], 2, "block flags: dense");
+    let t = 4 + 512;
+    assert_eq!(
+        (raw[t], raw[t + 1]),
+        (200, 19),
+        "zigzag(100), zigzag(90 − 100)"
+    );
+    assert_eq!(raw[t + 2], 10);
+    assert_eq!(raw[t + 3], (zig(32767 - 95) & 0xff) as u8);
+    assert_eq!(raw[t + 512 + 3], (zig(32767 - 95) >> 8) as u8);
+    assert_eq!(raw.len(), 4 + 512 + 512 * 5);
+}
+
+fn payload_of(blocks: Vec<(BlockIndex, Box<Block>)>) -> Vec<u8> {
     let bytes = encode(&header(ChunkIndex([0, 0, 0]), 4), &blocks);
     let h = decode_header(&bytes).expect("header");
-    assert_eq!(h.payload_raw_bytes as usize, 4 + 512 * 6);
-    let raw = zstd::bulk::decompress(&bytes[CHUNK_HEADER_BYTES..], h.payload_raw_bytes as usize)
-        .expect("zstd");
-    assert_eq!(&raw[0..3], &[1, 2, 3], "local block coordinates");
-    assert_eq!(raw[3], 0, "block flags");
-    let t = 4; // TSDF low bytes, then high bytes: zigzag(delta to previous voxel, first from 0)
-    assert_eq!(raw[t], 200, "zigzag(100) = 200");
-    assert_eq!(raw[t + 1], 19, "zigzag(90 - 100) = 19");
-    assert_eq!(raw[t + 2], (zig(32767 - 90) & 0xff) as u8);
-    assert_eq!(raw[t + 512 + 2], (zig(32767 - 90) >> 8) as u8);
-    assert_eq!(raw[t + 3], 0, "equal neighbours give zero deltas");
-    let w = t + 1024;
-    assert_eq!(raw[w + 1], 0x83, "weight 3 with Ω");
-    let c = w + 512; // colour planes R, G, B
-    assert_eq!(
-        [raw[c + 1], raw[c + 512 + 1], raw[c + 1024 + 1]],
-        [10, 20, 30]
-    );
-    assert_eq!(raw.len(), c + 1536);
+    zstd::bulk::decompress(&bytes[CHUNK_HEADER_BYTES..], h.payload_raw_bytes as usize)
+        .expect("zstd")
 }
 
 fn zig(d: i32) -> u32 {
@@ -400,10 +428,10 @@ fn store_commits_atomically_and_cleans_orphans() {
         .collect();
     assert_eq!(names.len(), 1, "orphans removed: {names:?}");
     let d = s.read_chunk(c).expect("read").expect("present");
-    assert_eq!(d.blocks.len(), 3, "the committed version is the one read");
+    assert_eq!(d.blocks.len(), 4, "the committed version is the one read");
     assert!(s.verify().is_empty());
     let sum = s.summary();
-    assert_eq!((sum.chunks, sum.blocks), (1, 3));
+    assert_eq!((sum.chunks, sum.blocks), (1, 4));
 }
 
 #[test]

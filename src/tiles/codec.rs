@@ -7,9 +7,10 @@
 //! decompressed size is bounded by what the header's block count allows.
 //!
 //! Layout of the compressed payload (columnar, so zstd sees long runs of similar bytes): block
-//! coordinates, block flags, then each voxel field as byte planes. TSDF values are stored as the
-//! zigzag-coded difference to the previous voxel in the block's linear order (x fastest), low
-//! bytes then high bytes; the regularised field as the zigzag-coded difference `u − f`.
+//! coordinates, block flags, weights, then the other voxel fields as byte planes over each block's
+//! non-empty voxels only (empty voxels hold known defaults; a block where they do not is coded
+//! densely). TSDF values are stored as the zigzag-coded difference to the previous coded voxel of
+//! the block (x fastest), low bytes then high bytes; the regularised field as zigzag `u − f`.
 
 use super::ChunkIndex;
 use crate::grid::{Block, BlockIndex, VOXELS_PER_BLOCK};
@@ -88,9 +89,33 @@ pub enum CodecError {
     Malformed(String),
 }
 
-/// Bytes of the decompressed payload for `n` blocks of which `n_reg` carry a regularised field.
-pub fn payload_raw_bytes(n: usize, n_reg: usize) -> usize {
-    n * (3 + 1) + n * VOXELS_PER_BLOCK * (2 + 1 + 3) + n_reg * VOXELS_PER_BLOCK * 2
+/// Block flag bit 1: every voxel is coded (some empty voxel deviates from the defaults); without
+/// it only the block's non-empty voxels (weight/Ω byte ≠ 0) carry TSDF, colour and `u`.
+pub const BLOCK_DENSE: u8 = 2;
+
+/// Bytes of the decompressed payload: `n` blocks, `coded` voxels carrying TSDF and colour, of
+/// which `coded_reg` also carry `u`.
+pub fn payload_raw_bytes(n: usize, coded: usize, coded_reg: usize) -> usize {
+    n * (3 + 1 + VOXELS_PER_BLOCK) + coded * (2 + 3) + coded_reg * 2
+}
+
+/// Whether the empty voxels of `b` (weight/Ω byte 0) all hold the defaults (TSDF +1, colour 0,
+/// `u = f`), so that only its non-empty voxels need coding.
+fn sparse_ok(b: &Block) -> bool {
+    let t0 = Block::default().tsdf[0];
+    (0..VOXELS_PER_BLOCK).all(|i| {
+        b.weight_omega[i] != 0
+            || (b.tsdf[i] == t0
+                && b.color[i] == [0; 3]
+                && b.regularized.as_ref().is_none_or(|u| u[i] == b.tsdf[i]))
+    })
+}
+
+/// Voxels of a block that are coded, in linear order.
+fn coded_voxels(weight_omega: &[u8; VOXELS_PER_BLOCK], dense: bool) -> Vec<usize> {
+    (0..VOXELS_PER_BLOCK)
+        .filter(|&i| dense || weight_omega[i] != 0)
+        .collect()
 }
 
 #[inline]
@@ -137,39 +162,59 @@ pub fn encode_chunk(
         .iter()
         .filter(|(_, b)| b.regularized.is_some())
         .count();
-    let mut raw = Vec::with_capacity(payload_raw_bytes(n, n_reg));
+    let flags: Vec<u8> = order
+        .iter()
+        .map(|(_, b)| {
+            (if b.regularized.is_some() {
+                BLOCK_HAS_REGULARIZED
+            } else {
+                0
+            }) | (if sparse_ok(b) { 0 } else { BLOCK_DENSE })
+        })
+        .collect();
+    let coded: Vec<Vec<usize>> = order
+        .iter()
+        .zip(&flags)
+        .map(|((_, b), f)| coded_voxels(&b.weight_omega, f & BLOCK_DENSE != 0))
+        .collect();
+    let k: usize = coded.iter().map(Vec::len).sum();
+    let k_reg: usize = coded
+        .iter()
+        .zip(&order)
+        .filter(|(_, (_, b))| b.regularized.is_some())
+        .map(|(c, _)| c.len())
+        .sum();
+    let mut raw = Vec::with_capacity(payload_raw_bytes(n, k, k_reg));
     for (l, _) in &order {
         raw.extend_from_slice(l);
     }
-    for (_, b) in &order {
-        raw.push(if b.regularized.is_some() {
-            BLOCK_HAS_REGULARIZED
-        } else {
-            0
-        });
-    }
-    push_i16_planes(&mut raw, order.iter().map(|(_, b)| tsdf_deltas(&b.tsdf)));
+    raw.extend_from_slice(&flags);
     for (_, b) in &order {
         raw.extend_from_slice(&b.weight_omega);
     }
-    for c in 0..3 {
-        for (_, b) in &order {
-            raw.extend(b.color.iter().map(|rgb| rgb[c]));
+    // TSDF: zigzag delta to the previous coded voxel of the block (the first from 0).
+    let mut zz: Vec<u16> = Vec::with_capacity(k);
+    for ((_, b), c) in order.iter().zip(&coded) {
+        let mut prev = 0i16;
+        for &i in c {
+            zz.push(zigzag(b.tsdf[i].wrapping_sub(prev)));
+            prev = b.tsdf[i];
         }
     }
-    push_i16_planes(
-        &mut raw,
-        order.iter().filter_map(|(_, b)| {
-            b.regularized.as_ref().map(|u| {
-                let mut z = [0u16; VOXELS_PER_BLOCK];
-                for i in 0..VOXELS_PER_BLOCK {
-                    z[i] = zigzag(u[i].wrapping_sub(b.tsdf[i]));
-                }
-                z
-            })
-        }),
-    );
-    debug_assert_eq!(raw.len(), payload_raw_bytes(n, n_reg));
+    push_planes(&mut raw, &zz);
+    for ch in 0..3 {
+        for ((_, b), c) in order.iter().zip(&coded) {
+            raw.extend(c.iter().map(|&i| b.color[i][ch]));
+        }
+    }
+    zz.clear();
+    for ((_, b), c) in order.iter().zip(&coded) {
+        if let Some(u) = &b.regularized {
+            zz.extend(c.iter().map(|&i| zigzag(u[i].wrapping_sub(b.tsdf[i]))));
+        }
+    }
+    push_planes(&mut raw, &zz);
+    debug_assert_eq!(raw.len(), payload_raw_bytes(n, k, k_reg));
     let zstd_payload =
         zstd::bulk::compress(&raw, zstd_level).expect("zstd compression of an in-memory buffer");
     let h = ChunkHeader {
@@ -186,23 +231,9 @@ pub fn encode_chunk(
     out
 }
 
-fn tsdf_deltas(t: &[i16; VOXELS_PER_BLOCK]) -> [u16; VOXELS_PER_BLOCK] {
-    let mut z = [0u16; VOXELS_PER_BLOCK];
-    let mut prev = 0i16;
-    for i in 0..VOXELS_PER_BLOCK {
-        z[i] = zigzag(t[i].wrapping_sub(prev));
-        prev = t[i];
-    }
-    z
-}
-
-fn push_i16_planes(raw: &mut Vec<u8>, rows: impl Iterator<Item = [u16; VOXELS_PER_BLOCK]> + Clone) {
-    for r in rows.clone() {
-        raw.extend(r.iter().map(|z| (*z & 0xff) as u8));
-    }
-    for r in rows {
-        raw.extend(r.iter().map(|z| (*z >> 8) as u8));
-    }
+fn push_planes(raw: &mut Vec<u8>, z: &[u16]) {
+    raw.extend(z.iter().map(|v| (*v & 0xff) as u8));
+    raw.extend(z.iter().map(|v| (*v >> 8) as u8));
 }
 
 /// The 64 header bytes of `h` (CRC of bytes 0..60 in bytes 60..64).
@@ -313,8 +344,8 @@ pub fn decode_header(bytes: &[u8]) -> Result<ChunkHeader, CodecError> {
         )));
     }
     let n = h.block_count as usize;
-    let lo = payload_raw_bytes(n, 0);
-    let hi = payload_raw_bytes(n, n);
+    let lo = payload_raw_bytes(n, 0, 0);
+    let hi = payload_raw_bytes(n, n * VOXELS_PER_BLOCK, n * VOXELS_PER_BLOCK);
     if (h.payload_raw_bytes as usize) < lo || h.payload_raw_bytes as usize > hi {
         return Err(CodecError::Malformed(format!(
             "payload of {} bytes cannot hold {n} blocks",
@@ -393,7 +424,7 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
             )));
         }
         prev = Some(l);
-        if flags[i] & !BLOCK_HAS_REGULARIZED != 0 {
+        if flags[i] & !(BLOCK_HAS_REGULARIZED | BLOCK_DENSE) != 0 {
             return Err(CodecError::Malformed(format!(
                 "block {i} has unknown flags {:#04x}",
                 flags[i]
@@ -413,49 +444,63 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
             "header and block flags disagree about the regularised field".into(),
         ));
     }
-    if cap != payload_raw_bytes(n, n_reg) {
-        return Err(CodecError::Malformed(format!(
-            "payload of {cap} bytes, {n} blocks with {n_reg} regularised need {}",
-            payload_raw_bytes(n, n_reg)
-        )));
-    }
     let vb = VOXELS_PER_BLOCK;
-    let lo = take(n * vb)?;
-    let hi = take(n * vb)?;
-    for (k, (_, b)) in blocks.iter_mut().enumerate() {
-        let mut prev = 0i16;
-        for i in 0..vb {
-            let z = lo[k * vb + i] as u16 | (hi[k * vb + i] as u16) << 8;
-            prev = prev.wrapping_add(unzigzag(z));
-            b.tsdf[i] = prev;
-        }
-    }
     let w = take(n * vb)?;
     for (k, (_, b)) in blocks.iter_mut().enumerate() {
         b.weight_omega.copy_from_slice(&w[k * vb..(k + 1) * vb]);
     }
-    for c in 0..3 {
-        let plane = take(n * vb)?;
-        for (k, (_, b)) in blocks.iter_mut().enumerate() {
-            for i in 0..vb {
-                b.color[i][c] = plane[k * vb + i];
+    let coded: Vec<Vec<usize>> = blocks
+        .iter()
+        .zip(flags)
+        .map(|((_, b), f)| coded_voxels(&b.weight_omega, f & BLOCK_DENSE != 0))
+        .collect();
+    let k: usize = coded.iter().map(Vec::len).sum();
+    let k_reg: usize = coded
+        .iter()
+        .zip(flags)
+        .filter(|(_, f)| **f & BLOCK_HAS_REGULARIZED != 0)
+        .map(|(c, _)| c.len())
+        .sum();
+    if cap != payload_raw_bytes(n, k, k_reg) {
+        return Err(CodecError::Malformed(format!(
+            "payload of {cap} bytes, {n} blocks with {k} coded voxels ({k_reg} with u) need {}",
+            payload_raw_bytes(n, k, k_reg)
+        )));
+    }
+    let lo = take(k)?;
+    let hi = take(k)?;
+    let mut j = 0;
+    for ((_, b), c) in blocks.iter_mut().zip(&coded) {
+        let mut prev = 0i16;
+        for &i in c {
+            prev = prev.wrapping_add(unzigzag(lo[j] as u16 | (hi[j] as u16) << 8));
+            b.tsdf[i] = prev;
+            j += 1;
+        }
+    }
+    for ch in 0..3 {
+        let plane = take(k)?;
+        let mut j = 0;
+        for ((_, b), c) in blocks.iter_mut().zip(&coded) {
+            for &i in c {
+                b.color[i][ch] = plane[j];
+                j += 1;
             }
         }
     }
-    let lo = take(n_reg * vb)?;
-    let hi = take(n_reg * vb)?;
-    let mut r = 0;
-    for (k, (_, b)) in blocks.iter_mut().enumerate() {
-        if flags[k] & BLOCK_HAS_REGULARIZED == 0 {
+    let lo = take(k_reg)?;
+    let hi = take(k_reg)?;
+    let mut j = 0;
+    for (((_, b), c), f) in blocks.iter_mut().zip(&coded).zip(flags) {
+        if f & BLOCK_HAS_REGULARIZED == 0 {
             continue;
         }
-        let mut u = Box::new([0i16; VOXELS_PER_BLOCK]);
-        for i in 0..vb {
-            let z = lo[r * vb + i] as u16 | (hi[r * vb + i] as u16) << 8;
-            u[i] = b.tsdf[i].wrapping_add(unzigzag(z));
+        let mut u = Box::new(b.tsdf);
+        for &i in c {
+            u[i] = b.tsdf[i].wrapping_add(unzigzag(lo[j] as u16 | (hi[j] as u16) << 8));
+            j += 1;
         }
         b.regularized = Some(u);
-        r += 1;
     }
     Ok(DecodedChunk { header: h, blocks })
 }

@@ -414,8 +414,12 @@ impl Pager {
     }
 
     /// Writes every dirty resident chunk (blocks stay resident), waits for all writes and commits
-    /// the manifest with `frames_committed`.
+    /// the manifest with `frames_committed`. Resident chunks are encoded in parallel straight from
+    /// the layer (no copies), so a checkpoint needs no memory beyond the encoded bytes.
     pub fn checkpoint(&mut self, frames_committed: u64) -> Result<()> {
+        use rayon::prelude::*;
+        let t = std::time::Instant::now();
+        self.wait_for(|p| p.in_flight.is_empty())?;
         let mut dirty: Vec<ChunkIndex> = self
             .resident
             .iter()
@@ -423,37 +427,42 @@ impl Pager {
             .map(|(c, _)| *c)
             .collect();
         dirty.sort_unstable();
+        let lists: Vec<(ChunkIndex, Vec<BlockIndex>)> = dirty
+            .iter()
+            .map(|&c| (c, self.blocks_of(c)))
+            .filter(|(_, b)| !b.is_empty())
+            .collect();
+        let jobs: Vec<(ChunkIndex, u64, Vec<BlockIndex>)> = lists
+            .into_iter()
+            .map(|(c, b)| (c, self.store.allocate_seq(), b))
+            .collect();
+        let writer = self.store.writer();
+        let layer = &self.layer;
+        let written: Vec<Result<WrittenChunk>> = jobs
+            .par_iter()
+            .map(|(c, seq, indices)| {
+                let refs: Vec<(BlockIndex, &Block)> = indices
+                    .iter()
+                    .map(|i| (*i, layer.get(i).expect("listed block")))
+                    .collect();
+                writer.write(*c, *seq, &refs, 0)
+            })
+            .collect();
+        for w in written {
+            let w = w?;
+            self.stats.chunks_written += 1;
+            self.stats.bytes_written += w.entry.file_bytes;
+            self.store.record(w);
+        }
         for c in dirty {
-            let indices = self.blocks_of(c);
-            if indices.is_empty() {
-                continue;
-            }
-            let blocks: Vec<(BlockIndex, Box<Block>)> = indices
-                .iter()
-                .map(|i| {
-                    (
-                        *i,
-                        Box::new(self.layer.get(i).expect("listed block").clone()),
-                    )
-                })
-                .collect();
-            let bytes = blocks.len() as u64 * BLOCK_RESIDENT_BYTES;
-            let seq = self.store.allocate_seq();
-            self.in_flight.insert(c, bytes);
-            self.in_flight_bytes += bytes;
-            self.send(WriteJob {
-                chunk: c,
-                seq,
-                blocks,
-                bytes,
-            })?;
             if let Some(r) = self.resident.get_mut(&c) {
                 r.dirty = false;
             }
         }
-        self.wait_for(|p| p.in_flight.is_empty())?;
         self.store.header_mut().frames_committed = frames_committed;
-        self.store.commit()
+        self.store.commit()?;
+        self.stats.wait_s += t.elapsed().as_secs_f64();
+        Ok(())
     }
 
     /// Final checkpoint; stops the writers and returns the store and the counters.
