@@ -57,7 +57,7 @@ pub struct StreamArgs {
     #[arg(long, default_value_t = 50)]
     pub checkpoint_every: u64,
     /// Regularisation region edge, chunks (bigger regions spend less on halos, need more memory).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 2)]
     pub region_chunks: u32,
     /// Go on (with a warning) when one frame needs more than the budget, instead of stopping.
     #[arg(long)]
@@ -75,7 +75,7 @@ pub struct RegularizeArgs {
     #[arg(long, default_value_t = 100)]
     pub iterations: u32,
     /// Region edge, chunks (bigger regions spend less on halos, need more memory).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 2)]
     pub region_chunks: u32,
     /// Memory budget of one region (e.g. 1GiB).
     #[arg(long, default_value = "1GiB", value_parser = parse_bytes)]

@@ -19,9 +19,9 @@ use crate::grid::{Block, BlockIndex, Layer, VOXELS_PER_BLOCK};
 use crate::regularize::{RegionPlan, TvParams, TvProblem};
 use std::collections::BTreeMap;
 
-/// Bytes per voxel the solver's arrays take while a region is solved (f, w, u, ū, p, mask,
-/// neighbour links), an upper estimate used for the budget check.
-pub const SOLVER_BYTES_PER_VOXEL: u64 = 48;
+/// Bytes per voxel the solver's arrays take while a region is solved (`f`, `w`, `u`, `ū`: 4 each,
+/// `p`: 12, mask 1, the gather's Ω flags 1, neighbour links 0.05), used for the budget check.
+pub const SOLVER_BYTES_PER_VOXEL: u64 = 30;
 
 /// Counters of an offline regularisation run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
