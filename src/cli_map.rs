@@ -62,6 +62,9 @@ pub struct StreamArgs {
     /// Go on (with a warning) when one frame needs more than the budget, instead of stopping.
     #[arg(long)]
     pub allow_overrun: bool,
+    /// With --map: fuse (and export the raw mesh) only; regularise later with `denser regularize`.
+    #[arg(long)]
+    pub skip_regularize: bool,
 }
 
 #[derive(Args)]

@@ -356,6 +356,7 @@ fn reconstruct_streamed(
             denser::tiles::pager::OverrunPolicy::Error
         },
         export_meshes: true,
+        regularize: !s.skip_regularize,
     };
     let o = pipeline::reconstruct_map(job, &map).with_context(|| {
         format!(
@@ -395,13 +396,17 @@ fn reconstruct_streamed(
         o.summary.bytes_on_disk as f64 / (1u64 << 20) as f64,
         o.summary.bytes_per_voxel()
     );
-    println!(
-        "regularised {} regions ({} already done) in {:.1} s: {:.2} s per million Ω voxels",
-        o.regularize.regions,
-        o.regularize.regions_skipped,
-        o.regularize.seconds,
-        o.regularize.seconds / (o.regularize.core_omega_voxels.max(1) as f64 / 1e6)
-    );
+    if o.regularize.pass == 0 {
+        println!("regularisation skipped (run `denser regularize {}`)", dir.display());
+    } else {
+        println!(
+            "regularised {} regions ({} already done) in {:.1} s: {:.2} s per million Ω voxels",
+            o.regularize.regions,
+            o.regularize.regions_skipped,
+            o.regularize.seconds,
+            o.regularize.seconds / (o.regularize.core_omega_voxels.max(1) as f64 / 1e6)
+        );
+    }
     for (p, e) in &o.exports {
         println!(
             "wrote {} ({} vertices, {} triangles, {:.2} s)",

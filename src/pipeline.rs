@@ -692,6 +692,8 @@ pub struct MapJob {
     pub overrun: crate::tiles::pager::OverrunPolicy,
     /// Export meshes (raw and regularised) into the job's output folder at the end.
     pub export_meshes: bool,
+    /// Regularise the map at the end (else leave it to `denser regularize`).
+    pub regularize: bool,
 }
 
 /// What a streamed reconstruction did.
@@ -832,28 +834,37 @@ pub fn reconstruct_map(job: &ReconstructJob, map: &MapJob) -> Result<MapOutcome>
     );
     let (mut store, pager_stats) = fusion.finish()?;
     let bar = crate::progress::bar(0, "regularising");
-    let regularize = regional::regularize_map(
-        &mut store,
-        &job.config.tv,
-        &regional::RegionalOptions {
-            region_chunks: map.region_chunks,
-            budget_bytes: map.budget_bytes,
-            halo_blocks: None,
-        },
-        |done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-            true
-        },
-    )?;
+    let regularize = if !map.regularize {
+        regional::MapRegularizeStats::default()
+    } else {
+        regional::regularize_map(
+            &mut store,
+            &job.config.tv,
+            &regional::RegionalOptions {
+                region_chunks: map.region_chunks,
+                budget_bytes: map.budget_bytes,
+                halo_blocks: None,
+            },
+            |done, total| {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+                true
+            },
+        )?
+    };
     bar.finish_and_clear();
     let mut exports = Vec::new();
     if map.export_meshes {
         std::fs::create_dir_all(&job.out_dir).map_err(|e| Error::io(&job.out_dir, e))?;
-        for (name, field) in [
-            ("mesh_raw.ply", Field::Raw),
-            ("mesh_regularized.ply", Field::Regularized),
-        ] {
+        let fields: &[(&str, Field)] = if map.regularize {
+            &[
+                ("mesh_raw.ply", Field::Raw),
+                ("mesh_regularized.ply", Field::Regularized),
+            ]
+        } else {
+            &[("mesh_raw.ply", Field::Raw)]
+        };
+        for &(name, field) in fields {
             let path = job.out_dir.join(name);
             let st = export::export(
                 &store,
