@@ -77,6 +77,27 @@ enum DepthArg {
     Stereo,
 }
 
+/// Where depth fusion and regularisation run.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum DeviceArg {
+    /// The GPU when an adapter exists (lavapipe counts), else the CPU with a one-line message.
+    Auto,
+    /// The CPU.
+    Cpu,
+    /// The GPU; an error when no adapter exists.
+    Gpu,
+}
+
+impl From<DeviceArg> for denser::gpu::DeviceChoice {
+    fn from(d: DeviceArg) -> Self {
+        match d {
+            DeviceArg::Auto => denser::gpu::DeviceChoice::Auto,
+            DeviceArg::Cpu => denser::gpu::DeviceChoice::Cpu,
+            DeviceArg::Gpu => denser::gpu::DeviceChoice::Gpu,
+        }
+    }
+}
+
 /// Map and regulariser parameters shared by subcommands.
 #[derive(Args, Clone)]
 struct MapArgs {
@@ -148,6 +169,9 @@ struct ReconstructArgs {
     /// Disparity search range, pixels (128 sees down to ~3 m on KITTI).
     #[arg(long, default_value_t = 128)]
     num_disparities: usize,
+    /// Where depth fusion and regularisation run (LiDAR fusion and meshing use the CPU).
+    #[arg(long, value_enum, default_value = "auto")]
+    device: DeviceArg,
     #[command(flatten)]
     map: MapArgs,
 }
@@ -169,6 +193,9 @@ struct DemoArgs {
     /// Primal–dual iterations.
     #[arg(long, default_value_t = 100)]
     iterations: u32,
+    /// Where depth fusion and regularisation run.
+    #[arg(long, value_enum, default_value = "auto")]
+    device: DeviceArg,
 }
 
 #[derive(Args)]
@@ -247,6 +274,7 @@ fn reconstruct(a: ReconstructArgs) -> Result<()> {
         frame_step: a.step,
         stereo_method: a.method.parse()?,
         num_disparities: a.num_disparities,
+        device: a.device.into(),
     };
     let rec = pipeline::fuse_input(&job)
         .with_context(|| format!("reconstructing {}", a.input.display()))?;
@@ -468,6 +496,7 @@ fn demo(a: DemoArgs) -> Result<()> {
     config.frame_spacing_m = a.frame_spacing_m;
     config.seed = a.seed;
     config.config.tv.iterations = a.iterations;
+    config.device = a.device.into();
     let outcome = pipeline::demo(&config).context("running the demo")?;
     println!(
         "demo: {} frames over {:.0} m, reconstructed from stereo in {:.0} s in all",

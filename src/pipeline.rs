@@ -76,6 +76,8 @@ pub struct ReconstructJob {
     pub stereo_method: crate::depth::StereoMethod,
     /// Disparity search range, pixels.
     pub num_disparities: usize,
+    /// Where depth fusion and regularisation run (LiDAR fusion and meshing use the CPU).
+    pub device: crate::gpu::DeviceChoice,
 }
 
 /// What a reconstruction produced.
@@ -218,6 +220,7 @@ pub fn kitti_gt_depth_frame(seq: &KittiSequence, i: usize) -> Result<crate::fram
 /// Fuses the job's input into a fresh reconstructor (no regularisation yet).
 pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
     let mut rec = Reconstructor::new(job.config)?;
+    rec.set_gpu(job.device.open()?.map(std::sync::Arc::new));
     match detect_input(&job.input)? {
         InputKind::Kitti => {
             let seq = KittiSequence::open(&job.input, job.poses.as_deref())?;
@@ -236,13 +239,13 @@ pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
                         let t = std::time::Instant::now();
                         let frame = kitti_gt_depth_frame(&seq, i)?;
                         rec.add_input_time(t.elapsed().as_secs_f64());
-                        rec.fuse_depth(&frame);
+                        rec.fuse_depth(&frame)?;
                     }
                     RangeSource::Stereo => {
                         let t = std::time::Instant::now();
                         let frame = stereo.frame(&seq, i)?;
                         rec.add_input_time(t.elapsed().as_secs_f64());
-                        rec.fuse_depth(&frame);
+                        rec.fuse_depth(&frame)?;
                     }
                 }
                 bar.inc(1);
@@ -257,7 +260,7 @@ pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
                 let t = std::time::Instant::now();
                 let frame = seq.frame(i)?;
                 rec.add_input_time(t.elapsed().as_secs_f64());
-                rec.fuse_depth(&frame);
+                rec.fuse_depth(&frame)?;
                 bar.inc(1);
             }
             bar.finish_and_clear();
@@ -549,6 +552,8 @@ pub struct DemoConfig {
     pub seed: u64,
     /// Reconstruction settings.
     pub config: ReconstructionConfig,
+    /// Where depth fusion and regularisation run.
+    pub device: crate::gpu::DeviceChoice,
 }
 
 impl DemoConfig {
@@ -563,6 +568,7 @@ impl DemoConfig {
             frame_spacing_m: 2.0,
             seed: 1,
             config,
+            device: crate::gpu::DeviceChoice::Auto,
         }
     }
 }
@@ -607,6 +613,7 @@ pub fn demo(demo: &DemoConfig) -> Result<DemoOutcome> {
         frame_step: 1,
         stereo_method: crate::depth::StereoMethod::Sgm,
         num_disparities: 128,
+        device: demo.device,
     };
     let rec = fuse_input(&job)?;
     let outcome = finish(rec, &demo.out_dir)?;

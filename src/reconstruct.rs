@@ -6,10 +6,12 @@ use crate::frame::{DepthFrame, LidarScan};
 use crate::fusion::{
     integrate_depth, integrate_lidar, DepthFusionParams, FusionStats, LidarFusionParams,
 };
+use crate::gpu::GpuContext;
 use crate::grid::{GridParams, Layer, TouchedBlocks};
 use crate::mesh::{extract_mesh, Field, Mesh};
 use crate::regularize::{regularize_layer, RegularizeStats, TvParams};
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Everything that parameterises a reconstruction.
@@ -81,6 +83,7 @@ pub struct Reconstructor {
     config: ReconstructionConfig,
     layer: Layer,
     timings: StageTimings,
+    gpu: Option<Arc<GpuContext>>,
 }
 
 impl Reconstructor {
@@ -92,7 +95,19 @@ impl Reconstructor {
             layer: Layer::new(config.grid),
             config,
             timings: StageTimings::default(),
+            gpu: None,
         })
+    }
+
+    /// Runs depth fusion and regularisation on `gpu` (`None`: on the CPU). LiDAR fusion and
+    /// meshing stay on the CPU.
+    pub fn set_gpu(&mut self, gpu: Option<Arc<GpuContext>>) {
+        self.gpu = gpu;
+    }
+
+    /// The GPU in use, if any.
+    pub fn gpu(&self) -> Option<&GpuContext> {
+        self.gpu.as_deref()
     }
 
     /// The configuration.
@@ -126,12 +141,16 @@ impl Reconstructor {
         self.timings.voxel_updates += stats.voxel_updates;
     }
 
-    /// Fuses a depth frame; returns the blocks it touched.
-    pub fn fuse_depth(&mut self, frame: &DepthFrame) -> TouchedBlocks {
+    /// Fuses a depth frame (on the GPU when one is set); returns the blocks it touched.
+    pub fn fuse_depth(&mut self, frame: &DepthFrame) -> crate::Result<TouchedBlocks> {
         let t = Instant::now();
-        let (touched, stats) = integrate_depth(&mut self.layer, frame, &self.config.depth_fusion);
+        let params = &self.config.depth_fusion;
+        let (touched, stats) = match &self.gpu {
+            Some(gpu) => crate::gpu::integrate_depth_gpu(gpu, &mut self.layer, frame, params)?,
+            None => integrate_depth(&mut self.layer, frame, params),
+        };
         self.record(t, stats);
-        touched
+        Ok(touched)
     }
 
     /// Fuses a LiDAR scan; returns the blocks it touched.
@@ -142,10 +161,26 @@ impl Reconstructor {
         touched
     }
 
-    /// Regularises the whole map (one global solve).
+    /// Regularises the whole map (one global solve), on the GPU when one is set. A map too large
+    /// for one GPU binding is solved on the CPU instead, with a message on stderr.
     pub fn regularize(&mut self) -> crate::Result<RegularizeStats> {
         let t = Instant::now();
-        let (_, stats) = regularize_layer(&mut self.layer, &self.config.tv)?;
+        let gpu_result = match &self.gpu {
+            Some(gpu) => {
+                match crate::gpu::regularize_layer_gpu(gpu, &mut self.layer, &self.config.tv) {
+                    Err(e @ crate::Error::GpuCapacity { .. }) => {
+                        eprintln!("regularisation: {e}; solving on the CPU instead");
+                        None
+                    }
+                    other => Some(other?),
+                }
+            }
+            None => None,
+        };
+        let (_, stats) = match gpu_result {
+            Some(r) => r,
+            None => regularize_layer(&mut self.layer, &self.config.tv)?,
+        };
         self.timings.regularize_s += t.elapsed().as_secs_f64();
         self.timings.voxel_iterations += stats.omega_voxels as u64 * stats.iterations as u64;
         Ok(stats)

@@ -202,6 +202,28 @@ impl TvProblem {
         &self.blocks
     }
 
+    /// Neighbour slot per block and direction (+x, −x, +y, −y, +z, −z), `u32::MAX` when the
+    /// neighbour is not in the problem: the table a GPU twin uploads (`src/gpu/tv.rs`).
+    pub fn neighbor_table(&self) -> &[[u32; 6]] {
+        &self.neighbors
+    }
+
+    /// Ω and link bits per voxel: bit `d` = forward link along axis `d` (x and x + e_d in Ω),
+    /// bit `3 + d` = backward link, bit 6 = Ω.
+    pub fn masks(&self) -> &[u8] {
+        &self.mask
+    }
+
+    /// The solver state `(u, ū, p)`, `p` as (x, y, z) per voxel.
+    pub fn state(&self) -> (&[f32], &[f32], &[[f32; 3]]) {
+        (&self.u, &self.ubar, &self.p)
+    }
+
+    /// The solver state, mutably (a GPU twin writes its result back here).
+    pub fn state_mut(&mut self) -> (&mut [f32], &mut [f32], &mut [[f32; 3]]) {
+        (&mut self.u, &mut self.ubar, &mut self.p)
+    }
+
     /// Number of voxels in Ω.
     pub fn omega_count(&self) -> usize {
         self.mask.iter().filter(|&&m| m & OMEGA != 0).count()
