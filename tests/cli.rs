@@ -130,6 +130,41 @@ fn synthetic_drive_end_to_end() {
     ] {
         assert!(d.join("gt").join(f).is_file(), "{f}");
     }
+    // `--device auto` (above) said which device it used; the CPU gives the same surfaces
+    // (GPU kernels agree with their CPU twins: tests/gpu_compare.rs).
+    assert!(text(&o).contains("device: "), "{}", text(&o));
+    let o = denser(
+        &[
+            "reconstruct",
+            "drive/sequences/00",
+            "--depth",
+            "gt",
+            "--out",
+            "gt_cpu",
+            "--iterations",
+            "20",
+            "--device",
+            "cpu",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(!text(&o).contains("device: "), "{}", text(&o));
+    let cpu: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(d.join("gt_cpu/report.json")).expect("report"),
+    )
+    .expect("json");
+    for k in 0..2 {
+        let (a, b) = (
+            surfaces[k]["accuracy"]["median_m"]
+                .as_f64()
+                .expect("median"),
+            cpu["surfaces"][k]["accuracy"]["median_m"]
+                .as_f64()
+                .expect("median"),
+        );
+        assert!((a - b).abs() < 1e-3, "surface {k}: median {a} vs CPU {b}");
+    }
     // The written mesh reads back and evaluates against the exact surface samples.
     let o = denser(
         &[

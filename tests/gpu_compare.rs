@@ -283,3 +283,55 @@ fn tv_capacity_overflow_is_an_error_not_a_truncation() {
     );
     assert_eq!(problem.state().0, &before[..], "state must be untouched");
 }
+
+#[test]
+fn depth_fusion_gpu_keeps_the_regularised_field_in_step() {
+    // Block::fuse sets u = f on every voxel it updates; the GPU path must do the same.
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.1,
+        truncation_m: 0.8,
+    };
+    let mut cpu = sphere_layer(grid, 4, 0.01, None);
+    regularize_layer(&mut cpu, &TvParams::paper(0.1)).expect("regularise");
+    let mut gpu = cpu.clone();
+    let scene = SphereScene::standard();
+    let frame = scene.render(
+        &vga(),
+        orbit(7, 2.5, -1.0, scene.center)[3],
+        0.01,
+        6.0,
+        &mut Rng(9),
+    );
+    let before = cpu.clone();
+    integrate_depth(&mut cpu, &frame, &DepthFusionParams::default());
+    integrate_depth_gpu(&ctx, &mut gpu, &frame, &DepthFusionParams::default()).expect("GPU");
+    assert_eq!(cpu.indices_sorted(), gpu.indices_sorted());
+    let (mut reset, mut differ, mut voxels) = (0usize, 0usize, 0usize);
+    for idx in before.indices_sorted() {
+        let (old, c, g) = (
+            before.get(&idx).expect("old"),
+            cpu.get(&idx).expect("cpu"),
+            gpu.get(&idx).expect("gpu"),
+        );
+        let (uo, uc, ug) = (
+            old.regularized.as_ref().expect("old u"),
+            c.regularized.as_ref().expect("cpu u"),
+            g.regularized.as_ref().expect("gpu u"),
+        );
+        for i in 0..VOXELS_PER_BLOCK {
+            voxels += 1;
+            if uc[i] != uo[i] && uc[i] == c.tsdf[i] {
+                reset += 1;
+            }
+            if (uc[i] as i32 - ug[i] as i32).abs() > 1 {
+                differ += 1;
+            }
+        }
+    }
+    eprintln!(
+        "{voxels} voxels: {reset} regularised values reset by the CPU, {differ} differ on the GPU"
+    );
+    assert!(reset > 1000, "{reset}");
+    assert!(differ as f64 <= 1e-3 * voxels as f64, "{differ}");
+}

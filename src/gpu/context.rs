@@ -23,19 +23,26 @@ pub enum DeviceChoice {
 }
 
 impl DeviceChoice {
-    /// Opens the GPU this choice asks for: `None` for the CPU. `Auto` prints one line to stderr
-    /// when it falls back to the CPU; `Gpu` fails when no adapter exists.
+    /// Opens the GPU this choice asks for: `None` for the CPU. `Auto` and `Gpu` print the device
+    /// on one line to stderr; `Auto` falls back to the CPU (saying why) when no adapter exists or
+    /// it fails to open; `Gpu` fails then.
     pub fn open(self) -> Result<Option<GpuContext>> {
         match self {
             DeviceChoice::Cpu => Ok(None),
-            DeviceChoice::Auto => {
-                let ctx = GpuContext::new()?;
-                match &ctx {
-                    Some(c) => eprintln!("device: GPU ({})", c.describe()),
-                    None => eprintln!("device: no GPU adapter found, running on the CPU"),
+            DeviceChoice::Auto => match GpuContext::new() {
+                Ok(Some(c)) => {
+                    eprintln!("device: GPU ({})", c.describe());
+                    Ok(Some(c))
                 }
-                Ok(ctx)
-            }
+                Ok(None) => {
+                    eprintln!("device: no GPU adapter found, running on the CPU");
+                    Ok(None)
+                }
+                Err(e) => {
+                    eprintln!("device: {e}; running on the CPU");
+                    Ok(None)
+                }
+            },
             DeviceChoice::Gpu => match GpuContext::new()? {
                 Some(c) => {
                     eprintln!("device: GPU ({})", c.describe());
