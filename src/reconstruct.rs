@@ -7,9 +7,9 @@ use crate::fusion::{
     integrate_depth, integrate_lidar, DepthFusionParams, FusionStats, LidarFusionParams,
 };
 use crate::gpu::GpuContext;
-use crate::grid::{GridParams, Layer, TouchedBlocks};
+use crate::grid::{GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::mesh::{extract_mesh, Field, Mesh};
-use crate::regularize::{regularize_layer, RegularizeStats, TvParams};
+use crate::regularize::{regularize_layer, RegionPlan, RegularizeStats, TvParams, TvProblem};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 use std::time::Instant;
@@ -162,19 +162,12 @@ impl Reconstructor {
     }
 
     /// Regularises the whole map (one global solve), on the GPU when one is set. A map too large
-    /// for one GPU binding is solved on the CPU instead, with a message on stderr.
+    /// for one GPU binding is solved on the GPU in regions of 32³ blocks with the exact halo (the
+    /// same result), or, when a region does not fit either, on the CPU; each with a message.
     pub fn regularize(&mut self) -> crate::Result<RegularizeStats> {
         let t = Instant::now();
         let gpu_result = match &self.gpu {
-            Some(gpu) => {
-                match crate::gpu::regularize_layer_gpu(gpu, &mut self.layer, &self.config.tv) {
-                    Err(e @ crate::Error::GpuCapacity { .. }) => {
-                        eprintln!("regularisation: {e}; solving on the CPU instead");
-                        None
-                    }
-                    other => Some(other?),
-                }
-            }
+            Some(gpu) => self.regularize_gpu(gpu.clone())?,
             None => None,
         };
         let (_, stats) = match gpu_result {
@@ -184,6 +177,48 @@ impl Reconstructor {
         self.timings.regularize_s += t.elapsed().as_secs_f64();
         self.timings.voxel_iterations += stats.omega_voxels as u64 * stats.iterations as u64;
         Ok(stats)
+    }
+
+    /// The GPU part of [`Reconstructor::regularize`]: `None` when the map does not fit.
+    fn regularize_gpu(
+        &mut self,
+        gpu: Arc<GpuContext>,
+    ) -> crate::Result<Option<(TouchedBlocks, RegularizeStats)>> {
+        let tv = self.config.tv;
+        let e = match crate::gpu::regularize_layer_gpu(&gpu, &mut self.layer, &tv) {
+            Err(e @ crate::Error::GpuCapacity { .. }) => e,
+            other => return other.map(Some),
+        };
+        let plan = RegionPlan::exact(32, tv.iterations);
+        eprintln!("regularisation: {e}; solving on the GPU in regions of 32³ blocks");
+        let blocks = self.layer.indices_sorted();
+        let mut problem = TvProblem::gather(&self.layer, &blocks);
+        let energy_before = problem.energy(tv.lambda);
+        match crate::gpu::regularize_regions_gpu(&gpu, &mut self.layer, &tv, &plan) {
+            Ok(_) => {}
+            Err(e @ crate::Error::GpuCapacity { .. }) => {
+                eprintln!("regularisation: {e}; solving on the CPU instead");
+                return Ok(None);
+            }
+            Err(e) => return Err(e),
+        }
+        // The energy of the stored result (quantised u), as the global path reports it.
+        let (u, _, _) = problem.state_mut();
+        for (k, index) in blocks.iter().enumerate() {
+            if let Some(block) = self.layer.get(index) {
+                for i in 0..VOXELS_PER_BLOCK {
+                    u[k * VOXELS_PER_BLOCK + i] = block.regularized_or_raw(i);
+                }
+            }
+        }
+        let stats = RegularizeStats {
+            blocks: blocks.len(),
+            omega_voxels: problem.omega_count(),
+            iterations: tv.iterations,
+            energy_before,
+            energy_after: problem.energy(tv.lambda),
+        };
+        Ok(Some((blocks, stats)))
     }
 
     /// Marching cubes over the whole map.

@@ -36,6 +36,32 @@ fn missing_input_is_named_and_fails() {
 }
 
 #[test]
+fn device_gpu_without_an_adapter_fails_and_auto_falls_back() {
+    // WGPU_BACKEND=metal selects a backend this build does not compile in: no adapter exists.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = |device: &str| {
+        Command::new(env!("CARGO_BIN_EXE_denser"))
+            .args(["reconstruct", "no/such/sequence", "--device", device])
+            .env("WGPU_BACKEND", "metal")
+            .current_dir(dir.path())
+            .output()
+            .expect("run denser")
+    };
+    let o = run("gpu");
+    assert!(!o.status.success());
+    assert!(text(&o).contains("no GPU adapter found"), "{}", text(&o));
+    assert!(!text(&o).contains("no/such/sequence"), "{}", text(&o));
+    let o = run("auto");
+    assert!(!o.status.success()); // the input is missing, but the device step passed
+    let t = text(&o);
+    assert!(
+        t.contains("device: no GPU adapter found, running on the CPU")
+            && t.contains("no/such/sequence"),
+        "{t}"
+    );
+}
+
+#[test]
 fn unrecognised_layout_and_bad_calib_are_named() {
     let dir = tempfile::tempdir().expect("tempdir");
     std::fs::create_dir_all(dir.path().join("seq")).expect("mkdir");

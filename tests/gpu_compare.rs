@@ -14,9 +14,13 @@ mod common;
 
 use common::{orbit, vga, Rng, SphereScene};
 use denser::fusion::{integrate_depth, DepthFusionParams};
-use denser::gpu::{integrate_depth_gpu, regularize_layer_gpu, solve_gpu, GpuContext};
+use denser::gpu::{
+    integrate_depth_gpu, regularize_layer_gpu, regularize_regions_gpu, solve_gpu, GpuContext,
+};
 use denser::grid::{BlockIndex, GridParams, Layer, VOXELS_PER_BLOCK};
-use denser::regularize::{regularize_layer, TvParams, TvProblem};
+use denser::reconstruct::Reconstructor;
+use denser::regularize::{regularize_layer, RegionPlan, TvParams, TvProblem};
+use std::sync::Arc;
 
 fn gpu() -> Option<GpuContext> {
     match GpuContext::new() {
@@ -334,4 +338,72 @@ fn depth_fusion_gpu_keeps_the_regularised_field_in_step() {
     );
     assert!(reset > 1000, "{reset}");
     assert!(differ as f64 <= 1e-3 * voxels as f64, "{differ}");
+}
+
+#[test]
+fn tv_regions_on_the_gpu_equal_the_global_cpu_solve() {
+    // A cap that the global problem exceeds but each region with its exact halo fits.
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.05,
+        truncation_m: 0.4,
+    };
+    let mut cpu = sphere_layer(grid, 6, 0.01, None);
+    let mut gpu = cpu.clone();
+    let params = TvParams {
+        iterations: 20,
+        ..TvParams::paper(0.1)
+    };
+    let blocks = cpu.block_count() as u64;
+    let cap = blocks * 512 * 12 / 2;
+    let capped = ctx.with_max_binding_bytes(cap);
+    assert!(matches!(
+        regularize_layer_gpu(&capped, &mut gpu.clone(), &params),
+        Err(denser::Error::GpuCapacity { .. })
+    ));
+    let plan = RegionPlan::exact(2, params.iterations);
+    let (written, stats) =
+        regularize_regions_gpu(&capped, &mut gpu, &params, &plan).expect("regions on the GPU");
+    regularize_layer(&mut cpu, &params).expect("CPU");
+    eprintln!("{blocks} blocks, cap {cap} bytes: {stats:?}");
+    assert_eq!(written, cpu.indices_sorted());
+    assert!(stats.regions > 1);
+    let mut worst = 0i32;
+    for b in &written {
+        let uc = cpu
+            .get(b)
+            .and_then(|x| x.regularized.clone())
+            .expect("cpu u");
+        let ug = gpu
+            .get(b)
+            .and_then(|x| x.regularized.clone())
+            .expect("gpu u");
+        for i in 0..VOXELS_PER_BLOCK {
+            worst = worst.max((uc[i] as i32 - ug[i] as i32).abs());
+        }
+    }
+    assert!(worst <= 4, "{worst} steps");
+}
+
+#[test]
+fn reconstructor_falls_back_to_the_cpu_when_the_map_does_not_fit() {
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.1,
+        truncation_m: 0.8,
+    };
+    let layer = sphere_layer(grid, 3, 0.01, None);
+    let mut config = denser::reconstruct::ReconstructionConfig::paper(0.1);
+    config.grid = grid;
+    config.tv.iterations = 10;
+    let mut on_gpu = Reconstructor::new(config).expect("config");
+    *on_gpu.layer_mut() = layer.clone();
+    on_gpu.set_gpu(Some(Arc::new(ctx.with_max_binding_bytes(4096))));
+    let stats = on_gpu.regularize().expect("regularise");
+    let mut cpu = layer;
+    let (_, cpu_stats) = regularize_layer(&mut cpu, &config.tv).expect("CPU");
+    assert_eq!(stats, cpu_stats);
+    for b in cpu.indices_sorted() {
+        assert!(cpu.get(&b) == on_gpu.layer().get(&b), "block {b:?}");
+    }
 }

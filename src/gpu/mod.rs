@@ -5,13 +5,14 @@
 //! - [`GpuContext`]: adapter, device, queue and compiled pipelines; [`GpuContext::new`] returns
 //!   `None` where no adapter exists (lavapipe, Mesa's software Vulkan, counts as one).
 //! - [`DeviceChoice`]: the `--device auto|cpu|gpu` policy of the CLI.
-//! - [`solve_gpu`] / [`regularize_layer_gpu`]: Chambolle–Pock iterations on the GPU.
+//! - [`solve_gpu`] / [`regularize_layer_gpu`] / [`regularize_regions_gpu`]: Chambolle–Pock
+//!   iterations on the GPU, globally or region by region (maps larger than one binding).
 //! - [`integrate_depth_gpu`]: projective TSDF fusion of one depth frame on the GPU.
 //! - [`layout`]: `#[repr(C)]` buffer structs with WGSL twins; [`shaders`]: the assembled sources.
 //!
 //! What it does not do (yet): LiDAR fusion, marching cubes and paging stay on the CPU; the map
 //! is not resident on the GPU between calls (every call uploads its blocks and reads them back);
-//! a TV problem larger than one storage binding is an error, not split.
+//! a TV problem larger than one storage binding is an error unless solved in regions.
 
 mod context;
 mod fuse;
@@ -21,4 +22,4 @@ mod tv;
 
 pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
 pub use fuse::integrate_depth_gpu;
-pub use tv::{regularize_layer_gpu, solve_gpu};
+pub use tv::{regularize_layer_gpu, regularize_regions_gpu, solve_gpu};

@@ -7,13 +7,15 @@
 //! division within 2.5 ULP, so results agree to about 1e-6 per iteration, not bit for bit
 //! (`tests/gpu_compare.rs` states the tolerance). The whole problem must fit one storage binding
 //! per array (`p` is the largest: 12 bytes per voxel, about 11 M voxels or 21 845 blocks in
-//! 128 MiB); a larger problem is an [`Error::GpuCapacity`], never truncated — solve it in
-//! regions ([`crate::regularize::regularize_regions`] with an exact halo) instead.
+//! 128 MiB); a larger problem is an [`crate::Error::GpuCapacity`], never truncated — solve it
+//! in regions with [`regularize_regions_gpu`] and an exact halo instead (the same result).
 
 use super::context::{ErrorScopes, GpuContext};
 use super::layout::TvUniforms;
 use crate::grid::{Layer, TouchedBlocks};
-use crate::regularize::{RegularizeStats, TvParams, TvProblem};
+use crate::regularize::{
+    regularize_regions_with, RegionPlan, RegionStats, RegularizeStats, TvParams, TvProblem,
+};
 use crate::Result;
 
 /// Iterations recorded per command buffer (bounds the size of one submission).
@@ -122,4 +124,19 @@ pub fn regularize_layer_gpu(
         energy_after,
     };
     Ok((blocks, stats))
+}
+
+/// [`crate::regularize::regularize_regions`] on the GPU: each region (with its halo) is one GPU
+/// solve, so maps larger than one storage binding can be regularised; with
+/// [`RegionPlan::exact`] the result equals the global solve. A region whose gathered blocks do
+/// not fit is an [`crate::Error::GpuCapacity`] (regions written before it keep their result).
+pub fn regularize_regions_gpu(
+    ctx: &GpuContext,
+    layer: &mut Layer,
+    params: &TvParams,
+    plan: &RegionPlan,
+) -> Result<(TouchedBlocks, RegionStats)> {
+    regularize_regions_with(layer, params, plan, |problem| {
+        solve_gpu(ctx, problem, params)
+    })
 }

@@ -489,6 +489,21 @@ pub fn regularize_regions(
     params: &TvParams,
     plan: &RegionPlan,
 ) -> crate::Result<(TouchedBlocks, RegionStats)> {
+    regularize_regions_with(layer, params, plan, |problem| {
+        problem.solve(params);
+        Ok(())
+    })
+}
+
+/// [`regularize_regions`] with another solver for each region's problem (the GPU twin,
+/// `crate::gpu::regularize_regions_gpu`, passes its own). `solve` must run `params.iterations`
+/// iterations; an error stops the run (regions already written keep their result).
+pub fn regularize_regions_with(
+    layer: &mut Layer,
+    params: &TvParams,
+    plan: &RegionPlan,
+    mut solve: impl FnMut(&mut TvProblem) -> crate::Result<()>,
+) -> crate::Result<(TouchedBlocks, RegionStats)> {
     params.validate()?;
     if plan.region_blocks < 1 || plan.halo_blocks < 0 {
         return Err(crate::Error::InvalidArgument(format!(
@@ -528,7 +543,7 @@ pub fn regularize_regions(
             }
         }
         let mut problem = TvProblem::gather(layer, &gathered);
-        problem.solve(params);
+        solve(&mut problem)?;
         problem.scatter(layer, &core);
         stats.regions += 1;
         stats.core_blocks += core.len();
