@@ -80,11 +80,11 @@ enum DepthArg {
 /// Where depth fusion and regularisation run.
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum DeviceArg {
-    /// The GPU when an adapter exists (lavapipe counts), else the CPU with a one-line message.
+    /// A hardware GPU when wgpu finds one, else the CPU (one line says which).
     Auto,
     /// The CPU.
     Cpu,
-    /// The GPU; an error when no adapter exists.
+    /// The GPU, software adapters (lavapipe) included; an error when no adapter exists.
     Gpu,
 }
 

@@ -13,7 +13,9 @@ pub const WORKGROUP_SIZE: u32 = 64;
 /// Where a command runs its fusion and regularisation.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DeviceChoice {
-    /// The GPU when an adapter exists, else the CPU (with a one-line message).
+    /// The GPU when a hardware adapter exists, else the CPU (with a one-line message). A
+    /// software adapter (lavapipe/llvmpipe: the CPU behind wgpu) is slower than the CPU code
+    /// (`benches/gpu.rs`), so `Auto` does not pick it.
     #[default]
     Auto,
     /// Always the CPU.
@@ -24,12 +26,20 @@ pub enum DeviceChoice {
 
 impl DeviceChoice {
     /// Opens the GPU this choice asks for: `None` for the CPU. `Auto` and `Gpu` print the device
-    /// on one line to stderr; `Auto` falls back to the CPU (saying why) when no adapter exists or
-    /// it fails to open; `Gpu` fails then.
+    /// on one line to stderr; `Auto` falls back to the CPU (saying why) when no adapter exists,
+    /// only a software one does, or it fails to open; `Gpu` fails when none exists.
     pub fn open(self) -> Result<Option<GpuContext>> {
         match self {
             DeviceChoice::Cpu => Ok(None),
             DeviceChoice::Auto => match GpuContext::new() {
+                Ok(Some(c)) if c.is_software() => {
+                    eprintln!(
+                        "device: only a software adapter ({}), running on the CPU \
+                         (--device gpu uses it anyway)",
+                        c.describe()
+                    );
+                    Ok(None)
+                }
                 Ok(Some(c)) => {
                     eprintln!("device: GPU ({})", c.describe());
                     Ok(Some(c))
@@ -196,6 +206,11 @@ impl GpuContext {
             "{}, {:?}, {:?}",
             self.info.name, self.info.device_type, self.info.backend
         )
+    }
+
+    /// Whether the adapter is a software one (wgpu's `DeviceType::Cpu`, e.g. llvmpipe).
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
     }
 
     /// The device's limits (the adapter's, requested in full).
