@@ -407,3 +407,32 @@ fn reconstructor_falls_back_to_the_cpu_when_the_map_does_not_fit() {
         assert!(cpu.get(&b) == on_gpu.layer().get(&b), "block {b:?}");
     }
 }
+
+#[test]
+fn depth_fusion_gpu_error_leaves_the_layer_unchanged() {
+    // A binding cap below the depth image's size: a capacity error, and no block changed,
+    // appeared or vanished.
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.1,
+        truncation_m: 0.8,
+    };
+    let mut layer = sphere_layer(grid, 2, 0.01, None);
+    let before = layer.clone();
+    let scene = SphereScene::standard();
+    let frame = scene.render(
+        &vga(),
+        orbit(5, 3.0, -1.2, scene.center)[2],
+        0.01,
+        6.0,
+        &mut Rng(2),
+    );
+    let capped = ctx.with_max_binding_bytes(64 * 1024);
+    let err = integrate_depth_gpu(&capped, &mut layer, &frame, &DepthFusionParams::default())
+        .expect_err("the image does not fit");
+    assert!(matches!(err, denser::Error::GpuCapacity { .. }), "{err}");
+    assert_eq!(layer.indices_sorted(), before.indices_sorted());
+    for b in before.indices_sorted() {
+        assert!(layer.get(&b) == before.get(&b), "block {b:?}");
+    }
+}

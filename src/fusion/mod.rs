@@ -22,6 +22,7 @@ mod depth;
 mod lidar;
 pub mod traverse;
 
+pub(crate) use depth::usable;
 pub use depth::{depth_frame_blocks, integrate_depth, visible_blocks, DepthFusionParams};
 pub use lidar::{integrate_lidar, lidar_scan_blocks, LidarFusionParams};
 

@@ -348,8 +348,10 @@ impl GpuContext {
 /// Validation and out-of-memory error scopes around a group of wgpu calls, so that a failure
 /// becomes an [`Error::Gpu`] instead of wgpu's default panic.
 pub(crate) struct ErrorScopes {
-    oom: wgpu::ErrorScopeGuard,
+    // Declared innermost first: dropped without `pop` (an early return), fields drop in this
+    // order, which pops the scopes in reverse order of pushing, as wgpu requires.
     validation: wgpu::ErrorScopeGuard,
+    oom: wgpu::ErrorScopeGuard,
 }
 
 impl ErrorScopes {

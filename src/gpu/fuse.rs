@@ -14,7 +14,7 @@
 use super::context::{ErrorScopes, GpuContext};
 use super::layout::{pack_rgb, FuseUniforms, GpuVoxel, PIXEL_VALID};
 use crate::frame::DepthFrame;
-use crate::fusion::{depth_frame_blocks, visible_blocks, DepthFusionParams, FusionStats};
+use crate::fusion::{depth_frame_blocks, usable, visible_blocks, DepthFusionParams, FusionStats};
 use crate::grid::{Block, BlockIndex, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::Result;
 use nalgebra::{Point3, Vector3};
@@ -33,6 +33,7 @@ pub fn integrate_depth_gpu(
     blocks.extend(visible_blocks(layer, frame, params));
     blocks.sort_unstable();
     blocks.dedup();
+    let existed: Vec<bool> = blocks.iter().map(|b| layer.contains(b)).collect();
     let mut taken = layer.take_blocks(&blocks);
     match fuse_blocks(ctx, &grid, &mut taken, frame, params) {
         Ok(updates) => {
@@ -51,16 +52,17 @@ pub fn integrate_depth_gpu(
             Ok((touched, stats))
         }
         Err(e) => {
-            // Freshly allocated blocks hold no observation: put back only what was there.
-            layer.put_blocks_observed(taken);
+            // Blocks are only written after a successful readback: put back exactly what was
+            // there, unchanged, and drop the blocks allocated for this frame.
+            layer.put_blocks(
+                taken
+                    .into_iter()
+                    .zip(existed)
+                    .filter_map(|(b, was)| was.then_some(b)),
+            );
             Err(e)
         }
     }
-}
-
-#[inline]
-fn usable(d: f32, p: &DepthFusionParams) -> bool {
-    d.is_finite() && d >= p.min_depth_m && d <= p.max_depth_m
 }
 
 /// Runs the kernel over `blocks` in batches; returns the number of voxel updates.
@@ -107,7 +109,9 @@ fn fuse_blocks(
     let block_bytes = (VOXELS_PER_BLOCK * std::mem::size_of::<GpuVoxel>()) as u64;
     let per_batch = (ctx.max_binding_bytes() / block_bytes).max(1) as usize;
     let mut updates = 0usize;
-    for batch in blocks.chunks_mut(per_batch) {
+    // Results of every batch, applied only once all succeeded (an error leaves blocks untouched).
+    let mut results: Vec<Vec<GpuVoxel>> = Vec::new();
+    for batch in blocks.chunks(per_batch) {
         let voxel_count = (batch.len() * VOXELS_PER_BLOCK) as u64;
         ctx.check_binding("voxel batch (8 bytes per voxel)", voxel_count * 8)?;
         let (wx, wy) = ctx.workgroups_2d(voxel_count)?;
@@ -180,9 +184,12 @@ fn fuse_blocks(
         ctx.queue.submit([encoder.finish()]);
         scope.pop("running the fusion kernel")?;
         let out = ctx.read_back(&[(&buf_voxels, voxel_count * 8), (&buf_counters, 4)])?;
-        let result: &[GpuVoxel] = bytemuck::cast_slice(&out[0]);
-        let counter: &[u32] = bytemuck::cast_slice(&out[1]);
+        // Staging bytes carry no alignment guarantee: copy into typed vectors.
+        let counter: Vec<u32> = bytemuck::pod_collect_to_vec(&out[1]);
         updates += counter[0] as usize;
+        results.push(bytemuck::pod_collect_to_vec(&out[0]));
+    }
+    for (batch, result) in blocks.chunks_mut(per_batch).zip(&results) {
         for ((_, block), vox) in batch.iter_mut().zip(result.chunks_exact(VOXELS_PER_BLOCK)) {
             for (i, v) in vox.iter().enumerate() {
                 if !v.updated() {

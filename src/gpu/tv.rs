@@ -95,9 +95,10 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
     scope.pop("running the TV kernels")?;
     let out = ctx.read_back(&[(&buf_u, n64 * 4), (&buf_ubar, n64 * 4), (&buf_p, n64 * 12)])?;
     let (u, ubar, p) = problem.state_mut();
-    u.copy_from_slice(bytemuck::cast_slice(&out[0]));
-    ubar.copy_from_slice(bytemuck::cast_slice(&out[1]));
-    p.copy_from_slice(bytemuck::cast_slice(&out[2]));
+    // Staging bytes carry no alignment guarantee: copy into typed vectors.
+    u.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&out[0]));
+    ubar.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&out[1]));
+    p.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&out[2]));
     Ok(())
 }
 
