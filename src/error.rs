@@ -26,6 +26,21 @@ pub enum Error {
     /// A parameter or argument is out of its valid range.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
+    /// The GPU (wgpu) failed: no adapter when one was required, a validation or out-of-memory
+    /// error, a lost device.
+    #[error("GPU: {0}")]
+    Gpu(String),
+    /// Work does not fit the GPU's limits (a storage binding larger than the device allows,
+    /// 128 MiB on llvmpipe) and was not split.
+    #[error("GPU capacity: {what} needs {needed_bytes} but the device allows {limit_bytes}")]
+    GpuCapacity {
+        /// What did not fit.
+        what: String,
+        /// Size needed (bytes, or a count where `what` says so).
+        needed_bytes: u64,
+        /// The device's limit, same unit.
+        limit_bytes: u64,
+    },
 }
 
 impl Error {

@@ -89,6 +89,27 @@ enum DepthArg {
     Stereo,
 }
 
+/// Where depth fusion and regularisation run.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum DeviceArg {
+    /// A hardware GPU when wgpu finds one, else the CPU (one line says which).
+    Auto,
+    /// The CPU.
+    Cpu,
+    /// The GPU, software adapters (lavapipe) included; an error when no adapter exists.
+    Gpu,
+}
+
+impl From<DeviceArg> for denser::gpu::DeviceChoice {
+    fn from(d: DeviceArg) -> Self {
+        match d {
+            DeviceArg::Auto => denser::gpu::DeviceChoice::Auto,
+            DeviceArg::Cpu => denser::gpu::DeviceChoice::Cpu,
+            DeviceArg::Gpu => denser::gpu::DeviceChoice::Gpu,
+        }
+    }
+}
+
 /// Map and regulariser parameters shared by subcommands.
 #[derive(Args, Clone)]
 struct MapArgs {
@@ -160,6 +181,9 @@ struct ReconstructArgs {
     /// Disparity search range, pixels (128 sees down to ~3 m on KITTI).
     #[arg(long, default_value_t = 128)]
     num_disparities: usize,
+    /// Where depth fusion and regularisation run (LiDAR fusion and meshing use the CPU).
+    #[arg(long, value_enum, default_value = "auto")]
+    device: DeviceArg,
     #[command(flatten)]
     map: MapArgs,
     #[command(flatten)]
@@ -183,6 +207,9 @@ struct DemoArgs {
     /// Primal–dual iterations.
     #[arg(long, default_value_t = 100)]
     iterations: u32,
+    /// Where depth fusion and regularisation run.
+    #[arg(long, value_enum, default_value = "auto")]
+    device: DeviceArg,
 }
 
 #[derive(Args)]
@@ -264,6 +291,7 @@ fn reconstruct(a: ReconstructArgs) -> Result<()> {
         frame_step: a.step,
         stereo_method: a.method.parse()?,
         num_disparities: a.num_disparities,
+        device: a.device.into(),
     };
     if let Some(dir) = &a.stream.map {
         return reconstruct_streamed(&job, dir, &a.stream);
@@ -577,6 +605,7 @@ fn demo(a: DemoArgs) -> Result<()> {
     config.frame_spacing_m = a.frame_spacing_m;
     config.seed = a.seed;
     config.config.tv.iterations = a.iterations;
+    config.device = a.device.into();
     let outcome = pipeline::demo(&config).context("running the demo")?;
     println!(
         "demo: {} frames over {:.0} m, reconstructed from stereo in {:.0} s in all",

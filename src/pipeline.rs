@@ -76,6 +76,8 @@ pub struct ReconstructJob {
     pub stereo_method: crate::depth::StereoMethod,
     /// Disparity search range, pixels.
     pub num_disparities: usize,
+    /// Where depth fusion and regularisation run (LiDAR fusion and meshing use the CPU).
+    pub device: crate::gpu::DeviceChoice,
 }
 
 /// What a reconstruction produced.
@@ -286,10 +288,11 @@ pub fn for_each_input(
 /// Fuses the job's input into a fresh reconstructor (no regularisation yet).
 pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
     let mut rec = Reconstructor::new(job.config)?;
+    rec.set_gpu(job.device.open()?.map(std::sync::Arc::new));
     for_each_input(job, 0, |input, input_s| {
         rec.add_input_time(input_s);
         match input {
-            RangeInput::Depth(f) => rec.fuse_depth(&f),
+            RangeInput::Depth(f) => rec.fuse_depth(&f)?,
             RangeInput::Lidar(s) => rec.fuse_lidar(&s),
         };
         Ok(())
@@ -580,6 +583,8 @@ pub struct DemoConfig {
     pub seed: u64,
     /// Reconstruction settings.
     pub config: ReconstructionConfig,
+    /// Where depth fusion and regularisation run.
+    pub device: crate::gpu::DeviceChoice,
 }
 
 impl DemoConfig {
@@ -594,6 +599,7 @@ impl DemoConfig {
             frame_spacing_m: 2.0,
             seed: 1,
             config,
+            device: crate::gpu::DeviceChoice::Auto,
         }
     }
 }
@@ -638,6 +644,7 @@ pub fn demo(demo: &DemoConfig) -> Result<DemoOutcome> {
         frame_step: 1,
         stereo_method: crate::depth::StereoMethod::Sgm,
         num_disparities: 128,
+        device: demo.device,
     };
     let rec = fuse_input(&job)?;
     let outcome = finish(rec, &demo.out_dir)?;

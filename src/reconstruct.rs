@@ -6,10 +6,12 @@ use crate::frame::{DepthFrame, LidarScan};
 use crate::fusion::{
     integrate_depth, integrate_lidar, DepthFusionParams, FusionStats, LidarFusionParams,
 };
-use crate::grid::{GridParams, Layer, TouchedBlocks};
+use crate::gpu::GpuContext;
+use crate::grid::{GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::mesh::{extract_mesh, Field, Mesh};
-use crate::regularize::{regularize_layer, RegularizeStats, TvParams};
+use crate::regularize::{regularize_layer, RegionPlan, RegularizeStats, TvParams, TvProblem};
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Everything that parameterises a reconstruction.
@@ -81,6 +83,7 @@ pub struct Reconstructor {
     config: ReconstructionConfig,
     layer: Layer,
     timings: StageTimings,
+    gpu: Option<Arc<GpuContext>>,
 }
 
 impl Reconstructor {
@@ -92,7 +95,19 @@ impl Reconstructor {
             layer: Layer::new(config.grid),
             config,
             timings: StageTimings::default(),
+            gpu: None,
         })
+    }
+
+    /// Runs depth fusion and regularisation on `gpu` (`None`: on the CPU). LiDAR fusion and
+    /// meshing stay on the CPU.
+    pub fn set_gpu(&mut self, gpu: Option<Arc<GpuContext>>) {
+        self.gpu = gpu;
+    }
+
+    /// The GPU in use, if any.
+    pub fn gpu(&self) -> Option<&GpuContext> {
+        self.gpu.as_deref()
     }
 
     /// The configuration.
@@ -126,12 +141,16 @@ impl Reconstructor {
         self.timings.voxel_updates += stats.voxel_updates;
     }
 
-    /// Fuses a depth frame; returns the blocks it touched.
-    pub fn fuse_depth(&mut self, frame: &DepthFrame) -> TouchedBlocks {
+    /// Fuses a depth frame (on the GPU when one is set); returns the blocks it touched.
+    pub fn fuse_depth(&mut self, frame: &DepthFrame) -> crate::Result<TouchedBlocks> {
         let t = Instant::now();
-        let (touched, stats) = integrate_depth(&mut self.layer, frame, &self.config.depth_fusion);
+        let params = &self.config.depth_fusion;
+        let (touched, stats) = match &self.gpu {
+            Some(gpu) => crate::gpu::integrate_depth_gpu(gpu, &mut self.layer, frame, params)?,
+            None => integrate_depth(&mut self.layer, frame, params),
+        };
         self.record(t, stats);
-        touched
+        Ok(touched)
     }
 
     /// Fuses a LiDAR scan; returns the blocks it touched.
@@ -142,13 +161,64 @@ impl Reconstructor {
         touched
     }
 
-    /// Regularises the whole map (one global solve).
+    /// Regularises the whole map (one global solve), on the GPU when one is set. A map too large
+    /// for one GPU binding is solved on the GPU in regions of 32³ blocks with the exact halo (the
+    /// same result), or, when a region does not fit either, on the CPU; each with a message.
     pub fn regularize(&mut self) -> crate::Result<RegularizeStats> {
         let t = Instant::now();
-        let (_, stats) = regularize_layer(&mut self.layer, &self.config.tv)?;
+        let gpu_result = match &self.gpu {
+            Some(gpu) => self.regularize_gpu(gpu.clone())?,
+            None => None,
+        };
+        let (_, stats) = match gpu_result {
+            Some(r) => r,
+            None => regularize_layer(&mut self.layer, &self.config.tv)?,
+        };
         self.timings.regularize_s += t.elapsed().as_secs_f64();
         self.timings.voxel_iterations += stats.omega_voxels as u64 * stats.iterations as u64;
         Ok(stats)
+    }
+
+    /// The GPU part of [`Reconstructor::regularize`]: `None` when the map does not fit.
+    fn regularize_gpu(
+        &mut self,
+        gpu: Arc<GpuContext>,
+    ) -> crate::Result<Option<(TouchedBlocks, RegularizeStats)>> {
+        let tv = self.config.tv;
+        let e = match crate::gpu::regularize_layer_gpu(&gpu, &mut self.layer, &tv) {
+            Err(e @ crate::Error::GpuCapacity { .. }) => e,
+            other => return other.map(Some),
+        };
+        let plan = RegionPlan::exact(32, tv.iterations);
+        eprintln!("regularisation: {e}; solving on the GPU in regions of 32³ blocks");
+        let blocks = self.layer.indices_sorted();
+        let mut problem = TvProblem::gather(&self.layer, &blocks);
+        let energy_before = problem.energy(tv.lambda);
+        match crate::gpu::regularize_regions_gpu(&gpu, &mut self.layer, &tv, &plan) {
+            Ok(_) => {}
+            Err(e @ crate::Error::GpuCapacity { .. }) => {
+                eprintln!("regularisation: {e}; solving on the CPU instead");
+                return Ok(None);
+            }
+            Err(e) => return Err(e),
+        }
+        // The energy of the stored result (quantised u), as the global path reports it.
+        let (u, _, _) = problem.state_mut();
+        for (k, index) in blocks.iter().enumerate() {
+            if let Some(block) = self.layer.get(index) {
+                for i in 0..VOXELS_PER_BLOCK {
+                    u[k * VOXELS_PER_BLOCK + i] = block.regularized_or_raw(i);
+                }
+            }
+        }
+        let stats = RegularizeStats {
+            blocks: blocks.len(),
+            omega_voxels: problem.omega_count(),
+            iterations: tv.iterations,
+            energy_before,
+            energy_after: problem.energy(tv.lambda),
+        };
+        Ok(Some((blocks, stats)))
     }
 
     /// Marching cubes over the whole map.

@@ -36,6 +36,33 @@ fn missing_input_is_named_and_fails() {
 }
 
 #[test]
+fn device_gpu_without_an_adapter_fails_and_auto_falls_back() {
+    // WGPU_BACKEND=metal selects a backend this build does not compile in: no adapter exists.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = |device: &str| {
+        Command::new(env!("CARGO_BIN_EXE_denser"))
+            .args(["reconstruct", "no/such/sequence", "--device", device])
+            .env("WGPU_BACKEND", "metal")
+            .current_dir(dir.path())
+            .output()
+            .expect("run denser")
+    };
+    let o = run("gpu");
+    assert!(!o.status.success());
+    assert!(text(&o).contains("no GPU adapter found"), "{}", text(&o));
+    // It failed at the device, before looking at the input.
+    assert!(!text(&o).contains("not a directory"), "{}", text(&o));
+    let o = run("auto");
+    assert!(!o.status.success()); // the input is missing, but the device step passed
+    let t = text(&o);
+    assert!(
+        t.contains("device: no GPU adapter found, running on the CPU")
+            && t.contains("not a directory"),
+        "{t}"
+    );
+}
+
+#[test]
 fn unrecognised_layout_and_bad_calib_are_named() {
     let dir = tempfile::tempdir().expect("tempdir");
     std::fs::create_dir_all(dir.path().join("seq")).expect("mkdir");
@@ -129,6 +156,69 @@ fn synthetic_drive_end_to_end() {
         "top_view_raw.png",
     ] {
         assert!(d.join("gt").join(f).is_file(), "{f}");
+    }
+    // `--device auto` (above, the default) said which device it used; `--device gpu` gives the
+    // same surfaces as the CPU (kernels agree with their CPU twins: tests/gpu_compare.rs).
+    assert!(text(&o).contains("device: "), "{}", text(&o));
+    let o = denser(
+        &[
+            "reconstruct",
+            "drive/sequences/00",
+            "--depth",
+            "gt",
+            "--out",
+            "gt_gpu",
+            "--iterations",
+            "20",
+            "--device",
+            "gpu",
+        ],
+        d,
+    );
+    if text(&o).contains("no GPU adapter found") {
+        eprintln!("skipping --device gpu: no GPU adapter (tools/setup.sh installs lavapipe)");
+    } else {
+        assert!(o.status.success(), "{}", text(&o));
+        assert!(text(&o).contains("device: GPU"), "{}", text(&o));
+        let gpu: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(d.join("gt_gpu/report.json")).expect("report"),
+        )
+        .expect("json");
+        let o = denser(
+            &[
+                "reconstruct",
+                "drive/sequences/00",
+                "--depth",
+                "gt",
+                "--out",
+                "gt_cpu",
+                "--iterations",
+                "20",
+                "--device",
+                "cpu",
+            ],
+            d,
+        );
+        assert!(o.status.success(), "{}", text(&o));
+        assert!(!text(&o).contains("device: "), "{}", text(&o));
+        let cpu: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(d.join("gt_cpu/report.json")).expect("report"),
+        )
+        .expect("json");
+        for k in 0..2 {
+            let (a, b) = (
+                gpu["surfaces"][k]["accuracy"]["median_m"]
+                    .as_f64()
+                    .expect("median"),
+                cpu["surfaces"][k]["accuracy"]["median_m"]
+                    .as_f64()
+                    .expect("median"),
+            );
+            assert!(
+                (a - b).abs() < 1e-3,
+                "surface {k}: GPU median {a} vs CPU {b}"
+            );
+        }
     }
     // The written mesh reads back and evaluates against the exact surface samples.
     let o = denser(

@@ -21,6 +21,7 @@ fn job(input: std::path::PathBuf, out: &std::path::Path, voxel: f32) -> Reconstr
         frame_step: 1,
         stereo_method: StereoMethod::Sgm,
         num_disparities: 128,
+        device: denser::gpu::DeviceChoice::Cpu,
     }
 }
 

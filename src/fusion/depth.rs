@@ -31,8 +31,10 @@ impl Default for DepthFusionParams {
     }
 }
 
+/// Whether a depth is used: finite and within `[min_depth_m, max_depth_m]` (shared with the GPU
+/// twin, `src/gpu/fuse.rs`).
 #[inline]
-fn usable(d: f32, p: &DepthFusionParams) -> bool {
+pub(crate) fn usable(d: f32, p: &DepthFusionParams) -> bool {
     d.is_finite() && d >= p.min_depth_m && d <= p.max_depth_m
 }
 

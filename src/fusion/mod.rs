@@ -22,6 +22,7 @@ mod depth;
 mod lidar;
 pub mod traverse;
 
+pub(crate) use depth::usable;
 pub use depth::{
     depth_frame_blocks, integrate_depth, integrate_depth_band, visible_blocks, DepthFusionParams,
     ViewFrustum,

@@ -202,6 +202,28 @@ impl TvProblem {
         &self.blocks
     }
 
+    /// Neighbour slot per block and direction (+x, −x, +y, −y, +z, −z), `u32::MAX` when the
+    /// neighbour is not in the problem: the table a GPU twin uploads (`src/gpu/tv.rs`).
+    pub fn neighbor_table(&self) -> &[[u32; 6]] {
+        &self.neighbors
+    }
+
+    /// Ω and link bits per voxel: bit `d` = forward link along axis `d` (x and x + e_d in Ω),
+    /// bit `3 + d` = backward link, bit 6 = Ω.
+    pub fn masks(&self) -> &[u8] {
+        &self.mask
+    }
+
+    /// The solver state `(u, ū, p)`, `p` as (x, y, z) per voxel.
+    pub fn state(&self) -> (&[f32], &[f32], &[[f32; 3]]) {
+        (&self.u, &self.ubar, &self.p)
+    }
+
+    /// The solver state, mutably (a GPU twin writes its result back here).
+    pub fn state_mut(&mut self) -> (&mut [f32], &mut [f32], &mut [[f32; 3]]) {
+        (&mut self.u, &mut self.ubar, &mut self.p)
+    }
+
     /// Number of voxels in Ω.
     pub fn omega_count(&self) -> usize {
         self.mask.iter().filter(|&&m| m & OMEGA != 0).count()
@@ -467,6 +489,21 @@ pub fn regularize_regions(
     params: &TvParams,
     plan: &RegionPlan,
 ) -> crate::Result<(TouchedBlocks, RegionStats)> {
+    regularize_regions_with(layer, params, plan, |problem| {
+        problem.solve(params);
+        Ok(())
+    })
+}
+
+/// [`regularize_regions`] with another solver for each region's problem (the GPU twin,
+/// `crate::gpu::regularize_regions_gpu`, passes its own). `solve` must run `params.iterations`
+/// iterations; an error stops the run (regions already written keep their result).
+pub fn regularize_regions_with(
+    layer: &mut Layer,
+    params: &TvParams,
+    plan: &RegionPlan,
+    mut solve: impl FnMut(&mut TvProblem) -> crate::Result<()>,
+) -> crate::Result<(TouchedBlocks, RegionStats)> {
     params.validate()?;
     if plan.region_blocks < 1 || plan.halo_blocks < 0 {
         return Err(crate::Error::InvalidArgument(format!(
@@ -506,7 +543,7 @@ pub fn regularize_regions(
             }
         }
         let mut problem = TvProblem::gather(layer, &gathered);
-        problem.solve(params);
+        solve(&mut problem)?;
         problem.scatter(layer, &core);
         stats.regions += 1;
         stats.core_blocks += core.len();

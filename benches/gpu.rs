@@ -1,0 +1,107 @@
+//! GPU kernels vs. their CPU twins (issue 6), on the analytic sphere scene of `benches/core.rs`.
+//! Settings are fixed: do not modify, or results are not comparable. The GPU half is skipped
+//! (with a message) where no adapter exists. On lavapipe (llvmpipe) the "GPU" is the CPU, so
+//! those figures measure wgpu + llvmpipe overhead, not a GPU.
+//!
+//! - `tv_10_iterations/{cpu,gpu}`: 10 Chambolle–Pock iterations over every block of the fused
+//!   map at 5 cm (GPU: upload, 20 dispatches, readback of u, ū, p).
+//! - `fuse_depth_640x480/{cpu,gpu}`: re-fusing frame 0 into the warm 5 cm map (GPU: pack, upload,
+//!   one dispatch, readback, unpack; block listing on the CPU in both).
+
+#[path = "../tests/common/mod.rs"]
+mod common;
+
+use common::{orbit, vga, Rng, SphereScene};
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use denser::fusion::{integrate_depth, DepthFusionParams};
+use denser::gpu::{integrate_depth_gpu, solve_gpu, GpuContext};
+use denser::grid::{GridParams, Layer};
+use denser::regularize::{TvParams, TvProblem};
+
+fn scene_layer() -> (Layer, Vec<denser::frame::DepthFrame>) {
+    let scene = SphereScene::standard();
+    let mut rng = Rng(1);
+    let frames: Vec<_> = orbit(8, 3.0, -1.2, scene.center)
+        .into_iter()
+        .map(|p| scene.render(&vga(), p, 0.005, 8.0, &mut rng))
+        .collect();
+    let grid = GridParams {
+        voxel_size_m: 0.05,
+        truncation_m: 0.4,
+    };
+    let mut layer = Layer::new(grid);
+    for f in &frames {
+        integrate_depth(&mut layer, f, &DepthFusionParams::default());
+    }
+    (layer, frames)
+}
+
+fn gpu() -> Option<GpuContext> {
+    match GpuContext::new() {
+        Ok(Some(ctx)) => {
+            eprintln!("GPU: {}", ctx.describe());
+            Some(ctx)
+        }
+        Ok(None) => {
+            eprintln!("no GPU adapter: GPU benchmarks skipped");
+            None
+        }
+        Err(e) => {
+            eprintln!("GPU failed, GPU benchmarks skipped: {e}");
+            None
+        }
+    }
+}
+
+fn tv(c: &mut Criterion) {
+    let (layer, _) = scene_layer();
+    let problem = TvProblem::gather(&layer, &layer.indices_sorted());
+    let params = TvParams {
+        iterations: 10,
+        ..TvParams::paper(0.1)
+    };
+    let ctx = gpu();
+    let mut g = c.benchmark_group("tv_10_iterations");
+    g.throughput(Throughput::Elements(
+        problem.omega_count() as u64 * params.iterations as u64,
+    ));
+    g.sample_size(10);
+    g.bench_function("cpu", |b| {
+        b.iter_batched(
+            || problem.clone(),
+            |mut p| p.solve(&params),
+            criterion::BatchSize::LargeInput,
+        )
+    });
+    if let Some(ctx) = &ctx {
+        g.bench_function("gpu", |b| {
+            b.iter_batched(
+                || problem.clone(),
+                |mut p| solve_gpu(ctx, &mut p, &params).expect("GPU solve"),
+                criterion::BatchSize::LargeInput,
+            )
+        });
+    }
+    g.finish();
+}
+
+fn fusion(c: &mut Criterion) {
+    let (mut layer, frames) = scene_layer();
+    let ctx = gpu();
+    let params = DepthFusionParams::default();
+    let mut g = c.benchmark_group("fuse_depth_640x480");
+    g.throughput(Throughput::Elements(1));
+    g.sample_size(10);
+    g.bench_function("cpu", |b| {
+        b.iter(|| integrate_depth(&mut layer, &frames[0], &params))
+    });
+    if let Some(ctx) = &ctx {
+        g.bench_function("gpu", |b| {
+            b.iter(|| integrate_depth_gpu(ctx, &mut layer, &frames[0], &params).expect("GPU"))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, tv, fusion);
+criterion_main!(benches);

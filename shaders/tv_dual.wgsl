@@ -1,0 +1,36 @@
+// TV dual step: p ← (p + σ∇ū) / max(1, |p + σ∇ū|) on Ω (CPU twin: TvProblem::iterate, first
+// half). Prepended at load time: shared/dispatch.wgsl, shared/tv_common.wgsl.
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) num_wg: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let g = flat_index(wg, num_wg, local);
+    if (g >= params.voxel_count) {
+        return;
+    }
+    let m = mask[g];
+    if ((m & OMEGA) == 0u) {
+        return;
+    }
+    var grad = vec3<f32>(0.0, 0.0, 0.0);
+    for (var d = 0u; d < 3u; d = d + 1u) {
+        if ((m & (1u << d)) != 0u) {
+            let h = forward(g, d);
+            if (h != NONE) {
+                grad[d] = ubar[h] - ubar[g];
+            }
+        }
+    }
+    let q = vec3<f32>(
+        p[3u * g] + params.sigma * grad.x,
+        p[3u * g + 1u] + params.sigma * grad.y,
+        p[3u * g + 2u] + params.sigma * grad.z,
+    );
+    let scale = 1.0 / max(sqrt(q.x * q.x + q.y * q.y + q.z * q.z), 1.0);
+    p[3u * g] = q.x * scale;
+    p[3u * g + 1u] = q.y * scale;
+    p[3u * g + 2u] = q.z * scale;
+}

@@ -1,0 +1,36 @@
+// TV primal step and relaxation (CPU twin: TvProblem::iterate, second half):
+// u ← (u + τ div p + τλ w f) / (1 + τλ w), ū ← u_new + θ (u_new − u_old), with div = −∇ᵀ.
+// Prepended at load time: shared/dispatch.wgsl, shared/tv_common.wgsl.
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) num_wg: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let g = flat_index(wg, num_wg, local);
+    if (g >= params.voxel_count) {
+        return;
+    }
+    let m = mask[g];
+    if ((m & OMEGA) == 0u) {
+        return;
+    }
+    var div = 0.0;
+    for (var d = 0u; d < 3u; d = d + 1u) {
+        if ((m & (1u << d)) != 0u) {
+            div = div + p[3u * g + d];
+        }
+        if ((m & (1u << (3u + d))) != 0u) {
+            let h = backward(g, d);
+            if (h != NONE) {
+                div = div - p[3u * h + d];
+            }
+        }
+    }
+    let tlw = params.tau * params.lambda * w[g];
+    let old = u[g];
+    let new_u = (old + params.tau * div + tlw * f[g]) / (1.0 + tlw);
+    u[g] = new_u;
+    ubar[g] = new_u + params.theta * (new_u - old);
+}

@@ -1,0 +1,373 @@
+//! The wgpu device the kernels run on, its compiled pipelines, and small buffer helpers
+//! (upload, readback, capacity checks, error scopes). It does not choose between CPU and GPU for
+//! a stage: callers do that with [`DeviceChoice`].
+
+use super::shaders::{self, ShaderSource};
+use crate::{Error, Result};
+use wgpu::util::DeviceExt;
+
+/// Invocations per workgroup of every kernel. Keep in sync with `WORKGROUP_SIZE` in
+/// `shaders/shared/dispatch.wgsl` and the kernels' `@workgroup_size`.
+pub const WORKGROUP_SIZE: u32 = 64;
+
+/// Where a command runs its fusion and regularisation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DeviceChoice {
+    /// The GPU when a hardware adapter exists, else the CPU (with a one-line message). A
+    /// software adapter (lavapipe/llvmpipe: the CPU behind wgpu) is slower than the CPU code
+    /// (`benches/gpu.rs`), so `Auto` does not pick it.
+    #[default]
+    Auto,
+    /// Always the CPU.
+    Cpu,
+    /// The GPU; an error when no adapter exists.
+    Gpu,
+}
+
+impl DeviceChoice {
+    /// Opens the GPU this choice asks for: `None` for the CPU. `Auto` and `Gpu` print the device
+    /// on one line to stderr; `Auto` falls back to the CPU (saying why) when no adapter exists,
+    /// only a software one does, or it fails to open; `Gpu` fails when none exists.
+    pub fn open(self) -> Result<Option<GpuContext>> {
+        match self {
+            DeviceChoice::Cpu => Ok(None),
+            DeviceChoice::Auto => match GpuContext::new() {
+                Ok(Some(c)) if c.is_software() => {
+                    eprintln!(
+                        "device: only a software adapter ({}), running on the CPU \
+                         (--device gpu uses it anyway)",
+                        c.describe()
+                    );
+                    Ok(None)
+                }
+                Ok(Some(c)) => {
+                    eprintln!("device: GPU ({})", c.describe());
+                    Ok(Some(c))
+                }
+                Ok(None) => {
+                    eprintln!("device: no GPU adapter found, running on the CPU");
+                    Ok(None)
+                }
+                Err(e) => {
+                    eprintln!("device: {e}; running on the CPU");
+                    Ok(None)
+                }
+            },
+            DeviceChoice::Gpu => match GpuContext::new()? {
+                Some(c) => {
+                    eprintln!("device: GPU ({})", c.describe());
+                    Ok(Some(c))
+                }
+                None => Err(Error::Gpu(
+                    "--device gpu: no GPU adapter found (install a Vulkan or GL driver, e.g. \
+                     Mesa's lavapipe: tools/setup.sh)"
+                        .into(),
+                )),
+            },
+        }
+    }
+}
+
+impl std::str::FromStr for DeviceChoice {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "auto" => Ok(DeviceChoice::Auto),
+            "cpu" => Ok(DeviceChoice::Cpu),
+            "gpu" => Ok(DeviceChoice::Gpu),
+            other => Err(Error::InvalidArgument(format!(
+                "device must be auto, cpu or gpu, got {other:?}"
+            ))),
+        }
+    }
+}
+
+/// A wgpu device and queue with the kernels' pipelines.
+#[derive(Debug)]
+pub struct GpuContext {
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
+    info: wgpu::AdapterInfo,
+    limits: wgpu::Limits,
+    binding_cap_bytes: Option<u64>,
+    pub(crate) tv_layout: wgpu::BindGroupLayout,
+    pub(crate) tv_dual: wgpu::ComputePipeline,
+    pub(crate) tv_primal: wgpu::ComputePipeline,
+    pub(crate) fuse_layout: wgpu::BindGroupLayout,
+    pub(crate) fuse_depth: wgpu::ComputePipeline,
+}
+
+fn layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+const UNIFORM: wgpu::BufferBindingType = wgpu::BufferBindingType::Uniform;
+const READ: wgpu::BufferBindingType = wgpu::BufferBindingType::Storage { read_only: true };
+const READ_WRITE: wgpu::BufferBindingType = wgpu::BufferBindingType::Storage { read_only: false };
+
+impl GpuContext {
+    /// Opens the first adapter wgpu finds (Vulkan or GL; `WGPU_BACKEND` and
+    /// `WGPU_ADAPTER_NAME` are honoured) with the adapter's own limits, and compiles the kernels.
+    /// Returns `Ok(None)` when no adapter exists; an error when one exists but fails.
+    pub fn new() -> Result<Option<Self>> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = match pollster::block_on(
+            instance.request_adapter(&wgpu::RequestAdapterOptions::default()),
+        ) {
+            Ok(a) => a,
+            Err(e) => {
+                tracing::debug!("no GPU adapter: {e}");
+                return Ok(None);
+            }
+        };
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("denser"),
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| Error::Gpu(format!("opening {}: {e}", info.name)))?;
+        let scope = ErrorScopes::push(&device);
+        let tv_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("tv"),
+            entries: &[
+                layout_entry(0, UNIFORM),
+                layout_entry(1, READ),
+                layout_entry(2, READ),
+                layout_entry(3, READ),
+                layout_entry(4, READ),
+                layout_entry(5, READ_WRITE),
+                layout_entry(6, READ_WRITE),
+                layout_entry(7, READ_WRITE),
+            ],
+        });
+        let fuse_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("fuse_depth"),
+            entries: &[
+                layout_entry(0, UNIFORM),
+                layout_entry(1, READ),
+                layout_entry(2, READ),
+                layout_entry(3, READ),
+                layout_entry(4, READ_WRITE),
+                layout_entry(5, READ_WRITE),
+            ],
+        });
+        let pipeline = |src: &ShaderSource, layout: &wgpu::BindGroupLayout| {
+            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(src.file),
+                source: wgpu::ShaderSource::Wgsl(src.source.into()),
+            });
+            let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(src.file),
+                bind_group_layouts: &[Some(layout)],
+                immediate_size: 0,
+            });
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(src.file),
+                layout: Some(&pl),
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        };
+        let tv_dual = pipeline(&shaders::TV_DUAL, &tv_layout);
+        let tv_primal = pipeline(&shaders::TV_PRIMAL, &tv_layout);
+        let fuse_depth = pipeline(&shaders::FUSE_DEPTH, &fuse_layout);
+        scope.pop("compiling the kernels")?;
+        Ok(Some(GpuContext {
+            device,
+            queue,
+            info,
+            limits,
+            binding_cap_bytes: None,
+            tv_layout,
+            tv_dual,
+            tv_primal,
+            fuse_layout,
+            fuse_depth,
+        }))
+    }
+
+    /// Adapter name, type and backend, in words.
+    pub fn describe(&self) -> String {
+        format!(
+            "{}, {:?}, {:?}",
+            self.info.name, self.info.device_type, self.info.backend
+        )
+    }
+
+    /// Whether the adapter is a software one (wgpu's `DeviceType::Cpu`, e.g. llvmpipe).
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    /// The device's limits (the adapter's, requested in full).
+    pub fn limits(&self) -> &wgpu::Limits {
+        &self.limits
+    }
+
+    /// The largest storage-buffer binding the kernels use, bytes: the device's (128 MiB on
+    /// llvmpipe) or a smaller cap set with [`GpuContext::with_max_binding_bytes`].
+    pub fn max_binding_bytes(&self) -> u64 {
+        let device = self
+            .limits
+            .max_storage_buffer_binding_size
+            .min(self.limits.max_buffer_size);
+        self.binding_cap_bytes.map_or(device, |c| c.min(device))
+    }
+
+    /// Caps every storage binding at `bytes` (bounding GPU memory per call, and letting tests
+    /// exercise batching and capacity errors on small inputs).
+    pub fn with_max_binding_bytes(mut self, bytes: u64) -> Self {
+        self.binding_cap_bytes = Some(bytes);
+        self
+    }
+
+    /// Fails with [`Error::GpuCapacity`] when a binding of `bytes` does not fit.
+    pub(crate) fn check_binding(&self, what: &str, bytes: u64) -> Result<()> {
+        let limit = self.max_binding_bytes();
+        if bytes > limit {
+            return Err(Error::GpuCapacity {
+                what: what.to_string(),
+                needed_bytes: bytes,
+                limit_bytes: limit,
+            });
+        }
+        Ok(())
+    }
+
+    /// Workgroups `(x, y)` covering `invocations` one-wide invocations of a
+    /// [`WORKGROUP_SIZE`] kernel, split over y beyond the per-dimension limit.
+    pub(crate) fn workgroups_2d(&self, invocations: u64) -> Result<(u32, u32)> {
+        let groups = invocations.div_ceil(WORKGROUP_SIZE as u64).max(1);
+        let max = self.limits.max_compute_workgroups_per_dimension as u64;
+        let x = groups.min(max);
+        let y = groups.div_ceil(x);
+        if y > max {
+            return Err(Error::GpuCapacity {
+                what: "workgroups of one dispatch".into(),
+                needed_bytes: groups,
+                limit_bytes: max * max,
+            });
+        }
+        Ok((x as u32, y as u32))
+    }
+
+    /// A storage buffer initialised with `data` (at least 4 bytes, as bindings must not be
+    /// empty), usable as a copy source for readback.
+    pub(crate) fn storage(&self, label: &str, data: &[u8]) -> wgpu::Buffer {
+        let padded;
+        let contents = if data.len() < 4 {
+            padded = [0u8; 4];
+            &padded[..]
+        } else {
+            data
+        };
+        self.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: wgpu::BufferUsages::STORAGE
+                    | wgpu::BufferUsages::COPY_SRC
+                    | wgpu::BufferUsages::COPY_DST,
+            })
+    }
+
+    /// A uniform buffer holding `data`.
+    pub(crate) fn uniform(&self, label: &str, data: &[u8]) -> wgpu::Buffer {
+        self.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: data,
+                usage: wgpu::BufferUsages::UNIFORM,
+            })
+    }
+
+    /// Copies the first `bytes` of each buffer back to the host, in one submission.
+    pub(crate) fn read_back(&self, buffers: &[(&wgpu::Buffer, u64)]) -> Result<Vec<Vec<u8>>> {
+        let scope = ErrorScopes::push(&self.device);
+        let mut encoder = self
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("read_back"),
+            });
+        let staging: Vec<wgpu::Buffer> = buffers
+            .iter()
+            .map(|(buf, bytes)| {
+                let s = self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("staging"),
+                    size: (*bytes).max(4),
+                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                encoder.copy_buffer_to_buffer(buf, 0, &s, 0, *bytes);
+                s
+            })
+            .collect();
+        self.queue.submit([encoder.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        for (k, s) in staging.iter().enumerate() {
+            let tx = tx.clone();
+            s.slice(..)
+                .map_async(wgpu::MapMode::Read, move |r| drop(tx.send((k, r))));
+        }
+        drop(tx);
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| Error::Gpu(format!("waiting for the GPU: {e}")))?;
+        for (k, r) in rx.iter() {
+            r.map_err(|e| Error::Gpu(format!("mapping readback buffer {k}: {e}")))?;
+        }
+        scope.pop("reading results back")?;
+        let mut out = Vec::with_capacity(staging.len());
+        for (s, (_, bytes)) in staging.iter().zip(buffers) {
+            let view = s
+                .slice(..)
+                .get_mapped_range()
+                .map_err(|e| Error::Gpu(format!("reading a mapped buffer: {e}")))?;
+            out.push(view[..*bytes as usize].to_vec());
+            drop(view);
+            s.unmap();
+        }
+        Ok(out)
+    }
+}
+
+/// Validation and out-of-memory error scopes around a group of wgpu calls, so that a failure
+/// becomes an [`Error::Gpu`] instead of wgpu's default panic.
+pub(crate) struct ErrorScopes {
+    // Declared innermost first: dropped without `pop` (an early return), fields drop in this
+    // order, which pops the scopes in reverse order of pushing, as wgpu requires.
+    validation: wgpu::ErrorScopeGuard,
+    oom: wgpu::ErrorScopeGuard,
+}
+
+impl ErrorScopes {
+    pub(crate) fn push(device: &wgpu::Device) -> Self {
+        let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        ErrorScopes { oom, validation }
+    }
+
+    /// Pops both scopes; `doing` names the work in the error message.
+    pub(crate) fn pop(self, doing: &str) -> Result<()> {
+        let validation = pollster::block_on(self.validation.pop());
+        let oom = pollster::block_on(self.oom.pop());
+        if let Some(e) = validation.or(oom) {
+            return Err(Error::Gpu(format!("{doing}: {e}")));
+        }
+        Ok(())
+    }
+}

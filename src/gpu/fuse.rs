@@ -1,0 +1,209 @@
+//! Projective depth-map fusion (DENSER Sec. III-A) on the GPU: `shaders/fuse_depth.wgsl` applies
+//! the CPU's per-voxel update ([`crate::fusion::integrate_depth`] with `Block::fuse`) to a list
+//! of blocks, one invocation per voxel. Block allocation stays on the CPU, as the CPU path's
+//! phase 1: the same blocks ([`depth_frame_blocks`] plus [`visible_blocks`]) are checked out of
+//! the layer, packed into [`GpuVoxel`]s, updated on the GPU, unpacked and checked back in.
+//!
+//! The kernel repeats the CPU's f32 arithmetic in the same order, with exact twins of its
+//! rounding (`shaders/shared/rounding.wgsl`). Remaining differences come from WGSL's FMA
+//! contraction and division precision: a voxel near a pixel border may project to the
+//! neighbouring pixel, and a running average may land one quantisation step away
+//! (`tests/gpu_compare.rs` states the tolerance). Blocks are sent in batches that fit one
+//! storage binding (4 KiB per block: 32 768 blocks in 128 MiB), so any number of blocks works.
+
+use super::context::{ErrorScopes, GpuContext};
+use super::layout::{pack_rgb, FuseUniforms, GpuVoxel, PIXEL_VALID};
+use crate::frame::DepthFrame;
+use crate::fusion::{depth_frame_blocks, usable, visible_blocks, DepthFusionParams, FusionStats};
+use crate::grid::{Block, BlockIndex, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
+use crate::Result;
+use nalgebra::{Point3, Vector3};
+
+/// Fuses one depth frame into `layer` on the GPU, like [`crate::fusion::integrate_depth`]: the
+/// blocks crossed by this frame's truncation band plus the allocated blocks in view. Returns the
+/// touched blocks (sorted) and work counters. On error the layer holds the blocks as before.
+pub fn integrate_depth_gpu(
+    ctx: &GpuContext,
+    layer: &mut Layer,
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+) -> Result<(TouchedBlocks, FusionStats)> {
+    let grid = layer.params();
+    let mut blocks = depth_frame_blocks(&grid, frame, params);
+    blocks.extend(visible_blocks(layer, frame, params));
+    blocks.sort_unstable();
+    blocks.dedup();
+    let existed: Vec<bool> = blocks.iter().map(|b| layer.contains(b)).collect();
+    let mut taken = layer.take_blocks(&blocks);
+    match fuse_blocks(ctx, &grid, &mut taken, frame, params) {
+        Ok(updates) => {
+            let touched = layer.put_blocks_observed(taken);
+            let measurements = frame
+                .depth_m
+                .data
+                .iter()
+                .filter(|&&d| usable(d, params))
+                .count();
+            let stats = FusionStats {
+                blocks: touched.len(),
+                voxel_updates: updates,
+                measurements,
+            };
+            Ok((touched, stats))
+        }
+        Err(e) => {
+            // Blocks are only written after a successful readback: put back exactly what was
+            // there, unchanged, and drop the blocks allocated for this frame.
+            layer.put_blocks(
+                taken
+                    .into_iter()
+                    .zip(existed)
+                    .filter_map(|(b, was)| was.then_some(b)),
+            );
+            Err(e)
+        }
+    }
+}
+
+/// Runs the kernel over `blocks` in batches; returns the number of voxel updates.
+fn fuse_blocks(
+    ctx: &GpuContext,
+    grid: &crate::grid::GridParams,
+    blocks: &mut [(BlockIndex, Box<Block>)],
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+) -> Result<usize> {
+    if blocks.is_empty() {
+        return Ok(0);
+    }
+    let camera_from_world = frame.world_from_camera.inverse();
+    let rot = camera_from_world.rotation.to_rotation_matrix();
+    let vs = grid.voxel_size_m as f64;
+    let k = frame.intrinsics;
+    let color = if params.use_color {
+        frame.color.as_ref()
+    } else {
+        None
+    };
+    // The same camera-frame quantities as the CPU path, computed the same way.
+    let ax: Vector3<f32> = (rot * Vector3::x() * vs).cast();
+    let ay: Vector3<f32> = (rot * Vector3::y() * vs).cast();
+    let az: Vector3<f32> = (rot * Vector3::z() * vs).cast();
+    let (width, height) = (frame.depth_m.width, frame.depth_m.height);
+    let pixels = frame.depth_m.data.len() as u64;
+    ctx.check_binding("depth image (4 bytes per pixel)", pixels * 4)?;
+    let pixel_words: Vec<u32> = frame
+        .depth_m
+        .data
+        .iter()
+        .enumerate()
+        .map(|(i, &d)| {
+            let rgb = color.map_or(0, |c| pack_rgb(c.data[i]));
+            rgb | if usable(d, params) { PIXEL_VALID } else { 0 }
+        })
+        .collect();
+    let scope = ErrorScopes::push(&ctx.device);
+    let buf_depth = ctx.storage("fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
+    let buf_pixel = ctx.storage("fuse_pixel", bytemuck::cast_slice(&pixel_words));
+    scope.pop("uploading the depth image")?;
+    let block_bytes = (VOXELS_PER_BLOCK * std::mem::size_of::<GpuVoxel>()) as u64;
+    let per_batch = (ctx.max_binding_bytes() / block_bytes).max(1) as usize;
+    let mut updates = 0usize;
+    // Results of every batch, applied only once all succeeded (an error leaves blocks untouched).
+    let mut results: Vec<Vec<GpuVoxel>> = Vec::new();
+    for batch in blocks.chunks(per_batch) {
+        let voxel_count = (batch.len() * VOXELS_PER_BLOCK) as u64;
+        ctx.check_binding("voxel batch (8 bytes per voxel)", voxel_count * 8)?;
+        let (wx, wy) = ctx.workgroups_2d(voxel_count)?;
+        let mut voxels = Vec::with_capacity(voxel_count as usize);
+        let mut bases = Vec::with_capacity(batch.len());
+        for (index, block) in batch.iter() {
+            let o = grid.block_origin(*index);
+            let centre0 = Point3::new(o[0] + 0.5 * vs, o[1] + 0.5 * vs, o[2] + 0.5 * vs);
+            let base: Vector3<f32> = (camera_from_world * centre0).coords.cast();
+            bases.push([base.x, base.y, base.z, 0.0f32]);
+            for i in 0..VOXELS_PER_BLOCK {
+                voxels.push(GpuVoxel::pack(
+                    block.tsdf[i],
+                    block.weight_omega[i],
+                    block.color[i],
+                ));
+            }
+        }
+        let uniforms = FuseUniforms {
+            axis_x: [ax.x, ax.y, ax.z, 0.0],
+            axis_y: [ay.x, ay.y, ay.z, 0.0],
+            axis_z: [az.x, az.y, az.z, 0.0],
+            fx: k.fx as f32,
+            fy: k.fy as f32,
+            cx: k.cx as f32,
+            cy: k.cy as f32,
+            width,
+            height,
+            mu: grid.truncation_m,
+            inv_mu: 1.0 / grid.truncation_m,
+            voxel_count: voxel_count as u32,
+            use_color: color.is_some() as u32,
+            pad: [0; 2],
+        };
+        let scope = ErrorScopes::push(&ctx.device);
+        let buf_uniforms = ctx.uniform("fuse_uniforms", bytemuck::bytes_of(&uniforms));
+        let buf_bases = ctx.storage("fuse_block_base", bytemuck::cast_slice(&bases));
+        let buf_voxels = ctx.storage("fuse_voxels", bytemuck::cast_slice(&voxels));
+        let buf_counters = ctx.storage("fuse_counters", bytemuck::cast_slice(&[0u32; 4]));
+        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("fuse_depth"),
+            layout: &ctx.fuse_layout,
+            entries: &[
+                (0, &buf_uniforms),
+                (1, &buf_bases),
+                (2, &buf_depth),
+                (3, &buf_pixel),
+                (4, &buf_voxels),
+                (5, &buf_counters),
+            ]
+            .map(|(binding, b)| wgpu::BindGroupEntry {
+                binding,
+                resource: b.as_entire_binding(),
+            }),
+        });
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("fuse_depth"),
+            });
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("fuse_depth"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&ctx.fuse_depth);
+            pass.set_bind_group(0, &bind, &[]);
+            pass.dispatch_workgroups(wx, wy, 1);
+        }
+        ctx.queue.submit([encoder.finish()]);
+        scope.pop("running the fusion kernel")?;
+        let out = ctx.read_back(&[(&buf_voxels, voxel_count * 8), (&buf_counters, 4)])?;
+        // Staging bytes carry no alignment guarantee: copy into typed vectors.
+        let counter: Vec<u32> = bytemuck::pod_collect_to_vec(&out[1]);
+        updates += counter[0] as usize;
+        results.push(bytemuck::pod_collect_to_vec(&out[0]));
+    }
+    for (batch, result) in blocks.chunks_mut(per_batch).zip(&results) {
+        for ((_, block), vox) in batch.iter_mut().zip(result.chunks_exact(VOXELS_PER_BLOCK)) {
+            for (i, v) in vox.iter().enumerate() {
+                if !v.updated() {
+                    continue;
+                }
+                block.tsdf[i] = v.tsdf();
+                block.weight_omega[i] = v.weight_omega();
+                block.color[i] = v.rgb();
+                // As Block::fuse: the raw field changed, a stored regularised value follows it.
+                if let Some(u) = block.regularized.as_mut() {
+                    u[i] = block.tsdf[i];
+                }
+            }
+        }
+    }
+    Ok(updates)
+}

@@ -1,0 +1,147 @@
+//! Buffer structs shared with the WGSL kernels: `#[repr(C)]` + bytemuck, each with a WGSL twin
+//! that says "keep in sync with src/gpu/layout.rs". Field order, sizes and padding must match
+//! WGSL's uniform/storage layout rules (a `vec4<f32>` is 16-byte aligned; structs are padded to
+//! a multiple of 16 bytes in uniform buffers). Tests check the sizes.
+
+use bytemuck::{Pod, Zeroable};
+
+/// Uniforms of `shaders/tv_dual.wgsl` and `shaders/tv_primal.wgsl` (WGSL twin: `TvUniforms` in
+/// `shaders/shared/tv_common.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct TvUniforms {
+    /// Dual step σ.
+    pub sigma: f32,
+    /// Primal step τ.
+    pub tau: f32,
+    /// Data weight λ.
+    pub lambda: f32,
+    /// Relaxation θ.
+    pub theta: f32,
+    /// Number of voxels in the flat arrays (blocks × 512).
+    pub voxel_count: u32,
+    /// Padding to 32 bytes.
+    pub pad: [u32; 3],
+}
+
+/// Uniforms of `shaders/fuse_depth.wgsl` (WGSL twin: `FuseUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct FuseUniforms {
+    /// Camera-frame step of one voxel along world x (xyz), metres; w unused.
+    pub axis_x: [f32; 4],
+    /// Camera-frame step of one voxel along world y, metres.
+    pub axis_y: [f32; 4],
+    /// Camera-frame step of one voxel along world z, metres.
+    pub axis_z: [f32; 4],
+    /// Focal length x, pixels.
+    pub fx: f32,
+    /// Focal length y, pixels.
+    pub fy: f32,
+    /// Principal point x, pixels.
+    pub cx: f32,
+    /// Principal point y, pixels.
+    pub cy: f32,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Truncation μ, metres.
+    pub mu: f32,
+    /// 1/μ, 1/metres.
+    pub inv_mu: f32,
+    /// Voxels in this batch (blocks × 512).
+    pub voxel_count: u32,
+    /// 1 to fuse colour, 0 to keep it.
+    pub use_color: u32,
+    /// Padding to a multiple of 16 bytes.
+    pub pad: [u32; 2],
+}
+
+/// One voxel as the fusion kernel reads and writes it (WGSL twin: `GpuVoxel` in
+/// `shaders/fuse_depth.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct GpuVoxel {
+    /// Bits 0–15: quantised TSDF (`i16`); bits 16–23: weight and Ω (the block's packed byte);
+    /// bit 24: [`UPDATED_BIT`], set by the kernel.
+    pub tsdf_weight: u32,
+    /// Colour `r | g << 8 | b << 16`.
+    pub color: u32,
+}
+
+/// Set in [`GpuVoxel::tsdf_weight`] by the kernel when it updated the voxel.
+pub const UPDATED_BIT: u32 = 1 << 24;
+/// Set in a pixel word when its depth is usable (finite, within the depth range).
+pub const PIXEL_VALID: u32 = 1 << 24;
+
+impl GpuVoxel {
+    /// Packs a block's voxel fields.
+    #[inline]
+    pub fn pack(tsdf: i16, weight_omega: u8, color: [u8; 3]) -> Self {
+        GpuVoxel {
+            tsdf_weight: (tsdf as u16 as u32) | ((weight_omega as u32) << 16),
+            color: pack_rgb(color),
+        }
+    }
+
+    /// The quantised TSDF.
+    #[inline]
+    pub fn tsdf(&self) -> i16 {
+        (self.tsdf_weight & 0xffff) as u16 as i16
+    }
+
+    /// The packed weight and Ω byte.
+    #[inline]
+    pub fn weight_omega(&self) -> u8 {
+        ((self.tsdf_weight >> 16) & 0xff) as u8
+    }
+
+    /// Whether the kernel updated this voxel.
+    #[inline]
+    pub fn updated(&self) -> bool {
+        self.tsdf_weight & UPDATED_BIT != 0
+    }
+
+    /// The colour.
+    #[inline]
+    pub fn rgb(&self) -> [u8; 3] {
+        [
+            (self.color & 0xff) as u8,
+            ((self.color >> 8) & 0xff) as u8,
+            ((self.color >> 16) & 0xff) as u8,
+        ]
+    }
+}
+
+/// Packs an RGB triple as `r | g << 8 | b << 16`.
+#[inline]
+pub fn pack_rgb(c: [u8; 3]) -> u32 {
+    c[0] as u32 | ((c[1] as u32) << 8) | ((c[2] as u32) << 16)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_match_the_wgsl_layouts() {
+        assert_eq!(std::mem::size_of::<TvUniforms>(), 32);
+        assert_eq!(std::mem::size_of::<FuseUniforms>(), 96);
+        assert_eq!(std::mem::size_of::<GpuVoxel>(), 8);
+    }
+
+    #[test]
+    fn voxel_packing_round_trips() {
+        for (t, wo, c) in [
+            (-32767i16, 0x80u8 | 127, [255u8, 0, 7]),
+            (0, 0, [0, 0, 0]),
+            (12345, 0x85, [1, 2, 3]),
+            (-1, 0xff, [255, 255, 255]),
+        ] {
+            let v = GpuVoxel::pack(t, wo, c);
+            assert_eq!((v.tsdf(), v.weight_omega(), v.rgb()), (t, wo, c));
+            assert!(!v.updated());
+        }
+    }
+}

@@ -1,0 +1,25 @@
+//! GPU compute with wgpu (issue 6): the TV regulariser and depth-map fusion as WGSL kernels
+//! (`shaders/`), each a twin of a CPU implementation that stays the reference
+//! (`src/regularize/`, `src/fusion/depth.rs`), with the same data layout and arithmetic.
+//!
+//! - [`GpuContext`]: adapter, device, queue and compiled pipelines; [`GpuContext::new`] returns
+//!   `None` where no adapter exists (lavapipe, Mesa's software Vulkan, counts as one).
+//! - [`DeviceChoice`]: the `--device auto|cpu|gpu` policy of the CLI.
+//! - [`solve_gpu`] / [`regularize_layer_gpu`] / [`regularize_regions_gpu`]: Chambolle–Pock
+//!   iterations on the GPU, globally or region by region (maps larger than one binding).
+//! - [`integrate_depth_gpu`]: projective TSDF fusion of one depth frame on the GPU.
+//! - [`layout`]: `#[repr(C)]` buffer structs with WGSL twins; [`shaders`]: the assembled sources.
+//!
+//! What it does not do (yet): LiDAR fusion, marching cubes and paging stay on the CPU; the map
+//! is not resident on the GPU between calls (every call uploads its blocks and reads them back);
+//! a TV problem larger than one storage binding is an error unless solved in regions.
+
+mod context;
+mod fuse;
+pub mod layout;
+pub mod shaders;
+mod tv;
+
+pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
+pub use fuse::integrate_depth_gpu;
+pub use tv::{regularize_layer_gpu, regularize_regions_gpu, solve_gpu};

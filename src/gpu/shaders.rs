@@ -1,0 +1,50 @@
+//! WGSL sources, assembled from `shaders/` at compile time. WGSL has no `#include`: each kernel is
+//! its shared files (`shaders/shared/`) followed by its own file, concatenated here; this list is
+//! what the naga validation test (`tests/gpu_shaders.rs`) checks.
+
+/// One kernel: a label and the assembled WGSL source.
+#[derive(Clone, Copy, Debug)]
+pub struct ShaderSource {
+    /// The kernel's file under `shaders/`.
+    pub file: &'static str,
+    /// Shared files prepended, in order.
+    pub shared: &'static [&'static str],
+    /// The assembled source.
+    pub source: &'static str,
+}
+
+/// TV dual step.
+pub const TV_DUAL: ShaderSource = ShaderSource {
+    file: "tv_dual.wgsl",
+    shared: &["shared/dispatch.wgsl", "shared/tv_common.wgsl"],
+    source: concat!(
+        include_str!("../../shaders/shared/dispatch.wgsl"),
+        include_str!("../../shaders/shared/tv_common.wgsl"),
+        include_str!("../../shaders/tv_dual.wgsl")
+    ),
+};
+
+/// TV primal step and relaxation.
+pub const TV_PRIMAL: ShaderSource = ShaderSource {
+    file: "tv_primal.wgsl",
+    shared: &["shared/dispatch.wgsl", "shared/tv_common.wgsl"],
+    source: concat!(
+        include_str!("../../shaders/shared/dispatch.wgsl"),
+        include_str!("../../shaders/shared/tv_common.wgsl"),
+        include_str!("../../shaders/tv_primal.wgsl")
+    ),
+};
+
+/// Depth-map fusion.
+pub const FUSE_DEPTH: ShaderSource = ShaderSource {
+    file: "fuse_depth.wgsl",
+    shared: &["shared/dispatch.wgsl", "shared/rounding.wgsl"],
+    source: concat!(
+        include_str!("../../shaders/shared/dispatch.wgsl"),
+        include_str!("../../shaders/shared/rounding.wgsl"),
+        include_str!("../../shaders/fuse_depth.wgsl")
+    ),
+};
+
+/// Every kernel.
+pub const ALL: [ShaderSource; 3] = [TV_DUAL, TV_PRIMAL, FUSE_DEPTH];

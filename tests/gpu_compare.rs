@@ -1,0 +1,438 @@
+//! GPU kernels against their CPU twins (issue 6): the TV primal–dual (`src/regularize/`) and
+//! depth-map fusion (`src/fusion/depth.rs`), on random problems and on the analytic sphere
+//! scene. Every test skips with a message where no GPU adapter exists (install lavapipe with
+//! `tools/setup.sh` to run them on the CPU).
+//!
+//! Tolerances (both sides compute in f32; WGSL allows FMA contraction and division within
+//! 2.5 ULP, so agreement is close but not bit for bit):
+//! - TV, 100 iterations: |u_gpu − u_cpu| ≤ 1e-4 (normalised TSDF units; one i16 step is 3.1e-5)
+//!   on every voxel, energies within 1e-5 relative.
+//! - Fusion: the same blocks; weights and Ω equal on ≥ 99.99 % of voxels; the quantised TSDF
+//!   within one step on ≥ 99.9 %.
+
+mod common;
+
+use common::{orbit, vga, Rng, SphereScene};
+use denser::fusion::{integrate_depth, DepthFusionParams};
+use denser::gpu::{
+    integrate_depth_gpu, regularize_layer_gpu, regularize_regions_gpu, solve_gpu, GpuContext,
+};
+use denser::grid::{BlockIndex, GridParams, Layer, VOXELS_PER_BLOCK};
+use denser::reconstruct::Reconstructor;
+use denser::regularize::{regularize_layer, RegionPlan, TvParams, TvProblem};
+use std::sync::Arc;
+
+fn gpu() -> Option<GpuContext> {
+    match GpuContext::new() {
+        Ok(Some(ctx)) => {
+            eprintln!("GPU: {}", ctx.describe());
+            Some(ctx)
+        }
+        Ok(None) => {
+            eprintln!("skipping: no GPU adapter (tools/setup.sh installs lavapipe)");
+            None
+        }
+        Err(e) => panic!("a GPU adapter exists but failed: {e}"),
+    }
+}
+
+/// A random problem: a 4×3×3 slab of blocks with two holes, random f ∈ [−1, 1], integer
+/// weights 0–20, Ω on ~85 % of voxels.
+fn random_problem(seed: u64) -> TvProblem {
+    let mut rng = Rng(seed);
+    let mut blocks = Vec::new();
+    for z in -1..2 {
+        for y in 0..3 {
+            for x in -2..2 {
+                if (x, y, z) != (0, 1, 0) && (x, y, z) != (-2, 2, 1) {
+                    blocks.push(BlockIndex([x, y, z]));
+                }
+            }
+        }
+    }
+    blocks.sort_unstable();
+    let n = blocks.len() * VOXELS_PER_BLOCK;
+    let f = (0..n).map(|_| (2.0 * rng.uniform() - 1.0) as f32).collect();
+    let w = (0..n)
+        .map(|_| (rng.uniform() * 21.0).floor() as f32)
+        .collect();
+    let omega = (0..n).map(|_| rng.uniform() < 0.85).collect();
+    TvProblem::from_arrays(blocks, f, w, omega)
+}
+
+fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn tv_gpu_matches_cpu_on_a_random_problem() {
+    let Some(ctx) = gpu() else { return };
+    let params = TvParams::paper(0.1);
+    let initial = random_problem(7);
+    let mut cpu = initial.clone();
+    cpu.solve(&params);
+    let mut gpu = initial.clone();
+    solve_gpu(&ctx, &mut gpu, &params).expect("GPU solve");
+    let (u_cpu, ubar_cpu, p_cpu) = cpu.state();
+    let (u_gpu, ubar_gpu, p_gpu) = gpu.state();
+    let du = max_abs_diff(u_cpu, u_gpu);
+    let dubar = max_abs_diff(ubar_cpu, ubar_gpu);
+    let dp = max_abs_diff(p_cpu.as_flattened(), p_gpu.as_flattened());
+    eprintln!("max |Δu| = {du:e}, |Δū| = {dubar:e}, |Δp| = {dp:e}");
+    assert!(
+        du <= 1e-4 && dubar <= 2e-4 && dp <= 1e-4,
+        "{du} {dubar} {dp}"
+    );
+    // The solve did something: u moved far from f, so agreement is not trivial.
+    let moved = max_abs_diff(u_gpu, &initial.f);
+    assert!(moved > 0.3, "u barely moved: {moved}");
+    // Voxels outside Ω are untouched on both sides.
+    for g in 0..u_gpu.len() {
+        if !gpu.in_omega(g) {
+            assert_eq!(u_gpu[g], initial.f[g]);
+        }
+    }
+    let (e0, e_cpu, e_gpu) = (
+        initial.energy(params.lambda),
+        cpu.energy(params.lambda),
+        gpu.energy(params.lambda),
+    );
+    eprintln!("energy {e0:.6e} -> CPU {e_cpu:.6e}, GPU {e_gpu:.6e}");
+    assert!(e_gpu < 0.9 * e0);
+    assert!(((e_gpu - e_cpu) / e_cpu).abs() < 1e-5);
+}
+
+#[test]
+fn tv_gpu_continues_where_the_cpu_left_off() {
+    // State round trip: 30 CPU + 30 GPU iterations equal 60 CPU iterations.
+    let Some(ctx) = gpu() else { return };
+    let params = TvParams {
+        iterations: 30,
+        ..TvParams::paper(0.2)
+    };
+    let mut mixed = random_problem(11);
+    let mut cpu = mixed.clone();
+    mixed.solve(&params);
+    solve_gpu(&ctx, &mut mixed, &params).expect("GPU solve");
+    cpu.solve(&TvParams {
+        iterations: 60,
+        ..params
+    });
+    let d = max_abs_diff(cpu.state().0, mixed.state().0);
+    eprintln!("max |Δu| after 30 CPU + 30 GPU vs 60 CPU iterations = {d:e}");
+    assert!(d <= 1e-4, "{d}");
+}
+
+fn sphere_layer(grid: GridParams, views: usize, noise_m: f64, gpu: Option<&GpuContext>) -> Layer {
+    let scene = SphereScene::standard();
+    let mut layer = Layer::new(grid);
+    let mut rng = Rng(5);
+    for pose in orbit(views, 3.0, -1.2, scene.center) {
+        let frame = scene.render(&vga(), pose, noise_m, 6.0, &mut rng);
+        match gpu {
+            None => {
+                integrate_depth(&mut layer, &frame, &DepthFusionParams::default());
+            }
+            Some(ctx) => {
+                integrate_depth_gpu(ctx, &mut layer, &frame, &DepthFusionParams::default())
+                    .expect("GPU fusion");
+            }
+        }
+    }
+    layer
+}
+
+#[test]
+fn regularize_layer_gpu_matches_cpu_on_the_sphere_scene() {
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.05,
+        truncation_m: 0.4,
+    };
+    let mut cpu = sphere_layer(grid, 6, 0.01, None);
+    let mut gpu = cpu.clone();
+    let params = TvParams::paper(0.1);
+    let (blocks_cpu, stats_cpu) = regularize_layer(&mut cpu, &params).expect("CPU");
+    let (blocks_gpu, stats_gpu) = regularize_layer_gpu(&ctx, &mut gpu, &params).expect("GPU");
+    assert_eq!(blocks_cpu, blocks_gpu);
+    assert_eq!(stats_cpu.omega_voxels, stats_gpu.omega_voxels);
+    assert!(stats_gpu.energy_after < stats_gpu.energy_before);
+    let rel = (stats_gpu.energy_after - stats_cpu.energy_after) / stats_cpu.energy_after;
+    assert!(rel.abs() < 1e-5, "energy differs by {rel:e}");
+    // Stored i16: within 1e-4 / (1/32767) ≈ 3.3 → 4 quantisation steps everywhere.
+    let mut worst = 0i32;
+    for b in &blocks_cpu {
+        let (rc, rg) = (cpu.get(b).expect("cpu"), gpu.get(b).expect("gpu"));
+        let (uc, ug) = (
+            rc.regularized.as_ref().expect("cpu u"),
+            rg.regularized.as_ref().expect("gpu u"),
+        );
+        for i in 0..VOXELS_PER_BLOCK {
+            worst = worst.max((uc[i] as i32 - ug[i] as i32).abs());
+        }
+    }
+    eprintln!(
+        "{} blocks, {} Ω voxels: worst |Δu| = {worst} steps",
+        blocks_cpu.len(),
+        stats_cpu.omega_voxels
+    );
+    assert!(worst <= 4, "{worst} steps");
+}
+
+/// Voxel-by-voxel agreement of two layers over the same blocks.
+struct FusionAgreement {
+    voxels: usize,
+    weight_mismatch: usize,
+    tsdf_beyond_one_step: usize,
+    color_beyond_one: usize,
+    worst_tsdf_steps: i32,
+}
+
+fn compare_layers(a: &Layer, b: &Layer) -> FusionAgreement {
+    assert_eq!(a.indices_sorted(), b.indices_sorted(), "block sets differ");
+    let mut r = FusionAgreement {
+        voxels: 0,
+        weight_mismatch: 0,
+        tsdf_beyond_one_step: 0,
+        color_beyond_one: 0,
+        worst_tsdf_steps: 0,
+    };
+    for idx in a.indices_sorted() {
+        let (x, y) = (a.get(&idx).expect("a"), b.get(&idx).expect("b"));
+        for i in 0..VOXELS_PER_BLOCK {
+            r.voxels += 1;
+            if x.weight_omega[i] != y.weight_omega[i] {
+                r.weight_mismatch += 1;
+                continue;
+            }
+            let d = (x.tsdf[i] as i32 - y.tsdf[i] as i32).abs();
+            r.worst_tsdf_steps = r.worst_tsdf_steps.max(d);
+            if d > 1 {
+                r.tsdf_beyond_one_step += 1;
+            }
+            if (0..3).any(|k| (x.color[i][k] as i32 - y.color[i][k] as i32).abs() > 1) {
+                r.color_beyond_one += 1;
+            }
+        }
+    }
+    r
+}
+
+#[test]
+fn depth_fusion_gpu_matches_cpu_on_the_sphere_scene() {
+    let Some(ctx) = gpu() else { return };
+    for (voxel, trunc) in [(0.05f32, 0.4f32), (0.1, 1.0)] {
+        let grid = GridParams {
+            voxel_size_m: voxel,
+            truncation_m: trunc,
+        };
+        let cpu = sphere_layer(grid, 6, 0.01, None);
+        let gpu = sphere_layer(grid, 6, 0.01, Some(&ctx));
+        let r = compare_layers(&cpu, &gpu);
+        eprintln!(
+            "voxel {voxel} m: {} voxels, weight mismatches {}, |Δf| > 1 step {}, worst {} steps, colour > 1 {}",
+            r.voxels, r.weight_mismatch, r.tsdf_beyond_one_step, r.worst_tsdf_steps, r.color_beyond_one
+        );
+        eprintln!("{} voxels in Ω", cpu.observed_voxel_count());
+        assert!(cpu.observed_voxel_count() > 50_000);
+        let n = r.voxels as f64;
+        assert!(r.weight_mismatch as f64 <= 1e-4 * n, "weights");
+        assert!(
+            (r.weight_mismatch + r.tsdf_beyond_one_step) as f64 <= 1e-3 * n,
+            "TSDF"
+        );
+        assert!(r.color_beyond_one as f64 <= 1e-3 * n, "colour");
+    }
+}
+
+#[test]
+fn depth_fusion_gpu_batches_give_the_same_voxels() {
+    // Capping bindings at the depth image's size (640 × 480 × 4 bytes = 300 blocks of voxels)
+    // forces several batches; the result must equal one batch's, bit for bit.
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.05,
+        truncation_m: 0.4,
+    };
+    let whole = sphere_layer(grid, 3, 0.0, Some(&ctx));
+    let capped = ctx.with_max_binding_bytes(640 * 480 * 4);
+    let batched = sphere_layer(grid, 3, 0.0, Some(&capped));
+    assert!(whole.block_count() > 300, "{} blocks", whole.block_count());
+    assert_eq!(whole.indices_sorted(), batched.indices_sorted());
+    for idx in whole.indices_sorted() {
+        assert!(
+            whole.get(&idx) == batched.get(&idx),
+            "block {idx:?} differs"
+        );
+    }
+}
+
+#[test]
+fn tv_capacity_overflow_is_an_error_not_a_truncation() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = ctx.with_max_binding_bytes(128 << 10);
+    let mut problem = random_problem(3); // 34 blocks: p needs 34 · 512 · 12 bytes > 128 KiB
+    let before = problem.state().0.to_vec();
+    let err = solve_gpu(&ctx, &mut problem, &TvParams::paper(0.1)).expect_err("must not fit");
+    let msg = err.to_string();
+    eprintln!("{msg}");
+    assert!(
+        matches!(err, denser::Error::GpuCapacity { needed_bytes, limit_bytes, .. }
+            if needed_bytes == 34 * 512 * 12 && limit_bytes == 128 << 10),
+        "{msg}"
+    );
+    assert_eq!(problem.state().0, &before[..], "state must be untouched");
+}
+
+#[test]
+fn depth_fusion_gpu_keeps_the_regularised_field_in_step() {
+    // Block::fuse sets u = f on every voxel it updates; the GPU path must do the same.
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.1,
+        truncation_m: 0.8,
+    };
+    let mut cpu = sphere_layer(grid, 4, 0.01, None);
+    regularize_layer(&mut cpu, &TvParams::paper(0.1)).expect("regularise");
+    let mut gpu = cpu.clone();
+    let scene = SphereScene::standard();
+    let frame = scene.render(
+        &vga(),
+        orbit(7, 2.5, -1.0, scene.center)[3],
+        0.01,
+        6.0,
+        &mut Rng(9),
+    );
+    let before = cpu.clone();
+    integrate_depth(&mut cpu, &frame, &DepthFusionParams::default());
+    integrate_depth_gpu(&ctx, &mut gpu, &frame, &DepthFusionParams::default()).expect("GPU");
+    assert_eq!(cpu.indices_sorted(), gpu.indices_sorted());
+    let (mut reset, mut differ, mut voxels) = (0usize, 0usize, 0usize);
+    for idx in before.indices_sorted() {
+        let (old, c, g) = (
+            before.get(&idx).expect("old"),
+            cpu.get(&idx).expect("cpu"),
+            gpu.get(&idx).expect("gpu"),
+        );
+        let (uo, uc, ug) = (
+            old.regularized.as_ref().expect("old u"),
+            c.regularized.as_ref().expect("cpu u"),
+            g.regularized.as_ref().expect("gpu u"),
+        );
+        for i in 0..VOXELS_PER_BLOCK {
+            voxels += 1;
+            if uc[i] != uo[i] && uc[i] == c.tsdf[i] {
+                reset += 1;
+            }
+            if (uc[i] as i32 - ug[i] as i32).abs() > 1 {
+                differ += 1;
+            }
+        }
+    }
+    eprintln!(
+        "{voxels} voxels: {reset} regularised values reset by the CPU, {differ} differ on the GPU"
+    );
+    assert!(reset > 1000, "{reset}");
+    assert!(differ as f64 <= 1e-3 * voxels as f64, "{differ}");
+}
+
+#[test]
+fn tv_regions_on_the_gpu_equal_the_global_cpu_solve() {
+    // A cap that the global problem exceeds but each region with its exact halo fits.
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.05,
+        truncation_m: 0.4,
+    };
+    let mut cpu = sphere_layer(grid, 6, 0.01, None);
+    let mut gpu = cpu.clone();
+    let params = TvParams {
+        iterations: 20,
+        ..TvParams::paper(0.1)
+    };
+    let blocks = cpu.block_count() as u64;
+    let cap = blocks * 512 * 12 / 2;
+    let capped = ctx.with_max_binding_bytes(cap);
+    assert!(matches!(
+        regularize_layer_gpu(&capped, &mut gpu.clone(), &params),
+        Err(denser::Error::GpuCapacity { .. })
+    ));
+    let plan = RegionPlan::exact(2, params.iterations);
+    let (written, stats) =
+        regularize_regions_gpu(&capped, &mut gpu, &params, &plan).expect("regions on the GPU");
+    regularize_layer(&mut cpu, &params).expect("CPU");
+    eprintln!("{blocks} blocks, cap {cap} bytes: {stats:?}");
+    assert_eq!(written, cpu.indices_sorted());
+    assert!(stats.regions > 1);
+    let mut worst = 0i32;
+    for b in &written {
+        let uc = cpu
+            .get(b)
+            .and_then(|x| x.regularized.clone())
+            .expect("cpu u");
+        let ug = gpu
+            .get(b)
+            .and_then(|x| x.regularized.clone())
+            .expect("gpu u");
+        for i in 0..VOXELS_PER_BLOCK {
+            worst = worst.max((uc[i] as i32 - ug[i] as i32).abs());
+        }
+    }
+    assert!(worst <= 4, "{worst} steps");
+}
+
+#[test]
+fn reconstructor_falls_back_to_the_cpu_when_the_map_does_not_fit() {
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.1,
+        truncation_m: 0.8,
+    };
+    let layer = sphere_layer(grid, 3, 0.01, None);
+    let mut config = denser::reconstruct::ReconstructionConfig::paper(0.1);
+    config.grid = grid;
+    config.tv.iterations = 10;
+    let mut on_gpu = Reconstructor::new(config).expect("config");
+    *on_gpu.layer_mut() = layer.clone();
+    on_gpu.set_gpu(Some(Arc::new(ctx.with_max_binding_bytes(4096))));
+    let stats = on_gpu.regularize().expect("regularise");
+    let mut cpu = layer;
+    let (_, cpu_stats) = regularize_layer(&mut cpu, &config.tv).expect("CPU");
+    assert_eq!(stats, cpu_stats);
+    for b in cpu.indices_sorted() {
+        assert!(cpu.get(&b) == on_gpu.layer().get(&b), "block {b:?}");
+    }
+}
+
+#[test]
+fn depth_fusion_gpu_error_leaves_the_layer_unchanged() {
+    // A binding cap below the depth image's size: a capacity error, and no block changed,
+    // appeared or vanished.
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.1,
+        truncation_m: 0.8,
+    };
+    let mut layer = sphere_layer(grid, 2, 0.01, None);
+    let before = layer.clone();
+    let scene = SphereScene::standard();
+    let frame = scene.render(
+        &vga(),
+        orbit(5, 3.0, -1.2, scene.center)[2],
+        0.01,
+        6.0,
+        &mut Rng(2),
+    );
+    let capped = ctx.with_max_binding_bytes(64 * 1024);
+    let err = integrate_depth_gpu(&capped, &mut layer, &frame, &DepthFusionParams::default())
+        .expect_err("the image does not fit");
+    assert!(matches!(err, denser::Error::GpuCapacity { .. }), "{err}");
+    assert_eq!(layer.indices_sorted(), before.indices_sorted());
+    for b in before.indices_sorted() {
+        assert!(layer.get(&b) == before.get(&b), "block {b:?}");
+    }
+}
