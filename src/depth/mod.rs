@@ -3,8 +3,8 @@
 //! - [`DisparityEstimator`]: the interface every stereo matcher implements (left image is the
 //!   reference; disparity `d = x_left − x_right` in pixels; NaN = invalid). [`StereoMethod`]
 //!   names the available matchers and builds them; the baseline is [`sgm::SgmMatcher`] (census +
-//!   semi-global matching), which the variational TGV estimator will use as its initialisation
-//!   and fallback.
+//!   semi-global matching), which initialises the variational estimator [`tgv::TgvMatcher`]
+//!   (census + TV / TGV / TGV with the anisotropic tensor, the paper's Sec. V).
 //! - [`census`]: census and ternary census signatures, Hamming cost.
 //! - [`metrics`]: Middlebury/KITTI disparity scores (bad-k, D1, EPE, density).
 //! - [`disparity_io`]: KITTI 16-bit disparity PNG, and a reader that picks PFM or PNG.
@@ -18,10 +18,12 @@ pub mod disparity_io;
 pub mod ground_truth;
 pub mod metrics;
 pub mod sgm;
+pub mod tgv;
 
 pub use ground_truth::disparity_from_points;
 pub use metrics::{evaluate_disparity, StereoMetrics};
 pub use sgm::{SgmMatcher, SgmParams};
+pub use tgv::{Regulariser, TgvMatcher, TgvParams};
 
 use crate::error::{Error, Result};
 use crate::frame::{DepthImage, GreyImage, Image};
@@ -63,16 +65,31 @@ pub trait DisparityEstimator: Send + Sync {
 pub enum StereoMethod {
     /// Census + semi-global matching ([`sgm::SgmMatcher`]).
     Sgm,
+    /// Census + first-order TV, variational ([`tgv::TgvMatcher`] with [`Regulariser::Tv`]).
+    Tv,
+    /// Census + isotropic second-order TGV ([`Regulariser::Tgv`]).
+    Tgv,
+    /// Census + TGV with the anisotropic diffusion tensor, the paper's estimator
+    /// ([`Regulariser::TgvTensor`]).
+    TgvTensor,
 }
 
 impl StereoMethod {
     /// Every method, in the order shown to users.
-    pub const ALL: &'static [StereoMethod] = &[StereoMethod::Sgm];
+    pub const ALL: &'static [StereoMethod] = &[
+        StereoMethod::Sgm,
+        StereoMethod::Tv,
+        StereoMethod::Tgv,
+        StereoMethod::TgvTensor,
+    ];
 
     /// The CLI name.
     pub fn as_str(&self) -> &'static str {
         match self {
             StereoMethod::Sgm => "sgm",
+            StereoMethod::Tv => "tv",
+            StereoMethod::Tgv => "tgv",
+            StereoMethod::TgvTensor => "tgv-tensor",
         }
     }
 
@@ -84,6 +101,21 @@ impl StereoMethod {
                 num_disparities,
                 ..SgmParams::default()
             })?)),
+            StereoMethod::Tv | StereoMethod::Tgv | StereoMethod::TgvTensor => {
+                let regulariser = match self {
+                    StereoMethod::Tv => Regulariser::Tv,
+                    StereoMethod::Tgv => Regulariser::Tgv,
+                    _ => Regulariser::TgvTensor,
+                };
+                Ok(Box::new(TgvMatcher::new(TgvParams {
+                    regulariser,
+                    sgm: SgmParams {
+                        num_disparities,
+                        ..SgmParams::default()
+                    },
+                    ..TgvParams::default()
+                })?))
+            }
         }
     }
 }
@@ -97,7 +129,7 @@ impl fmt::Display for StereoMethod {
 impl FromStr for StereoMethod {
     type Err = Error;
 
-    /// Parses a CLI name, case-insensitively (`sgm`).
+    /// Parses a CLI name, case-insensitively (`sgm`, `tv`, `tgv`, `tgv-tensor`).
     fn from_str(s: &str) -> Result<Self> {
         let lower = s.trim().to_ascii_lowercase();
         StereoMethod::ALL
