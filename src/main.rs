@@ -60,6 +60,10 @@ struct StereoArgs {
     /// Disparity search range from 0, pixels.
     #[arg(long, default_value_t = 128)]
     num_disparities: usize,
+    /// tv/tgv/tgv-tensor: keep occluded and poorly matching pixels (dense output for benchmarks
+    /// that count missing pixels as errors).
+    #[arg(long)]
+    dense: bool,
 }
 
 #[derive(Args)]
@@ -540,6 +544,7 @@ fn stereo(a: StereoArgs) -> Result<()> {
         depth_out: a.depth_out.clone(),
         method: a.method.parse()?,
         num_disparities: a.num_disparities,
+        dense: a.dense,
     };
     let outcome = pipeline::stereo(&job).with_context(|| {
         format!(

@@ -720,6 +720,9 @@ pub struct StereoJob {
     pub method: crate::depth::StereoMethod,
     /// Disparities searched, pixels.
     pub num_disparities: usize,
+    /// Variational methods only: keep occluded and poorly matching pixels (dense output for
+    /// benchmarks that count missing pixels as errors).
+    pub dense: bool,
 }
 
 /// What `denser stereo` did.
@@ -762,11 +765,32 @@ pub fn stereo(job: &StereoJob) -> Result<StereoOutcome> {
             ),
         ));
     }
+    let estimator: Box<dyn crate::depth::DisparityEstimator> = if job.dense {
+        let regulariser = match job.method {
+            crate::depth::StereoMethod::Tv => crate::depth::Regulariser::Tv,
+            crate::depth::StereoMethod::Tgv => crate::depth::Regulariser::Tgv,
+            crate::depth::StereoMethod::TgvTensor => crate::depth::Regulariser::TgvTensor,
+            crate::depth::StereoMethod::Sgm => {
+                return Err(Error::InvalidArgument(
+                    "--dense applies to the variational methods (tv, tgv, tgv-tensor), not sgm"
+                        .into(),
+                ))
+            }
+        };
+        Box::new(crate::depth::TgvMatcher::new(crate::depth::TgvParams {
+            regulariser,
+            mark_invalid: false,
+            sgm: crate::depth::SgmParams {
+                num_disparities: job.num_disparities,
+                ..crate::depth::SgmParams::default()
+            },
+            ..crate::depth::TgvParams::default()
+        })?)
+    } else {
+        job.method.estimator(job.num_disparities)?
+    };
     let started = std::time::Instant::now();
-    let map = job
-        .method
-        .estimator(job.num_disparities)?
-        .estimate(&left, &right)?;
+    let map = estimator.estimate(&left, &right)?;
     let matching_s = started.elapsed().as_secs_f64();
     crate::io::pfm::write_pfm(&job.out, &map.disparity_px)?;
     if let (Some(path), Some(c)) = (&job.depth_out, calib) {

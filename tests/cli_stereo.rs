@@ -104,6 +104,25 @@ fn stereo_writes_a_pfm_that_stereo_eval_scores() {
             serde_json::from_str(&std::fs::read_to_string(d.join("m.json")).unwrap()).unwrap();
         assert_eq!(json, m);
     }
+    // --dense keeps every pixel whose match lies inside the right image.
+    let o = denser(
+        &[
+            "stereo",
+            "l.png",
+            "r.png",
+            "--out",
+            "dense.pfm",
+            "--num-disparities",
+            "24",
+            "--dense",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let dense = read_pfm(d.join("dense.pfm")).unwrap();
+    let m = evaluate_disparity(&dense, &gt_known, None).unwrap();
+    assert_eq!(m.density_pct, 100.0, "{m:?}");
+    assert!(m.epe_px < 0.15, "{m:?}");
 }
 
 #[test]

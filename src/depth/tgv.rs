@@ -87,13 +87,18 @@ pub struct TgvParams {
     /// `x − u(x)` lies more than this right of the leftmost right-image position of the pixels
     /// to its right (see [`occluded`]).
     pub occlusion_tolerance_px: f32,
+    /// Mark occluded / poorly matching pixels invalid (module docs). `false` returns the dense
+    /// regularised disparity except where the match falls outside the right image (for
+    /// benchmarks that count missing pixels as errors; fusion should keep `true`).
+    pub mark_invalid: bool,
     /// The SGM initialisation (its census window is also the data term's).
     pub sgm: SgmParams,
 }
 
 impl Default for TgvParams {
     /// Paper weights (λ 0.5, α₁ 1, α₂ 5, β 1, γ 4), 5×5 cost averaging, 8 rounds × 20
-    /// iterations, θ from 4 to 0.05, SGM defaults.
+    /// iterations, θ from 4 to 0.05, invalid marking on (cost above 35 % of the bits), SGM
+    /// defaults.
     fn default() -> Self {
         TgvParams {
             regulariser: Regulariser::TgvTensor,
@@ -109,6 +114,7 @@ impl Default for TgvParams {
             theta_end: 0.05,
             max_cost_fraction: 0.35,
             occlusion_tolerance_px: 0.5,
+            mark_invalid: true,
             sgm: SgmParams::default(),
         }
     }
@@ -784,7 +790,7 @@ impl TgvMatcher {
             let c = volume.cost[i * nd + k] as f32;
             let sgm_valid = init.disparity_px.data[i].is_finite();
             let agrees = sgm_valid && (init.disparity_px.data[i] - d).abs() <= 1.0;
-            if !sgm_valid && (occ[i] || c > max_bits) {
+            if p.mark_invalid && !sgm_valid && (occ[i] || c > max_bits) {
                 continue;
             }
             disp.data[i] = d;
