@@ -369,22 +369,22 @@ fn middlebury_motorcycle_tgv_beats_sgm() {
     eprintln!(
         "Motorcycle SGM {sgm:?}\nTGV-tensor {all:?}\ndense {dense_all:?}\nnon-occluded {nocc_m:?}"
     );
-    // Measured (defaults): SGM 16.95 %, TGV-tensor 15.6 % (density 90.9 %), dense 11.8 %,
-    // non-occluded 6.1 %.
+    // Measured (defaults): SGM 16.95 % (density 87.2 %); TGV-tensor 15.03 % (density 90.3 %),
+    // dense (no invalid marking) 9.18 %; non-occluded 5.54 %.
     assert!(
-        all.bad2_pct < sgm.bad2_pct,
+        all.bad2_pct < sgm.bad2_pct - 1.0,
         "{} vs SGM {}",
         all.bad2_pct,
         sgm.bad2_pct
     );
-    assert!(all.bad2_pct < 16.5, "bad-2 all {}", all.bad2_pct);
+    assert!(all.bad2_pct < 15.5, "bad-2 all {}", all.bad2_pct);
     assert!(
-        dense_all.bad2_pct < 12.5,
+        dense_all.bad2_pct < 9.7,
         "bad-2 all, dense {}",
         dense_all.bad2_pct
     );
     assert!(
-        nocc_m.bad2_pct < 7.0,
+        nocc_m.bad2_pct < 6.0,
         "bad-2 non-occluded {}",
         nocc_m.bad2_pct
     );
@@ -423,8 +423,8 @@ fn kitti_frame0_tgv_beats_sgm() {
     let sgm = evaluate_disparity(&st.sgm.disparity_px, &gt, None).unwrap();
     let m = evaluate_disparity(&st.result.disparity_px, &gt, None).unwrap();
     eprintln!("KITTI 00/0 SGM {sgm:?}\nTGV-tensor {m:?}");
-    // Measured (defaults): SGM D1 29.3 %, EPE 2.25 px, density 77.9 %; TGV-tensor D1 23.6 %,
-    // EPE 2.81 px, density 86.6 %.
+    // Measured (defaults): SGM D1 29.2 %, EPE 2.25 px, density 77.9 %; TGV-tensor D1 23.9 %,
+    // EPE 2.74 px, density 85.5 %.
     assert!(
         m.d1_pct < sgm.d1_pct - 3.0,
         "D1 {} vs SGM {}",
