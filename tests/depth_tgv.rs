@@ -154,10 +154,10 @@ fn primal_dual_decreases_the_convex_energy() {
         };
         let theta = 0.5;
         let mut pb = TgvProblem::new(&vec![0.0; w * h], w, h, reg, 1.0, 5.0, tensors).unwrap();
-        let mut energies = vec![pb.energy(&a, theta)];
+        let mut energies = vec![pb.energy(&a, theta).unwrap()];
         for n in [10, 40, 150, 800, 3000] {
-            pb.iterate(&a, theta, n);
-            energies.push(pb.energy(&a, theta));
+            pb.iterate(&a, theta, n).unwrap();
+            energies.push(pb.energy(&a, theta).unwrap());
         }
         eprintln!("{reg:?}: {energies:?}");
         for k in 1..energies.len() {
@@ -175,7 +175,7 @@ fn primal_dual_decreases_the_convex_energy() {
         );
         // And the result beats the noisy target itself (u = a, v = 0).
         let at_a = TgvProblem::new(&a, w, h, reg, 1.0, 5.0, pb.tensors.clone()).unwrap();
-        assert!(energies[5] < at_a.energy(&a, theta), "{reg:?}");
+        assert!(energies[5] < at_a.energy(&a, theta).unwrap(), "{reg:?}");
     }
 }
 
@@ -200,7 +200,7 @@ fn tgv_reproduces_a_plane_that_tv_flattens() {
             vec![[1.0, 0.0, 1.0]; w * h],
         )
         .unwrap();
-        pb.iterate(&a, theta, 3000);
+        pb.iterate(&a, theta, 3000).unwrap();
         let u = pb.u();
         let max_err = u
             .iter()
@@ -340,6 +340,25 @@ fn method_names_build_the_variational_matchers() {
         ..TgvParams::default()
     });
     assert!(bad.unwrap_err().to_string().contains("cost_window"));
+    let too_wide = TgvMatcher::new(TgvParams {
+        cost_window: 23,
+        ..TgvParams::default()
+    });
+    assert!(too_wide.unwrap_err().to_string().contains("at most 21"));
+    // The convex subproblem rejects a target of the wrong size and a non-positive θ.
+    let mut pb = TgvProblem::new(
+        &[0.0; 6],
+        3,
+        2,
+        Regulariser::Tgv,
+        1.0,
+        5.0,
+        vec![[1.0, 0.0, 1.0]; 6],
+    )
+    .unwrap();
+    assert!(pb.iterate(&[0.0; 5], 1.0, 1).is_err());
+    assert!(pb.iterate(&[0.0; 6], 0.0, 1).is_err());
+    assert!(pb.energy(&[0.0; 6], 1.0).is_ok());
 }
 
 /// Middlebury 2014 Motorcycle (quarter size), all ground-truth pixels, missing = bad.

@@ -43,6 +43,9 @@ use crate::error::{Error, Result};
 use crate::frame::{GreyImage, Image};
 use rayon::prelude::*;
 
+/// Largest cost window: `21² · 128` bits (the largest census) still fits the `u16` sums.
+pub const MAX_COST_WINDOW: u32 = 21;
+
 /// Which regulariser the variational matcher uses (the ablation of the paper's Fig. 3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Regulariser {
@@ -147,9 +150,9 @@ impl TgvParams {
                 self.gamma
             )));
         }
-        if self.cost_window % 2 == 0 {
+        if self.cost_window % 2 == 0 || self.cost_window > MAX_COST_WINDOW {
             return Err(Error::InvalidArgument(format!(
-                "cost_window must be odd, got {}",
+                "cost_window must be odd and at most {MAX_COST_WINDOW}, got {}",
                 self.cost_window
             )));
         }
@@ -393,8 +396,27 @@ impl TgvProblem {
         self.primal.iter().map(|p| p[0]).collect()
     }
 
+    fn check_target(&self, a: &[f32], theta: f32) -> Result<()> {
+        if a.len() != self.width * self.height {
+            return Err(Error::InvalidArgument(format!(
+                "coupling target has {} values, the problem {}×{}",
+                a.len(),
+                self.width,
+                self.height
+            )));
+        }
+        if !(theta.is_finite() && theta > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "θ must be positive and finite, got {theta}"
+            )));
+        }
+        Ok(())
+    }
+
     /// The energy `Σ α₁|T(∇u − v)| + α₂|ε(v)| + 1/(2θ)(u − a)²` at the current primal.
-    pub fn energy(&self, a: &[f32], theta: f32) -> f64 {
+    /// Errors when `a` does not have one value per pixel or θ ≤ 0.
+    pub fn energy(&self, a: &[f32], theta: f32) -> Result<f64> {
+        self.check_target(a, theta)?;
         let (w, h) = (self.width, self.height);
         let u: Vec<f32> = self.u();
         let v: Vec<[f32; 2]> = self.primal.iter().map(|p| [p[1], p[2]]).collect();
@@ -411,15 +433,17 @@ impl TgvProblem {
             let d = (u[i] - a[i]) as f64;
             sum += d * d / (2.0 * theta as f64);
         }
-        sum
+        Ok(sum)
     }
 
     /// Runs `iterations` primal–dual iterations towards the minimiser for the coupling target `a`
-    /// (`w·h` disparities) and weight `1/(2θ)`.
-    pub fn iterate(&mut self, a: &[f32], theta: f32, iterations: u32) {
+    /// (`w·h` disparities) and weight `1/(2θ)`. Errors when `a` does not have one value per
+    /// pixel or θ ≤ 0.
+    pub fn iterate(&mut self, a: &[f32], theta: f32, iterations: u32) -> Result<()> {
+        self.check_target(a, theta)?;
         let (w, h) = (self.width, self.height);
         if w == 0 || h == 0 {
-            return;
+            return Ok(());
         }
         let tv = self.regulariser == Regulariser::Tv;
         let step = if tv {
@@ -502,6 +526,7 @@ impl TgvProblem {
                     });
             }
         }
+        Ok(())
     }
 }
 
@@ -556,22 +581,13 @@ struct DataCost<'a> {
 }
 
 impl DataCost<'_> {
-    /// Costs (bits) of all disparity slices at pixel index `i`, into `out`.
-    #[inline]
-    fn pixel(&self, i: usize, out: &mut [f32]) {
-        let nd = self.volume.num_disparities;
+    /// Cost (bits) of slice `k` at pixel index `i`.
+    #[inline(always)]
+    fn at(&self, i: usize, k: usize) -> f32 {
+        let j = i * self.volume.num_disparities + k;
         match &self.filtered {
-            None => {
-                for (o, &c) in out.iter_mut().zip(&self.volume.cost[i * nd..(i + 1) * nd]) {
-                    *o = c as f32;
-                }
-            }
-            Some((sum, count)) => {
-                let inv = 1.0 / count[i] as f32;
-                for (o, &c) in out.iter_mut().zip(&sum[i * nd..(i + 1) * nd]) {
-                    *o = c as f32 * inv;
-                }
-            }
+            None => self.volume.cost[j] as f32,
+            Some((sum, count)) => sum[j] as f32 / count[i] as f32,
         }
     }
 }
@@ -586,16 +602,14 @@ fn pointwise_search(data: &DataCost, u: &[f32], lambda: f32, theta: f32, a: &mut
     let reach = (2.0 * theta * lambda * v.max_cost as f32).sqrt();
     let w = v.width as usize;
     a.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let mut costs = vec![0.0f32; nd];
         for (x, ax) in row.iter_mut().enumerate() {
             let i = y * w + x;
-            data.pixel(i, &mut costs);
             let uk = u[i] - dmin;
             let k0 = ((uk - reach).floor().max(0.0) as usize).min(nd - 1);
             let k1 = ((uk + reach).ceil().max(0.0) as usize).min(nd - 1);
             let energy = |k: usize| {
                 let d = k as f32 - uk;
-                lambda * costs[k] + d * d / (2.0 * theta)
+                lambda * data.at(i, k) + d * d / (2.0 * theta)
             };
             let mut best = k0;
             let mut best_e = f32::INFINITY;
@@ -748,7 +762,7 @@ impl TgvMatcher {
         for k in 0..p.outer_iterations {
             let theta = p.theta(k);
             pointwise_search(&data, &u, p.lambda, theta, &mut a);
-            problem.iterate(&a, theta, p.inner_iterations);
+            problem.iterate(&a, theta, p.inner_iterations)?;
             u = problem.u();
         }
         Ok(u)
