@@ -5,7 +5,7 @@
 //! `REG=tv|tgv|tgv-tensor DATA=mb,kitti LAMBDA A1 A2 GAMMA BETA WIN OUTER INNER T0 T1 MAXC OCC`.
 //! Run: `REG=tgv-tensor DATA=mb,kitti cargo run --release --example stereo_ablation`.
 use denser::depth::metrics::mask_from_middlebury;
-use denser::depth::tgv::{Regulariser, TgvMatcher, TgvParams};
+use denser::depth::tgv::{HoleFill, Regulariser, TgvMatcher, TgvParams};
 use denser::depth::{disparity_from_points, evaluate_disparity, SgmParams};
 use denser::io::kitti::KittiSequence;
 fn env<T: std::str::FromStr>(k: &str, d: T) -> T {
@@ -35,7 +35,11 @@ fn main() {
             theta_end: env("T1", 0.02),
             max_cost_fraction: env("MAXC", 0.35),
             occlusion_tolerance_px: env("OCC", 0.5),
-            mark_invalid: true,
+            hole_fill: match std::env::var("FILL").as_deref() {
+                Ok("none") => HoleFill::None,
+                Ok("all") => HoleFill::All,
+                _ => HoleFill::Visible,
+            },
             sgm: SgmParams {
                 num_disparities: nd,
                 ..SgmParams::default()

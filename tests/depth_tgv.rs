@@ -6,8 +6,8 @@ mod depth_support;
 
 use denser::depth::metrics::mask_from_middlebury;
 use denser::depth::tgv::{
-    diffusion_tensors, divergence, gradient, sym_divergence, sym_gradient, Regulariser, TgvMatcher,
-    TgvParams, TgvProblem,
+    diffusion_tensors, divergence, gradient, sym_divergence, sym_gradient, HoleFill, Regulariser,
+    TgvMatcher, TgvParams, TgvProblem,
 };
 use denser::depth::{
     disparity_from_points, evaluate_disparity, DisparityEstimator, SgmParams, StereoMethod,
@@ -452,4 +452,52 @@ fn kitti_frame0_tgv_beats_sgm() {
     );
     assert!(m.density_pct > sgm.density_pct, "density {}", m.density_pct);
     assert!(m.epe_px < 3.5, "EPE {}", m.epe_px);
+}
+
+#[test]
+fn hole_fill_policies_nest() {
+    let (w, h) = (200u32, 100u32);
+    let (left, right, gt) = piecewise_planar_pair(w, h, &city_like_planes(w, h), 6.0);
+    let run = |fill: HoleFill| {
+        TgvMatcher::new(TgvParams {
+            hole_fill: fill,
+            sgm: SgmParams {
+                num_disparities: 48,
+                ..SgmParams::default()
+            },
+            ..TgvParams::default()
+        })
+        .unwrap()
+        .estimate_with_stages(&left, &right)
+        .unwrap()
+    };
+    let none = run(HoleFill::None);
+    let visible = run(HoleFill::Visible);
+    let all = run(HoleFill::All);
+    // None keeps SGM's validity exactly (values refined), All fills every pixel, Visible lies
+    // between; where two policies both have a value it is the same regularised disparity.
+    let valid = |m: &Image<f32>| m.data.iter().map(|d| d.is_finite()).collect::<Vec<_>>();
+    assert_eq!(
+        valid(&none.result.disparity_px),
+        valid(&none.sgm.disparity_px)
+    );
+    assert_eq!(all.result.valid_count(), (w * h) as usize);
+    let (n, v) = (none.result.valid_count(), visible.result.valid_count());
+    assert!(n < v && v < (w * h) as usize, "none {n}, visible {v}");
+    for i in 0..(w * h) as usize {
+        let (a, b) = (
+            visible.result.disparity_px.data[i],
+            all.result.disparity_px.data[i],
+        );
+        if a.is_finite() {
+            assert_eq!(a, b);
+        }
+    }
+    let m_none = evaluate_disparity(&none.result.disparity_px, &gt, None).unwrap();
+    let m_sgm = evaluate_disparity(&none.sgm.disparity_px, &gt, None).unwrap();
+    eprintln!("none {m_none:?}\nsgm {m_sgm:?}");
+    assert!(
+        m_none.epe_px <= m_sgm.epe_px * 1.05,
+        "{m_none:?} vs {m_sgm:?}"
+    );
 }

@@ -94,29 +94,39 @@ impl StereoMethod {
     }
 
     /// A matcher of this kind searching `num_disparities` disparities from 0, other parameters at
-    /// their defaults.
+    /// their defaults (variational methods fill [`tgv::HoleFill::Visible`] holes).
     pub fn estimator(&self, num_disparities: usize) -> Result<Box<dyn DisparityEstimator>> {
-        match self {
-            StereoMethod::Sgm => Ok(Box::new(SgmMatcher::new(SgmParams {
-                num_disparities,
-                ..SgmParams::default()
-            })?)),
-            StereoMethod::Tv | StereoMethod::Tgv | StereoMethod::TgvTensor => {
-                let regulariser = match self {
-                    StereoMethod::Tv => Regulariser::Tv,
-                    StereoMethod::Tgv => Regulariser::Tgv,
-                    _ => Regulariser::TgvTensor,
-                };
-                Ok(Box::new(TgvMatcher::new(TgvParams {
-                    regulariser,
-                    sgm: SgmParams {
-                        num_disparities,
-                        ..SgmParams::default()
-                    },
-                    ..TgvParams::default()
-                })?))
-            }
-        }
+        self.estimator_with_fill(num_disparities, tgv::HoleFill::Visible)
+    }
+
+    /// As [`StereoMethod::estimator`], with the variational methods' hole filling chosen
+    /// (ignored by SGM).
+    pub fn estimator_with_fill(
+        &self,
+        num_disparities: usize,
+        hole_fill: tgv::HoleFill,
+    ) -> Result<Box<dyn DisparityEstimator>> {
+        let sgm = SgmParams {
+            num_disparities,
+            ..SgmParams::default()
+        };
+        let regulariser = match self {
+            StereoMethod::Sgm => return Ok(Box::new(SgmMatcher::new(sgm)?)),
+            StereoMethod::Tv => Regulariser::Tv,
+            StereoMethod::Tgv => Regulariser::Tgv,
+            StereoMethod::TgvTensor => Regulariser::TgvTensor,
+        };
+        Ok(Box::new(TgvMatcher::new(TgvParams {
+            regulariser,
+            hole_fill,
+            sgm,
+            ..TgvParams::default()
+        })?))
+    }
+
+    /// Whether this is one of the variational methods (tv, tgv, tgv-tensor).
+    pub fn is_variational(&self) -> bool {
+        !matches!(self, StereoMethod::Sgm)
     }
 }
 

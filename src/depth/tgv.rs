@@ -30,12 +30,15 @@
 //! geometrically. Initialisation: the SGM disparity ([`crate::depth::sgm`]) with holes filled
 //! from the background side.
 //!
-//! Invalid pixels are NaN in the result: pixels SGM left invalid that are occluded under the
-//! final disparity (another pixel to the right maps to the same or a further-left right pixel
-//! with a larger disparity), whose match falls outside the right image, or whose census cost at
-//! the final disparity is poor ([`TgvParams::max_cost_fraction`]). Pixels SGM left invalid that
-//! are visible and match well are filled by the regulariser (they are the "texture-poor but
-//! consistent" pixels). Does not do coarse-to-fine, colour, or the right view.
+//! Invalid pixels are NaN in the result. Pixels whose match falls outside the right image are
+//! invalid, and so are pixels SGM left invalid unless [`TgvParams::hole_fill`] fills them:
+//! [`HoleFill::None`] keeps SGM's validity (the pipeline's choice for fusion);
+//! [`HoleFill::Visible`] (default) fills those visible under the final disparity (no other pixel
+//! to the right maps to the same or a further-left right pixel with a larger disparity) whose
+//! census cost there is at most [`TgvParams::max_cost_fraction`] of the bits ("texture-poor but
+//! consistent" pixels); [`HoleFill::All`] fills everything. Confidence: SGM's where TGV agrees
+//! with it within 1 px, else half the census match quality `1 − C/C_max`; 0 where invalid.
+//! Does not do coarse-to-fine, colour, or the right view.
 
 use super::sgm::{CostVolume, SgmMatcher, SgmParams};
 use super::{DisparityEstimator, DisparityMap};
@@ -45,6 +48,21 @@ use rayon::prelude::*;
 
 /// Largest cost window: `21² · 128` bits (the largest census) still fits the `u16` sums.
 pub const MAX_COST_WINDOW: u32 = 21;
+
+/// Which of the pixels SGM left invalid the variational matcher fills with its regularised
+/// disparity.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum HoleFill {
+    /// None: the result has SGM's validity, with TGV-refined values (for fusion).
+    None,
+    /// Those visible under the final disparity whose census cost there is at most
+    /// [`TgvParams::max_cost_fraction`] of the bits (the default for `denser stereo`).
+    Visible,
+    /// All, including pixels whose match falls outside the right image (their disparity is
+    /// the regulariser's extrapolation): a dense map, for benchmarks that count missing pixels
+    /// as errors.
+    All,
+}
 
 /// Which regulariser the variational matcher uses (the ablation of the paper's Fig. 3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -90,10 +108,8 @@ pub struct TgvParams {
     /// `x − u(x)` lies more than this right of the leftmost right-image position of the pixels
     /// to its right (see [`occluded`]).
     pub occlusion_tolerance_px: f32,
-    /// Mark occluded / poorly matching pixels invalid (module docs). `false` returns the dense
-    /// regularised disparity except where the match falls outside the right image (for
-    /// benchmarks that count missing pixels as errors; fusion should keep `true`).
-    pub mark_invalid: bool,
+    /// Which pixels that SGM left invalid get the regularised disparity (module docs).
+    pub hole_fill: HoleFill,
     /// The SGM initialisation (its census window is also the data term's).
     pub sgm: SgmParams,
 }
@@ -119,7 +135,7 @@ impl Default for TgvParams {
             theta_end: 0.02,
             max_cost_fraction: 0.35,
             occlusion_tolerance_px: 0.5,
-            mark_invalid: true,
+            hole_fill: HoleFill::Visible,
             sgm: SgmParams::default(),
         }
     }
@@ -799,14 +815,20 @@ impl TgvMatcher {
         for i in 0..w * h {
             let x = i % w;
             let d = dense[i];
-            if !d.is_finite() || (x as f32) - d < -0.5 {
+            if !d.is_finite() || (p.hole_fill != HoleFill::All && (x as f32) - d < -0.5) {
                 continue;
             }
             let k = ((d - dmin).round().max(0.0) as usize).min(nd - 1);
             let c = volume.cost[i * nd + k] as f32;
             let sgm_valid = init.disparity_px.data[i].is_finite();
             let agrees = sgm_valid && (init.disparity_px.data[i] - d).abs() <= 1.0;
-            if p.mark_invalid && !sgm_valid && (occ[i] || c > max_bits) {
+            let keep = sgm_valid
+                || match p.hole_fill {
+                    HoleFill::None => false,
+                    HoleFill::Visible => !occ[i] && c <= max_bits,
+                    HoleFill::All => true,
+                };
+            if !keep {
                 continue;
             }
             disp.data[i] = d;
