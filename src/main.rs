@@ -41,6 +41,51 @@ enum Command {
     Export(cli_map::ExportArgs),
     /// Summarise a stored map (chunks, blocks, voxels, bytes) and verify its checksums.
     Inspect(cli_map::InspectArgs),
+    /// Disparity (and depth) of one rectified stereo pair, written as Middlebury PFM.
+    Stereo(StereoArgs),
+    /// Score a disparity map against ground truth (bad-1/2/3, D1, EPE, density).
+    StereoEval(StereoEvalArgs),
+}
+
+#[derive(Args)]
+struct StereoArgs {
+    /// Left (reference) image (PNG; colour is converted to grey).
+    left: PathBuf,
+    /// Right image.
+    right: PathBuf,
+    /// Disparity output: PFM (float32, rows bottom-up, inf = invalid).
+    #[arg(long)]
+    out: PathBuf,
+    /// Calibration for depth: KITTI odometry or Middlebury 2014 `calib.txt`.
+    #[arg(long)]
+    calib: Option<PathBuf>,
+    /// Depth output: 16-bit PNG, depth_m = value / 256, 0 = invalid (needs --calib).
+    #[arg(long)]
+    depth_out: Option<PathBuf>,
+    /// Matcher: sgm, tv, tgv, tgv-tensor.
+    #[arg(long, default_value = "tgv-tensor")]
+    method: String,
+    /// Disparity search range from 0, pixels.
+    #[arg(long, default_value_t = 128)]
+    num_disparities: usize,
+    /// tv/tgv/tgv-tensor: keep occluded and poorly matching pixels (dense output for benchmarks
+    /// that count missing pixels as errors).
+    #[arg(long)]
+    dense: bool,
+}
+
+#[derive(Args)]
+struct StereoEvalArgs {
+    /// Ground-truth disparity: Middlebury PFM (inf = unknown) or KITTI 16-bit PNG (value/256, 0 = unknown).
+    gt: PathBuf,
+    /// Predicted disparity, same formats (missing = NaN/inf/0 counts as an error).
+    pred: PathBuf,
+    /// Optional Middlebury-style mask PNG: only pixels of value 255 are scored.
+    #[arg(long)]
+    mask: Option<PathBuf>,
+    /// Also write the scores as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -175,8 +220,8 @@ struct ReconstructArgs {
     /// Skip the evaluation.
     #[arg(long)]
     no_eval: bool,
-    /// Stereo matcher (with `--depth stereo`): sgm.
-    #[arg(long, default_value = "sgm")]
+    /// Stereo matcher (with `--depth stereo`): tgv-tensor (the paper's), tgv, tv, sgm.
+    #[arg(long, default_value = "tgv-tensor")]
     method: String,
     /// Disparity search range, pixels (128 sees down to ~3 m on KITTI).
     #[arg(long, default_value_t = 128)]
@@ -210,6 +255,9 @@ struct DemoArgs {
     /// Where depth fusion and regularisation run.
     #[arg(long, value_enum, default_value = "auto")]
     device: DeviceArg,
+    /// Stereo matcher: tgv-tensor (the paper's), tgv, tv, sgm.
+    #[arg(long, default_value = "tgv-tensor")]
+    stereo_method: String,
 }
 
 #[derive(Args)]
@@ -266,6 +314,8 @@ fn main() {
         Command::Regularize(a) => cli_map::regularize(a),
         Command::Export(a) => cli_map::export(a),
         Command::Inspect(a) => cli_map::inspect(a),
+        Command::Stereo(a) => stereo(a),
+        Command::StereoEval(a) => stereo_eval(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
@@ -425,7 +475,10 @@ fn reconstruct_streamed(
         o.summary.bytes_per_voxel()
     );
     if o.regularize.pass == 0 {
-        println!("regularisation skipped (run `denser regularize {}`)", dir.display());
+        println!(
+            "regularisation skipped (run `denser regularize {}`)",
+            dir.display()
+        );
     } else {
         println!(
             "regularised {} regions ({} already done) in {:.1} s: {:.2} s per million Ω voxels",
@@ -606,6 +659,7 @@ fn demo(a: DemoArgs) -> Result<()> {
     config.seed = a.seed;
     config.config.tv.iterations = a.iterations;
     config.device = a.device.into();
+    config.stereo_method = a.stereo_method.parse()?;
     let outcome = pipeline::demo(&config).context("running the demo")?;
     println!(
         "demo: {} frames over {:.0} m, reconstructed from stereo in {:.0} s in all",
@@ -619,5 +673,59 @@ fn demo(a: DemoArgs) -> Result<()> {
         "synthetic drive (KITTI layout): {}",
         outcome.drive.sequence_dir.display()
     );
+    Ok(())
+}
+
+fn stereo(a: StereoArgs) -> Result<()> {
+    let job = pipeline::StereoJob {
+        left: a.left.clone(),
+        right: a.right.clone(),
+        out: a.out.clone(),
+        calib: a.calib,
+        depth_out: a.depth_out.clone(),
+        method: a.method.parse()?,
+        num_disparities: a.num_disparities,
+        dense: a.dense,
+    };
+    let outcome = pipeline::stereo(&job).with_context(|| {
+        format!(
+            "stereo matching {} / {}",
+            a.left.display(),
+            a.right.display()
+        )
+    })?;
+    println!(
+        "{}: {}×{} px, {} valid disparities ({:.1} %), matched in {:.2} s",
+        job.method,
+        outcome.width,
+        outcome.height,
+        outcome.valid_px,
+        100.0 * outcome.valid_px as f64 / (outcome.width as f64 * outcome.height as f64),
+        outcome.matching_s
+    );
+    println!("wrote {}", a.out.display());
+    if let Some(d) = a.depth_out {
+        println!("wrote {}", d.display());
+    }
+    Ok(())
+}
+
+fn stereo_eval(a: StereoEvalArgs) -> Result<()> {
+    let m = pipeline::stereo_eval(&a.gt, &a.pred, a.mask.as_deref())
+        .with_context(|| format!("scoring {} against {}", a.pred.display(), a.gt.display()))?;
+    println!("| metric | value |");
+    println!("|---|---|");
+    println!("| scored pixels | {} |", m.gt_pixels);
+    println!("| bad-1.0 % | {:.2} |", m.bad1_pct);
+    println!("| bad-2.0 % | {:.2} |", m.bad2_pct);
+    println!("| bad-3.0 % | {:.2} |", m.bad3_pct);
+    println!("| D1 % | {:.2} |", m.d1_pct);
+    println!("| EPE px | {:.3} |", m.epe_px);
+    println!("| density % | {:.2} |", m.density_pct);
+    if let Some(path) = a.json {
+        let text = serde_json::to_string_pretty(&m).context("serialising the scores")?;
+        std::fs::write(&path, text).with_context(|| format!("writing {}", path.display()))?;
+        println!("wrote {}", path.display());
+    }
     Ok(())
 }

@@ -3,8 +3,8 @@
 //! - [`DisparityEstimator`]: the interface every stereo matcher implements (left image is the
 //!   reference; disparity `d = x_left − x_right` in pixels; NaN = invalid). [`StereoMethod`]
 //!   names the available matchers and builds them; the baseline is [`sgm::SgmMatcher`] (census +
-//!   semi-global matching), which the variational TGV estimator will use as its initialisation
-//!   and fallback.
+//!   semi-global matching), which initialises the variational estimator [`tgv::TgvMatcher`]
+//!   (census + TV / TGV / TGV with the anisotropic tensor, the paper's Sec. V).
 //! - [`census`]: census and ternary census signatures, Hamming cost.
 //! - [`metrics`]: Middlebury/KITTI disparity scores (bad-k, D1, EPE, density).
 //! - [`disparity_io`]: KITTI 16-bit disparity PNG, and a reader that picks PFM or PNG.
@@ -18,10 +18,12 @@ pub mod disparity_io;
 pub mod ground_truth;
 pub mod metrics;
 pub mod sgm;
+pub mod tgv;
 
 pub use ground_truth::disparity_from_points;
 pub use metrics::{evaluate_disparity, StereoMetrics};
 pub use sgm::{SgmMatcher, SgmParams};
+pub use tgv::{Regulariser, TgvMatcher, TgvParams};
 
 use crate::error::{Error, Result};
 use crate::frame::{DepthImage, GreyImage, Image};
@@ -63,28 +65,68 @@ pub trait DisparityEstimator: Send + Sync {
 pub enum StereoMethod {
     /// Census + semi-global matching ([`sgm::SgmMatcher`]).
     Sgm,
+    /// Census + first-order TV, variational ([`tgv::TgvMatcher`] with [`Regulariser::Tv`]).
+    Tv,
+    /// Census + isotropic second-order TGV ([`Regulariser::Tgv`]).
+    Tgv,
+    /// Census + TGV with the anisotropic diffusion tensor, the paper's estimator
+    /// ([`Regulariser::TgvTensor`]).
+    TgvTensor,
 }
 
 impl StereoMethod {
     /// Every method, in the order shown to users.
-    pub const ALL: &'static [StereoMethod] = &[StereoMethod::Sgm];
+    pub const ALL: &'static [StereoMethod] = &[
+        StereoMethod::Sgm,
+        StereoMethod::Tv,
+        StereoMethod::Tgv,
+        StereoMethod::TgvTensor,
+    ];
 
     /// The CLI name.
     pub fn as_str(&self) -> &'static str {
         match self {
             StereoMethod::Sgm => "sgm",
+            StereoMethod::Tv => "tv",
+            StereoMethod::Tgv => "tgv",
+            StereoMethod::TgvTensor => "tgv-tensor",
         }
     }
 
     /// A matcher of this kind searching `num_disparities` disparities from 0, other parameters at
-    /// their defaults.
+    /// their defaults (variational methods fill [`tgv::HoleFill::Visible`] holes).
     pub fn estimator(&self, num_disparities: usize) -> Result<Box<dyn DisparityEstimator>> {
-        match self {
-            StereoMethod::Sgm => Ok(Box::new(SgmMatcher::new(SgmParams {
-                num_disparities,
-                ..SgmParams::default()
-            })?)),
-        }
+        self.estimator_with_fill(num_disparities, tgv::HoleFill::Visible)
+    }
+
+    /// As [`StereoMethod::estimator`], with the variational methods' hole filling chosen
+    /// (ignored by SGM).
+    pub fn estimator_with_fill(
+        &self,
+        num_disparities: usize,
+        hole_fill: tgv::HoleFill,
+    ) -> Result<Box<dyn DisparityEstimator>> {
+        let sgm = SgmParams {
+            num_disparities,
+            ..SgmParams::default()
+        };
+        let regulariser = match self {
+            StereoMethod::Sgm => return Ok(Box::new(SgmMatcher::new(sgm)?)),
+            StereoMethod::Tv => Regulariser::Tv,
+            StereoMethod::Tgv => Regulariser::Tgv,
+            StereoMethod::TgvTensor => Regulariser::TgvTensor,
+        };
+        Ok(Box::new(TgvMatcher::new(TgvParams {
+            regulariser,
+            hole_fill,
+            sgm,
+            ..TgvParams::default()
+        })?))
+    }
+
+    /// Whether this is one of the variational methods (tv, tgv, tgv-tensor).
+    pub fn is_variational(&self) -> bool {
+        !matches!(self, StereoMethod::Sgm)
     }
 }
 
@@ -97,7 +139,7 @@ impl fmt::Display for StereoMethod {
 impl FromStr for StereoMethod {
     type Err = Error;
 
-    /// Parses a CLI name, case-insensitively (`sgm`).
+    /// Parses a CLI name, case-insensitively (`sgm`, `tv`, `tgv`, `tgv-tensor`).
     fn from_str(s: &str) -> Result<Self> {
         let lower = s.trim().to_ascii_lowercase();
         StereoMethod::ALL

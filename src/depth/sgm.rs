@@ -901,14 +901,26 @@ impl DisparityEstimator for SgmMatcher {
     }
 
     fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap> {
+        self.params.validate()?;
+        let volume = self.cost_volume(left, right)?;
+        self.estimate_from_volume(left, &volume)
+    }
+}
+
+impl SgmMatcher {
+    /// SGM on a cost volume already computed with [`SgmMatcher::cost_volume`] (`left` is the
+    /// reference image, for the adaptive P2): aggregation, selection, filtering.
+    pub fn estimate_from_volume(
+        &self,
+        left: &GreyImage,
+        volume: &CostVolume,
+    ) -> Result<DisparityMap> {
         let p = &self.params;
         p.validate()?;
-        let volume = self.cost_volume(left, right)?;
-        let sum = aggregate_paths(&volume, left, p)?;
+        let sum = aggregate_paths(volume, left, p)?;
         let (mut disparity, mut confidence) =
-            select_disparities(&sum, Some(&volume), left.width, left.height, p)?;
+            select_disparities(&sum, Some(volume), left.width, left.height, p)?;
         drop(sum);
-        drop(volume);
         if p.median_filter {
             disparity = median_filter_3x3(&disparity);
         }
