@@ -296,7 +296,30 @@ struct BenchArgs {
     passes: usize,
 }
 
+/// Mesa's Vulkan drivers print "XDG_RUNTIME_DIR is invalid or not set" to stderr when probed
+/// without one (servers, containers, CI). Give them a private directory before any thread starts.
+fn ensure_runtime_dir() {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_some() {
+        return;
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::{DirBuilderExt, PermissionsExt};
+        let user = std::env::var("USER").unwrap_or_else(|_| "user".into());
+        let dir = std::env::temp_dir().join(format!("denser-runtime-{user}"));
+        let _ = std::fs::DirBuilder::new().mode(0o700).create(&dir);
+        // Use it only if it is private.
+        if let Ok(m) = std::fs::metadata(&dir) {
+            let private = m.is_dir() && m.permissions().mode() & 0o077 == 0;
+            if private {
+                std::env::set_var("XDG_RUNTIME_DIR", &dir);
+            }
+        }
+    }
+}
+
 fn main() {
+    ensure_runtime_dir();
     let cli = Cli::parse();
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(&cli.log));
