@@ -110,21 +110,9 @@ pub fn regularize_layer_gpu(
     layer: &mut Layer,
     params: &TvParams,
 ) -> Result<(TouchedBlocks, RegularizeStats)> {
-    params.validate()?;
-    let blocks = layer.indices_sorted();
-    let mut problem = TvProblem::gather(layer, &blocks);
-    let energy_before = problem.energy(params.lambda);
-    solve_gpu(ctx, &mut problem, params)?;
-    let energy_after = problem.energy(params.lambda);
-    problem.scatter(layer, &blocks);
-    let stats = RegularizeStats {
-        blocks: blocks.len(),
-        omega_voxels: problem.omega_count(),
-        iterations: params.iterations,
-        energy_before,
-        energy_after,
-    };
-    Ok((blocks, stats))
+    crate::regularize::regularize_layer_with(layer, params, |problem| {
+        solve_gpu(ctx, problem, params)
+    })
 }
 
 /// [`crate::regularize::regularize_regions`] on the GPU: each region (with its halo) is one GPU

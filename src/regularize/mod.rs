@@ -410,11 +410,25 @@ pub fn regularize_layer(
     layer: &mut Layer,
     params: &TvParams,
 ) -> crate::Result<(TouchedBlocks, RegularizeStats)> {
+    regularize_layer_with(layer, params, |problem| {
+        problem.solve(params);
+        Ok(())
+    })
+}
+
+/// [`regularize_layer`] with the solver supplied (the CPU's [`TvProblem::solve`], or a GPU twin):
+/// gathers every block, calls `solve`, and scatters `u` only when it succeeded (the layer is
+/// unchanged on error).
+pub fn regularize_layer_with(
+    layer: &mut Layer,
+    params: &TvParams,
+    solve: impl FnOnce(&mut TvProblem) -> crate::Result<()>,
+) -> crate::Result<(TouchedBlocks, RegularizeStats)> {
     params.validate()?;
     let blocks = layer.indices_sorted();
     let mut problem = TvProblem::gather(layer, &blocks);
     let energy_before = problem.energy(params.lambda);
-    problem.solve(params);
+    solve(&mut problem)?;
     let energy_after = problem.energy(params.lambda);
     problem.scatter(layer, &blocks);
     let stats = RegularizeStats {
