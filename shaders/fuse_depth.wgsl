@@ -1,52 +1,8 @@
-// Projective depth-map TSDF fusion over a list of blocks (DENSER Sec. III-A).
+// Projective depth-map TSDF fusion over a list of uploaded blocks (DENSER Sec. III-A).
 // CPU twin: `integrate_depth` in src/fusion/depth.rs with `Block::fuse` in src/grid/block.rs.
 // Buffer layouts: keep in sync with `FuseUniforms`, `GpuVoxel` and `PIXEL_VALID` in
-// src/gpu/layout.rs. One invocation per voxel; blocks are allocated on the CPU beforehand.
-// Prepended at load time: shared/dispatch.wgsl, shared/rounding.wgsl.
-
-struct FuseUniforms {
-    // Camera-frame step of one voxel along world x, y, z (xyz; w unused), metres.
-    axis_x: vec4<f32>,
-    axis_y: vec4<f32>,
-    axis_z: vec4<f32>,
-    fx: f32,
-    fy: f32,
-    cx: f32,
-    cy: f32,
-    width: u32,
-    height: u32,
-    // Truncation μ, metres, and 1/μ.
-    mu: f32,
-    inv_mu: f32,
-    voxel_count: u32,
-    use_color: u32,
-    _pad0: u32,
-    _pad1: u32,
-}
-
-// Bits 0–15: quantised TSDF (i16, two's complement); bits 16–23: weight (0–6) and Ω (7);
-// bit 24: set by this kernel when the voxel was updated. `color`: r | g << 8 | b << 16.
-struct GpuVoxel {
-    tsdf_weight: u32,
-    color: u32,
-}
-
-const PIXEL_VALID: u32 = 0x1000000u;
-const MAX_WEIGHT: u32 = 127u;
-const OMEGA_BIT: u32 = 128u;
-const UPDATED_BIT: u32 = 0x1000000u;
-const TSDF_SCALE: f32 = 32767.0;
-
-@group(0) @binding(0) var<uniform> params: FuseUniforms;
-// Camera-frame centre of voxel (0, 0, 0) of each block (xyz; w unused), metres.
-@group(0) @binding(1) var<storage, read> block_base: array<vec4<f32>>;
-// Depth (z) per pixel, metres, row-major.
-@group(0) @binding(2) var<storage, read> depth: array<f32>;
-// Colour per pixel (r | g << 8 | b << 16) and PIXEL_VALID when the depth is usable.
-@group(0) @binding(3) var<storage, read> pixel: array<u32>;
-@group(0) @binding(4) var<storage, read_write> voxels: array<GpuVoxel>;
-// [0]: voxel updates applied.
-@group(0) @binding(5) var<storage, read_write> counters: array<atomic<u32>>;
+// src/gpu/layout.rs. One invocation per voxel; `voxels` holds the listed blocks in list order.
+// Prepended at load time: shared/dispatch.wgsl, shared/rounding.wgsl, shared/fuse_common.wgsl.
 
 @compute @workgroup_size(64)
 fn main(
@@ -58,56 +14,5 @@ fn main(
     if (g >= params.voxel_count) {
         return;
     }
-    let b = g / 512u;
-    let i = g % 512u;
-    let x = f32(i % 8u);
-    let y = f32((i / 8u) % 8u);
-    let z = f32(i / 64u);
-    // Same order of operations as the CPU: row = base + ay·y + az·z, p = row + ax·x.
-    let row = block_base[b].xyz + params.axis_y.xyz * y + params.axis_z.xyz * z;
-    let pc = row + params.axis_x.xyz * x;
-    if (pc.z <= 0.0) {
-        return;
-    }
-    let inv_z = 1.0 / pc.z;
-    let uf = params.fx * pc.x * inv_z + params.cx;
-    let vf = params.fy * pc.y * inv_z + params.cy;
-    let ur = round_half_up(uf);
-    let vr = round_half_up(vf);
-    if (ur < 0.0 || vr < 0.0 || ur >= f32(params.width) || vr >= f32(params.height)) {
-        return;
-    }
-    let pix = u32(vr) * params.width + u32(ur);
-    let px = pixel[pix];
-    if ((px & PIXEL_VALID) == 0u) {
-        return;
-    }
-    let sdf = depth[pix] - pc.z;
-    if (sdf < -params.mu) {
-        return;
-    }
-    let t = min(sdf, params.mu) * params.inv_mu;
-
-    // Block::fuse: the paper's running average, weight capped, Ω set.
-    let v = voxels[g];
-    let q_old = (bitcast<i32>(v.tsdf_weight << 16u)) >> 16u;
-    let weight_old = (v.tsdf_weight >> 16u) & 0x7fu;
-    let w_old = f32(weight_old);
-    let w_new = w_old + 1.0;
-    let f_old = f32(q_old) / TSDF_SCALE;
-    let f_new = (t + w_old * f_old) / w_new;
-    let q_new = i32(round_half_away(clamp(f_new, -1.0, 1.0) * TSDF_SCALE));
-    var color = v.color;
-    if (params.use_color != 0u) {
-        color = 0u;
-        for (var k = 0u; k < 3u; k = k + 1u) {
-            let c = f32((px >> (8u * k)) & 0xffu);
-            let o = f32((v.color >> (8u * k)) & 0xffu);
-            let m = clamp(round_half_away((c + w_old * o) / w_new), 0.0, 255.0);
-            color = color | (u32(m) << (8u * k));
-        }
-    }
-    let weight = min(weight_old + 1u, MAX_WEIGHT) | OMEGA_BIT;
-    voxels[g] = GpuVoxel((bitcast<u32>(q_new) & 0xffffu) | (weight << 16u) | UPDATED_BIT, color);
-    atomicAdd(&counters[0], 1u);
+    fuse_voxel(g / 512u, g % 512u, g);
 }

@@ -38,7 +38,7 @@ fn validate(src: &ShaderSource) -> naga::valid::ModuleInfo {
 #[test]
 fn every_kernel_validates_with_naga() {
     for src in shaders::ALL {
-        validate(&src);
+        validate(src);
     }
 }
 

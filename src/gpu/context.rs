@@ -93,8 +93,15 @@ pub struct GpuContext {
     pub(crate) tv_layout: wgpu::BindGroupLayout,
     pub(crate) tv_dual: wgpu::ComputePipeline,
     pub(crate) tv_primal: wgpu::ComputePipeline,
-    pub(crate) fuse_layout: wgpu::BindGroupLayout,
-    pub(crate) fuse_depth: wgpu::ComputePipeline,
+    /// Kernels compiled on first use ([`GpuContext::kernel`]), by file name.
+    kernels: std::sync::Mutex<std::collections::HashMap<&'static str, std::sync::Arc<Kernel>>>,
+}
+
+/// A compiled kernel: its bind-group layout and pipeline.
+#[derive(Debug)]
+pub(crate) struct Kernel {
+    pub(crate) layout: wgpu::BindGroupLayout,
+    pub(crate) pipeline: wgpu::ComputePipeline,
 }
 
 fn layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
@@ -110,9 +117,56 @@ fn layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLay
     }
 }
 
-const UNIFORM: wgpu::BufferBindingType = wgpu::BufferBindingType::Uniform;
-const READ: wgpu::BufferBindingType = wgpu::BufferBindingType::Storage { read_only: true };
-const READ_WRITE: wgpu::BufferBindingType = wgpu::BufferBindingType::Storage { read_only: false };
+/// A uniform buffer binding.
+pub(crate) const UNIFORM: wgpu::BufferBindingType = wgpu::BufferBindingType::Uniform;
+/// A read-only storage buffer binding.
+pub(crate) const READ: wgpu::BufferBindingType =
+    wgpu::BufferBindingType::Storage { read_only: true };
+/// A read-write storage buffer binding.
+pub(crate) const READ_WRITE: wgpu::BufferBindingType =
+    wgpu::BufferBindingType::Storage { read_only: false };
+
+/// A compute bind-group layout whose binding `k` has type `types[k]`.
+pub(crate) fn bind_group_layout(
+    device: &wgpu::Device,
+    label: &str,
+    types: &[wgpu::BufferBindingType],
+) -> wgpu::BindGroupLayout {
+    let entries: Vec<wgpu::BindGroupLayoutEntry> = types
+        .iter()
+        .enumerate()
+        .map(|(k, &ty)| layout_entry(k as u32, ty))
+        .collect();
+    device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some(label),
+        entries: &entries,
+    })
+}
+
+/// The compute pipeline of kernel `src` (entry point `main`) over one bind group `layout`.
+pub(crate) fn compute_pipeline(
+    device: &wgpu::Device,
+    src: &ShaderSource,
+    layout: &wgpu::BindGroupLayout,
+) -> wgpu::ComputePipeline {
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(src.file),
+        source: wgpu::ShaderSource::Wgsl(src.source.into()),
+    });
+    let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some(src.file),
+        bind_group_layouts: &[Some(layout)],
+        immediate_size: 0,
+    });
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(src.file),
+        layout: Some(&pl),
+        module: &module,
+        entry_point: Some("main"),
+        compilation_options: Default::default(),
+        cache: None,
+    })
+}
 
 impl GpuContext {
     /// Opens the first adapter wgpu finds (Vulkan or GL; `WGPU_BACKEND` and
@@ -139,52 +193,19 @@ impl GpuContext {
         }))
         .map_err(|e| Error::Gpu(format!("opening {}: {e}", info.name)))?;
         let scope = ErrorScopes::push(&device);
-        let tv_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("tv"),
-            entries: &[
-                layout_entry(0, UNIFORM),
-                layout_entry(1, READ),
-                layout_entry(2, READ),
-                layout_entry(3, READ),
-                layout_entry(4, READ),
-                layout_entry(5, READ_WRITE),
-                layout_entry(6, READ_WRITE),
-                layout_entry(7, READ_WRITE),
+        let tv_layout = bind_group_layout(
+            &device,
+            "tv",
+            &[
+                UNIFORM, READ, READ, READ, READ, READ_WRITE, READ_WRITE, READ_WRITE,
             ],
-        });
-        let fuse_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("fuse_depth"),
-            entries: &[
-                layout_entry(0, UNIFORM),
-                layout_entry(1, READ),
-                layout_entry(2, READ),
-                layout_entry(3, READ),
-                layout_entry(4, READ_WRITE),
-                layout_entry(5, READ_WRITE),
-            ],
-        });
+        );
+
         let pipeline = |src: &ShaderSource, layout: &wgpu::BindGroupLayout| {
-            let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(src.file),
-                source: wgpu::ShaderSource::Wgsl(src.source.into()),
-            });
-            let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(src.file),
-                bind_group_layouts: &[Some(layout)],
-                immediate_size: 0,
-            });
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(src.file),
-                layout: Some(&pl),
-                module: &module,
-                entry_point: Some("main"),
-                compilation_options: Default::default(),
-                cache: None,
-            })
+            compute_pipeline(&device, src, layout)
         };
         let tv_dual = pipeline(&shaders::TV_DUAL, &tv_layout);
         let tv_primal = pipeline(&shaders::TV_PRIMAL, &tv_layout);
-        let fuse_depth = pipeline(&shaders::FUSE_DEPTH, &fuse_layout);
         scope.pop("compiling the kernels")?;
         Ok(Some(GpuContext {
             device,
@@ -195,8 +216,7 @@ impl GpuContext {
             tv_layout,
             tv_dual,
             tv_primal,
-            fuse_layout,
-            fuse_depth,
+            kernels: Default::default(),
         }))
     }
 
@@ -283,6 +303,71 @@ impl GpuContext {
                     | wgpu::BufferUsages::COPY_SRC
                     | wgpu::BufferUsages::COPY_DST,
             })
+    }
+
+    /// The kernel `src` with binding `k` of type `types[k]`, compiled on first use and cached
+    /// (by file name) for the life of the context. Compilation errors become [`Error::Gpu`].
+    pub(crate) fn kernel(
+        &self,
+        src: &ShaderSource,
+        types: &[wgpu::BufferBindingType],
+    ) -> Result<std::sync::Arc<Kernel>> {
+        let mut cache = self
+            .kernels
+            .lock()
+            .map_err(|_| Error::Gpu("kernel cache poisoned".into()))?;
+        if let Some(k) = cache.get(src.file) {
+            return Ok(k.clone());
+        }
+        let scope = ErrorScopes::push(&self.device);
+        let layout = bind_group_layout(&self.device, src.file, types);
+        let pipeline = compute_pipeline(&self.device, src, &layout);
+        scope.pop(&format!("compiling {}", src.file))?;
+        let k = std::sync::Arc::new(Kernel { layout, pipeline });
+        cache.insert(src.file, k.clone());
+        Ok(k)
+    }
+
+    /// A bind group whose binding `k` is the whole of `buffers[k]`.
+    pub(crate) fn bind_group(
+        &self,
+        label: &str,
+        layout: &wgpu::BindGroupLayout,
+        buffers: &[&wgpu::Buffer],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(k, b)| wgpu::BindGroupEntry {
+                binding: k as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout,
+            entries: &entries,
+        })
+    }
+
+    /// Records one dispatch of `pipeline` over `invocations` one-wide invocations (a
+    /// [`WORKGROUP_SIZE`] kernel indexed with `flat_index`) into `encoder`.
+    pub(crate) fn record_dispatch(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        pipeline: &wgpu::ComputePipeline,
+        bind: &wgpu::BindGroup,
+        invocations: u64,
+    ) -> Result<()> {
+        let (wx, wy) = self.workgroups_2d(invocations)?;
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: None,
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(pipeline);
+        pass.set_bind_group(0, bind, &[]);
+        pass.dispatch_workgroups(wx, wy, 1);
+        Ok(())
     }
 
     /// A uniform buffer holding `data`.

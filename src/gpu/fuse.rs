@@ -11,13 +11,18 @@
 //! (`tests/gpu_compare.rs` states the tolerance). Blocks are sent in batches that fit one
 //! storage binding (4 KiB per block: 32 768 blocks in 128 MiB), so any number of blocks works.
 
-use super::context::{ErrorScopes, GpuContext};
+use super::context::{ErrorScopes, GpuContext, READ, READ_WRITE, UNIFORM};
 use super::layout::{pack_rgb, FuseUniforms, GpuVoxel, PIXEL_VALID};
+use super::shaders;
 use crate::frame::DepthFrame;
 use crate::fusion::{depth_frame_blocks, usable, visible_blocks, DepthFusionParams, FusionStats};
-use crate::grid::{Block, BlockIndex, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
+use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::Result;
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
+
+/// Binding types of `shaders/fuse_depth.wgsl`, in binding order.
+const FUSE_DEPTH_BINDINGS: [wgpu::BufferBindingType; 6] =
+    [UNIFORM, READ, READ, READ, READ_WRITE, READ_WRITE];
 
 /// Fuses one depth frame into `layer` on the GPU, like [`crate::fusion::integrate_depth`]: the
 /// blocks crossed by this frame's truncation band plus the allocated blocks in view. Returns the
@@ -68,7 +73,7 @@ pub fn integrate_depth_gpu(
 /// Runs the kernel over `blocks` in batches; returns the number of voxel updates.
 fn fuse_blocks(
     ctx: &GpuContext,
-    grid: &crate::grid::GridParams,
+    grid: &GridParams,
     blocks: &mut [(BlockIndex, Box<Block>)],
     frame: &DepthFrame,
     params: &DepthFusionParams,
@@ -76,32 +81,11 @@ fn fuse_blocks(
     if blocks.is_empty() {
         return Ok(0);
     }
-    let camera_from_world = frame.world_from_camera.inverse();
-    let rot = camera_from_world.rotation.to_rotation_matrix();
-    let vs = grid.voxel_size_m as f64;
-    let k = frame.intrinsics;
-    let color = if params.use_color {
-        frame.color.as_ref()
-    } else {
-        None
-    };
-    // The same camera-frame quantities as the CPU path, computed the same way.
-    let ax: Vector3<f32> = (rot * Vector3::x() * vs).cast();
-    let ay: Vector3<f32> = (rot * Vector3::y() * vs).cast();
-    let az: Vector3<f32> = (rot * Vector3::z() * vs).cast();
-    let (width, height) = (frame.depth_m.width, frame.depth_m.height);
+    let (uniforms, camera_from_world) = frame_uniforms(grid, frame, params);
     let pixels = frame.depth_m.data.len() as u64;
     ctx.check_binding("depth image (4 bytes per pixel)", pixels * 4)?;
-    let pixel_words: Vec<u32> = frame
-        .depth_m
-        .data
-        .iter()
-        .enumerate()
-        .map(|(i, &d)| {
-            let rgb = color.map_or(0, |c| pack_rgb(c.data[i]));
-            rgb | if usable(d, params) { PIXEL_VALID } else { 0 }
-        })
-        .collect();
+    let pixel_words = pixel_words(frame, params);
+    let kernel = ctx.kernel(&shaders::FUSE_DEPTH, &FUSE_DEPTH_BINDINGS)?;
     let scope = ErrorScopes::push(&ctx.device);
     let buf_depth = ctx.storage("fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
     let buf_pixel = ctx.storage("fuse_pixel", bytemuck::cast_slice(&pixel_words));
@@ -114,14 +98,10 @@ fn fuse_blocks(
     for batch in blocks.chunks(per_batch) {
         let voxel_count = (batch.len() * VOXELS_PER_BLOCK) as u64;
         ctx.check_binding("voxel batch (8 bytes per voxel)", voxel_count * 8)?;
-        let (wx, wy) = ctx.workgroups_2d(voxel_count)?;
         let mut voxels = Vec::with_capacity(voxel_count as usize);
         let mut bases = Vec::with_capacity(batch.len());
         for (index, block) in batch.iter() {
-            let o = grid.block_origin(*index);
-            let centre0 = Point3::new(o[0] + 0.5 * vs, o[1] + 0.5 * vs, o[2] + 0.5 * vs);
-            let base: Vector3<f32> = (camera_from_world * centre0).coords.cast();
-            bases.push([base.x, base.y, base.z, 0.0f32]);
+            bases.push(block_base(grid, &camera_from_world, *index));
             for i in 0..VOXELS_PER_BLOCK {
                 voxels.push(GpuVoxel::pack(
                     block.tsdf[i],
@@ -131,56 +111,32 @@ fn fuse_blocks(
             }
         }
         let uniforms = FuseUniforms {
-            axis_x: [ax.x, ax.y, ax.z, 0.0],
-            axis_y: [ay.x, ay.y, ay.z, 0.0],
-            axis_z: [az.x, az.y, az.z, 0.0],
-            fx: k.fx as f32,
-            fy: k.fy as f32,
-            cx: k.cx as f32,
-            cy: k.cy as f32,
-            width,
-            height,
-            mu: grid.truncation_m,
-            inv_mu: 1.0 / grid.truncation_m,
             voxel_count: voxel_count as u32,
-            use_color: color.is_some() as u32,
-            pad: [0; 2],
+            ..uniforms
         };
         let scope = ErrorScopes::push(&ctx.device);
         let buf_uniforms = ctx.uniform("fuse_uniforms", bytemuck::bytes_of(&uniforms));
         let buf_bases = ctx.storage("fuse_block_base", bytemuck::cast_slice(&bases));
         let buf_voxels = ctx.storage("fuse_voxels", bytemuck::cast_slice(&voxels));
         let buf_counters = ctx.storage("fuse_counters", bytemuck::cast_slice(&[0u32; 4]));
-        let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("fuse_depth"),
-            layout: &ctx.fuse_layout,
-            entries: &[
-                (0, &buf_uniforms),
-                (1, &buf_bases),
-                (2, &buf_depth),
-                (3, &buf_pixel),
-                (4, &buf_voxels),
-                (5, &buf_counters),
-            ]
-            .map(|(binding, b)| wgpu::BindGroupEntry {
-                binding,
-                resource: b.as_entire_binding(),
-            }),
-        });
+        let bind = ctx.bind_group(
+            "fuse_depth",
+            &kernel.layout,
+            &[
+                &buf_uniforms,
+                &buf_bases,
+                &buf_depth,
+                &buf_pixel,
+                &buf_voxels,
+                &buf_counters,
+            ],
+        );
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("fuse_depth"),
             });
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("fuse_depth"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&ctx.fuse_depth);
-            pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(wx, wy, 1);
-        }
+        ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, voxel_count)?;
         ctx.queue.submit([encoder.finish()]);
         scope.pop("running the fusion kernel")?;
         let out = ctx.read_back(&[(&buf_voxels, voxel_count * 8), (&buf_counters, 4)])?;
@@ -206,4 +162,70 @@ fn fuse_blocks(
         }
     }
     Ok(updates)
+}
+
+/// The frame's fusion uniforms (with `voxel_count` 0: set per dispatch) and its camera-from-world
+/// transform: the same camera-frame quantities as the CPU path, computed the same way.
+pub(crate) fn frame_uniforms(
+    grid: &GridParams,
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+) -> (FuseUniforms, Isometry3<f64>) {
+    let camera_from_world = frame.world_from_camera.inverse();
+    let rot = camera_from_world.rotation.to_rotation_matrix();
+    let vs = grid.voxel_size_m as f64;
+    let k = frame.intrinsics;
+    let ax: Vector3<f32> = (rot * Vector3::x() * vs).cast();
+    let ay: Vector3<f32> = (rot * Vector3::y() * vs).cast();
+    let az: Vector3<f32> = (rot * Vector3::z() * vs).cast();
+    let uniforms = FuseUniforms {
+        axis_x: [ax.x, ax.y, ax.z, 0.0],
+        axis_y: [ay.x, ay.y, ay.z, 0.0],
+        axis_z: [az.x, az.y, az.z, 0.0],
+        fx: k.fx as f32,
+        fy: k.fy as f32,
+        cx: k.cx as f32,
+        cy: k.cy as f32,
+        width: frame.depth_m.width,
+        height: frame.depth_m.height,
+        mu: grid.truncation_m,
+        inv_mu: 1.0 / grid.truncation_m,
+        voxel_count: 0,
+        use_color: (params.use_color && frame.color.is_some()) as u32,
+        pad: [0; 2],
+    };
+    (uniforms, camera_from_world)
+}
+
+/// One word per pixel: its colour (`r | g << 8 | b << 16`, 0 without colour) and
+/// [`PIXEL_VALID`] when its depth is usable.
+pub(crate) fn pixel_words(frame: &DepthFrame, params: &DepthFusionParams) -> Vec<u32> {
+    let color = if params.use_color {
+        frame.color.as_ref()
+    } else {
+        None
+    };
+    frame
+        .depth_m
+        .data
+        .iter()
+        .enumerate()
+        .map(|(i, &d)| {
+            let rgb = color.map_or(0, |c| pack_rgb(c.data[i]));
+            rgb | if usable(d, params) { PIXEL_VALID } else { 0 }
+        })
+        .collect()
+}
+
+/// Camera-frame centre of voxel (0, 0, 0) of block `index`, metres (w = 0).
+pub(crate) fn block_base(
+    grid: &GridParams,
+    camera_from_world: &Isometry3<f64>,
+    index: BlockIndex,
+) -> [f32; 4] {
+    let vs = grid.voxel_size_m as f64;
+    let o = grid.block_origin(index);
+    let centre0 = Point3::new(o[0] + 0.5 * vs, o[1] + 0.5 * vs, o[2] + 0.5 * vs);
+    let base: Vector3<f32> = (camera_from_world * centre0).coords.cast();
+    [base.x, base.y, base.z, 0.0]
 }

@@ -58,6 +58,18 @@ pub struct FuseUniforms {
     pub pad: [u32; 2],
 }
 
+/// Uniforms of `shaders/block_lookup.wgsl` (WGSL twin: `LookupUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct LookupUniforms {
+    /// Keys to look up.
+    pub key_count: u32,
+    /// Hash-table capacity − 1 (the capacity is a power of two).
+    pub mask: u32,
+    /// Padding to 16 bytes.
+    pub pad: [u32; 2],
+}
+
 /// One voxel as the fusion kernel reads and writes it (WGSL twin: `GpuVoxel` in
 /// `shaders/fuse_depth.wgsl`).
 #[repr(C)]
@@ -129,6 +141,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<TvUniforms>(), 32);
         assert_eq!(std::mem::size_of::<FuseUniforms>(), 96);
         assert_eq!(std::mem::size_of::<GpuVoxel>(), 8);
+        assert_eq!(std::mem::size_of::<LookupUniforms>(), 16);
     }
 
     #[test]

@@ -35,16 +35,50 @@ pub const TV_PRIMAL: ShaderSource = ShaderSource {
     ),
 };
 
-/// Depth-map fusion.
+/// Depth-map fusion over uploaded blocks.
 pub const FUSE_DEPTH: ShaderSource = ShaderSource {
     file: "fuse_depth.wgsl",
-    shared: &["shared/dispatch.wgsl", "shared/rounding.wgsl"],
+    shared: &[
+        "shared/dispatch.wgsl",
+        "shared/rounding.wgsl",
+        "shared/fuse_common.wgsl",
+    ],
     source: concat!(
         include_str!("../../shaders/shared/dispatch.wgsl"),
         include_str!("../../shaders/shared/rounding.wgsl"),
+        include_str!("../../shaders/shared/fuse_common.wgsl"),
         include_str!("../../shaders/fuse_depth.wgsl")
     ),
 };
 
-/// Every kernel.
-pub const ALL: [ShaderSource; 3] = [TV_DUAL, TV_PRIMAL, FUSE_DEPTH];
+/// Depth-map fusion into the blocks resident in the GPU pool.
+pub const FUSE_DEPTH_RESIDENT: ShaderSource = ShaderSource {
+    file: "fuse_depth_resident.wgsl",
+    shared: &[
+        "shared/dispatch.wgsl",
+        "shared/rounding.wgsl",
+        "shared/fuse_common.wgsl",
+        "shared/block_hash.wgsl",
+    ],
+    source: concat!(
+        include_str!("../../shaders/shared/dispatch.wgsl"),
+        include_str!("../../shaders/shared/rounding.wgsl"),
+        include_str!("../../shaders/shared/fuse_common.wgsl"),
+        include_str!("../../shaders/shared/block_hash.wgsl"),
+        include_str!("../../shaders/fuse_depth_resident.wgsl")
+    ),
+};
+
+/// Block keys to pool slots through the GPU hash table.
+pub const BLOCK_LOOKUP: ShaderSource = ShaderSource {
+    file: "block_lookup.wgsl",
+    shared: &["shared/dispatch.wgsl", "shared/block_hash.wgsl"],
+    source: concat!(
+        include_str!("../../shaders/shared/dispatch.wgsl"),
+        include_str!("../../shaders/shared/block_hash.wgsl"),
+        include_str!("../../shaders/block_lookup.wgsl")
+    ),
+};
+
+/// Every kernel (one per line, so additions merge cleanly).
+pub const ALL: &[ShaderSource] = &[TV_DUAL, TV_PRIMAL, FUSE_DEPTH];

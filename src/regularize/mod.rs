@@ -355,16 +355,23 @@ impl TvProblem {
 
     /// The energy `Σ_Ω |∇u| + (λ/2) Σ_Ω w (u − f)²` of the current `u`.
     pub fn energy(&self, lambda: f32) -> f64 {
-        (0..self.u.len())
+        // Per-block partial sums in parallel, added in block order: the same bits whatever the
+        // thread count or scheduling (a plain parallel sum is not).
+        let partial: Vec<f64> = (0..self.u.len() / VOXELS_PER_BLOCK)
             .into_par_iter()
-            .filter(|&g| self.mask[g] & OMEGA != 0)
-            .map(|g| {
-                let gr = self.gradient_at(&self.u, g);
-                let tv = ((gr[0] * gr[0] + gr[1] * gr[1] + gr[2] * gr[2]) as f64).sqrt();
-                let r = (self.u[g] - self.f[g]) as f64;
-                tv + 0.5 * lambda as f64 * self.w[g] as f64 * r * r
+            .map(|b| {
+                (b * VOXELS_PER_BLOCK..(b + 1) * VOXELS_PER_BLOCK)
+                    .filter(|&g| self.mask[g] & OMEGA != 0)
+                    .map(|g| {
+                        let gr = self.gradient_at(&self.u, g);
+                        let tv = ((gr[0] * gr[0] + gr[1] * gr[1] + gr[2] * gr[2]) as f64).sqrt();
+                        let r = (self.u[g] - self.f[g]) as f64;
+                        tv + 0.5 * lambda as f64 * self.w[g] as f64 * r * r
+                    })
+                    .sum::<f64>()
             })
-            .sum()
+            .collect();
+        partial.iter().sum()
     }
 
     /// Writes `u` into the `regularized` field of the given blocks of `layer` (voxels outside Ω
