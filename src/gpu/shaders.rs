@@ -81,4 +81,14 @@ pub const BLOCK_LOOKUP: ShaderSource = ShaderSource {
 };
 
 /// Every kernel (one per line, so additions merge cleanly).
-pub const ALL: &[ShaderSource] = &[TV_DUAL, TV_PRIMAL, FUSE_DEPTH];
+pub const ALL: &[ShaderSource] = &[
+    // TV regularisation.
+    TV_DUAL,
+    TV_PRIMAL,
+    // Fusion.
+    FUSE_DEPTH,
+    FUSE_DEPTH_RESIDENT,
+    // The GPU hash table.
+    BLOCK_LOOKUP,
+    // (new kernels go above this line)
+];
