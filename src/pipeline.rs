@@ -296,10 +296,25 @@ pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
         rec.add_input_time(input_s);
         match input {
             RangeInput::Depth(f) => rec.fuse_depth(&f)?,
-            RangeInput::Lidar(s) => rec.fuse_lidar(&s),
+            RangeInput::Lidar(s) => rec.fuse_lidar(&s)?,
         };
         Ok(())
     })?;
+    rec.sync_gpu()?;
+    if let Some(r) = rec.resident_stats() {
+        tracing::info!(
+            "GPU pool: {} of {} blocks resident (peak {}), {} uploaded, {} read back, {} spilled, \
+             {} grows, {} oversize frames",
+            r.resident_blocks,
+            r.capacity_blocks,
+            r.peak_resident_blocks,
+            r.blocks_uploaded,
+            r.blocks_downloaded,
+            r.blocks_spilled,
+            r.grows,
+            r.oversize_frames
+        );
+    }
     tracing::info!(
         blocks = rec.layer().block_count(),
         ms_per_frame = rec.timings().fusion_ms_per_frame(),

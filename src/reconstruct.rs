@@ -4,9 +4,10 @@
 
 use crate::frame::{DepthFrame, LidarScan};
 use crate::fusion::{
-    integrate_depth, integrate_lidar, DepthFusionParams, FusionStats, LidarFusionParams,
+    integrate_depth, integrate_lidar_plan, DepthFusionParams, FusionStats, LidarFusionParams,
+    LidarPlan,
 };
-use crate::gpu::GpuContext;
+use crate::gpu::{GpuContext, ResidentMap, ResidentOptions, ResidentStats};
 use crate::grid::{GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::mesh::{extract_mesh, Field, Mesh};
 use crate::regularize::{regularize_layer, RegionPlan, RegularizeStats, TvParams, TvProblem};
@@ -78,12 +79,25 @@ impl StageTimings {
 }
 
 /// Owns the map and runs the in-memory stages.
-#[derive(Debug)]
 pub struct Reconstructor {
     config: ReconstructionConfig,
     layer: Layer,
     timings: StageTimings,
     gpu: Option<Arc<GpuContext>>,
+    /// Blocks resident on the GPU between depth frames (created at the first GPU frame).
+    resident: Option<ResidentMap>,
+}
+
+impl std::fmt::Debug for Reconstructor {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Reconstructor")
+            .field("config", &self.config)
+            .field("blocks", &self.layer.block_count())
+            .field("timings", &self.timings)
+            .field("gpu", &self.gpu.as_ref().map(|g| g.describe()))
+            .field("resident", &self.resident_stats())
+            .finish()
+    }
 }
 
 impl Reconstructor {
@@ -96,13 +110,40 @@ impl Reconstructor {
             config,
             timings: StageTimings::default(),
             gpu: None,
+            resident: None,
         })
     }
 
     /// Runs depth fusion and regularisation on `gpu` (`None`: on the CPU). LiDAR fusion and
-    /// meshing stay on the CPU.
+    /// meshing stay on the CPU. Depth fusion on the GPU keeps the blocks it fuses resident on
+    /// the device between frames ([`ResidentMap`]): the layer is current only after
+    /// [`Reconstructor::sync_gpu`] (which [`Reconstructor::regularize`] calls, as do the
+    /// pipelines before meshing). Call before fusing; a resident map from an earlier GPU is
+    /// written back first.
     pub fn set_gpu(&mut self, gpu: Option<Arc<GpuContext>>) {
+        if let Some(mut r) = self.resident.take() {
+            if let Err(e) = r.flush_all(&mut self.layer) {
+                tracing::error!("writing the GPU-resident blocks back failed: {e}");
+            }
+        }
         self.gpu = gpu;
+    }
+
+    /// Copies the blocks the GPU updated back into the layer (they stay resident). Returns how
+    /// many blocks were copied; 0 without a GPU. The time counts as fusion time.
+    pub fn sync_gpu(&mut self) -> crate::Result<usize> {
+        let t = Instant::now();
+        let n = match self.resident.as_mut() {
+            Some(r) => r.sync(&mut self.layer)?,
+            None => 0,
+        };
+        self.timings.fusion_s += t.elapsed().as_secs_f64();
+        Ok(n)
+    }
+
+    /// Counters of the GPU-resident blocks, when depth fusion ran on a GPU.
+    pub fn resident_stats(&self) -> Option<ResidentStats> {
+        self.resident.as_ref().map(|r| r.stats())
     }
 
     /// The GPU in use, if any.
@@ -115,7 +156,7 @@ impl Reconstructor {
         &self.config
     }
 
-    /// The map.
+    /// The map in RAM (see [`Reconstructor::sync_gpu`] when fusing on the GPU).
     pub fn layer(&self) -> &Layer {
         &self.layer
     }
@@ -146,25 +187,41 @@ impl Reconstructor {
         let t = Instant::now();
         let params = &self.config.depth_fusion;
         let (touched, stats) = match &self.gpu {
-            Some(gpu) => crate::gpu::integrate_depth_gpu(gpu, &mut self.layer, frame, params)?,
+            Some(gpu) => {
+                if self.resident.is_none() {
+                    self.resident = Some(ResidentMap::new(
+                        gpu.clone(),
+                        self.config.grid,
+                        ResidentOptions::default(),
+                    )?);
+                }
+                let resident = self.resident.as_mut().expect("just set");
+                resident.integrate_depth(&mut self.layer, frame, params)?
+            }
             None => integrate_depth(&mut self.layer, frame, params),
         };
         self.record(t, stats);
         Ok(touched)
     }
 
-    /// Fuses a LiDAR scan; returns the blocks it touched.
-    pub fn fuse_lidar(&mut self, scan: &LidarScan) -> TouchedBlocks {
+    /// Fuses a LiDAR scan; returns the blocks it touched. Blocks of the scan resident on the GPU
+    /// are written back first.
+    pub fn fuse_lidar(&mut self, scan: &LidarScan) -> crate::Result<TouchedBlocks> {
         let t = Instant::now();
-        let (touched, stats) = integrate_lidar(&mut self.layer, scan, &self.config.lidar_fusion);
+        let plan = LidarPlan::new(&self.config.grid, scan, &self.config.lidar_fusion);
+        if let Some(r) = self.resident.as_mut() {
+            r.flush_blocks(&mut self.layer, &plan.blocks())?;
+        }
+        let (touched, stats) = integrate_lidar_plan(&mut self.layer, &plan);
         self.record(t, stats);
-        touched
+        Ok(touched)
     }
 
     /// Regularises the whole map (one global solve), on the GPU when one is set. A map too large
     /// for one GPU binding is solved on the GPU in regions of 32³ blocks with the exact halo (the
     /// same result), or, when a region does not fit either, on the CPU; each with a message.
     pub fn regularize(&mut self) -> crate::Result<RegularizeStats> {
+        self.sync_gpu()?;
         let t = Instant::now();
         let gpu_result = match &self.gpu {
             Some(gpu) => self.regularize_gpu(gpu.clone())?,

@@ -9,13 +9,17 @@
 //!   on every voxel, energies within 1e-5 relative.
 //! - Fusion: the same blocks; weights and Ω equal on ≥ 99.99 % of voxels; the quantised TSDF
 //!   within one step on ≥ 99.9 %.
+//! - The GPU tier (`ResidentMap`): the same tolerance against the CPU; against the per-call GPU
+//!   kernel, and between pools that grow, spill to RAM or fall back, bit for bit (one shared
+//!   per-voxel function); GPU hash-table lookups equal the host table's exactly.
 
 mod common;
 
 use common::{orbit, vga, Rng, SphereScene};
 use denser::fusion::{integrate_depth, DepthFusionParams};
 use denser::gpu::{
-    integrate_depth_gpu, regularize_layer_gpu, regularize_regions_gpu, solve_gpu, GpuContext,
+    integrate_depth_gpu, lookup_table_on_gpu, regularize_layer_gpu, regularize_regions_gpu,
+    solve_gpu, BlockTable, GpuContext, ResidentMap, ResidentOptions, ResidentStats, SLOT_BYTES,
 };
 use denser::grid::{BlockIndex, GridParams, Layer, VOXELS_PER_BLOCK};
 use denser::reconstruct::Reconstructor;
@@ -435,4 +439,240 @@ fn depth_fusion_gpu_error_leaves_the_layer_unchanged() {
     for b in before.indices_sorted() {
         assert!(layer.get(&b) == before.get(&b), "block {b:?}");
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The GPU tier: blocks resident in the device pool, found through the GPU hash table.
+
+#[test]
+fn gpu_hash_table_lookups_equal_the_host_table() {
+    let Some(ctx) = gpu() else { return };
+    let mut table = BlockTable::for_blocks(500);
+    let mut rng = Rng(9);
+    let mut keys = Vec::new();
+    // Clustered keys far from the origin and near it, with removals (tombstones).
+    for k in 0..900u32 {
+        let c = if k % 3 == 0 { 1_000_000 } else { -3 };
+        let key = BlockIndex([
+            c + (rng.uniform() * 12.0) as i32,
+            -(rng.uniform() * 12.0) as i32,
+            c / 2 + (rng.uniform() * 6.0) as i32,
+        ]);
+        if table.lookup(key).is_none() {
+            table.insert(key, k);
+            keys.push(key);
+        }
+    }
+    for key in keys.iter().step_by(4) {
+        table.remove(*key);
+    }
+    keys.push(BlockIndex([i32::MIN, i32::MAX, 0]));
+    let on_gpu = lookup_table_on_gpu(&ctx, &table, &keys).expect("lookup");
+    let on_cpu: Vec<Option<u32>> = keys.iter().map(|k| table.lookup(*k)).collect();
+    let present = on_cpu.iter().filter(|s| s.is_some()).count();
+    eprintln!(
+        "{} keys ({present} present) in a table of {}: GPU lookups equal",
+        keys.len(),
+        table.capacity()
+    );
+    assert!(present > 300 && present < keys.len() - 100);
+    assert_eq!(on_gpu, on_cpu);
+}
+
+/// Whether two layers hold the same blocks, bit for bit.
+fn same_layers(a: &Layer, b: &Layer) -> bool {
+    a.indices_sorted() == b.indices_sorted()
+        && a.indices_sorted().iter().all(|i| a.get(i) == b.get(i))
+}
+
+/// Fuses `frames` through a [`ResidentMap`] with `options`, syncing at the end. Returns the layer,
+/// the touched blocks of every frame and the map's counters.
+fn fuse_resident(
+    ctx: &Arc<GpuContext>,
+    grid: GridParams,
+    frames: &[denser::frame::DepthFrame],
+    options: ResidentOptions,
+) -> (Layer, Vec<Vec<BlockIndex>>, ResidentStats, ResidentMap) {
+    let mut layer = Layer::new(grid);
+    let mut map = ResidentMap::new(ctx.clone(), grid, options).expect("pool");
+    let params = DepthFusionParams::default();
+    let touched = frames
+        .iter()
+        .map(|f| map.integrate_depth(&mut layer, f, &params).expect("fuse").0)
+        .collect();
+    map.sync(&mut layer).expect("sync");
+    let stats = map.stats();
+    (layer, touched, stats, map)
+}
+
+fn orbit_frames(n: usize, noise_m: f64) -> Vec<denser::frame::DepthFrame> {
+    let scene = SphereScene::standard();
+    let mut rng = Rng(5);
+    orbit(n, 3.0, -1.2, scene.center)
+        .into_iter()
+        .map(|pose| scene.render(&vga(), pose, noise_m, 6.0, &mut rng))
+        .collect()
+}
+
+#[test]
+fn resident_fusion_matches_the_cpu_through_grows_spills_and_oversize_frames() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let grid = GridParams {
+        voxel_size_m: 0.05,
+        truncation_m: 0.4,
+    };
+    let frames = orbit_frames(10, 0.01);
+    let params = DepthFusionParams::default();
+    let mut cpu = Layer::new(grid);
+    let cpu_touched: Vec<Vec<BlockIndex>> = frames
+        .iter()
+        .map(|f| integrate_depth(&mut cpu, f, &params).0)
+        .collect();
+    // Room to grow, never to spill.
+    let roomy = ResidentOptions {
+        initial_blocks: 64,
+        max_bytes: 1 << 30,
+    };
+    let (grown, grown_touched, s1, _) = fuse_resident(&ctx, grid, &frames, roomy);
+    eprintln!("grow only: {s1:?}");
+    assert!(s1.grows >= 1 && s1.blocks_spilled == 0 && s1.oversize_frames == 0);
+    assert_eq!(grown_touched, cpu_touched, "touched blocks per frame");
+    let r = compare_layers(&cpu, &grown);
+    eprintln!(
+        "resident vs CPU: {} voxels, weight mismatches {}, |Δf| > 1 step {}, worst {} steps, colour > 1 {}",
+        r.voxels, r.weight_mismatch, r.tsdf_beyond_one_step, r.worst_tsdf_steps, r.color_beyond_one
+    );
+    let n = r.voxels as f64;
+    assert!(r.weight_mismatch as f64 <= 1e-4 * n, "weights");
+    assert!(
+        (r.weight_mismatch + r.tsdf_beyond_one_step) as f64 <= 1e-3 * n,
+        "TSDF"
+    );
+    assert!(r.color_beyond_one as f64 <= 1e-3 * n, "colour");
+    // A pool just larger than the largest frame: the orbit's map does not fit, so blocks spill
+    // to RAM and come back; the voxels must not change (same kernel, same order per voxel).
+    let tight_blocks = s1.largest_frame_blocks as u64 + 32;
+    assert!((tight_blocks as usize) < cpu.block_count());
+    let tight = ResidentOptions {
+        initial_blocks: 64,
+        max_bytes: tight_blocks * SLOT_BYTES,
+    };
+    let (spilled, spilled_touched, s2, mut map) = fuse_resident(&ctx, grid, &frames, tight);
+    eprintln!("tight pool ({tight_blocks} blocks): {s2:?}");
+    assert!(s2.blocks_spilled > 0 && s2.oversize_frames == 0);
+    assert!(s2.peak_resident_blocks <= tight_blocks as usize);
+    assert_eq!(spilled_touched, cpu_touched);
+    assert!(same_layers(&spilled, &grown), "spilling changed voxels");
+    // The device's table agrees with the host's after all the inserts, removals and rebuilds.
+    let all = cpu.indices_sorted();
+    let on_gpu = map.lookup_on_gpu(&all).expect("lookup");
+    let on_host: Vec<Option<u32>> = all.iter().map(|b| map.slot_of(*b)).collect();
+    assert_eq!(on_gpu, on_host);
+    assert_eq!(
+        on_host.iter().filter(|s| s.is_some()).count(),
+        s2.resident_blocks
+    );
+    // A pool smaller than the larger frames: those go through the batched path (counted),
+    // after their resident blocks went back to RAM; the others stay resident.
+    let tiny = ResidentOptions {
+        initial_blocks: 16,
+        max_bytes: (s1.largest_frame_blocks as u64 - 40) * SLOT_BYTES,
+    };
+    let (small, small_touched, s3, _) = fuse_resident(&ctx, grid, &frames, tiny);
+    eprintln!("tiny pool: {s3:?}");
+    assert!(s3.oversize_frames > 0 && s3.oversize_frames < 10);
+    assert!(s3.blocks_uploaded > 0);
+    assert_eq!(small_touched, cpu_touched);
+    let r = compare_layers(&cpu, &small);
+    assert!(r.weight_mismatch as f64 <= 1e-4 * r.voxels as f64);
+}
+
+#[test]
+fn resident_sync_keeps_the_regularised_field_in_step() {
+    // Per-call GPU fusion (`integrate_depth_gpu`) resets `u` voxel by voxel exactly as the CPU;
+    // the resident map must give the same bits across two sync rounds with a regularisation in
+    // between (so updated-voxel marks must be cleared at each sync).
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let grid = GridParams {
+        voxel_size_m: 0.05,
+        truncation_m: 0.4,
+    };
+    let frames = orbit_frames(7, 0.02);
+    let params = DepthFusionParams::default();
+    let tv = TvParams {
+        iterations: 20,
+        ..TvParams::paper(0.05)
+    };
+    let mut base = Layer::new(grid);
+    for f in &frames[..3] {
+        integrate_depth(&mut base, f, &params);
+    }
+    regularize_layer(&mut base, &tv).expect("tv");
+    let mut per_call = base.clone();
+    let mut resident = base;
+    let mut map = ResidentMap::new(ctx.clone(), grid, ResidentOptions::default()).expect("pool");
+    for round in [3..5, 5..7] {
+        for f in &frames[round.clone()] {
+            integrate_depth_gpu(&ctx, &mut per_call, f, &params).expect("per call");
+            map.integrate_depth(&mut resident, f, &params)
+                .expect("resident");
+        }
+        let copied = map.sync(&mut resident).expect("sync");
+        assert!(copied > 100, "{copied}");
+        assert_eq!(
+            map.sync(&mut resident).expect("sync"),
+            0,
+            "nothing left dirty"
+        );
+        assert!(same_layers(&per_call, &resident), "round {round:?}");
+        regularize_layer(&mut per_call, &tv).expect("tv");
+        regularize_layer(&mut resident, &tv).expect("tv");
+    }
+    eprintln!("{:?}", map.stats());
+}
+
+#[test]
+fn reconstructor_keeps_depth_blocks_on_the_gpu_and_flushes_them_for_lidar() {
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.1,
+        truncation_m: 0.8,
+    };
+    let frames = orbit_frames(4, 0.01);
+    let mut config = denser::reconstruct::ReconstructionConfig::paper(0.1);
+    config.grid = grid;
+    let mut rec = Reconstructor::new(config).expect("config");
+    rec.set_gpu(Some(Arc::new(ctx)));
+    let mut cpu = Layer::new(grid);
+    for f in &frames {
+        rec.fuse_depth(f).expect("fuse");
+        integrate_depth(&mut cpu, f, &config.depth_fusion);
+    }
+    let stats = rec.resident_stats().expect("resident");
+    assert_eq!(stats.frames, 4);
+    assert!(stats.resident_blocks > 0);
+    // Before a sync the RAM copy of blocks created on the GPU is empty.
+    assert!(rec.layer().observed_voxel_count() < cpu.observed_voxel_count());
+    assert!(rec.sync_gpu().expect("sync") > 0);
+    assert_eq!(
+        rec.layer().observed_voxel_count(),
+        cpu.observed_voxel_count()
+    );
+    // A LiDAR scan of the same sphere and floor, from 4.5 m away, flushes
+    // its blocks from the GPU before the CPU updates them.
+    let scene = SphereScene::standard();
+    let scan = scene.lidar([0.0, -0.5, -4.5], 32, 720, 0.0, &mut Rng(3));
+    let mut rec_cpu = Reconstructor::new(config).expect("config");
+    *rec_cpu.layer_mut() = cpu;
+    let fused_cpu = rec_cpu.fuse_lidar(&scan).expect("lidar");
+    let before = rec.resident_stats().expect("resident").resident_blocks;
+    let fused = rec.fuse_lidar(&scan).expect("lidar");
+    assert_eq!(fused, fused_cpu);
+    let after = rec.resident_stats().expect("resident").resident_blocks;
+    assert!(after < before, "{after} !< {before}");
+    rec.sync_gpu().expect("sync");
+    let r = compare_layers(rec_cpu.layer(), rec.layer());
+    assert!(r.weight_mismatch as f64 <= 1e-4 * r.voxels as f64);
 }

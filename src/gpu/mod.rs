@@ -24,7 +24,7 @@ mod tv;
 pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
 pub use fuse::integrate_depth_gpu;
 pub use resident::{
-    block_hash, BlockTable, ResidentMap, ResidentOptions, ResidentStats, SLOT_BYTES, SLOT_EMPTY,
-    SLOT_TOMBSTONE,
+    block_hash, lookup_table_on_gpu, BlockTable, ResidentMap, ResidentOptions, ResidentStats,
+    SLOT_BYTES, SLOT_EMPTY, SLOT_TOMBSTONE,
 };
 pub use tv::{regularize_layer_gpu, regularize_regions_gpu, solve_gpu};

@@ -109,7 +109,8 @@ impl BlockTable {
         self.live == 0
     }
 
-    fn mask(&self) -> u32 {
+    /// Capacity − 1 (the probe mask).
+    pub fn mask(&self) -> u32 {
         (self.entries.len() - 1) as u32
     }
 
@@ -228,6 +229,73 @@ impl BlockTable {
     }
 }
 
+/// Looks `keys` up in a copy of `table` uploaded whole (`block_lookup.wgsl`): the GPU twin of
+/// [`BlockTable::lookup`].
+pub fn lookup_table_on_gpu(
+    ctx: &GpuContext,
+    table: &BlockTable,
+    keys: &[BlockIndex],
+) -> Result<Vec<Option<u32>>> {
+    let buf_table = ctx.storage("block_table", bytemuck::cast_slice(table.entries()));
+    run_lookup(ctx, &buf_table, table.mask(), keys)
+}
+
+/// Runs `block_lookup.wgsl` over `keys` against the device table `buf_table`.
+fn run_lookup(
+    ctx: &GpuContext,
+    buf_table: &wgpu::Buffer,
+    mask: u32,
+    keys: &[BlockIndex],
+) -> Result<Vec<Option<u32>>> {
+    if keys.is_empty() {
+        return Ok(Vec::new());
+    }
+    let kernel = ctx.kernel(&shaders::BLOCK_LOOKUP, &LOOKUP_BINDINGS)?;
+    let scope = ErrorScopes::push(&ctx.device);
+    let (buf_keys, buf_slots, buf_uniforms) = lookup_buffers(ctx, mask, keys)?;
+    let bind = ctx.bind_group(
+        "block_lookup",
+        &kernel.layout,
+        &[&buf_uniforms, buf_table, &buf_keys, &buf_slots],
+    );
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("block_lookup"),
+        });
+    ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, keys.len() as u64)?;
+    ctx.queue.submit([encoder.finish()]);
+    scope.pop("looking blocks up on the GPU")?;
+    let out = ctx.read_back(&[(&buf_slots, keys.len() as u64 * 4)])?;
+    let slots: Vec<u32> = bytemuck::pod_collect_to_vec(&out[0]);
+    Ok(slots
+        .into_iter()
+        .map(|s| (s < SLOT_TOMBSTONE).then_some(s))
+        .collect())
+}
+
+/// Keys, slots (all [`SLOT_EMPTY`]) and uniforms of a `block_lookup.wgsl` dispatch.
+fn lookup_buffers(
+    ctx: &GpuContext,
+    mask: u32,
+    keys: &[BlockIndex],
+) -> Result<(wgpu::Buffer, wgpu::Buffer, wgpu::Buffer)> {
+    ctx.check_binding("block keys (16 bytes per block)", keys.len() as u64 * 16)?;
+    let words: Vec<[i32; 4]> = keys.iter().map(|k| [k.0[0], k.0[1], k.0[2], 0]).collect();
+    let buf_keys = ctx.storage("lookup_keys", bytemuck::cast_slice(&words));
+    let buf_slots = ctx.storage(
+        "lookup_slots",
+        bytemuck::cast_slice(&vec![SLOT_EMPTY; keys.len()]),
+    );
+    let uniforms = LookupUniforms {
+        key_count: keys.len() as u32,
+        mask,
+        pad: [0; 2],
+    };
+    let buf_uniforms = ctx.uniform("lookup_uniforms", bytemuck::bytes_of(&uniforms));
+    Ok((buf_keys, buf_slots, buf_uniforms))
+}
+
 /// Size limits of a [`ResidentMap`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ResidentOptions {
@@ -269,6 +337,8 @@ pub struct ResidentStats {
     pub grows: u32,
     /// Frames whose own blocks exceeded the largest pool (fused by the batched path).
     pub oversize_frames: u64,
+    /// Most blocks one frame listed (its working set on the GPU).
+    pub largest_frame_blocks: usize,
 }
 
 /// Blocks resident on the GPU across frames, over a RAM [`Layer`] (see the module
@@ -287,6 +357,14 @@ pub struct ResidentMap {
     last_used: Vec<u64>,
     frame: u64,
     stats: ResidentStats,
+}
+
+impl std::fmt::Debug for ResidentMap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ResidentMap")
+            .field("stats", &self.stats())
+            .finish()
+    }
 }
 
 fn pack_block(block: &Block) -> Vec<GpuVoxel> {
@@ -402,60 +480,11 @@ impl ResidentMap {
         }
     }
 
-    /// Looks `keys` up on the GPU (`block_lookup.wgsl`): the device's view of residency.
+    /// Looks `keys` up in the device's copy of the table (`block_lookup.wgsl`): the GPU's view
+    /// of residency, which must equal [`ResidentMap::slot_of`].
     pub fn lookup_on_gpu(&mut self, keys: &[BlockIndex]) -> Result<Vec<Option<u32>>> {
-        if keys.is_empty() {
-            return Ok(Vec::new());
-        }
         self.upload_table();
-        let ctx = self.ctx.clone();
-        let scope = ErrorScopes::push(&ctx.device);
-        let (buf_keys, buf_slots, buf_uniforms) = self.lookup_buffers(keys)?;
-        let kernel = ctx.kernel(&shaders::BLOCK_LOOKUP, &LOOKUP_BINDINGS)?;
-        let bind = ctx.bind_group(
-            "block_lookup",
-            &kernel.layout,
-            &[&buf_uniforms, &self.table_buf, &buf_keys, &buf_slots],
-        );
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("block_lookup"),
-            });
-        ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, keys.len() as u64)?;
-        ctx.queue.submit([encoder.finish()]);
-        scope.pop("looking blocks up on the GPU")?;
-        let out = ctx.read_back(&[(&buf_slots, keys.len() as u64 * 4)])?;
-        let slots: Vec<u32> = bytemuck::pod_collect_to_vec(&out[0]);
-        Ok(slots
-            .into_iter()
-            .map(|s| (s < SLOT_TOMBSTONE).then_some(s))
-            .collect())
-    }
-
-    fn lookup_buffers(
-        &self,
-        keys: &[BlockIndex],
-    ) -> Result<(wgpu::Buffer, wgpu::Buffer, wgpu::Buffer)> {
-        self.ctx
-            .check_binding("block keys (16 bytes per block)", keys.len() as u64 * 16)?;
-        let words: Vec<[i32; 4]> = keys.iter().map(|k| [k.0[0], k.0[1], k.0[2], 0]).collect();
-        let buf_keys = self
-            .ctx
-            .storage("lookup_keys", bytemuck::cast_slice(&words));
-        let buf_slots = self.ctx.storage(
-            "lookup_slots",
-            bytemuck::cast_slice(&vec![SLOT_EMPTY; keys.len()]),
-        );
-        let uniforms = LookupUniforms {
-            key_count: keys.len() as u32,
-            mask: self.table.mask(),
-            pad: [0; 2],
-        };
-        let buf_uniforms = self
-            .ctx
-            .uniform("lookup_uniforms", bytemuck::bytes_of(&uniforms));
-        Ok((buf_keys, buf_slots, buf_uniforms))
+        run_lookup(&self.ctx, &self.table_buf, self.table.mask(), keys)
     }
 
     /// Fuses one depth frame, like [`crate::fusion::integrate_depth`]: the blocks crossed by its
@@ -490,6 +519,7 @@ impl ResidentMap {
         blocks.dedup();
         self.frame += 1;
         self.stats.frames += 1;
+        self.stats.largest_frame_blocks = self.stats.largest_frame_blocks.max(blocks.len());
         if blocks.is_empty() {
             return Ok((Vec::new(), FusionStats::default()));
         }
@@ -738,7 +768,7 @@ impl ResidentMap {
         let lookup = ctx.kernel(&shaders::BLOCK_LOOKUP, &LOOKUP_BINDINGS)?;
         let fuse = ctx.kernel(&shaders::FUSE_DEPTH_RESIDENT, &FUSE_RESIDENT_BINDINGS)?;
         let scope = ErrorScopes::push(&ctx.device);
-        let (buf_keys, buf_slots, buf_lookup) = self.lookup_buffers(blocks)?;
+        let (buf_keys, buf_slots, buf_lookup) = lookup_buffers(&ctx, self.table.mask(), blocks)?;
         let buf_uniforms = ctx.uniform("fuse_uniforms", bytemuck::bytes_of(&uniforms));
         let buf_bases = ctx.storage("fuse_block_base", bytemuck::cast_slice(&bases));
         let buf_depth = ctx.storage("fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
