@@ -229,6 +229,10 @@ struct ReconstructArgs {
     /// Where depth fusion and regularisation run (LiDAR fusion and meshing use the CPU).
     #[arg(long, value_enum, default_value = "auto")]
     device: DeviceArg,
+    /// Largest GPU block pool (4 KiB per block; bounded by the device's largest buffer). Depth
+    /// blocks stay on the GPU between frames; beyond this they spill to RAM.
+    #[arg(long, default_value = "2GiB", value_parser = cli_map::parse_bytes)]
+    gpu_memory_budget: u64,
     #[command(flatten)]
     map: MapArgs,
     #[command(flatten)]
@@ -365,6 +369,7 @@ fn reconstruct(a: ReconstructArgs) -> Result<()> {
         stereo_method: a.method.parse()?,
         num_disparities: a.num_disparities,
         device: a.device.into(),
+        gpu_budget_bytes: a.gpu_memory_budget,
     };
     if let Some(dir) = &a.stream.map {
         return reconstruct_streamed(&job, dir, &a.stream);
@@ -488,6 +493,19 @@ fn reconstruct_streamed(
         o.pager.chunks_read,
         o.pager.budget_overruns
     );
+    if let Some(g) = &o.gpu {
+        println!(
+            "GPU tier: pool {} blocks (max {}), peak {} resident, {} uploaded, {} read back, {} spilled to RAM, {} grows, {} oversize frames",
+            g.capacity_blocks,
+            g.max_blocks,
+            g.peak_resident_blocks,
+            g.blocks_uploaded,
+            g.blocks_downloaded,
+            g.blocks_spilled,
+            g.grows,
+            g.oversize_frames
+        );
+    }
     println!(
         "map: {} chunks, {} blocks, {} voxels ({} in Ω), {:.1} MiB on disk, {:.3} bytes/voxel on disk",
         o.summary.chunks,

@@ -78,6 +78,8 @@ pub struct ReconstructJob {
     pub num_disparities: usize,
     /// Where depth fusion and regularisation run (LiDAR fusion and meshing use the CPU).
     pub device: crate::gpu::DeviceChoice,
+    /// Largest GPU block pool, bytes (4 KiB per block), when fusing on a GPU.
+    pub gpu_budget_bytes: u64,
 }
 
 /// What a reconstruction produced.
@@ -292,6 +294,10 @@ pub fn for_each_input(
 pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
     let mut rec = Reconstructor::new(job.config)?;
     rec.set_gpu(job.device.open()?.map(std::sync::Arc::new));
+    rec.set_gpu_options(crate::gpu::ResidentOptions {
+        max_bytes: job.gpu_budget_bytes,
+        ..Default::default()
+    });
     for_each_input(job, 0, |input, input_s| {
         rec.add_input_time(input_s);
         match input {
@@ -666,6 +672,7 @@ pub fn demo(demo: &DemoConfig) -> Result<DemoOutcome> {
         stereo_method: demo.stereo_method,
         num_disparities: 128,
         device: demo.device,
+        gpu_budget_bytes: crate::gpu::ResidentOptions::default().max_bytes,
     };
     let rec = fuse_input(&job)?;
     let outcome = finish(rec, &demo.out_dir)?;
@@ -741,6 +748,8 @@ pub struct MapOutcome {
     pub voxel_updates: usize,
     /// Pager counters.
     pub pager: crate::tiles::pager::PagerStats,
+    /// GPU tier counters, when depth frames were fused on a GPU.
+    pub gpu: Option<crate::gpu::ResidentStats>,
     /// Offline regularisation counters.
     pub regularize: crate::tiles::regional::MapRegularizeStats,
     /// The map on disk.
@@ -845,6 +854,15 @@ pub fn reconstruct_map(job: &ReconstructJob, map: &MapJob) -> Result<MapOutcome>
         job.config.lidar_fusion,
         map.checkpoint_every,
     );
+    if let Some(ctx) = job.device.open()? {
+        let options = crate::gpu::ResidentOptions {
+            max_bytes: job.gpu_budget_bytes,
+            ..Default::default()
+        };
+        let resident =
+            crate::gpu::ResidentMap::new(std::sync::Arc::new(ctx), job.config.grid, options)?;
+        fusion = fusion.with_gpu(resident);
+    }
     let mut input_s = 0.0;
     for_each_input(job, resumed_from_frame as usize, |input, s| {
         input_s += s;
@@ -854,11 +872,12 @@ pub fn reconstruct_map(job: &ReconstructJob, map: &MapJob) -> Result<MapOutcome>
         };
         Ok(())
     })?;
-    let (fusion_s, paging_s, voxel_updates, frames_fused) = (
+    let (fusion_s, paging_s, voxel_updates, frames_fused, gpu) = (
         fusion.fusion_s,
         fusion.paging_s,
         fusion.voxel_updates,
         fusion.frames_fused(),
+        fusion.gpu_stats(),
     );
     let (mut store, pager_stats) = fusion.finish()?;
     let bar = crate::progress::bar(0, "regularising");
@@ -911,6 +930,7 @@ pub fn reconstruct_map(job: &ReconstructJob, map: &MapJob) -> Result<MapOutcome>
         paging_s,
         voxel_updates,
         pager: pager_stats,
+        gpu,
         regularize,
         summary: store.summary(),
         exports,

@@ -86,6 +86,7 @@ pub struct Reconstructor {
     gpu: Option<Arc<GpuContext>>,
     /// Blocks resident on the GPU between depth frames (created at the first GPU frame).
     resident: Option<ResidentMap>,
+    gpu_options: ResidentOptions,
 }
 
 impl std::fmt::Debug for Reconstructor {
@@ -111,6 +112,7 @@ impl Reconstructor {
             timings: StageTimings::default(),
             gpu: None,
             resident: None,
+            gpu_options: ResidentOptions::default(),
         })
     }
 
@@ -127,6 +129,11 @@ impl Reconstructor {
             }
         }
         self.gpu = gpu;
+    }
+
+    /// Size limits of the GPU block pool (used when the first GPU frame creates it).
+    pub fn set_gpu_options(&mut self, options: ResidentOptions) {
+        self.gpu_options = options;
     }
 
     /// Copies the blocks the GPU updated back into the layer (they stay resident). Returns how
@@ -192,7 +199,7 @@ impl Reconstructor {
                     self.resident = Some(ResidentMap::new(
                         gpu.clone(),
                         self.config.grid,
-                        ResidentOptions::default(),
+                        self.gpu_options,
                     )?);
                 }
                 let resident = self.resident.as_mut().expect("just set");

@@ -22,6 +22,7 @@ fn job(input: std::path::PathBuf, out: &std::path::Path, voxel: f32) -> Reconstr
         stereo_method: StereoMethod::Sgm,
         num_disparities: 128,
         device: denser::gpu::DeviceChoice::Cpu,
+        gpu_budget_bytes: 1 << 30,
     }
 }
 

@@ -357,3 +357,91 @@ fn tiled_export_stitches_into_the_whole_map_mesh() {
         "a point outside the box (LAS keeps 1 mm)"
     );
 }
+
+#[test]
+fn gpu_tier_paged_fusion_equals_in_memory_gpu_fusion() {
+    // device ↔ RAM ↔ disk: depth frames fused into a small GPU pool (spills to RAM, frames too
+    // large for it take the batched path) over a pager that evicts everything it can after
+    // every frame, with checkpoints and LiDAR scans (fused on the CPU) in between. The stored map
+    // must equal fusing the same inputs in memory with the per-call GPU kernel (the same
+    // per-voxel function) and CPU LiDAR fusion, bit for bit.
+    use denser::gpu::{integrate_depth_gpu, GpuContext, ResidentMap, ResidentOptions, SLOT_BYTES};
+    let ctx = match GpuContext::new() {
+        Ok(Some(c)) => std::sync::Arc::new(c),
+        Ok(None) => {
+            eprintln!("skipping: no GPU adapter (tools/setup.sh installs lavapipe)");
+            return;
+        }
+        Err(e) => panic!("a GPU adapter exists but failed: {e}"),
+    };
+    let frames = views();
+    let scene = SphereScene::standard();
+    let mut rng = Rng(4);
+    let scans = [
+        scene.lidar([-2.5, -0.5, 0.0], 32, 720, 0.01, &mut rng),
+        scene.lidar([0.0, -0.5, -2.5], 32, 720, 0.01, &mut rng),
+    ];
+    let params = DepthFusionParams::default();
+    let lidar = LidarFusionParams::default();
+    let mut mem = Layer::new(grid());
+    let mut cpu = Layer::new(grid());
+    let dir = tempfile::tempdir().expect("tempdir");
+    let resident = ResidentMap::new(
+        ctx.clone(),
+        grid(),
+        ResidentOptions {
+            initial_blocks: 64,
+            max_bytes: 1200 * SLOT_BYTES,
+        },
+    )
+    .expect("pool");
+    // RAM for about 1800 blocks, the GPU for 1200: both tiers overflow (the largest frames list
+    // about 2000 blocks).
+    let budget = 8 << 20;
+    let mut sf = StreamingFusion::new(
+        paged_store(&dir.path().join("map"), budget),
+        params,
+        lidar,
+        3,
+    )
+    .with_gpu(resident);
+    for (k, f) in frames.iter().enumerate() {
+        integrate_depth_gpu(&ctx, &mut mem, f, &params).expect("per call");
+        integrate_depth(&mut cpu, f, &params);
+        sf.fuse_depth(f).expect("fuse");
+        if k == 4 || k == 7 {
+            let s = &scans[(k == 7) as usize];
+            integrate_lidar(&mut mem, s, &lidar);
+            integrate_lidar(&mut cpu, s, &lidar);
+            sf.fuse_lidar(s).expect("lidar");
+        }
+    }
+    let gpu_stats = sf.gpu_stats().expect("GPU tier");
+    let (store, stats) = sf.finish().expect("finish");
+    eprintln!("pager {stats:?}\nGPU tier {gpu_stats:?}");
+    assert!(
+        stats.chunks_evicted > 100 && stats.chunks_read > 50,
+        "{stats:?}"
+    );
+    // Frames larger than the pool went through the batched path after their resident blocks
+    // were written back; the others stayed resident (spills are tested in gpu_compare.rs).
+    assert!(
+        gpu_stats.oversize_frames > 0 && gpu_stats.oversize_frames < frames.len() as u64,
+        "{gpu_stats:?}"
+    );
+    assert!(gpu_stats.blocks_uploaded > gpu_stats.peak_resident_blocks as u64);
+    let stored = store_layer(&store);
+    assert_layers_identical(&mem, &stored);
+    // And the CPU twin: the same blocks; on lavapipe the same bits (other GPUs: see
+    // tests/gpu_compare.rs for the tolerance).
+    assert_eq!(cpu.indices_sorted(), stored.indices_sorted());
+    let differ = cpu
+        .indices_sorted()
+        .iter()
+        .filter(|i| cpu.get(i) != stored.get(i))
+        .count();
+    eprintln!(
+        "{differ} of {} blocks differ from CPU fusion",
+        cpu.block_count()
+    );
+}

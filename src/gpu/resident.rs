@@ -315,7 +315,7 @@ impl Default for ResidentOptions {
 }
 
 /// Counters of a [`ResidentMap`].
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct ResidentStats {
     /// Slots in the pool now.
     pub capacity_blocks: u32,

@@ -325,6 +325,18 @@ impl Pager {
         camera_world_m: [f64; 3],
         keep: &HashSet<ChunkIndex>,
     ) -> Result<()> {
+        self.evict_to_budget_with(camera_world_m, keep, &mut |_, _| Ok(()))
+    }
+
+    /// [`Pager::evict_to_budget`] calling `before_evict(layer, blocks)` with each chunk's blocks
+    /// just before they leave RAM: the hook of a tier above RAM (the GPU's
+    /// [`crate::gpu::ResidentMap::flush_blocks`]) to write its newer copies back first.
+    pub fn evict_to_budget_with(
+        &mut self,
+        camera_world_m: [f64; 3],
+        keep: &HashSet<ChunkIndex>,
+        before_evict: &mut dyn FnMut(&mut Layer, &[BlockIndex]) -> Result<()>,
+    ) -> Result<()> {
         self.drain_done()?;
         if self.used_bytes() > self.config.budget_bytes {
             let grid = self.store.grid();
@@ -345,7 +357,7 @@ impl Pager {
                 if self.used_bytes() <= self.config.budget_bytes {
                     break;
                 }
-                self.evict(c)?;
+                self.evict(c, before_evict)?;
             }
         }
         let used = self.used_bytes();
@@ -366,11 +378,17 @@ impl Pager {
         Ok(())
     }
 
-    fn evict(&mut self, c: ChunkIndex) -> Result<()> {
-        let Some(r) = self.resident.remove(&c) else {
+    fn evict(
+        &mut self,
+        c: ChunkIndex,
+        before_evict: &mut dyn FnMut(&mut Layer, &[BlockIndex]) -> Result<()>,
+    ) -> Result<()> {
+        if !self.resident.contains_key(&c) {
             return Ok(());
-        };
+        }
         let indices = self.blocks_of(c);
+        before_evict(&mut self.layer, &indices)?;
+        let r = self.resident.remove(&c).expect("checked");
         let blocks = self.layer.take_blocks(&indices);
         self.stats.chunks_evicted += 1;
         if !r.dirty || blocks.is_empty() {

@@ -6,6 +6,13 @@
 //! monotone test that picks the allocated blocks a frame carves), so every block the in-memory
 //! fusion would update is resident. A LiDAR scan needs only the chunks of its band. Hence fusing
 //! through the pager gives bit-identical voxels to fusing into one [`Layer`](crate::grid::Layer).
+//!
+//! **GPU tier.** With [`StreamingFusion::with_gpu`], depth frames are fused into blocks resident
+//! on the GPU ([`ResidentMap`]): device ↔ RAM ↔ disk. The GPU holds a subset of the RAM-resident
+//! blocks (the most recently used, around the camera, within its own budget); before the pager
+//! evicts a chunk from RAM the GPU writes that chunk's blocks back and releases them, before a
+//! checkpoint it writes back every block it changed, and before a LiDAR scan (fused on the CPU)
+//! it releases the scan's blocks. So every tier below sees current blocks when it reads them.
 
 use super::pager::{Pager, PagerStats};
 use super::store::MapStore;
@@ -16,6 +23,7 @@ use crate::fusion::{
     depth_frame_blocks, integrate_depth_band, integrate_lidar_plan, DepthFusionParams, FusionStats,
     LidarFusionParams, LidarPlan, ViewFrustum,
 };
+use crate::gpu::{ResidentMap, ResidentStats};
 use crate::grid::TouchedBlocks;
 use std::collections::HashSet;
 
@@ -32,6 +40,8 @@ pub struct StreamingFusion {
     pub paging_s: f64,
     /// Voxel updates so far.
     pub voxel_updates: usize,
+    /// The GPU tier, when depth frames are fused on a GPU.
+    gpu: Option<ResidentMap>,
 }
 
 impl StreamingFusion {
@@ -53,7 +63,20 @@ impl StreamingFusion {
             fusion_s: 0.0,
             paging_s: 0.0,
             voxel_updates: 0,
+            gpu: None,
         }
+    }
+
+    /// Fuses depth frames on the GPU into blocks resident in `map` (the GPU tier above the
+    /// pager's RAM). The map's grid must be the store's.
+    pub fn with_gpu(mut self, map: ResidentMap) -> Self {
+        self.gpu = Some(map);
+        self
+    }
+
+    /// Counters of the GPU tier, if any.
+    pub fn gpu_stats(&self) -> Option<ResidentStats> {
+        self.gpu.as_ref().map(|g| g.stats())
     }
 
     /// Frames fused (including those of earlier, committed runs).
@@ -74,9 +97,17 @@ impl StreamingFusion {
     ) -> Result<()> {
         let t = std::time::Instant::now();
         self.pager.mark_dirty(touched);
-        self.pager.evict_to_budget(camera, keep)?;
+        let gpu = &mut self.gpu;
+        self.pager
+            .evict_to_budget_with(camera, keep, &mut |layer, blocks| match gpu.as_mut() {
+                Some(g) => g.flush_blocks(layer, blocks).map(|_| ()),
+                None => Ok(()),
+            })?;
         self.frames_fused += 1;
         if self.checkpoint_every > 0 && self.frames_fused % self.checkpoint_every == 0 {
+            if let Some(g) = self.gpu.as_mut() {
+                g.sync(self.pager.layer_mut())?;
+            }
             self.pager.checkpoint(self.frames_fused)?;
         }
         self.paging_s += t.elapsed().as_secs_f64();
@@ -108,8 +139,12 @@ impl StreamingFusion {
         self.pager.page_in(&list)?;
         self.paging_s += t.elapsed().as_secs_f64();
         let t = std::time::Instant::now();
-        let (touched, stats) =
-            integrate_depth_band(self.pager.layer_mut(), frame, &self.depth_params, band);
+        let (touched, stats) = match self.gpu.as_mut() {
+            Some(g) => {
+                g.integrate_depth_band(self.pager.layer_mut(), frame, &self.depth_params, band)?
+            }
+            None => integrate_depth_band(self.pager.layer_mut(), frame, &self.depth_params, band),
+        };
         self.fusion_s += t.elapsed().as_secs_f64() + t_band;
         self.voxel_updates += stats.voxel_updates;
         let camera: [f64; 3] = frame.world_from_camera.translation.vector.into();
@@ -130,6 +165,9 @@ impl StreamingFusion {
         let mut list: Vec<ChunkIndex> = keep.iter().copied().collect();
         list.sort_unstable();
         self.pager.page_in(&list)?;
+        if let Some(g) = self.gpu.as_mut() {
+            g.flush_blocks(self.pager.layer_mut(), &plan.blocks())?;
+        }
         self.paging_s += t.elapsed().as_secs_f64();
         let t = std::time::Instant::now();
         let (touched, stats) = integrate_lidar_plan(self.pager.layer_mut(), &plan);
@@ -141,8 +179,11 @@ impl StreamingFusion {
     }
 
     /// Final checkpoint: every chunk written and committed. Returns the store and the counters.
-    pub fn finish(self) -> Result<(MapStore, PagerStats)> {
+    pub fn finish(mut self) -> Result<(MapStore, PagerStats)> {
         let frames = self.frames_fused;
+        if let Some(g) = self.gpu.as_mut() {
+            g.flush_all(self.pager.layer_mut())?;
+        }
         self.pager.finish(frames)
     }
 }
