@@ -7,6 +7,9 @@
 //!   map at 5 cm (GPU: upload, 20 dispatches, readback of u, ū, p).
 //! - `fuse_depth_640x480/{cpu,gpu}`: re-fusing frame 0 into the warm 5 cm map (GPU: pack, upload,
 //!   one dispatch, readback, unpack; block listing on the CPU in both).
+//! - `fuse_depth_640x480/gpu_resident`: the same with the blocks resident on the GPU
+//!   (`ResidentMap`, warmed by one call: block listing on the CPU, depth image upload, hash
+//!   lookup + fusion dispatch, readback of one flag per block; no voxel traffic).
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -14,7 +17,7 @@ mod common;
 use common::{orbit, vga, Rng, SphereScene};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use denser::fusion::{integrate_depth, DepthFusionParams};
-use denser::gpu::{integrate_depth_gpu, solve_gpu, GpuContext};
+use denser::gpu::{integrate_depth_gpu, solve_gpu, GpuContext, ResidentMap, ResidentOptions};
 use denser::grid::{GridParams, Layer};
 use denser::regularize::{TvParams, TvProblem};
 
@@ -95,10 +98,22 @@ fn fusion(c: &mut Criterion) {
     g.bench_function("cpu", |b| {
         b.iter(|| integrate_depth(&mut layer, &frames[0], &params))
     });
-    if let Some(ctx) = &ctx {
+    if let Some(ctx) = ctx {
         g.bench_function("gpu", |b| {
-            b.iter(|| integrate_depth_gpu(ctx, &mut layer, &frames[0], &params).expect("GPU"))
+            b.iter(|| integrate_depth_gpu(&ctx, &mut layer, &frames[0], &params).expect("GPU"))
         });
+        let ctx = std::sync::Arc::new(ctx);
+        let mut map =
+            ResidentMap::new(ctx, layer.params(), ResidentOptions::default()).expect("pool");
+        map.integrate_depth(&mut layer, &frames[0], &params)
+            .expect("warm");
+        g.bench_function("gpu_resident", |b| {
+            b.iter(|| {
+                map.integrate_depth(&mut layer, &frames[0], &params)
+                    .expect("GPU")
+            })
+        });
+        map.sync(&mut layer).expect("sync");
     }
     g.finish();
 }

@@ -83,6 +83,10 @@ pub struct RegularizeArgs {
     /// Memory budget of one region (e.g. 1GiB).
     #[arg(long, default_value = "1GiB", value_parser = parse_bytes)]
     pub memory_budget: u64,
+    /// Where regions are solved: a region too large for one GPU buffer is solved on the CPU
+    /// (counted and reported).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub device: crate::DeviceArg,
 }
 
 #[derive(Args)]
@@ -127,8 +131,27 @@ pub fn regularize(a: RegularizeArgs) -> Result<()> {
     }
     params.iterations = a.iterations;
     let voxels = store.summary().observed_voxels;
+    let gpu = denser::gpu::DeviceChoice::from(a.device).open()?;
+    let (mut on_gpu, mut on_cpu) = (0usize, 0usize);
+    let solve = |p: &mut denser::regularize::TvProblem| -> denser::Result<()> {
+        if let Some(ctx) = &gpu {
+            match denser::gpu::solve_gpu(ctx, p, &params) {
+                Ok(()) => {
+                    on_gpu += 1;
+                    return Ok(());
+                }
+                Err(e @ denser::Error::GpuCapacity { .. }) => {
+                    tracing::warn!("{e}; solving this region on the CPU");
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        p.solve(&params);
+        on_cpu += 1;
+        Ok(())
+    };
     let bar = denser::progress::bar(0, "regularising");
-    let stats = regional::regularize_map(
+    let stats = regional::regularize_map_with(
         &mut store,
         &params,
         &regional::RegionalOptions {
@@ -141,9 +164,13 @@ pub fn regularize(a: RegularizeArgs) -> Result<()> {
             bar.set_position(done as u64);
             true
         },
+        solve,
     )
     .with_context(|| format!("regularising {}", a.dir.display()))?;
     bar.finish_and_clear();
+    if gpu.is_some() {
+        println!("regions solved on the GPU: {on_gpu}, on the CPU (too large for it): {on_cpu}");
+    }
     println!(
         "regularisation pass {} (λ {}, {} iterations, halo {} blocks): {} regions solved, {} already done; {} blocks written, {} solved with halos ({:.2}×)",
         stats.pass, params.lambda, params.iterations, stats.halo_blocks, stats.regions, stats.regions_skipped,

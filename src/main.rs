@@ -136,7 +136,7 @@ enum DepthArg {
 
 /// Where depth fusion and regularisation run.
 #[derive(Clone, Copy, Debug, ValueEnum)]
-enum DeviceArg {
+pub(crate) enum DeviceArg {
     /// A hardware GPU when wgpu finds one, else the CPU (one line says which).
     Auto,
     /// The CPU.

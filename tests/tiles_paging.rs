@@ -445,3 +445,50 @@ fn gpu_tier_paged_fusion_equals_in_memory_gpu_fusion() {
         cpu.block_count()
     );
 }
+
+#[test]
+fn regional_regularisation_on_the_gpu_equals_the_global_cpu_solve() {
+    use denser::gpu::{solve_gpu, GpuContext};
+    use denser::tiles::regional::regularize_map_with;
+    let ctx = match GpuContext::new() {
+        Ok(Some(c)) => c,
+        Ok(None) => {
+            eprintln!("skipping: no GPU adapter (tools/setup.sh installs lavapipe)");
+            return;
+        }
+        Err(e) => panic!("a GPU adapter exists but failed: {e}"),
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (mut mem, mut store) = fused_store(&dir.path().join("map"));
+    let params = TvParams {
+        iterations: 20,
+        ..TvParams::paper(0.05)
+    };
+    regularize_layer(&mut mem, &params).expect("global");
+    let opts = RegionalOptions {
+        region_chunks: 4,
+        budget_bytes: 1 << 30,
+        halo_blocks: None,
+    };
+    let mut solves = 0;
+    let stats = regularize_map_with(
+        &mut store,
+        &params,
+        &opts,
+        |_, _| true,
+        |p| {
+            solves += 1;
+            solve_gpu(&ctx, p, &params)
+        },
+    )
+    .expect("regional on the GPU");
+    assert_eq!(solves, stats.regions);
+    assert!(stats.regions > 10, "{stats:?}");
+    let (worst, _) = max_u_difference(&mem, &store_layer(&store));
+    // The GPU TV tolerance (tests/gpu_compare.rs): |Δu| ≤ 1e-4, plus the i16 storage step.
+    eprintln!(
+        "{} regions on the GPU: max |u_tiled_gpu − u_global_cpu| = {worst:e}",
+        stats.regions
+    );
+    assert!(worst <= 1.5e-4, "{worst}");
+}

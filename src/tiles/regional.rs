@@ -72,7 +72,23 @@ pub fn regularize_map(
     store: &mut MapStore,
     params: &TvParams,
     options: &RegionalOptions,
+    progress: impl FnMut(usize, usize) -> bool,
+) -> Result<MapRegularizeStats> {
+    regularize_map_with(store, params, options, progress, |p| {
+        p.solve(params);
+        Ok(())
+    })
+}
+
+/// [`regularize_map`] with another solver for each region's problem (it must run
+/// `params.iterations` Chambolle–Pock iterations from the gathered state): the GPU's
+/// [`crate::gpu::solve_gpu`], for one.
+pub fn regularize_map_with(
+    store: &mut MapStore,
+    params: &TvParams,
+    options: &RegionalOptions,
     mut progress: impl FnMut(usize, usize) -> bool,
+    mut solve: impl FnMut(&mut TvProblem) -> Result<()>,
 ) -> Result<MapRegularizeStats> {
     params.validate()?;
     let (region_chunks, budget_bytes) = (options.region_chunks, options.budget_bytes);
@@ -171,7 +187,7 @@ pub fn regularize_map(
             * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
         stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
         let mut problem = TvProblem::gather(&layer, &gathered);
-        problem.solve(params);
+        solve(&mut problem)?;
         let core_list: Vec<BlockIndex> = core_blocks.values().flatten().copied().collect();
         problem.scatter(&mut layer, &core_list);
         stats.solved_blocks += problem.blocks().len();
