@@ -505,6 +505,14 @@ fn reconstruct_streamed(
             g.grows,
             g.oversize_frames
         );
+        let per = |s: f64| 1e3 * s / g.frames.max(1) as f64;
+        println!(
+            "GPU tier per frame: listing blocks (CPU) {:.1} ms, residency {:.1} ms, kernels {:.1} ms, write-back {:.1} ms",
+            per(g.list_s),
+            per(g.residency_s),
+            per(g.kernel_s),
+            per(g.download_s)
+        );
     }
     println!(
         "map: {} chunks, {} blocks, {} voxels ({} in Ω), {:.1} MiB on disk, {:.3} bytes/voxel on disk",

@@ -315,7 +315,7 @@ impl Default for ResidentOptions {
 }
 
 /// Counters of a [`ResidentMap`].
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct ResidentStats {
     /// Slots in the pool now.
     pub capacity_blocks: u32,
@@ -339,6 +339,14 @@ pub struct ResidentStats {
     pub oversize_frames: u64,
     /// Most blocks one frame listed (its working set on the GPU).
     pub largest_frame_blocks: usize,
+    /// Seconds listing each frame's blocks on the CPU (band and visible blocks).
+    pub list_s: f64,
+    /// Seconds making blocks resident (growing, spilling, uploading blocks and table entries).
+    pub residency_s: f64,
+    /// Seconds in the lookup and fusion dispatches, waiting included, and the flag readback.
+    pub kernel_s: f64,
+    /// Seconds copying blocks back to RAM (syncs, flushes, spills).
+    pub download_s: f64,
 }
 
 /// Blocks resident on the GPU across frames, over a RAM [`Layer`] (see the module
@@ -495,7 +503,9 @@ impl ResidentMap {
         frame: &DepthFrame,
         params: &DepthFusionParams,
     ) -> Result<(TouchedBlocks, FusionStats)> {
+        let t = std::time::Instant::now();
         let band = depth_frame_blocks(&layer.params(), frame, params);
+        self.stats.list_s += t.elapsed().as_secs_f64();
         self.integrate_depth_band(layer, frame, params, band)
     }
 
@@ -513,10 +523,12 @@ impl ResidentMap {
                 "resident GPU map and layer have different grids".into(),
             ));
         }
+        let t = std::time::Instant::now();
         let mut blocks = band;
         blocks.extend(visible_blocks(layer, frame, params));
         blocks.sort_unstable();
         blocks.dedup();
+        self.stats.list_s += t.elapsed().as_secs_f64();
         self.frame += 1;
         self.stats.frames += 1;
         self.stats.largest_frame_blocks = self.stats.largest_frame_blocks.max(blocks.len());
@@ -549,10 +561,14 @@ impl ResidentMap {
             .copied()
             .filter(|b| self.table.lookup(*b).is_none())
             .collect();
+        let t = std::time::Instant::now();
         self.make_room(layer, missing.len(), &in_frame, camera)?;
         self.upload_blocks(layer, &missing)?;
         self.upload_table();
+        self.stats.residency_s += t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
         let (updated, voxel_updates) = self.run_fusion(&blocks, frame, params)?;
+        self.stats.kernel_s += t.elapsed().as_secs_f64();
         // Book-keeping: the layer learns the blocks created on the GPU; blocks the frame did not
         // update and the layer never had are released.
         let mut touched = Vec::with_capacity(blocks.len());
@@ -821,6 +837,13 @@ impl ResidentMap {
     /// Reads `slots` back into the layer (dirty ones only), then either clears their updated
     /// bits on the GPU or, with `release`, gives the slots back.
     fn download(&mut self, layer: &mut Layer, slots: &[u32], release: bool) -> Result<usize> {
+        let t = std::time::Instant::now();
+        let n = self.download_inner(layer, slots, release)?;
+        self.stats.download_s += t.elapsed().as_secs_f64();
+        Ok(n)
+    }
+
+    fn download_inner(&mut self, layer: &mut Layer, slots: &[u32], release: bool) -> Result<usize> {
         let dirty: Vec<u32> = slots
             .iter()
             .copied()
