@@ -308,9 +308,11 @@ pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
     })?;
     rec.sync_gpu()?;
     if let Some(r) = rec.resident_stats() {
+        let per = |s: f64| 1e3 * s / r.frames.max(1) as f64;
         tracing::info!(
             "GPU pool: {} of {} blocks resident (peak {}), {} uploaded, {} read back, {} spilled, \
-             {} grows, {} oversize frames",
+             {} grows, {} oversize frames; per frame: listing blocks (CPU) {:.1} ms, residency \
+             {:.1} ms, kernels {:.1} ms, write-back {:.1} ms",
             r.resident_blocks,
             r.capacity_blocks,
             r.peak_resident_blocks,
@@ -318,7 +320,11 @@ pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
             r.blocks_downloaded,
             r.blocks_spilled,
             r.grows,
-            r.oversize_frames
+            r.oversize_frames,
+            per(r.list_s),
+            per(r.residency_s),
+            per(r.kernel_s),
+            per(r.download_s)
         );
     }
     tracing::info!(
