@@ -296,7 +296,7 @@ pub fn fuse_input(job: &ReconstructJob) -> Result<Reconstructor> {
         rec.add_input_time(input_s);
         match input {
             RangeInput::Depth(f) => rec.fuse_depth(&f)?,
-            RangeInput::Lidar(s) => rec.fuse_lidar(&s),
+            RangeInput::Lidar(s) => rec.fuse_lidar(&s)?,
         };
         Ok(())
     })?;

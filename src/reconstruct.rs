@@ -4,7 +4,7 @@
 
 use crate::frame::{DepthFrame, LidarScan};
 use crate::fusion::{
-    integrate_depth, integrate_lidar, DepthFusionParams, FusionStats, LidarFusionParams,
+    integrate_depth, integrate_lidar, DepthFusionParams, FusionStats, LidarFusionParams, LidarPlan,
 };
 use crate::gpu::GpuContext;
 use crate::grid::{GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
@@ -99,8 +99,8 @@ impl Reconstructor {
         })
     }
 
-    /// Runs depth fusion and regularisation on `gpu` (`None`: on the CPU). LiDAR fusion and
-    /// meshing stay on the CPU.
+    /// Runs depth and LiDAR fusion and regularisation on `gpu` (`None`: on the CPU). Meshing
+    /// stays on the CPU.
     pub fn set_gpu(&mut self, gpu: Option<Arc<GpuContext>>) {
         self.gpu = gpu;
     }
@@ -153,12 +153,19 @@ impl Reconstructor {
         Ok(touched)
     }
 
-    /// Fuses a LiDAR scan; returns the blocks it touched.
-    pub fn fuse_lidar(&mut self, scan: &LidarScan) -> TouchedBlocks {
+    /// Fuses a LiDAR scan (on the GPU when one is set); returns the blocks it touched.
+    pub fn fuse_lidar(&mut self, scan: &LidarScan) -> crate::Result<TouchedBlocks> {
         let t = Instant::now();
-        let (touched, stats) = integrate_lidar(&mut self.layer, scan, &self.config.lidar_fusion);
+        let params = &self.config.lidar_fusion;
+        let (touched, stats) = match &self.gpu {
+            Some(gpu) => {
+                let plan = LidarPlan::new(&self.layer.params(), scan, params);
+                crate::gpu::integrate_lidar_gpu(gpu, &mut self.layer, &plan)?
+            }
+            None => integrate_lidar(&mut self.layer, scan, params),
+        };
         self.record(t, stats);
-        touched
+        Ok(touched)
     }
 
     /// Regularises the whole map (one global solve), on the GPU when one is set. A map too large
