@@ -4,8 +4,11 @@
 // CPU twin: `walk_block_ray` in src/gpu/lidar.rs (f32, block-local; `integrate_lidar_f32`), itself
 // close to the f64 reference `integrate_lidar_plan` in src/fusion/lidar.rs.
 // Buffer layouts: keep in sync with `LidarUniforms`, `GpuLidarRay` and `GpuVoxel` in
-// src/gpu/layout.rs. One invocation per listed block applies the block's rays in scan order, so
-// the result is deterministic; `voxels` holds the listed blocks in list order (512 each).
+// src/gpu/layout.rs. One invocation per listed block applies the block's rays in scan order, in
+// passes of at most `max_rays` rays dispatched one after the other, so the result is
+// deterministic. `voxels` holds the listed blocks (512 voxels each) in the order the host
+// dispatches them: by decreasing ray count, so that lockstep invocations do similar work and
+// the blocks with rays left in a pass are a prefix (`block_count`).
 // Prepended at load time: shared/dispatch.wgsl, shared/rounding.wgsl, shared/voxel_fuse.wgsl.
 
 struct LidarUniforms {
@@ -14,7 +17,12 @@ struct LidarUniforms {
     // Truncation μ and voxel edge, metres.
     truncation_m: f32,
     voxel_size_m: f32,
+    // This pass applies rays first_ray .. first_ray + max_rays of each block (see main).
+    first_ray: u32,
+    max_rays: u32,
     _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
 }
 
 // One (block, ray) pair in block-local voxel coordinates (`GpuLidarRay`).
@@ -55,6 +63,19 @@ const NEVER: f32 = 3.0e38;
 // [0]: voxel updates applied.
 @group(0) @binding(4) var<storage, read_write> counters: array<atomic<u32>>;
 
+// Step (−1, 0, 1), first crossing parameter and crossing interval along one axis, voxels, for
+// direction component `d` from `s` in cell `c`.
+fn axis_setup(d: f32, c: i32, s: f32) -> vec3<f32> {
+    if (d > 0.0) {
+        let inv = 1.0 / d;
+        return vec3<f32>(1.0, (f32(c + 1) - s) * inv, inv);
+    } else if (d < 0.0) {
+        let inv = 1.0 / d;
+        return vec3<f32>(-1.0, (f32(c) - s) * inv, -inv);
+    }
+    return vec3<f32>(0.0, NEVER, NEVER);
+}
+
 // Walks `ray` through listed block `b` (Amanatides–Woo, the order of operations of
 // `walk_block_ray`) and fuses every voxel of the block it visits whose sdf ≥ −μ. Returns the
 // number of updates.
@@ -66,22 +87,13 @@ fn apply_ray(b: u32, ray: LidarRay) -> u32 {
     let s = vec3<f32>(ray.start_x, ray.start_y, ray.start_z);
     let d = vec3<f32>(ray.dir_x, ray.dir_y, ray.dir_z);
     var cell = vec3<i32>(ray.start_cell_x, ray.start_cell_y, ray.start_cell_z);
-    var step = vec3<i32>(0);
-    var t_max = vec3<f32>(NEVER);
-    var t_delta = vec3<f32>(NEVER);
-    for (var a = 0; a < 3; a = a + 1) {
-        if (d[a] > 0.0) {
-            let inv = 1.0 / d[a];
-            step[a] = 1;
-            t_max[a] = (f32(cell[a] + 1) - s[a]) * inv;
-            t_delta[a] = inv;
-        } else if (d[a] < 0.0) {
-            let inv = 1.0 / d[a];
-            step[a] = -1;
-            t_max[a] = (f32(cell[a]) - s[a]) * inv;
-            t_delta[a] = -inv;
-        }
-    }
+    // Per axis (no loop: llvmpipe caps the loop iterations of an invocation).
+    let ax = axis_setup(d.x, cell.x, s.x);
+    let ay = axis_setup(d.y, cell.y, s.y);
+    let az = axis_setup(d.z, cell.z, s.z);
+    let step = vec3<i32>(i32(ax.x), i32(ay.x), i32(az.x));
+    var t_max = vec3<f32>(ax.y, ay.y, az.y);
+    let t_delta = vec3<f32>(ax.z, ay.z, az.z);
     var remaining = ray.steps;
     let rgb = ray.gray * 0x010101u;
     var n = 0u;
@@ -128,9 +140,12 @@ fn main(
     if (b >= params.block_count) {
         return;
     }
+    // At most max_rays rays per pass, so that an invocation stays under llvmpipe's cap of
+    // 65 535 loop iterations (the host chooses max_rays from the longest walk).
     var n = 0u;
-    let end = ray_offsets[b + 1u];
-    for (var k = ray_offsets[b]; k < end; k = k + 1u) {
+    let first = ray_offsets[b] + params.first_ray;
+    let end = min(ray_offsets[b + 1u], first + params.max_rays);
+    for (var k = first; k < end; k = k + 1u) {
         n = n + apply_ray(b, rays[k]);
     }
     if (n > 0u) {

@@ -17,7 +17,11 @@
 //!   voxel corners (rays exactly in voxel faces and through edges, where both walks break exact
 //!   ties by rounding). Among voxels with equal weights the quantised TSDF is within 1 step
 //!   (1/32767 of μ) and differs on ≤ 2e-3 of them (measured: ≤ 1.1e-3; the f32 sdf is ~1e-7 m
-//!   off, which moves a rounding to the other step).
+//!   off, which moves a rounding to the other step). At the weight cap (127 observations: the
+//!   ground under the car, hit by thousands of rays) the running average forgets a step of
+//!   difference slowest and later roundings add to it: within 8 steps (measured: 4 on the
+//!   city, i.e. 0.12 mm at μ = 1 m). Colours (which depend only on which rays visit a voxel, in
+//!   which order) differ on ≤ 1e-4 of the Ω voxels.
 
 mod common;
 
@@ -25,7 +29,7 @@ use common::{Rng, SphereScene};
 use denser::frame::LidarScan;
 use denser::fusion::{integrate_lidar_plan, LidarFusionParams, LidarPlan};
 use denser::gpu::{integrate_lidar_f32, integrate_lidar_gpu, GpuContext};
-use denser::grid::{Block, GridParams, Layer, VOXELS_PER_BLOCK};
+use denser::grid::{Block, GridParams, Layer, MAX_WEIGHT, VOXELS_PER_BLOCK};
 use denser::reconstruct::{ReconstructionConfig, Reconstructor};
 use std::collections::BTreeSet;
 use std::sync::Arc;
@@ -130,7 +134,12 @@ struct Agreement {
     weight_mismatch: usize,
     both_updated: usize,
     tsdf_differ: usize,
+    /// Among voxels with weight below the cap.
     worst_tsdf_steps: i32,
+    /// Among voxels at the weight cap (127): their running average forgets slowest, so a step
+    /// of difference lingers and later rounding differences add to it.
+    capped: usize,
+    worst_tsdf_steps_capped: i32,
     color_differ: usize,
 }
 
@@ -145,6 +154,8 @@ fn compare(a: &Layer, b: &Layer) -> Agreement {
         both_updated: 0,
         tsdf_differ: 0,
         worst_tsdf_steps: 0,
+        capped: 0,
+        worst_tsdf_steps_capped: 0,
         color_differ: 0,
     };
     for idx in all {
@@ -165,7 +176,12 @@ fn compare(a: &Layer, b: &Layer) -> Agreement {
             if d > 0 {
                 r.tsdf_differ += 1;
             }
-            r.worst_tsdf_steps = r.worst_tsdf_steps.max(d);
+            if x.weight(i) == MAX_WEIGHT {
+                r.capped += 1;
+                r.worst_tsdf_steps_capped = r.worst_tsdf_steps_capped.max(d);
+            } else {
+                r.worst_tsdf_steps = r.worst_tsdf_steps.max(d);
+            }
             if x.color[i] != y.color[i] {
                 r.color_differ += 1;
             }
@@ -185,7 +201,8 @@ fn assert_agreement(what: &str, r: &Agreement, weight_fraction: f64) {
     let n = r.omega_voxels as f64;
     eprintln!(
         "{what}: block sets equal {}, {} Ω voxels, weight differs on {} ({:.2e}), \
-         TSDF differs on {} of {} equal-weight voxels ({:.2e}), worst {} steps, colour differs on {}",
+         TSDF differs on {} of {} equal-weight voxels ({:.2e}), worst {} steps \
+         ({} steps among {} at the weight cap), colour differs on {}",
         r.block_sets_equal,
         r.omega_voxels,
         r.weight_mismatch,
@@ -194,6 +211,8 @@ fn assert_agreement(what: &str, r: &Agreement, weight_fraction: f64) {
         r.both_updated,
         r.tsdf_differ as f64 / r.both_updated.max(1) as f64,
         r.worst_tsdf_steps,
+        r.worst_tsdf_steps_capped,
+        r.capped,
         r.color_differ
     );
     assert!(r.omega_voxels > 20_000, "{what}: too small a test");
@@ -203,6 +222,11 @@ fn assert_agreement(what: &str, r: &Agreement, weight_fraction: f64) {
         "{what}: weights"
     );
     assert!(r.worst_tsdf_steps <= 1, "{what}: TSDF");
+    assert!(
+        r.worst_tsdf_steps_capped <= 8,
+        "{what}: TSDF at the weight cap"
+    );
+    assert!(r.color_differ as f64 <= 1e-4 * n, "{what}: colour");
     assert!(
         r.tsdf_differ as f64 <= 2e-3 * r.both_updated as f64,
         "{what}: TSDF"
@@ -305,6 +329,11 @@ fn gpu_equals_the_f32_twin_near_and_far_from_the_origin() {
     }
 }
 
+/// Full-resolution HDL-64-like scans of the synthetic city (64 × 2000 rays). Regression: the
+/// block under the car is crossed by ~10 000 rays; applied by one invocation it ran past
+/// llvmpipe's cap of 65 535 loop iterations per invocation, which silently ended the loops
+/// (3 900 updates of one block lost at half this resolution). The kernel now applies a bounded
+/// number of rays per pass.
 #[test]
 fn gpu_matches_the_reference_on_a_synthetic_city_scan() {
     let Some(ctx) = gpu() else { return };
@@ -316,10 +345,7 @@ fn gpu_matches_the_reference_on_a_synthetic_city_scan() {
     })
     .expect("city");
     let poses = city.frame_poses();
-    let cfg = LidarConfig {
-        azimuth_steps: 1000,
-        ..Default::default()
-    };
+    let cfg = LidarConfig::default();
     let scans: Vec<LidarScan> = [10, 14]
         .iter()
         .map(|&k| city.scan_lidar(&poses[k], &cfg, k as u64))
@@ -358,6 +384,44 @@ fn gpu_batches_give_the_same_voxels() {
     );
     assert_eq!(s_whole, s_batched);
     assert_layers_identical("batched vs whole", &whole, &batched);
+}
+
+#[test]
+fn gpu_keeps_the_regularised_field_in_step() {
+    // Block::fuse sets u = f on every voxel it updates; the GPU path must do the same.
+    let Some(ctx) = gpu() else { return };
+    let grid = GRIDS[0];
+    let scans = sphere_scans(OFFSETS[1]);
+    let (mut twin, _) = fuse_all(grid, &scans[..1], Way::F32Twin, None);
+    let tv = denser::regularize::TvParams {
+        iterations: 5,
+        ..denser::regularize::TvParams::paper(0.1)
+    };
+    denser::regularize::regularize_layer(&mut twin, &tv).expect("regularise");
+    let mut on_gpu = twin.clone();
+    let before = twin.clone();
+    let plan = LidarPlan::new(&grid, &scans[1], &PARAMS);
+    integrate_lidar_f32(&mut twin, &plan);
+    integrate_lidar_gpu(&ctx, &mut on_gpu, &plan).expect("GPU");
+    let reset = before
+        .indices_sorted()
+        .iter()
+        .map(|idx| {
+            let (old, new) = (before.get(idx).expect("old"), on_gpu.get(idx).expect("new"));
+            let (uo, un) = (
+                old.regularized.as_ref().expect("old u"),
+                new.regularized.as_ref().expect("new u"),
+            );
+            (0..VOXELS_PER_BLOCK)
+                .filter(|&i| un[i] != uo[i] && un[i] == new.tsdf[i])
+                .count()
+        })
+        .sum::<usize>();
+    eprintln!("{reset} regularised values reset to f by the GPU");
+    assert!(reset > 1000, "{reset}");
+    if ctx.is_software() {
+        assert_layers_identical("regularised map, GPU vs twin", &twin, &on_gpu);
+    }
 }
 
 #[test]

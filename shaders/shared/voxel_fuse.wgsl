@@ -5,6 +5,15 @@
 // Used by fuse_lidar.wgsl (fuse_common.wgsl inlines the same update for the depth kernels).
 // Prepended before it: shared/rounding.wgsl.
 
+// Channel at bit `shift` of the running mean of colours `rgb` (new) and `color` (old, weight
+// `w_old`), in place.
+fn mix_channel(rgb: u32, color: u32, shift: u32, w_old: f32, w_new: f32) -> u32 {
+    let c = f32((rgb >> shift) & 0xffu);
+    let o = f32((color >> shift) & 0xffu);
+    let m = clamp(round_half_away((c + w_old * o) / w_new), 0.0, 255.0);
+    return u32(m) << shift;
+}
+
 // The voxel (`tsdf_weight`, `color`) after fusing the normalised TSDF `t` ∈ [−1, 1] and, when
 // `use_color`, the colour `rgb` (else the colour is kept).
 fn fuse_packed(tsdf_weight: u32, color: u32, t: f32, rgb: u32, use_color: bool) -> vec2<u32> {
@@ -18,13 +27,10 @@ fn fuse_packed(tsdf_weight: u32, color: u32, t: f32, rgb: u32, use_color: bool) 
     let q_new = i32(round_half_away(clamp(f_new, -1.0, 1.0) * tsdf_scale));
     var out_color = color;
     if (use_color) {
-        out_color = 0u;
-        for (var k = 0u; k < 3u; k = k + 1u) {
-            let c = f32((rgb >> (8u * k)) & 0xffu);
-            let o = f32((color >> (8u * k)) & 0xffu);
-            let m = clamp(round_half_away((c + w_old * o) / w_new), 0.0, 255.0);
-            out_color = out_color | (u32(m) << (8u * k));
-        }
+        // No loop over the channels: llvmpipe caps the loop iterations of an invocation.
+        out_color = mix_channel(rgb, color, 0u, w_old, w_new)
+            | mix_channel(rgb, color, 8u, w_old, w_new)
+            | mix_channel(rgb, color, 16u, w_old, w_new);
     }
     // Weight capped at 127, Ω (bit 7) set, updated (bit 24) set.
     let weight = min(weight_old + 1u, 127u) | 128u;

@@ -68,8 +68,12 @@ pub struct LidarUniforms {
     pub truncation_m: f32,
     /// Voxel edge, metres.
     pub voxel_size_m: f32,
-    /// Padding to 16 bytes.
-    pub pad: u32,
+    /// This pass applies rays `first_ray ..` of each block (counted from the block's first).
+    pub first_ray: u32,
+    /// At most this many rays per block in this pass.
+    pub max_rays: u32,
+    /// Padding to 32 bytes.
+    pub pad: [u32; 3],
 }
 
 /// One (block, ray) pair of LiDAR fusion in the block's own frame (WGSL twin: `LidarRay` in
@@ -182,7 +186,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<FuseUniforms>(), 96);
         assert_eq!(std::mem::size_of::<GpuVoxel>(), 8);
         assert_eq!(std::mem::size_of::<LookupUniforms>(), 16);
-        assert_eq!(std::mem::size_of::<LidarUniforms>(), 16);
+        assert_eq!(std::mem::size_of::<LidarUniforms>(), 32);
         // Thirteen 4-byte scalars: WGSL's array stride is 52 with 4-byte alignment.
         assert_eq!(std::mem::size_of::<GpuLidarRay>(), 52);
         assert_eq!(std::mem::align_of::<GpuLidarRay>(), 4);

@@ -4,6 +4,9 @@
 //! Block listing stays on the CPU (the plan); the blocks are checked out of the layer, packed
 //! into [`GpuVoxel`]s, updated by one invocation per block that applies the block's rays in
 //! scan order (deterministic), read back, and checked in only after every batch succeeded.
+//! Within a batch the blocks are dispatched by decreasing walk length, so that invocations
+//! running in lockstep (SIMD lanes, warps) do similar work; a block's result does not depend
+//! on its place.
 //!
 //! WGSL has no f64, and a world-frame f32 walk would lose centimetres kilometres from the
 //! origin. So each (block, ray) pair is prepared on the CPU in f64 as a [`GpuLidarRay`] in the
@@ -38,6 +41,12 @@ const FUSE_LIDAR_BINDINGS: [wgpu::BufferBindingType; 5] =
 
 /// Crossing parameter of an axis the ray does not move along (`NEVER` in the kernel).
 const NEVER: f32 = 3.0e38;
+
+/// Loop iterations one invocation may run: llvmpipe (gallivm) ends every loop of an invocation
+/// after 65 535 iterations in all (`LP_MAX_TGSI_LOOP_ITERATIONS`, shared by every loop of a
+/// shader), silently. Each ray costs one iteration plus one per cell of its walk, so a pass
+/// applies at most `LOOP_BUDGET / (longest walk + 1)` rays of each block.
+const LOOP_BUDGET: u32 = 60_000;
 
 /// Bytes of one block of [`GpuVoxel`]s.
 const BLOCK_BYTES: u64 = (VOXELS_PER_BLOCK * std::mem::size_of::<GpuVoxel>()) as u64;
@@ -295,18 +304,28 @@ fn fuse_blocks(
     let rays = block_local_rays(grid, plan);
     let kernel = ctx.kernel(&shaders::FUSE_LIDAR, &FUSE_LIDAR_BINDINGS)?;
     let mut updates = 0usize;
-    let mut results: Vec<Vec<GpuVoxel>> = Vec::with_capacity(batches.len());
+    // Per batch: the blocks in dispatch order and their voxels as read back.
+    let mut results: Vec<(Vec<usize>, Vec<GpuVoxel>)> = Vec::with_capacity(batches.len());
     for batch in &batches {
-        let (first, last) = (&groups[batch.start].1, &groups[batch.end - 1].1);
-        let pair_range = first.start..last.end;
-        let offsets: Vec<u32> = groups[batch.clone()]
-            .iter()
-            .map(|g| (g.1.start - first.start) as u32)
-            .chain(std::iter::once((last.end - first.start) as u32))
-            .collect();
+        // Blocks in decreasing order of ray count: invocations that run in lockstep (SIMD
+        // lanes, warps) then have similar work, and the blocks with rays left for a pass are a
+        // prefix. A block's result does not depend on its place.
+        let count = |b: usize| groups[b].1.len();
+        let mut order: Vec<usize> = batch.clone().collect();
+        order.sort_by_key(|&b| std::cmp::Reverse(count(b)));
+        let mut offsets = Vec::with_capacity(order.len() + 1);
+        let mut batch_rays = Vec::with_capacity(order.iter().map(|&b| count(b)).sum());
+        for &b in &order {
+            offsets.push(batch_rays.len() as u32);
+            batch_rays.extend_from_slice(&rays[groups[b].1.clone()]);
+        }
+        offsets.push(batch_rays.len() as u32);
+        let longest_walk = batch_rays.iter().map(|r| r.steps).max().unwrap_or(0);
+        let rays_per_pass = (LOOP_BUDGET / (longest_walk + 1)).max(1);
         let voxel_count = (batch.len() * VOXELS_PER_BLOCK) as u64;
         let mut voxels = Vec::with_capacity(voxel_count as usize);
-        for (_, block) in &blocks[batch.clone()] {
+        for &b in &order {
+            let block = &blocks[b].1;
             for i in 0..VOXELS_PER_BLOCK {
                 voxels.push(GpuVoxel::pack(
                     block.tsdf[i],
@@ -315,48 +334,58 @@ fn fuse_blocks(
                 ));
             }
         }
-        let uniforms = LidarUniforms {
-            block_count: batch.len() as u32,
-            truncation_m: grid.truncation_m,
-            voxel_size_m: grid.voxel_size_m,
-            pad: 0,
-        };
         let scope = ErrorScopes::push(&ctx.device);
-        let buf_uniforms = ctx.uniform("lidar_uniforms", bytemuck::bytes_of(&uniforms));
         let buf_offsets = ctx.storage("lidar_ray_offsets", bytemuck::cast_slice(&offsets));
-        let buf_rays = ctx.storage("lidar_rays", bytemuck::cast_slice(&rays[pair_range]));
+        let buf_rays = ctx.storage("lidar_rays", bytemuck::cast_slice(&batch_rays));
         let buf_voxels = ctx.storage("lidar_voxels", bytemuck::cast_slice(&voxels));
         let buf_counters = ctx.storage("lidar_counters", bytemuck::cast_slice(&[0u32; 4]));
-        let bind = ctx.bind_group(
-            "fuse_lidar",
-            &kernel.layout,
-            &[
-                &buf_uniforms,
-                &buf_offsets,
-                &buf_rays,
-                &buf_voxels,
-                &buf_counters,
-            ],
-        );
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("fuse_lidar"),
             });
-        ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, batch.len() as u64)?;
+        // Passes in order (wgpu orders dispatches that write the same buffer), each over the
+        // blocks that still have rays.
+        let mut first_ray = 0u32;
+        loop {
+            let active = order.partition_point(|&b| count(b) as u32 > first_ray);
+            if active == 0 {
+                break;
+            }
+            let uniforms = LidarUniforms {
+                block_count: active as u32,
+                truncation_m: grid.truncation_m,
+                voxel_size_m: grid.voxel_size_m,
+                first_ray,
+                max_rays: rays_per_pass,
+                pad: [0; 3],
+            };
+            let buf_uniforms = ctx.uniform("lidar_uniforms", bytemuck::bytes_of(&uniforms));
+            let bind = ctx.bind_group(
+                "fuse_lidar",
+                &kernel.layout,
+                &[
+                    &buf_uniforms,
+                    &buf_offsets,
+                    &buf_rays,
+                    &buf_voxels,
+                    &buf_counters,
+                ],
+            );
+            ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, active as u64)?;
+            first_ray += rays_per_pass;
+        }
         ctx.queue.submit([encoder.finish()]);
         scope.pop("running the LiDAR fusion kernel")?;
         let out = ctx.read_back(&[(&buf_voxels, voxel_count * 8), (&buf_counters, 4)])?;
         // Staging bytes carry no alignment guarantee: copy into typed vectors.
         let counter: Vec<u32> = bytemuck::pod_collect_to_vec(&out[1]);
         updates += counter[0] as usize;
-        results.push(bytemuck::pod_collect_to_vec(&out[0]));
+        results.push((order, bytemuck::pod_collect_to_vec(&out[0])));
     }
-    for (batch, result) in batches.iter().zip(&results) {
-        for ((_, block), vox) in blocks[batch.clone()]
-            .iter_mut()
-            .zip(result.chunks_exact(VOXELS_PER_BLOCK))
-        {
+    for (order, result) in &results {
+        for (&b, vox) in order.iter().zip(result.chunks_exact(VOXELS_PER_BLOCK)) {
+            let block = &mut blocks[b].1;
             for (i, v) in vox.iter().enumerate() {
                 if !v.updated() {
                     continue;
