@@ -29,8 +29,8 @@ fn setup() -> (Layer, LidarScan) {
     let cfg = LidarConfig::default();
     let mut layer = Layer::new(GridParams::paper(0.1));
     let params = LidarFusionParams::default();
-    for k in 17..20 {
-        let scan = city.scan_lidar(&poses[k], &cfg, k as u64);
+    for (k, pose) in poses.iter().enumerate().take(20).skip(17) {
+        let scan = city.scan_lidar(pose, &cfg, k as u64);
         integrate_lidar(&mut layer, &scan, &params);
     }
     (layer, city.scan_lidar(&poses[20], &cfg, 20))
