@@ -4,9 +4,13 @@
 //! Block listing stays on the CPU (the plan); the blocks are checked out of the layer, packed
 //! into [`GpuVoxel`]s, updated by one invocation per block that applies the block's rays in
 //! scan order (deterministic), read back, and checked in only after every batch succeeded.
-//! Within a batch the blocks are dispatched by decreasing walk length, so that invocations
+//! Within a batch the blocks are dispatched by decreasing ray count, so that invocations
 //! running in lockstep (SIMD lanes, warps) do similar work; a block's result does not depend
-//! on its place.
+//! on its place. Rays are applied in passes of at most `LOOP_BUDGET / (longest walk + 1)` rays
+//! per block (one dispatch each, in order): llvmpipe silently ends the loops of an invocation
+//! after 65 535 iterations in all, which a block under the car (~10 000 rays) exceeded.
+//! The start cell and the walk's length in cells are decided in f64 as the reference decides
+//! them, so rays running exactly in a voxel face start on the same side.
 //!
 //! WGSL has no f64, and a world-frame f32 walk would lose centimetres kilometres from the
 //! origin. So each (block, ray) pair is prepared on the CPU in f64 as a [`GpuLidarRay`] in the
