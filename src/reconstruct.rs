@@ -116,9 +116,9 @@ impl Reconstructor {
         })
     }
 
-    /// Runs depth fusion and regularisation on `gpu` (`None`: on the CPU). LiDAR fusion and
-    /// meshing stay on the CPU. Depth fusion on the GPU keeps the blocks it fuses resident on
-    /// the device between frames ([`ResidentMap`]): the layer is current only after
+    /// Runs depth and LiDAR fusion and regularisation on `gpu` (`None`: on the CPU); meshing
+    /// stays on the CPU. Depth fusion on the GPU keeps the blocks it fuses resident on the device
+    /// between frames ([`ResidentMap`]): the layer is current only after
     /// [`Reconstructor::sync_gpu`] (which [`Reconstructor::regularize`] calls, as do the
     /// pipelines before meshing). Call before fusing; a resident map from an earlier GPU is
     /// written back first.
@@ -211,15 +211,18 @@ impl Reconstructor {
         Ok(touched)
     }
 
-    /// Fuses a LiDAR scan; returns the blocks it touched. Blocks of the scan resident on the GPU
-    /// are written back first.
+    /// Fuses a LiDAR scan (on the GPU when one is set, per call); returns the blocks it
+    /// touched. Blocks of the scan resident on the GPU are written back first.
     pub fn fuse_lidar(&mut self, scan: &LidarScan) -> crate::Result<TouchedBlocks> {
         let t = Instant::now();
         let plan = LidarPlan::new(&self.config.grid, scan, &self.config.lidar_fusion);
         if let Some(r) = self.resident.as_mut() {
             r.flush_blocks(&mut self.layer, &plan.blocks())?;
         }
-        let (touched, stats) = integrate_lidar_plan(&mut self.layer, &plan);
+        let (touched, stats) = match &self.gpu {
+            Some(gpu) => crate::gpu::integrate_lidar_gpu(gpu, &mut self.layer, &plan)?,
+            None => integrate_lidar_plan(&mut self.layer, &plan),
+        };
         self.record(t, stats);
         Ok(touched)
     }

@@ -25,10 +25,20 @@ impl Default for LidarFusionParams {
 }
 
 /// A usable ray: direction (unit, world frame) and range.
-struct Ray {
-    dir: [f64; 3],
-    range_m: f64,
-    gray: u8,
+pub(crate) struct Ray {
+    /// Unit direction, world frame.
+    pub(crate) dir: [f64; 3],
+    /// Range of the return, metres.
+    pub(crate) range_m: f64,
+    /// Intensity as a grey level (the colour every voxel it updates is averaged towards).
+    pub(crate) gray: u8,
+}
+
+/// The truncation band `[max(r − μ, 0), r + μ]` of a return at range `range_m`, metres along
+/// the ray: the segment whose voxels a ray updates (shared by the CPU and GPU paths).
+#[inline]
+pub(crate) fn band_m(range_m: f64, truncation_m: f64) -> (f64, f64) {
+    ((range_m - truncation_m).max(0.0), range_m + truncation_m)
 }
 
 fn rays(scan: &LidarScan, params: &LidarFusionParams) -> Vec<Ray> {
@@ -63,20 +73,14 @@ fn block_ray_pairs(grid: &GridParams, origin: [f64; 3], rays: &[Ray]) -> Vec<(Bl
         .enumerate()
         .flat_map_iter(|(k, r)| {
             let mut out = Vec::with_capacity(6);
-            traverse_cells(
-                origin,
-                r.dir,
-                (r.range_m - mu).max(0.0),
-                r.range_m + mu,
-                block,
-                |c| {
-                    out.push((
-                        BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]),
-                        k as u32,
-                    ));
-                    true
-                },
-            );
+            let (t0, t1) = band_m(r.range_m, mu);
+            traverse_cells(origin, r.dir, t0, t1, block, |c| {
+                out.push((
+                    BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]),
+                    k as u32,
+                ));
+                true
+            });
             out
         })
         .collect();
@@ -137,6 +141,46 @@ impl LidarPlan {
         b.dedup();
         b
     }
+
+    /// The sensor's position, world frame, metres.
+    pub fn origin_m(&self) -> [f64; 3] {
+        self.origin
+    }
+
+    /// Number of usable rays (returns within the range limits).
+    pub fn ray_count(&self) -> usize {
+        self.rays.len()
+    }
+
+    /// Number of (block, ray) pairs: the block-ray work items of an integration.
+    pub fn pair_count(&self) -> usize {
+        self.pairs.len()
+    }
+
+    /// The usable rays, in scan order.
+    pub(crate) fn rays(&self) -> &[Ray] {
+        &self.rays
+    }
+
+    /// The (block, ray) pairs, sorted by block then ray.
+    pub(crate) fn pairs(&self) -> &[(BlockIndex, u32)] {
+        &self.pairs
+    }
+
+    /// The pairs grouped by block: each block (sorted) with its range in [`LidarPlan::pairs`]
+    /// (rays in scan order).
+    pub(crate) fn groups(&self) -> Vec<(BlockIndex, std::ops::Range<usize>)> {
+        let pairs = &self.pairs;
+        let mut groups = Vec::new();
+        let mut start = 0;
+        for i in 1..=pairs.len() {
+            if i == pairs.len() || pairs[i].0 != pairs[start].0 {
+                groups.push((pairs[start].0, start..i));
+                start = i;
+            }
+        }
+        groups
+    }
 }
 
 /// Applies a [`LidarPlan`] to `layer` (see [`integrate_lidar`]).
@@ -145,15 +189,7 @@ pub fn integrate_lidar_plan(layer: &mut Layer, plan: &LidarPlan) -> (TouchedBloc
     let origin = plan.origin;
     let rays = &plan.rays;
     let pairs = &plan.pairs;
-    // Group the sorted pairs by block.
-    let mut groups: Vec<(BlockIndex, std::ops::Range<usize>)> = Vec::new();
-    let mut start = 0;
-    for i in 1..=pairs.len() {
-        if i == pairs.len() || pairs[i].0 != pairs[start].0 {
-            groups.push((pairs[start].0, start..i));
-            start = i;
-        }
-    }
+    let groups = plan.groups();
     let indices: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
     let mut taken = layer.take_blocks(&indices);
     let mu = grid.truncation_m as f64;
@@ -167,29 +203,23 @@ pub fn integrate_lidar_plan(layer: &mut Layer, plan: &LidarPlan) -> (TouchedBloc
             let mut n = 0;
             for &(_, k) in &pairs[range.clone()] {
                 let r = &rays[k as usize];
-                traverse_cells(
-                    origin,
-                    r.dir,
-                    (r.range_m - mu).max(0.0),
-                    r.range_m + mu,
-                    vs,
-                    |c| {
-                        let l = [c[0] - lo[0], c[1] - lo[1], c[2] - lo[2]];
-                        if l.iter().all(|&x| (0..s).contains(&x)) {
-                            // Signed distance along the ray from the voxel centre to the hit.
-                            let t = (0..3)
-                                .map(|a| ((c[a] as f64 + 0.5) * vs - origin[a]) * r.dir[a])
-                                .sum::<f64>();
-                            let sdf = r.range_m - t;
-                            if sdf >= -mu {
-                                let i = linear_index(l[0] as usize, l[1] as usize, l[2] as usize);
-                                block.fuse(i, (sdf.min(mu) / mu) as f32, Some([r.gray; 3]));
-                                n += 1;
-                            }
+                let (t0, t1) = band_m(r.range_m, mu);
+                traverse_cells(origin, r.dir, t0, t1, vs, |c| {
+                    let l = [c[0] - lo[0], c[1] - lo[1], c[2] - lo[2]];
+                    if l.iter().all(|&x| (0..s).contains(&x)) {
+                        // Signed distance along the ray from the voxel centre to the hit.
+                        let t = (0..3)
+                            .map(|a| ((c[a] as f64 + 0.5) * vs - origin[a]) * r.dir[a])
+                            .sum::<f64>();
+                        let sdf = r.range_m - t;
+                        if sdf >= -mu {
+                            let i = linear_index(l[0] as usize, l[1] as usize, l[2] as usize);
+                            block.fuse(i, (sdf.min(mu) / mu) as f32, Some([r.gray; 3]));
+                            n += 1;
                         }
-                        true
-                    },
-                );
+                    }
+                    true
+                });
             }
             n
         })

@@ -27,6 +27,7 @@ pub use depth::{
     depth_frame_blocks, integrate_depth, integrate_depth_band, visible_blocks, DepthFusionParams,
     ViewFrustum,
 };
+pub(crate) use lidar::band_m;
 pub use lidar::{
     integrate_lidar, integrate_lidar_plan, lidar_scan_blocks, LidarFusionParams, LidarPlan,
 };

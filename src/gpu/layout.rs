@@ -58,6 +58,50 @@ pub struct FuseUniforms {
     pub pad: [u32; 2],
 }
 
+/// Uniforms of `shaders/fuse_lidar.wgsl` (WGSL twin: `LidarUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct LidarUniforms {
+    /// Blocks in this batch (one invocation each).
+    pub block_count: u32,
+    /// Truncation μ, metres.
+    pub truncation_m: f32,
+    /// Voxel edge, metres.
+    pub voxel_size_m: f32,
+    /// This pass applies rays `first_ray ..` of each block (counted from the block's first).
+    pub first_ray: u32,
+    /// At most this many rays per block in this pass.
+    pub max_rays: u32,
+    /// Padding to 32 bytes.
+    pub pad: [u32; 3],
+}
+
+/// One (block, ray) pair of LiDAR fusion in the block's own frame (WGSL twin: `LidarRay` in
+/// `shaders/fuse_lidar.wgsl`): block-local voxel coordinates (voxel `(x, y, z)` of the block
+/// covers `[x, x + 1) × [y, y + 1) × [z, z + 1)`), so f32 keeps its precision at any distance
+/// from the world origin. Built in f64 on the CPU by `src/gpu/lidar.rs`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuLidarRay {
+    /// Where the walk starts, block-local voxel coordinates.
+    pub start_vox: [f32; 3],
+    /// Unit direction of the ray (world axes, which are the block's).
+    pub dir: [f32; 3],
+    /// Signed distance to the return at the start point (range − distance along the ray),
+    /// metres.
+    pub sdf_start_m: f32,
+    /// Length of the walk, voxels (negative: nothing to walk).
+    pub len_vox: f32,
+    /// The block-local cell the walk starts in, decided in f64 as the reference walk decides
+    /// it (so a ray running exactly in a voxel face starts on the same side).
+    pub start_cell: [i32; 3],
+    /// Cells the walk visits at most: the Manhattan distance between its end cells (in f64),
+    /// plus one, as the reference walk bounds itself.
+    pub steps: u32,
+    /// Grey level of the return (0–255).
+    pub gray: u32,
+}
+
 /// Uniforms of `shaders/block_lookup.wgsl` (WGSL twin: `LookupUniforms` there).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
@@ -142,6 +186,10 @@ mod tests {
         assert_eq!(std::mem::size_of::<FuseUniforms>(), 96);
         assert_eq!(std::mem::size_of::<GpuVoxel>(), 8);
         assert_eq!(std::mem::size_of::<LookupUniforms>(), 16);
+        assert_eq!(std::mem::size_of::<LidarUniforms>(), 32);
+        // Thirteen 4-byte scalars: WGSL's array stride is 52 with 4-byte alignment.
+        assert_eq!(std::mem::size_of::<GpuLidarRay>(), 52);
+        assert_eq!(std::mem::align_of::<GpuLidarRay>(), 4);
     }
 
     #[test]

@@ -8,21 +8,25 @@
 //! - [`solve_gpu`] / [`regularize_layer_gpu`] / [`regularize_regions_gpu`]: Chambolle–Pock
 //!   iterations on the GPU, globally or region by region (maps larger than one binding).
 //! - [`integrate_depth_gpu`]: projective TSDF fusion of one depth frame on the GPU.
+//! - [`integrate_lidar_gpu`]: ray-wise TSDF fusion of one LiDAR scan on the GPU (f32 walk in
+//!   block-local voxel coordinates); [`integrate_lidar_f32`] is its CPU twin.
 //! - [`layout`]: `#[repr(C)]` buffer structs with WGSL twins; [`shaders`]: the assembled sources.
 //!
-//! What it does not do (yet): LiDAR fusion, marching cubes and paging stay on the CPU; the map
+//! What it does not do (yet): marching cubes and paging stay on the CPU; the map
 //! is not resident on the GPU between calls (every call uploads its blocks and reads them back);
 //! a TV problem larger than one storage binding is an error unless solved in regions.
 
 mod context;
 mod fuse;
 pub mod layout;
+mod lidar;
 mod resident;
 pub mod shaders;
 mod tv;
 
 pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
 pub use fuse::integrate_depth_gpu;
+pub use lidar::{block_local_ray, integrate_lidar_f32, integrate_lidar_gpu, walk_block_ray};
 pub use resident::{
     block_hash, lookup_table_on_gpu, BlockTable, ResidentMap, ResidentOptions, ResidentStats,
     SLOT_BYTES, SLOT_EMPTY, SLOT_TOMBSTONE,

@@ -80,6 +80,22 @@ pub const BLOCK_LOOKUP: ShaderSource = ShaderSource {
     ),
 };
 
+/// LiDAR fusion (ray-wise, inside the truncation band) over uploaded blocks.
+pub const FUSE_LIDAR: ShaderSource = ShaderSource {
+    file: "fuse_lidar.wgsl",
+    shared: &[
+        "shared/dispatch.wgsl",
+        "shared/rounding.wgsl",
+        "shared/voxel_fuse.wgsl",
+    ],
+    source: concat!(
+        include_str!("../../shaders/shared/dispatch.wgsl"),
+        include_str!("../../shaders/shared/rounding.wgsl"),
+        include_str!("../../shaders/shared/voxel_fuse.wgsl"),
+        include_str!("../../shaders/fuse_lidar.wgsl")
+    ),
+};
+
 /// Every kernel (one per line, so additions merge cleanly).
 pub const ALL: &[ShaderSource] = &[
     // TV regularisation.
@@ -88,6 +104,7 @@ pub const ALL: &[ShaderSource] = &[
     // Fusion.
     FUSE_DEPTH,
     FUSE_DEPTH_RESIDENT,
+    FUSE_LIDAR,
     // The GPU hash table.
     BLOCK_LOOKUP,
     // (new kernels go above this line)
