@@ -8,6 +8,9 @@
 //! - [`solve_gpu`] / [`regularize_layer_gpu`] / [`regularize_regions_gpu`]: Chambolle–Pock
 //!   iterations on the GPU, globally or region by region (maps larger than one binding).
 //! - [`integrate_depth_gpu`]: projective TSDF fusion of one depth frame on the GPU.
+//! - Stereo (twin of `src/depth/`): [`TgvProblemGpu`] (TGV primal–dual iterations),
+//!   [`pointwise_search_gpu`], [`census_transform_gpu`], [`cost_volume_gpu`], and the whole
+//!   variational refinement [`refine_gpu`] / [`estimate_tgv_gpu`].
 //! - [`layout`]: `#[repr(C)]` buffer structs with WGSL twins; [`shaders`]: the assembled sources.
 //!
 //! What it does not do (yet): LiDAR fusion, marching cubes and paging stay on the CPU; the map
@@ -19,6 +22,7 @@ mod fuse;
 pub mod layout;
 mod resident;
 pub mod shaders;
+mod stereo;
 mod tv;
 
 pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
@@ -26,5 +30,9 @@ pub use fuse::integrate_depth_gpu;
 pub use resident::{
     block_hash, BlockTable, ResidentMap, ResidentOptions, ResidentStats, SLOT_BYTES, SLOT_EMPTY,
     SLOT_TOMBSTONE,
+};
+pub use stereo::{
+    census_transform_gpu, cost_volume_gpu, estimate_tgv_gpu, pointwise_search_gpu, refine_gpu,
+    TgvProblemGpu,
 };
 pub use tv::{regularize_layer_gpu, regularize_regions_gpu, solve_gpu};
