@@ -10,7 +10,7 @@
 //! - [`integrate_depth_gpu`]: projective TSDF fusion of one depth frame on the GPU.
 //! - Stereo (twin of `src/depth/`): [`TgvProblemGpu`] (TGV primal–dual iterations),
 //!   [`pointwise_search_gpu`], [`census_transform_gpu`], [`cost_volume_gpu`], and the whole
-//!   variational refinement [`refine_gpu`] / [`estimate_tgv_gpu`].
+//!   variational refinement [`refine_gpu`] / [`estimate_tgv_gpu`] / [`TgvMatcherGpu`].
 //! - [`layout`]: `#[repr(C)]` buffer structs with WGSL twins; [`shaders`]: the assembled sources.
 //!
 //! What it does not do (yet): LiDAR fusion, marching cubes and paging stay on the CPU; the map
@@ -33,6 +33,6 @@ pub use resident::{
 };
 pub use stereo::{
     census_transform_gpu, cost_volume_gpu, estimate_tgv_gpu, pointwise_search_gpu, refine_gpu,
-    TgvProblemGpu,
+    TgvMatcherGpu, TgvProblemGpu,
 };
 pub use tv::{regularize_layer_gpu, regularize_regions_gpu, solve_gpu};

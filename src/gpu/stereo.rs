@@ -28,7 +28,7 @@ use super::shaders;
 use crate::depth::census::{CensusImage, CensusKind, CensusParams};
 use crate::depth::sgm::{CostVolume, SgmMatcher};
 use crate::depth::tgv::{check_search, DataCost, Regulariser, TgvMatcher, TgvProblem, TgvStages};
-use crate::depth::DisparityMap;
+use crate::depth::{DisparityEstimator, DisparityMap};
 use crate::frame::GreyImage;
 use crate::{Error, Result};
 
@@ -609,4 +609,29 @@ pub fn estimate_tgv_gpu(
         dense_px: dense,
         result,
     })
+}
+
+/// A [`TgvMatcher`] that runs on the GPU ([`estimate_tgv_gpu`]), as a [`DisparityEstimator`]
+/// (`denser stereo --device gpu`).
+#[derive(Debug)]
+pub struct TgvMatcherGpu {
+    ctx: GpuContext,
+    matcher: TgvMatcher,
+}
+
+impl TgvMatcherGpu {
+    /// `matcher` on the device of `ctx`.
+    pub fn new(ctx: GpuContext, matcher: TgvMatcher) -> Self {
+        TgvMatcherGpu { ctx, matcher }
+    }
+}
+
+impl DisparityEstimator for TgvMatcherGpu {
+    fn name(&self) -> &str {
+        self.matcher.name()
+    }
+
+    fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap> {
+        Ok(estimate_tgv_gpu(&self.ctx, &self.matcher, left, right)?.result)
+    }
 }
