@@ -22,12 +22,8 @@ struct CostUniforms {
 @group(0) @binding(2) var<storage, read> right_signatures: array<u32>;
 @group(0) @binding(3) var<storage, read_write> volume: array<u32>;
 
-fn entry_cost(j: u32) -> u32 {
-    let nd = params.num_disparities;
-    let p = j / nd;
-    let k = j % nd;
-    let x = p % params.width;
-    let y = p / params.width;
+// The cost of left pixel p = (x, y) at slice k.
+fn entry_cost(p: u32, x: u32, y: u32, k: u32) -> u32 {
     let xr = i32(x) - params.min_disparity_px - i32(k);
     if (xr < 0 || xr >= i32(params.width)) {
         return params.max_cost;
@@ -52,10 +48,28 @@ fn main(
     if (first >= params.entries) {
         return;
     }
+    // Entry j is pixel j / nd, slice j % nd: divide once, then step (a word may straddle two
+    // pixels when nd is not a multiple of 4).
+    let nd = params.num_disparities;
+    var p = first / nd;
+    var k = first % nd;
+    var x = p % params.width;
+    var y = p / params.width;
     var word = 0u;
     for (var b = 0u; b < 4u; b = b + 1u) {
-        if (first + b < params.entries) {
-            word = word | (entry_cost(first + b) << (8u * b));
+        if (first + b >= params.entries) {
+            break;
+        }
+        word = word | (entry_cost(p, x, y, k) << (8u * b));
+        k = k + 1u;
+        if (k == nd) {
+            k = 0u;
+            p = p + 1u;
+            x = x + 1u;
+            if (x == params.width) {
+                x = 0u;
+                y = y + 1u;
+            }
         }
     }
     volume[g] = word;

@@ -38,7 +38,9 @@
 //! census cost there is at most [`TgvParams::max_cost_fraction`] of the bits ("texture-poor but
 //! consistent" pixels); [`HoleFill::All`] fills everything. Confidence: SGM's where TGV agrees
 //! with it within 1 px, else half the census match quality `1 − C/C_max`; 0 where invalid.
-//! Does not do coarse-to-fine, colour, or the right view.
+//! Does not do coarse-to-fine, colour, or the right view. The GPU twin of the cost volume, the
+//! point-wise search and the primal–dual iterations is `crate::gpu::refine_gpu` /
+//! `crate::gpu::estimate_tgv_gpu` (`src/gpu/stereo.rs`).
 
 use super::sgm::{CostVolume, SgmMatcher, SgmParams};
 use super::{DisparityEstimator, DisparityMap};
