@@ -351,6 +351,13 @@ fn apply(t: Tensor, g: [f32; 2]) -> [f32; 2] {
     [t[0] * g[0] + t[1] * g[1], t[1] * g[0] + t[2] * g[1]]
 }
 
+/// [`TgvProblem::state`]: primal `[u, v1, v2]`, over-relaxed primal, dual
+/// `[p1, p2, q11, q22, q12]`, one entry per pixel.
+pub type TgvState<'a> = (&'a [[f32; 3]], &'a [[f32; 3]], &'a [[f32; 5]]);
+
+/// [`TgvProblem::state_mut`].
+pub type TgvStateMut<'a> = (&'a mut [[f32; 3]], &'a mut [[f32; 3]], &'a mut [[f32; 5]]);
+
 /// The convex subproblem for fixed `a`: minimise over `(u, v)`
 /// `Σ α₁|T(∇u − v)| + α₂|ε(v)| + 1/(2θ)(u − a)²` by Chambolle–Pock (primal `u, v`; dual
 /// `p` (|p| ≤ α₁), `q` (|q| ≤ α₂)), steps `τ = σ = 1/√12` (`1/√8` for TV).
@@ -411,12 +418,12 @@ impl TgvProblem {
 
     /// The iteration state `(primal, primal_bar, dual)`: `[u, v1, v2]`, its over-relaxation, and
     /// `[p1, p2, q11, q22, q12]` per pixel (for the GPU twin, `crate::gpu::TgvProblemGpu`).
-    pub fn state(&self) -> (&[[f32; 3]], &[[f32; 3]], &[[f32; 5]]) {
+    pub fn state(&self) -> TgvState<'_> {
         (&self.primal, &self.primal_bar, &self.dual)
     }
 
     /// Mutable [`TgvProblem::state`], to continue an iteration computed elsewhere.
-    pub fn state_mut(&mut self) -> (&mut [[f32; 3]], &mut [[f32; 3]], &mut [[f32; 5]]) {
+    pub fn state_mut(&mut self) -> TgvStateMut<'_> {
         (&mut self.primal, &mut self.primal_bar, &mut self.dual)
     }
 
@@ -676,7 +683,7 @@ pub(crate) fn check_search(
     if volume.num_disparities == 0 {
         return Err(Error::InvalidArgument("cost volume has no slices".into()));
     }
-    if cost_window % 2 == 0 || cost_window > MAX_COST_WINDOW {
+    if cost_window.is_multiple_of(2) || cost_window > MAX_COST_WINDOW {
         return Err(Error::InvalidArgument(format!(
             "cost_window must be odd and at most {MAX_COST_WINDOW}, got {cost_window}"
         )));
