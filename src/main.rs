@@ -72,6 +72,9 @@ struct StereoArgs {
     /// that count missing pixels as errors).
     #[arg(long)]
     dense: bool,
+    /// Where tv/tgv/tgv-tensor run their census cost and refinement (SGM stays on the CPU).
+    #[arg(long, value_enum, default_value = "auto")]
+    device: DeviceArg,
 }
 
 #[derive(Args)]
@@ -735,6 +738,7 @@ fn stereo(a: StereoArgs) -> Result<()> {
         method: a.method.parse()?,
         num_disparities: a.num_disparities,
         dense: a.dense,
+        device: a.device.into(),
     };
     let outcome = pipeline::stereo(&job).with_context(|| {
         format!(

@@ -1020,6 +1020,8 @@ pub struct StereoJob {
     /// Variational methods only: keep occluded and poorly matching pixels (dense output for
     /// benchmarks that count missing pixels as errors).
     pub dense: bool,
+    /// Where the variational methods run (census cost, refinement); SGM runs on the CPU.
+    pub device: crate::gpu::DeviceChoice,
 }
 
 /// What `denser stereo` did.
@@ -1072,7 +1074,14 @@ pub fn stereo(job: &StereoJob) -> Result<StereoOutcome> {
     } else {
         crate::depth::tgv::HoleFill::Visible
     };
-    let estimator = job.method.estimator_with_fill(job.num_disparities, fill)?;
+    let estimator: Box<dyn crate::depth::DisparityEstimator> =
+        match job.method.tgv_matcher(job.num_disparities, fill)? {
+            Some(m) => match job.device.open()? {
+                Some(ctx) => Box::new(crate::gpu::TgvMatcherGpu::new(ctx, m)),
+                None => Box::new(m),
+            },
+            None => job.method.estimator_with_fill(job.num_disparities, fill)?,
+        };
     let started = std::time::Instant::now();
     let map = estimator.estimate(&left, &right)?;
     let matching_s = started.elapsed().as_secs_f64();

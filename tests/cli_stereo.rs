@@ -216,3 +216,63 @@ fn stereo_commands_name_missing_and_mismatched_files() {
         text(&o)
     );
 }
+
+#[test]
+fn stereo_on_the_gpu_writes_the_cpu_disparities() {
+    // `--device gpu` runs census cost and refinement on the GPU (lavapipe counts); skipped where
+    // no adapter exists. Tolerance as in tests/gpu_stereo.rs: > 0.1 px on ≤ 0.5 % of pixels.
+    if denser::gpu::GpuContext::new().ok().flatten().is_none() {
+        eprintln!("skipping: no GPU adapter (tools/setup.sh installs lavapipe)");
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let (w, h) = (160u32, 60u32);
+    let (left, right, _) = depth_support::planar_pair(w, h, 10.0, 0.03, 0.01, 9);
+    write_grey_png(d.join("l.png"), &left).unwrap();
+    write_grey_png(d.join("r.png"), &right).unwrap();
+    let mut maps = Vec::new();
+    for device in ["cpu", "gpu"] {
+        let out = format!("disp_{device}.pfm");
+        let o = denser(
+            &[
+                "stereo",
+                "l.png",
+                "r.png",
+                "--out",
+                &out,
+                "--num-disparities",
+                "24",
+                "--device",
+                device,
+            ],
+            d,
+        );
+        assert!(o.status.success(), "{}", text(&o));
+        if device == "gpu" {
+            assert!(text(&o).contains("device: GPU"), "{}", text(&o));
+        }
+        maps.push(read_pfm(d.join(out)).unwrap());
+    }
+    let (cpu, gpu) = (&maps[0], &maps[1]);
+    let same_validity = cpu
+        .data
+        .iter()
+        .zip(&gpu.data)
+        .filter(|(c, g)| c.is_finite() == g.is_finite())
+        .count();
+    let far = cpu
+        .data
+        .iter()
+        .zip(&gpu.data)
+        .filter(|(c, g)| c.is_finite() && g.is_finite() && (*c - *g).abs() > 0.1)
+        .count();
+    let valid = cpu.data.iter().filter(|c| c.is_finite()).count();
+    eprintln!(
+        "CPU vs GPU: {valid} valid, validity equal on {same_validity} of {}, {far} differ by > 0.1 px",
+        cpu.data.len()
+    );
+    assert!(valid > cpu.data.len() / 2);
+    assert!(same_validity as f64 >= 0.995 * cpu.data.len() as f64);
+    assert!(far as f64 <= 0.005 * cpu.data.len() as f64);
+}

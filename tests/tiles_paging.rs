@@ -362,10 +362,13 @@ fn tiled_export_stitches_into_the_whole_map_mesh() {
 fn gpu_tier_paged_fusion_equals_in_memory_gpu_fusion() {
     // device ↔ RAM ↔ disk: depth frames fused into a small GPU pool (spills to RAM, frames too
     // large for it take the batched path) over a pager that evicts everything it can after
-    // every frame, with checkpoints and LiDAR scans (fused on the CPU) in between. The stored map
-    // must equal fusing the same inputs in memory with the per-call GPU kernel (the same
-    // per-voxel function) and CPU LiDAR fusion, bit for bit.
-    use denser::gpu::{integrate_depth_gpu, GpuContext, ResidentMap, ResidentOptions, SLOT_BYTES};
+    // every frame, with checkpoints and LiDAR scans (per-call GPU kernel) in between. The stored
+    // map must equal fusing the same inputs in memory with the per-call GPU kernels (the same
+    // per-voxel function), bit for bit.
+    use denser::gpu::{
+        integrate_depth_gpu, integrate_lidar_gpu, GpuContext, ResidentMap, ResidentOptions,
+        SLOT_BYTES,
+    };
     let ctx = match GpuContext::new() {
         Ok(Some(c)) => std::sync::Arc::new(c),
         Ok(None) => {
@@ -411,7 +414,8 @@ fn gpu_tier_paged_fusion_equals_in_memory_gpu_fusion() {
         sf.fuse_depth(f).expect("fuse");
         if k == 4 || k == 7 {
             let s = &scans[(k == 7) as usize];
-            integrate_lidar(&mut mem, s, &lidar);
+            let plan = denser::fusion::LidarPlan::new(&grid(), s, &lidar);
+            integrate_lidar_gpu(&ctx, &mut mem, &plan).expect("per call");
             integrate_lidar(&mut cpu, s, &lidar);
             sf.fuse_lidar(s).expect("lidar");
         }
@@ -432,8 +436,8 @@ fn gpu_tier_paged_fusion_equals_in_memory_gpu_fusion() {
     assert!(gpu_stats.blocks_uploaded > gpu_stats.peak_resident_blocks as u64);
     let stored = store_layer(&store);
     assert_layers_identical(&mem, &stored);
-    // And the CPU twin: the same blocks; on lavapipe the same bits (other GPUs: see
-    // tests/gpu_compare.rs for the tolerance).
+    // And the CPU (f64 LiDAR walk): the same blocks; the voxels within the tolerances of
+    // tests/gpu_compare.rs and tests/gpu_lidar.rs.
     assert_eq!(cpu.indices_sorted(), stored.indices_sorted());
     let differ = cpu
         .indices_sorted()

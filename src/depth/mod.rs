@@ -106,20 +106,35 @@ impl StereoMethod {
         num_disparities: usize,
         hole_fill: tgv::HoleFill,
     ) -> Result<Box<dyn DisparityEstimator>> {
-        let sgm = SgmParams {
-            num_disparities,
-            ..SgmParams::default()
-        };
+        match self.tgv_matcher(num_disparities, hole_fill)? {
+            Some(m) => Ok(Box::new(m)),
+            None => Ok(Box::new(SgmMatcher::new(SgmParams {
+                num_disparities,
+                ..SgmParams::default()
+            })?)),
+        }
+    }
+
+    /// The variational matcher of this method (as [`StereoMethod::estimator_with_fill`] builds
+    /// it), or `None` for SGM.
+    pub fn tgv_matcher(
+        &self,
+        num_disparities: usize,
+        hole_fill: tgv::HoleFill,
+    ) -> Result<Option<TgvMatcher>> {
         let regulariser = match self {
-            StereoMethod::Sgm => return Ok(Box::new(SgmMatcher::new(sgm)?)),
+            StereoMethod::Sgm => return Ok(None),
             StereoMethod::Tv => Regulariser::Tv,
             StereoMethod::Tgv => Regulariser::Tgv,
             StereoMethod::TgvTensor => Regulariser::TgvTensor,
         };
-        Ok(Box::new(TgvMatcher::new(TgvParams {
+        Ok(Some(TgvMatcher::new(TgvParams {
             regulariser,
             hole_fill,
-            sgm,
+            sgm: SgmParams {
+                num_disparities,
+                ..SgmParams::default()
+            },
             ..TgvParams::default()
         })?))
     }

@@ -38,7 +38,9 @@
 //! census cost there is at most [`TgvParams::max_cost_fraction`] of the bits ("texture-poor but
 //! consistent" pixels); [`HoleFill::All`] fills everything. Confidence: SGM's where TGV agrees
 //! with it within 1 px, else half the census match quality `1 − C/C_max`; 0 where invalid.
-//! Does not do coarse-to-fine, colour, or the right view.
+//! Does not do coarse-to-fine, colour, or the right view. The GPU twin of the cost volume, the
+//! point-wise search and the primal–dual iterations is `crate::gpu::refine_gpu` /
+//! `crate::gpu::estimate_tgv_gpu` (`src/gpu/stereo.rs`).
 
 use super::sgm::{CostVolume, SgmMatcher, SgmParams};
 use super::{DisparityEstimator, DisparityMap};
@@ -349,6 +351,13 @@ fn apply(t: Tensor, g: [f32; 2]) -> [f32; 2] {
     [t[0] * g[0] + t[1] * g[1], t[1] * g[0] + t[2] * g[1]]
 }
 
+/// [`TgvProblem::state`]: primal `[u, v1, v2]`, over-relaxed primal, dual
+/// `[p1, p2, q11, q22, q12]`, one entry per pixel.
+pub type TgvState<'a> = (&'a [[f32; 3]], &'a [[f32; 3]], &'a [[f32; 5]]);
+
+/// [`TgvProblem::state_mut`].
+pub type TgvStateMut<'a> = (&'a mut [[f32; 3]], &'a mut [[f32; 3]], &'a mut [[f32; 5]]);
+
 /// The convex subproblem for fixed `a`: minimise over `(u, v)`
 /// `Σ α₁|T(∇u − v)| + α₂|ε(v)| + 1/(2θ)(u − a)²` by Chambolle–Pock (primal `u, v`; dual
 /// `p` (|p| ≤ α₁), `q` (|q| ≤ α₂)), steps `τ = σ = 1/√12` (`1/√8` for TV).
@@ -407,12 +416,33 @@ impl TgvProblem {
         })
     }
 
+    /// The iteration state `(primal, primal_bar, dual)`: `[u, v1, v2]`, its over-relaxation, and
+    /// `[p1, p2, q11, q22, q12]` per pixel (for the GPU twin, `crate::gpu::TgvProblemGpu`).
+    pub fn state(&self) -> TgvState<'_> {
+        (&self.primal, &self.primal_bar, &self.dual)
+    }
+
+    /// Mutable [`TgvProblem::state`], to continue an iteration computed elsewhere.
+    pub fn state_mut(&mut self) -> TgvStateMut<'_> {
+        (&mut self.primal, &mut self.primal_bar, &mut self.dual)
+    }
+
+    /// The step sizes `(τ, σ)` of [`TgvProblem::iterate`]: `1/√8` for TV, `1/√12` otherwise.
+    pub fn steps(&self) -> (f32, f32) {
+        let step = if self.regulariser == Regulariser::Tv {
+            1.0 / 8f32.sqrt()
+        } else {
+            1.0 / 12f32.sqrt()
+        };
+        (step, step)
+    }
+
     /// The disparity `u`.
     pub fn u(&self) -> Vec<f32> {
         self.primal.iter().map(|p| p[0]).collect()
     }
 
-    fn check_target(&self, a: &[f32], theta: f32) -> Result<()> {
+    pub(crate) fn check_target(&self, a: &[f32], theta: f32) -> Result<()> {
         if a.len() != self.width * self.height {
             return Err(Error::InvalidArgument(format!(
                 "coupling target has {} values, the problem {}×{}",
@@ -462,12 +492,7 @@ impl TgvProblem {
             return Ok(());
         }
         let tv = self.regulariser == Regulariser::Tv;
-        let step = if tv {
-            1.0 / 8f32.sqrt()
-        } else {
-            1.0 / 12f32.sqrt()
-        };
-        let (tau, sigma) = (step, step);
+        let (tau, sigma) = self.steps();
         let (a1, a2) = (self.alpha1, self.alpha2);
         for _ in 0..iterations {
             // Dual ascent and projection.
@@ -485,7 +510,9 @@ impl TgvProblem {
                             let gy = if y + 1 < h { pb[i + w][0] - c[0] } else { 0.0 };
                             let t = apply(tens[i], [gx - c[1], gy - c[2]]);
                             let (p1, p2) = (d[0] + sigma * t[0], d[1] + sigma * t[1]);
-                            let s = (p1.hypot(p2) / a1).max(1.0);
+                            // sqrt(p1² + p2²), not `hypot`: the GPU twin (shaders/tgv_dual.wgsl)
+                            // has no hypot, and |p| ≤ α₁ cannot overflow.
+                            let s = ((p1 * p1 + p2 * p2).sqrt() / a1).max(1.0);
                             d[0] = p1 / s;
                             d[1] = p2 / s;
                             if !tv {
@@ -591,12 +618,20 @@ pub fn box_filtered_costs(volume: &CostVolume, window: u32) -> (Vec<u16>, Vec<u1
 }
 
 /// The data term's cost `C(x, d)` in bits: raw or window-averaged census costs.
-struct DataCost<'a> {
-    volume: &'a CostVolume,
-    filtered: Option<(Vec<u16>, Vec<u16>)>,
+pub(crate) struct DataCost<'a> {
+    pub(crate) volume: &'a CostVolume,
+    pub(crate) filtered: Option<(Vec<u16>, Vec<u16>)>,
 }
 
-impl DataCost<'_> {
+impl<'a> DataCost<'a> {
+    /// The data cost of `volume` averaged over `window` × `window` (raw when 1).
+    pub(crate) fn new(volume: &'a CostVolume, window: u32) -> Self {
+        DataCost {
+            volume,
+            filtered: (window > 1).then(|| box_filtered_costs(volume, window)),
+        }
+    }
+
     /// Cost (bits) of slice `k` at pixel index `i`.
     #[inline(always)]
     fn at(&self, i: usize, k: usize) -> f32 {
@@ -608,10 +643,63 @@ impl DataCost<'_> {
     }
 }
 
+/// The point-wise search of [`TgvMatcher::refine`] on its own: for each pixel, the disparity `a`
+/// (pixels) minimising `λ·C(x, a) + (u(x) − a)²/(2θ)` over the census costs of `volume`
+/// averaged over `cost_window` × `cost_window` (raw when 1), with the parabola fit. `u` has one
+/// disparity per pixel (pixels). The CPU twin of [`crate::gpu::pointwise_search_gpu`].
+pub fn decoupling_search(
+    volume: &CostVolume,
+    cost_window: u32,
+    u: &[f32],
+    lambda: f32,
+    theta: f32,
+) -> Result<Vec<f32>> {
+    check_search(volume, cost_window, u, lambda, theta)?;
+    let data = DataCost::new(volume, cost_window);
+    let mut a = vec![0.0; u.len()];
+    pointwise_search(&data, u, lambda, theta, &mut a);
+    Ok(a)
+}
+
+/// Checks the arguments of [`decoupling_search`] (and of its GPU twin).
+pub(crate) fn check_search(
+    volume: &CostVolume,
+    cost_window: u32,
+    u: &[f32],
+    lambda: f32,
+    theta: f32,
+) -> Result<()> {
+    let n = volume.width as usize * volume.height as usize;
+    if u.len() != n || volume.cost.len() != n * volume.num_disparities {
+        return Err(Error::InvalidArgument(format!(
+            "point-wise search over a {}×{}×{} volume ({} costs) got {} disparities",
+            volume.width,
+            volume.height,
+            volume.num_disparities,
+            volume.cost.len(),
+            u.len()
+        )));
+    }
+    if volume.num_disparities == 0 {
+        return Err(Error::InvalidArgument("cost volume has no slices".into()));
+    }
+    if cost_window.is_multiple_of(2) || cost_window > MAX_COST_WINDOW {
+        return Err(Error::InvalidArgument(format!(
+            "cost_window must be odd and at most {MAX_COST_WINDOW}, got {cost_window}"
+        )));
+    }
+    if !(lambda.is_finite() && lambda > 0.0 && theta.is_finite() && theta > 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "λ and θ must be positive and finite, got {lambda} and {theta}"
+        )));
+    }
+    Ok(())
+}
+
 /// Point-wise search of the decoupling step: `a(x) = argmin_d λ·C(x, d) + (u(x) − d)²/(2θ)` over
 /// the integer slices, refined by a parabola through the energies of the winner's neighbours
 /// (offset clamped to ±0.5). Only slices with `(u − d)²/(2θ) ≤ λ·C_max` are visited.
-fn pointwise_search(data: &DataCost, u: &[f32], lambda: f32, theta: f32, a: &mut [f32]) {
+pub(crate) fn pointwise_search(data: &DataCost, u: &[f32], lambda: f32, theta: f32, a: &mut [f32]) {
     let v = data.volume;
     let nd = v.num_disparities;
     let dmin = v.min_disparity_px as f32;
@@ -755,6 +843,28 @@ impl TgvMatcher {
         init: &DisparityMap,
     ) -> Result<Vec<f32>> {
         let p = &self.params;
+        let (mut problem, u0) = self.initial_problem(left, volume, init)?;
+        let data = DataCost::new(volume, p.cost_window);
+        let mut a = u0.clone();
+        let mut u = u0;
+        for k in 0..p.outer_iterations {
+            let theta = p.theta(k);
+            pointwise_search(&data, &u, p.lambda, theta, &mut a);
+            problem.iterate(&a, theta, p.inner_iterations)?;
+            u = problem.u();
+        }
+        Ok(u)
+    }
+
+    /// The convex subproblem of [`TgvMatcher::refine`] before its first round, and its initial
+    /// disparity (SGM's, holes filled from the background side), pixels.
+    pub(crate) fn initial_problem(
+        &self,
+        left: &GreyImage,
+        volume: &CostVolume,
+        init: &DisparityMap,
+    ) -> Result<(TgvProblem, Vec<f32>)> {
+        let p = &self.params;
         let w = volume.width as usize;
         let h = volume.height as usize;
         if left.width as usize != w || left.height as usize != h {
@@ -768,20 +878,8 @@ impl TgvMatcher {
             Regulariser::TgvTensor => diffusion_tensors(left, p.gamma, p.beta),
             Regulariser::Tv | Regulariser::Tgv => vec![[1.0, 0.0, 1.0]; w * h],
         };
-        let mut problem = TgvProblem::new(&u0, w, h, p.regulariser, p.alpha1, p.alpha2, tensors)?;
-        let data = DataCost {
-            volume,
-            filtered: (p.cost_window > 1).then(|| box_filtered_costs(volume, p.cost_window)),
-        };
-        let mut a = u0.clone();
-        let mut u = u0;
-        for k in 0..p.outer_iterations {
-            let theta = p.theta(k);
-            pointwise_search(&data, &u, p.lambda, theta, &mut a);
-            problem.iterate(&a, theta, p.inner_iterations)?;
-            u = problem.u();
-        }
-        Ok(u)
+        let problem = TgvProblem::new(&u0, w, h, p.regulariser, p.alpha1, p.alpha2, tensors)?;
+        Ok((problem, u0))
     }
 
     /// Full estimate, keeping the intermediate maps.
@@ -801,7 +899,12 @@ impl TgvMatcher {
     }
 
     /// Marks pixels invalid (module docs) and computes confidences.
-    fn invalidate(&self, dense: &[f32], init: &DisparityMap, volume: &CostVolume) -> DisparityMap {
+    pub(crate) fn invalidate(
+        &self,
+        dense: &[f32],
+        init: &DisparityMap,
+        volume: &CostVolume,
+    ) -> DisparityMap {
         let p = &self.params;
         let w = volume.width as usize;
         let h = volume.height as usize;

@@ -114,6 +114,103 @@ pub struct LookupUniforms {
     pub pad: [u32; 2],
 }
 
+/// Uniforms of `shaders/tgv_dual.wgsl` and `shaders/tgv_primal.wgsl` (WGSL twin: `TgvUniforms`
+/// in `shaders/shared/tgv_common.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct TgvUniforms {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// 1 for TV (`v ≡ 0`, no `q`), 0 for TGV.
+    pub tv: u32,
+    /// Padding.
+    pub pad0: u32,
+    /// Dual step σ.
+    pub sigma: f32,
+    /// Primal step τ.
+    pub tau: f32,
+    /// α₁ (bound of `p`).
+    pub alpha1: f32,
+    /// α₂ (bound of `q`).
+    pub alpha2: f32,
+    /// τ/θ, the proximal weight of the coupling term.
+    pub coupling: f32,
+    /// Padding to 48 bytes.
+    pub pad1: [u32; 3],
+}
+
+/// Uniforms of `shaders/tgv_pointwise.wgsl` (WGSL twin: `PointwiseUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct PointwiseUniforms {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Disparity slices of the cost volume.
+    pub num_disparities: u32,
+    /// Bytes per packed cost: 1 (raw `u8` census costs) or 2 (`u16` window sums).
+    pub cost_bytes: u32,
+    /// Stride of `u` in its buffer: 1 (a plain array) or 3 (the TGV primal `[u, v1, v2]`).
+    pub u_stride: u32,
+    /// λ, per census bit.
+    pub lambda: f32,
+    /// θ of this round.
+    pub theta: f32,
+    /// Search reach `√(2θλ·C_max)`, pixels (computed on the CPU, as there).
+    pub reach: f32,
+    /// Disparity of slice 0, pixels.
+    pub min_disparity_px: f32,
+    /// Padding to 48 bytes.
+    pub pad: [u32; 3],
+}
+
+/// Uniforms of `shaders/census.wgsl` (WGSL twin: `CensusUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct CensusUniforms {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Census window width, pixels (odd).
+    pub window_width: u32,
+    /// Census window height, pixels (odd).
+    pub window_height: u32,
+    /// 1 for the ternary census, 0 for the binary one.
+    pub ternary: u32,
+    /// Ternary similarity threshold, grey levels.
+    pub threshold: u32,
+    /// `u32` words per signature (2 per `u64` word of the CPU's `CensusImage`).
+    pub words: u32,
+    /// Padding to 32 bytes.
+    pub pad: u32,
+}
+
+/// Uniforms of `shaders/census_cost.wgsl` (WGSL twin: `CostUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct CostUniforms {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Disparity slices.
+    pub num_disparities: u32,
+    /// Disparity of slice 0, pixels.
+    pub min_disparity_px: i32,
+    /// Cost where the right pixel is outside the image (the signature's bits).
+    pub max_cost: u32,
+    /// `u32` words per signature.
+    pub words: u32,
+    /// Entries of the volume (`width · height · num_disparities`).
+    pub entries: u32,
+    /// Padding to 32 bytes.
+    pub pad: u32,
+}
+
 /// One voxel as the fusion kernel reads and writes it (WGSL twin: `GpuVoxel` in
 /// `shaders/fuse_depth.wgsl`).
 #[repr(C)]
@@ -190,6 +287,10 @@ mod tests {
         // Thirteen 4-byte scalars: WGSL's array stride is 52 with 4-byte alignment.
         assert_eq!(std::mem::size_of::<GpuLidarRay>(), 52);
         assert_eq!(std::mem::align_of::<GpuLidarRay>(), 4);
+        assert_eq!(std::mem::size_of::<TgvUniforms>(), 48);
+        assert_eq!(std::mem::size_of::<PointwiseUniforms>(), 48);
+        assert_eq!(std::mem::size_of::<CensusUniforms>(), 32);
+        assert_eq!(std::mem::size_of::<CostUniforms>(), 32);
     }
 
     #[test]

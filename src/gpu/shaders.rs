@@ -96,6 +96,58 @@ pub const FUSE_LIDAR: ShaderSource = ShaderSource {
     ),
 };
 
+/// TGV stereo dual step (`p` with the tensor, `q`).
+pub const TGV_DUAL: ShaderSource = ShaderSource {
+    file: "tgv_dual.wgsl",
+    shared: &["shared/dispatch.wgsl", "shared/tgv_common.wgsl"],
+    source: concat!(
+        include_str!("../../shaders/shared/dispatch.wgsl"),
+        include_str!("../../shaders/shared/tgv_common.wgsl"),
+        include_str!("../../shaders/tgv_dual.wgsl")
+    ),
+};
+
+/// TGV stereo primal step (`u` with the coupling, `v`) and over-relaxation.
+pub const TGV_PRIMAL: ShaderSource = ShaderSource {
+    file: "tgv_primal.wgsl",
+    shared: &["shared/dispatch.wgsl", "shared/tgv_common.wgsl"],
+    source: concat!(
+        include_str!("../../shaders/shared/dispatch.wgsl"),
+        include_str!("../../shaders/shared/tgv_common.wgsl"),
+        include_str!("../../shaders/tgv_primal.wgsl")
+    ),
+};
+
+/// Point-wise search of the stereo decoupling.
+pub const TGV_POINTWISE: ShaderSource = ShaderSource {
+    file: "tgv_pointwise.wgsl",
+    shared: &["shared/dispatch.wgsl"],
+    source: concat!(
+        include_str!("../../shaders/shared/dispatch.wgsl"),
+        include_str!("../../shaders/tgv_pointwise.wgsl")
+    ),
+};
+
+/// Census transform.
+pub const CENSUS: ShaderSource = ShaderSource {
+    file: "census.wgsl",
+    shared: &["shared/dispatch.wgsl"],
+    source: concat!(
+        include_str!("../../shaders/shared/dispatch.wgsl"),
+        include_str!("../../shaders/census.wgsl")
+    ),
+};
+
+/// Census cost volume (Hamming distances).
+pub const CENSUS_COST: ShaderSource = ShaderSource {
+    file: "census_cost.wgsl",
+    shared: &["shared/dispatch.wgsl"],
+    source: concat!(
+        include_str!("../../shaders/shared/dispatch.wgsl"),
+        include_str!("../../shaders/census_cost.wgsl")
+    ),
+};
+
 /// Every kernel (one per line, so additions merge cleanly).
 pub const ALL: &[ShaderSource] = &[
     // TV regularisation.
@@ -107,5 +159,11 @@ pub const ALL: &[ShaderSource] = &[
     FUSE_LIDAR,
     // The GPU hash table.
     BLOCK_LOOKUP,
+    // Stereo.
+    TGV_DUAL,
+    TGV_PRIMAL,
+    TGV_POINTWISE,
+    CENSUS,
+    CENSUS_COST,
     // (new kernels go above this line)
 ];

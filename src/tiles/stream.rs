@@ -11,8 +11,8 @@
 //! on the GPU ([`ResidentMap`]): device ↔ RAM ↔ disk. The GPU holds a subset of the RAM-resident
 //! blocks (the most recently used, around the camera, within its own budget); before the pager
 //! evicts a chunk from RAM the GPU writes that chunk's blocks back and releases them, before a
-//! checkpoint it writes back every block it changed, and before a LiDAR scan (fused on the CPU)
-//! it releases the scan's blocks. So every tier below sees current blocks when it reads them.
+//! checkpoint it writes back every block it changed, and before a LiDAR scan (fused per call by
+//! the GPU LiDAR kernel) it releases the scan's blocks. So every tier below sees current blocks when it reads them.
 
 use super::pager::{Pager, PagerStats};
 use super::store::MapStore;
@@ -170,7 +170,10 @@ impl StreamingFusion {
         }
         self.paging_s += t.elapsed().as_secs_f64();
         let t = std::time::Instant::now();
-        let (touched, stats) = integrate_lidar_plan(self.pager.layer_mut(), &plan);
+        let (touched, stats) = match self.gpu.as_ref() {
+            Some(g) => crate::gpu::integrate_lidar_gpu(g.context(), self.pager.layer_mut(), &plan)?,
+            None => integrate_lidar_plan(self.pager.layer_mut(), &plan),
+        };
         self.fusion_s += t.elapsed().as_secs_f64() + t_plan;
         self.voxel_updates += stats.voxel_updates;
         let camera: [f64; 3] = scan.world_from_sensor.translation.vector.into();
