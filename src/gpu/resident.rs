@@ -220,7 +220,7 @@ impl BlockTable {
 
     /// The changed positions since the last call (`None`: everything), and resets the record.
     fn take_changes(&mut self) -> Option<Vec<u32>> {
-        std::mem::replace(&mut self.changed, Some(Vec::new()))
+        self.changed.replace(Vec::new())
     }
 
     /// The raw entries (what the device copy holds after an upload).
@@ -681,7 +681,7 @@ impl ResidentMap {
         self.last_used.resize(capacity as usize, 0);
         // New slots go under the old free ones, lowest first.
         let mut new_free: Vec<u32> = (old..capacity).rev().collect();
-        new_free.extend(self.free.drain(..));
+        new_free.append(&mut self.free);
         self.free = new_free;
         self.table.rebuild(2 * capacity as usize);
         self.stats.grows += 1;
@@ -974,8 +974,8 @@ mod tests {
                 ((rng >> 45) % 9) as i32 - 4,
                 ((rng >> 53) % 5) as i32 - 2_000_000,
             ]);
-            if truth.contains_key(&k) {
-                assert_eq!(t.remove(k), truth.remove(&k));
+            if let Some(slot) = truth.remove(&k) {
+                assert_eq!(t.remove(k), Some(slot));
             } else {
                 t.insert(k, step);
                 truth.insert(k, step);
