@@ -14,10 +14,12 @@
 #[path = "../tests/common/mod.rs"]
 mod common;
 
+use common::bench_gpu as gpu;
+
 use common::{orbit, vga, Rng, SphereScene};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use denser::fusion::{integrate_depth, DepthFusionParams};
-use denser::gpu::{integrate_depth_gpu, solve_gpu, GpuContext, ResidentMap, ResidentOptions};
+use denser::gpu::{integrate_depth_gpu, solve_gpu, ResidentMap, ResidentOptions};
 use denser::grid::{GridParams, Layer};
 use denser::regularize::{TvParams, TvProblem};
 
@@ -37,23 +39,6 @@ fn scene_layer() -> (Layer, Vec<denser::frame::DepthFrame>) {
         integrate_depth(&mut layer, f, &DepthFusionParams::default());
     }
     (layer, frames)
-}
-
-fn gpu() -> Option<GpuContext> {
-    match GpuContext::new() {
-        Ok(Some(ctx)) => {
-            eprintln!("GPU: {}", ctx.describe());
-            Some(ctx)
-        }
-        Ok(None) => {
-            eprintln!("no GPU adapter: GPU benchmarks skipped");
-            None
-        }
-        Err(e) => {
-            eprintln!("GPU failed, GPU benchmarks skipped: {e}");
-            None
-        }
-    }
 }
 
 fn tv(c: &mut Criterion) {

@@ -10,10 +10,15 @@
 //! - `fuse_lidar/cpu`: `integrate_lidar` (f64 walk, rayon over blocks).
 //! - `fuse_lidar/gpu`: `LidarPlan::new` + `integrate_lidar_gpu`.
 
+#[path = "../tests/common/mod.rs"]
+mod common;
+
+use common::bench_gpu as gpu;
+
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use denser::frame::LidarScan;
 use denser::fusion::{integrate_lidar, LidarFusionParams, LidarPlan};
-use denser::gpu::{integrate_lidar_gpu, GpuContext};
+use denser::gpu::integrate_lidar_gpu;
 use denser::grid::{GridParams, Layer};
 use denser::synth::{City, CityConfig, LidarConfig};
 
@@ -34,23 +39,6 @@ fn setup() -> (Layer, LidarScan) {
         integrate_lidar(&mut layer, &scan, &params);
     }
     (layer, city.scan_lidar(&poses[20], &cfg, 20))
-}
-
-fn gpu() -> Option<GpuContext> {
-    match GpuContext::new() {
-        Ok(Some(ctx)) => {
-            eprintln!("GPU: {}", ctx.describe());
-            Some(ctx)
-        }
-        Ok(None) => {
-            eprintln!("no GPU adapter: GPU benchmark skipped");
-            None
-        }
-        Err(e) => {
-            eprintln!("GPU failed, GPU benchmark skipped: {e}");
-            None
-        }
-    }
 }
 
 fn fuse_lidar(c: &mut Criterion) {

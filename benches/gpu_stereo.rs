@@ -13,6 +13,11 @@
 //!   of the problem, 100 dispatches, readback of u).
 //! - `refine/{cpu,gpu}`: the whole refinement (4 rounds × 10 iterations) from the SGM map.
 
+#[path = "../tests/common/mod.rs"]
+mod common;
+
+use common::bench_gpu as gpu;
+
 #[path = "../tests/depth_support/mod.rs"]
 mod depth_support;
 
@@ -20,25 +25,8 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use denser::depth::sgm::SgmMatcher;
 use denser::depth::tgv::{decoupling_search, TgvMatcher, TgvParams, TgvProblem};
 use denser::depth::SgmParams;
-use denser::gpu::{cost_volume_gpu, pointwise_search_gpu, refine_gpu, GpuContext, TgvProblemGpu};
+use denser::gpu::{cost_volume_gpu, pointwise_search_gpu, refine_gpu, TgvProblemGpu};
 use std::hint::black_box;
-
-fn gpu() -> Option<GpuContext> {
-    match GpuContext::new() {
-        Ok(Some(ctx)) => {
-            eprintln!("GPU: {}", ctx.describe());
-            Some(ctx)
-        }
-        Ok(None) => {
-            eprintln!("no GPU adapter: GPU benchmarks skipped");
-            None
-        }
-        Err(e) => {
-            eprintln!("GPU failed, GPU benchmarks skipped: {e}");
-            None
-        }
-    }
-}
 
 fn bench_stereo(c: &mut Criterion) {
     let (w, h) = (1241, 376);

@@ -15,6 +15,8 @@
 
 mod common;
 
+use common::gpu;
+
 use common::{orbit, vga, Rng, SphereScene};
 use denser::fusion::{integrate_depth, DepthFusionParams};
 use denser::gpu::{
@@ -25,20 +27,6 @@ use denser::grid::{BlockIndex, GridParams, Layer, VOXELS_PER_BLOCK};
 use denser::reconstruct::Reconstructor;
 use denser::regularize::{regularize_layer, RegionPlan, TvParams, TvProblem};
 use std::sync::Arc;
-
-fn gpu() -> Option<GpuContext> {
-    match GpuContext::new() {
-        Ok(Some(ctx)) => {
-            eprintln!("GPU: {}", ctx.describe());
-            Some(ctx)
-        }
-        Ok(None) => {
-            eprintln!("skipping: no GPU adapter (tools/setup.sh installs lavapipe)");
-            None
-        }
-        Err(e) => panic!("a GPU adapter exists but failed: {e}"),
-    }
-}
 
 /// A random problem: a 4×3×3 slab of blocks with two holes, random f ∈ [−1, 1], integer
 /// weights 0–20, Ω on ~85 % of voxels.

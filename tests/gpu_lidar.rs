@@ -25,6 +25,8 @@
 
 mod common;
 
+use common::gpu;
+
 use common::{Rng, SphereScene};
 use denser::frame::LidarScan;
 use denser::fusion::{integrate_lidar_plan, LidarFusionParams, LidarPlan};
@@ -33,20 +35,6 @@ use denser::grid::{Block, GridParams, Layer, MAX_WEIGHT, VOXELS_PER_BLOCK};
 use denser::reconstruct::{ReconstructionConfig, Reconstructor};
 use std::collections::BTreeSet;
 use std::sync::Arc;
-
-fn gpu() -> Option<GpuContext> {
-    match GpuContext::new() {
-        Ok(Some(ctx)) => {
-            eprintln!("GPU: {}", ctx.describe());
-            Some(ctx)
-        }
-        Ok(None) => {
-            eprintln!("skipping: no GPU adapter (tools/setup.sh installs lavapipe)");
-            None
-        }
-        Err(e) => panic!("a GPU adapter exists but failed: {e}"),
-    }
-}
 
 const PARAMS: LidarFusionParams = LidarFusionParams {
     min_range_m: 0.5,

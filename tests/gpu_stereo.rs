@@ -17,6 +17,8 @@
 //!   (measured on llvmpipe: none by > 0.1 px, bad-2.0 equal); with TV bit-identical on llvmpipe.
 
 mod common;
+
+use common::gpu;
 mod depth_support;
 
 use denser::depth::census::{census_transform, CensusKind, CensusParams};
@@ -32,20 +34,6 @@ use denser::gpu::{
     TgvProblemGpu,
 };
 use depth_support::{city_like_planes, piecewise_planar_pair};
-
-fn gpu() -> Option<GpuContext> {
-    match GpuContext::new() {
-        Ok(Some(ctx)) => {
-            eprintln!("GPU: {}", ctx.describe());
-            Some(ctx)
-        }
-        Ok(None) => {
-            eprintln!("skipping: no GPU adapter (tools/setup.sh installs lavapipe)");
-            None
-        }
-        Err(e) => panic!("a GPU adapter exists but failed: {e}"),
-    }
-}
 
 /// Whether the adapter is Mesa's llvmpipe, where the kernels are bit-identical to the CPU.
 fn is_llvmpipe(ctx: &GpuContext) -> bool {

@@ -366,17 +366,10 @@ fn gpu_tier_paged_fusion_equals_in_memory_gpu_fusion() {
     // map must equal fusing the same inputs in memory with the per-call GPU kernels (the same
     // per-voxel function), bit for bit.
     use denser::gpu::{
-        integrate_depth_gpu, integrate_lidar_gpu, GpuContext, ResidentMap, ResidentOptions,
-        SLOT_BYTES,
+        integrate_depth_gpu, integrate_lidar_gpu, ResidentMap, ResidentOptions, SLOT_BYTES,
     };
-    let ctx = match GpuContext::new() {
-        Ok(Some(c)) => std::sync::Arc::new(c),
-        Ok(None) => {
-            eprintln!("skipping: no GPU adapter (tools/setup.sh installs lavapipe)");
-            return;
-        }
-        Err(e) => panic!("a GPU adapter exists but failed: {e}"),
-    };
+    let Some(ctx) = common::gpu() else { return };
+    let ctx = std::sync::Arc::new(ctx);
     let frames = views();
     let scene = SphereScene::standard();
     let mut rng = Rng(4);
@@ -452,16 +445,9 @@ fn gpu_tier_paged_fusion_equals_in_memory_gpu_fusion() {
 
 #[test]
 fn regional_regularisation_on_the_gpu_equals_the_global_cpu_solve() {
-    use denser::gpu::{solve_gpu, GpuContext};
+    use denser::gpu::solve_gpu;
     use denser::tiles::regional::regularize_map_with;
-    let ctx = match GpuContext::new() {
-        Ok(Some(c)) => c,
-        Ok(None) => {
-            eprintln!("skipping: no GPU adapter (tools/setup.sh installs lavapipe)");
-            return;
-        }
-        Err(e) => panic!("a GPU adapter exists but failed: {e}"),
-    };
+    let Some(ctx) = common::gpu() else { return };
     let dir = tempfile::tempdir().expect("tempdir");
     let (mut mem, mut store) = fused_store(&dir.path().join("map"));
     let params = TvParams {

@@ -207,3 +207,37 @@ pub fn orbit(n: usize, r: f64, y: f64, target: [f64; 3]) -> Vec<Isometry3<f64>> 
 pub fn point(p: [f32; 3]) -> Point3<f64> {
     Point3::new(p[0] as f64, p[1] as f64, p[2] as f64)
 }
+
+/// The GPU of a GPU test: `None` (saying the test is skipped) where no adapter exists; a panic
+/// where one exists but fails to open.
+pub fn gpu() -> Option<denser::gpu::GpuContext> {
+    match denser::gpu::GpuContext::new() {
+        Ok(Some(ctx)) => {
+            eprintln!("GPU: {}", ctx.describe());
+            Some(ctx)
+        }
+        Ok(None) => {
+            eprintln!("skipping: no GPU adapter (tools/setup.sh installs lavapipe)");
+            None
+        }
+        Err(e) => panic!("a GPU adapter exists but failed: {e}"),
+    }
+}
+
+/// The GPU of a benchmark: `None`, saying the GPU half is skipped, without a working adapter.
+pub fn bench_gpu() -> Option<denser::gpu::GpuContext> {
+    match denser::gpu::GpuContext::new() {
+        Ok(Some(ctx)) => {
+            eprintln!("GPU: {}", ctx.describe());
+            Some(ctx)
+        }
+        Ok(None) => {
+            eprintln!("no GPU adapter: GPU benchmarks skipped");
+            None
+        }
+        Err(e) => {
+            eprintln!("GPU failed, GPU benchmarks skipped: {e}");
+            None
+        }
+    }
+}
