@@ -2,7 +2,8 @@
 // CPU twin: `integrate_depth` in src/fusion/depth.rs with `Block::fuse` in src/grid/block.rs.
 // Buffer layouts: keep in sync with `FuseUniforms`, `GpuVoxel` and `PIXEL_VALID` in
 // src/gpu/layout.rs. One invocation per voxel; `voxels` holds the listed blocks in list order.
-// Prepended at load time: shared/dispatch.wgsl, shared/rounding.wgsl, shared/fuse_common.wgsl.
+// Prepended at load time: shared/dispatch.wgsl, shared/rounding.wgsl, shared/voxel_fuse.wgsl,
+// shared/fuse_common.wgsl.
 
 @compute @workgroup_size(64)
 fn main(

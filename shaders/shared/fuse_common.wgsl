@@ -3,7 +3,7 @@
 // CPU twin: `integrate_depth` in src/fusion/depth.rs with `Block::fuse` in src/grid/block.rs.
 // Buffer layouts: keep in sync with `FuseUniforms`, `GpuVoxel` and `PIXEL_VALID` in
 // src/gpu/layout.rs. Bindings 0–5 are common to both kernels.
-// Prepended before it: shared/dispatch.wgsl, shared/rounding.wgsl.
+// Prepended before it: shared/dispatch.wgsl, shared/rounding.wgsl, shared/voxel_fuse.wgsl.
 
 struct FuseUniforms {
     // Camera-frame step of one voxel along world x, y, z (xyz; w unused), metres.
@@ -35,10 +35,6 @@ struct GpuVoxel {
 }
 
 const PIXEL_VALID: u32 = 0x1000000u;
-const MAX_WEIGHT: u32 = 127u;
-const OMEGA_BIT: u32 = 128u;
-const UPDATED_BIT: u32 = 0x1000000u;
-const TSDF_SCALE: f32 = 32767.0;
 
 @group(0) @binding(0) var<uniform> params: FuseUniforms;
 // Camera-frame centre of voxel (0, 0, 0) of each listed block (xyz; w unused), metres.
@@ -84,27 +80,10 @@ fn fuse_voxel(b: u32, i: u32, gv: u32) -> bool {
     }
     let t = min(sdf, params.mu) * params.inv_mu;
 
-    // Block::fuse: the paper's running average, weight capped, Ω set.
+    // Block::fuse: the paper's running average, weight capped, Ω set (shared/voxel_fuse.wgsl).
     let v = voxels[gv];
-    let q_old = (bitcast<i32>(v.tsdf_weight << 16u)) >> 16u;
-    let weight_old = (v.tsdf_weight >> 16u) & 0x7fu;
-    let w_old = f32(weight_old);
-    let w_new = w_old + 1.0;
-    let f_old = f32(q_old) / TSDF_SCALE;
-    let f_new = (t + w_old * f_old) / w_new;
-    let q_new = i32(round_half_away(clamp(f_new, -1.0, 1.0) * TSDF_SCALE));
-    var color = v.color;
-    if (params.use_color != 0u) {
-        color = 0u;
-        for (var k = 0u; k < 3u; k = k + 1u) {
-            let c = f32((px >> (8u * k)) & 0xffu);
-            let o = f32((v.color >> (8u * k)) & 0xffu);
-            let m = clamp(round_half_away((c + w_old * o) / w_new), 0.0, 255.0);
-            color = color | (u32(m) << (8u * k));
-        }
-    }
-    let weight = min(weight_old + 1u, MAX_WEIGHT) | OMEGA_BIT;
-    voxels[gv] = GpuVoxel((bitcast<u32>(q_new) & 0xffffu) | (weight << 16u) | UPDATED_BIT, color);
+    let out = fuse_packed(v.tsdf_weight, v.color, t, px, params.use_color != 0u);
+    voxels[gv] = GpuVoxel(out.x, out.y);
     atomicAdd(&counters[0], 1u);
     return true;
 }

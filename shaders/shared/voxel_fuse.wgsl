@@ -2,7 +2,7 @@
 // normalised TSDF and of the colour, weight + 1 (capped), Ω set. Words as `GpuVoxel` in
 // src/gpu/layout.rs: `tsdf_weight` bits 0–15 quantised TSDF (i16), 16–23 weight (0–6) and Ω (7),
 // bit 24 set here (updated); `color` r | g << 8 | b << 16. Keep in sync with both.
-// Used by fuse_lidar.wgsl (fuse_common.wgsl inlines the same update for the depth kernels).
+// Used by fuse_lidar.wgsl and, through shared/fuse_common.wgsl, by the depth kernels.
 // Prepended before it: shared/rounding.wgsl.
 
 // Channel at bit `shift` of the running mean of colours `rgb` (new) and `color` (old, weight

@@ -12,7 +12,9 @@
 //! storage binding (4 KiB per block: 32 768 blocks in 128 MiB), so any number of blocks works.
 
 use super::context::{ErrorScopes, GpuContext, READ, READ_WRITE, UNIFORM};
-use super::layout::{pack_rgb, FuseUniforms, GpuVoxel, PIXEL_VALID};
+use super::layout::{
+    apply_updated, pack_block_into, pack_rgb, FuseUniforms, GpuVoxel, PIXEL_VALID,
+};
 use super::shaders;
 use crate::frame::DepthFrame;
 use crate::fusion::{depth_frame_blocks, usable, visible_blocks, DepthFusionParams, FusionStats};
@@ -102,13 +104,7 @@ fn fuse_blocks(
         let mut bases = Vec::with_capacity(batch.len());
         for (index, block) in batch.iter() {
             bases.push(block_base(grid, &camera_from_world, *index));
-            for i in 0..VOXELS_PER_BLOCK {
-                voxels.push(GpuVoxel::pack(
-                    block.tsdf[i],
-                    block.weight_omega[i],
-                    block.color[i],
-                ));
-            }
+            pack_block_into(block, &mut voxels);
         }
         let uniforms = FuseUniforms {
             voxel_count: voxel_count as u32,
@@ -147,18 +143,7 @@ fn fuse_blocks(
     }
     for (batch, result) in blocks.chunks_mut(per_batch).zip(&results) {
         for ((_, block), vox) in batch.iter_mut().zip(result.chunks_exact(VOXELS_PER_BLOCK)) {
-            for (i, v) in vox.iter().enumerate() {
-                if !v.updated() {
-                    continue;
-                }
-                block.tsdf[i] = v.tsdf();
-                block.weight_omega[i] = v.weight_omega();
-                block.color[i] = v.rgb();
-                // As Block::fuse: the raw field changed, a stored regularised value follows it.
-                if let Some(u) = block.regularized.as_mut() {
-                    u[i] = block.tsdf[i];
-                }
-            }
+            apply_updated(block, vox);
         }
     }
     Ok(updates)

@@ -3,6 +3,7 @@
 //! WGSL's uniform/storage layout rules (a `vec4<f32>` is 16-byte aligned; structs are padded to
 //! a multiple of 16 bytes in uniform buffers). Tests check the sizes.
 
+use crate::grid::{Block, VOXELS_PER_BLOCK};
 use bytemuck::{Pod, Zeroable};
 
 /// Uniforms of `shaders/tv_dual.wgsl` and `shaders/tv_primal.wgsl` (WGSL twin: `TvUniforms` in
@@ -264,6 +265,31 @@ impl GpuVoxel {
             ((self.color >> 8) & 0xff) as u8,
             ((self.color >> 16) & 0xff) as u8,
         ]
+    }
+}
+
+/// Appends `block`'s 512 voxels, packed, to `out` (the layout every fusion kernel reads).
+pub(crate) fn pack_block_into(block: &Block, out: &mut Vec<GpuVoxel>) {
+    out.extend(
+        (0..VOXELS_PER_BLOCK)
+            .map(|i| GpuVoxel::pack(block.tsdf[i], block.weight_omega[i], block.color[i])),
+    );
+}
+
+/// Writes back into `block` the voxels a kernel marked updated in `voxels` (its 512, read back):
+/// TSDF, weight and Ω, colour, and, as `Block::fuse`, a stored regularised value follows the
+/// new TSDF.
+pub(crate) fn apply_updated(block: &mut Block, voxels: &[GpuVoxel]) {
+    for (i, v) in voxels.iter().enumerate() {
+        if !v.updated() {
+            continue;
+        }
+        block.tsdf[i] = v.tsdf();
+        block.weight_omega[i] = v.weight_omega();
+        block.color[i] = v.rgb();
+        if let Some(u) = block.regularized.as_mut() {
+            u[i] = block.tsdf[i];
+        }
     }
 }
 

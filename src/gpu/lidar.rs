@@ -28,7 +28,7 @@
 //! states the tolerance.
 
 use super::context::{ErrorScopes, GpuContext, READ, READ_WRITE, UNIFORM};
-use super::layout::{GpuLidarRay, GpuVoxel, LidarUniforms};
+use super::layout::{apply_updated, pack_block_into, GpuLidarRay, GpuVoxel, LidarUniforms};
 use super::shaders;
 use crate::fusion::{band_m, FusionStats, LidarPlan};
 use crate::grid::{
@@ -329,14 +329,7 @@ fn fuse_blocks(
         let voxel_count = (batch.len() * VOXELS_PER_BLOCK) as u64;
         let mut voxels = Vec::with_capacity(voxel_count as usize);
         for &b in &order {
-            let block = &blocks[b].1;
-            for i in 0..VOXELS_PER_BLOCK {
-                voxels.push(GpuVoxel::pack(
-                    block.tsdf[i],
-                    block.weight_omega[i],
-                    block.color[i],
-                ));
-            }
+            pack_block_into(&blocks[b].1, &mut voxels);
         }
         let scope = ErrorScopes::push(&ctx.device);
         let buf_offsets = ctx.storage("lidar_ray_offsets", bytemuck::cast_slice(&offsets));
@@ -389,19 +382,7 @@ fn fuse_blocks(
     }
     for (order, result) in &results {
         for (&b, vox) in order.iter().zip(result.chunks_exact(VOXELS_PER_BLOCK)) {
-            let block = &mut blocks[b].1;
-            for (i, v) in vox.iter().enumerate() {
-                if !v.updated() {
-                    continue;
-                }
-                block.tsdf[i] = v.tsdf();
-                block.weight_omega[i] = v.weight_omega();
-                block.color[i] = v.rgb();
-                // As Block::fuse: the raw field changed, a stored regularised value follows it.
-                if let Some(u) = block.regularized.as_mut() {
-                    u[i] = block.tsdf[i];
-                }
-            }
+            apply_updated(&mut blocks[b].1, vox);
         }
     }
     Ok(updates)

@@ -31,7 +31,7 @@
 
 use super::context::{ErrorScopes, GpuContext, READ, READ_WRITE, UNIFORM};
 use super::fuse::{block_base, frame_uniforms, pixel_words};
-use super::layout::{FuseUniforms, GpuVoxel, LookupUniforms, UPDATED_BIT};
+use super::layout::{pack_block_into, FuseUniforms, GpuVoxel, LookupUniforms, UPDATED_BIT};
 use super::shaders;
 use crate::frame::DepthFrame;
 use crate::fusion::{depth_frame_blocks, usable, visible_blocks, DepthFusionParams, FusionStats};
@@ -375,12 +375,6 @@ impl std::fmt::Debug for ResidentMap {
     }
 }
 
-fn pack_block(block: &Block) -> Vec<GpuVoxel> {
-    (0..VOXELS_PER_BLOCK)
-        .map(|i| GpuVoxel::pack(block.tsdf[i], block.weight_omega[i], block.color[i]))
-        .collect()
-}
-
 impl ResidentMap {
     /// An empty pool on `ctx` for maps on `grid`.
     pub fn new(ctx: Arc<GpuContext>, grid: GridParams, options: ResidentOptions) -> Result<Self> {
@@ -704,13 +698,14 @@ impl ResidentMap {
         if blocks.is_empty() {
             return Ok(());
         }
-        let empty = pack_block(&Block::default());
+        let mut empty = Vec::with_capacity(VOXELS_PER_BLOCK);
+        pack_block_into(&Block::default(), &mut empty);
         let mut data: Vec<GpuVoxel> = Vec::with_capacity(blocks.len() * VOXELS_PER_BLOCK);
         let mut slots = Vec::with_capacity(blocks.len());
         for b in blocks {
             let slot = self.free.pop().expect("room was made");
             match layer.get(b) {
-                Some(block) => data.extend(pack_block(block)),
+                Some(block) => pack_block_into(block, &mut data),
                 None => data.extend_from_slice(&empty),
             }
             self.slot_key[slot as usize] = Some(*b);

@@ -41,11 +41,13 @@ pub const FUSE_DEPTH: ShaderSource = ShaderSource {
     shared: &[
         "shared/dispatch.wgsl",
         "shared/rounding.wgsl",
+        "shared/voxel_fuse.wgsl",
         "shared/fuse_common.wgsl",
     ],
     source: concat!(
         include_str!("../../shaders/shared/dispatch.wgsl"),
         include_str!("../../shaders/shared/rounding.wgsl"),
+        include_str!("../../shaders/shared/voxel_fuse.wgsl"),
         include_str!("../../shaders/shared/fuse_common.wgsl"),
         include_str!("../../shaders/fuse_depth.wgsl")
     ),
@@ -57,12 +59,14 @@ pub const FUSE_DEPTH_RESIDENT: ShaderSource = ShaderSource {
     shared: &[
         "shared/dispatch.wgsl",
         "shared/rounding.wgsl",
+        "shared/voxel_fuse.wgsl",
         "shared/fuse_common.wgsl",
         "shared/block_hash.wgsl",
     ],
     source: concat!(
         include_str!("../../shaders/shared/dispatch.wgsl"),
         include_str!("../../shaders/shared/rounding.wgsl"),
+        include_str!("../../shaders/shared/voxel_fuse.wgsl"),
         include_str!("../../shaders/shared/fuse_common.wgsl"),
         include_str!("../../shaders/shared/block_hash.wgsl"),
         include_str!("../../shaders/fuse_depth_resident.wgsl")
