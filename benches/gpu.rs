@@ -16,11 +16,13 @@ mod common;
 
 use common::bench_gpu as gpu;
 
+use common::{fuse_depth_gpu, fuse_depth_resident};
 use common::{orbit, vga, Rng, SphereScene};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use denser::fusion::{integrate_depth, DepthFusionParams};
-use denser::gpu::{integrate_depth_gpu, solve_gpu, ResidentMap, ResidentOptions};
+use denser::gpu::{ResidentMap, ResidentOptions};
 use denser::grid::{GridParams, Layer};
+use denser::regularize::solve_gpu;
 use denser::regularize::{TvParams, TvProblem};
 
 fn scene_layer() -> (Layer, Vec<denser::frame::DepthFrame>) {
@@ -85,18 +87,14 @@ fn fusion(c: &mut Criterion) {
     });
     if let Some(ctx) = ctx {
         g.bench_function("gpu", |b| {
-            b.iter(|| integrate_depth_gpu(&ctx, &mut layer, &frames[0], &params).expect("GPU"))
+            b.iter(|| fuse_depth_gpu(&ctx, &mut layer, &frames[0], &params).expect("GPU"))
         });
         let ctx = std::sync::Arc::new(ctx);
         let mut map =
             ResidentMap::new(ctx, layer.params(), ResidentOptions::default()).expect("pool");
-        map.integrate_depth(&mut layer, &frames[0], &params)
-            .expect("warm");
+        fuse_depth_resident(&mut map, &mut layer, &frames[0], &params).expect("warm");
         g.bench_function("gpu_resident", |b| {
-            b.iter(|| {
-                map.integrate_depth(&mut layer, &frames[0], &params)
-                    .expect("GPU")
-            })
+            b.iter(|| fuse_depth_resident(&mut map, &mut layer, &frames[0], &params).expect("GPU"))
         });
         map.sync(&mut layer).expect("sync");
     }

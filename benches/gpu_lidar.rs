@@ -17,8 +17,8 @@ use common::bench_gpu as gpu;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use denser::frame::LidarScan;
+use denser::fusion::integrate_lidar_gpu;
 use denser::fusion::{integrate_lidar, LidarFusionParams, LidarPlan};
-use denser::gpu::integrate_lidar_gpu;
 use denser::grid::{GridParams, Layer};
 use denser::synth::{City, CityConfig, LidarConfig};
 

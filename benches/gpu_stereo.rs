@@ -25,7 +25,7 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use denser::depth::sgm::SgmMatcher;
 use denser::depth::tgv::{decoupling_search, TgvMatcher, TgvParams, TgvProblem};
 use denser::depth::SgmParams;
-use denser::gpu::{cost_volume_gpu, pointwise_search_gpu, refine_gpu, TgvProblemGpu};
+use denser::depth::{cost_volume_gpu, pointwise_search_gpu, refine_gpu, TgvProblemGpu};
 use std::hint::black_box;
 
 fn bench_stereo(c: &mut Criterion) {

@@ -8,13 +8,15 @@ mod common;
 
 use common::{orbit, vga, Rng, SphereScene};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
-use denser::fusion::{integrate_depth, DepthFusionParams, LidarFusionParams};
+use denser::backend::Backend;
+use denser::fusion::{integrate_depth, DepthFusionParams};
 use denser::grid::{Block, BlockIndex, GridParams, Layer};
+use denser::reconstruct::{ReconstructionConfig, Reconstructor};
 use denser::tiles::codec::{decode_chunk, encode_chunk, ChunkHeader};
-use denser::tiles::pager::{OverrunPolicy, Pager, PagerConfig};
+use denser::tiles::pager::{OverrunPolicy, PagerConfig};
+use denser::tiles::regional::RegionalOptions;
 use denser::tiles::store::MapStore;
-use denser::tiles::stream::StreamingFusion;
-use denser::tiles::{group_by_chunk, ChunkIndex};
+use denser::tiles::{group_by_chunk, ChunkIndex, PagedStore};
 
 const GRID: GridParams = GridParams {
     voxel_size_m: 0.05,
@@ -92,24 +94,30 @@ fn paging(c: &mut Criterion) {
                 let dir = tempfile::tempdir().expect("tempdir");
                 let store =
                     MapStore::create(&dir.path().join("m"), GRID, chunk_blocks).expect("create");
-                let pager = Pager::new(
+                let store = PagedStore::new(
                     store,
                     PagerConfig {
                         budget_bytes: 0,
                         overrun: OverrunPolicy::Warn,
                         writer_threads: 2,
                     },
+                    RegionalOptions {
+                        region_chunks: 2,
+                        budget_bytes: 1 << 30,
+                        halo_blocks: None,
+                    },
                 );
-                let mut sf = StreamingFusion::new(
-                    pager,
-                    DepthFusionParams::default(),
-                    LidarFusionParams::default(),
-                    0,
-                );
+                let config = ReconstructionConfig {
+                    grid: GRID,
+                    ..ReconstructionConfig::paper(GRID.voxel_size_m)
+                };
+                let mut rec = Reconstructor::with_store(config, Box::new(store), Backend::cpu(), 0)
+                    .expect("reconstructor");
                 for f in &frames {
-                    sf.fuse_depth(f).expect("fuse");
+                    rec.fuse_depth(f).expect("fuse");
                 }
-                sf.finish().expect("finish").0.summary().blocks
+                rec.sync().expect("commit");
+                rec.summary().blocks
             })
         });
     }

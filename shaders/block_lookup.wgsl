@@ -1,6 +1,6 @@
 // Resolves block keys to pool slots through the GPU hash table (one invocation per key).
 // CPU twin: `BlockTable::lookup` in src/gpu/resident.rs. Keep `LookupUniforms` in sync with
-// src/gpu/layout.rs. Prepended at load time: shared/dispatch.wgsl, shared/block_hash.wgsl.
+// src/gpu/layout.rs. Shared files and bindings: src/gpu/shaders.rs.
 
 struct LookupUniforms {
     key_count: u32,

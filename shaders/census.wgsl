@@ -3,7 +3,7 @@
 // ternary: bit 2i brighter by more than the threshold, bit 2i + 1 darker by more), pixels
 // outside the image clamped to the border. Signature bit b lands in u32 word b / 32, which is
 // the CPU's u64 layout read as little-endian u32 pairs. Keep CensusUniforms in sync with
-// src/gpu/layout.rs. Prepended at load time: shared/dispatch.wgsl.
+// src/gpu/layout.rs. Shared files and bindings: src/gpu/shaders.rs.
 
 struct CensusUniforms {
     width: u32,

@@ -2,7 +2,7 @@
 // distance of left pixel (x, y) against right pixel (x − d, y) for d = min + k, or max_cost
 // where the right pixel is outside the image; pixel i, slice k at entry i·num_disparities + k,
 // u8 entries packed 4 per word (one invocation per word). Keep CostUniforms in sync with
-// src/gpu/layout.rs. Prepended at load time: shared/dispatch.wgsl.
+// src/gpu/layout.rs. Shared files and bindings: src/gpu/shaders.rs.
 
 struct CostUniforms {
     width: u32,

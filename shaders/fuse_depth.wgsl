@@ -2,8 +2,7 @@
 // CPU twin: `integrate_depth` in src/fusion/depth.rs with `Block::fuse` in src/grid/block.rs.
 // Buffer layouts: keep in sync with `FuseUniforms`, `GpuVoxel` and `PIXEL_VALID` in
 // src/gpu/layout.rs. One invocation per voxel; `voxels` holds the listed blocks in list order.
-// Prepended at load time: shared/dispatch.wgsl, shared/rounding.wgsl, shared/voxel_fuse.wgsl,
-// shared/fuse_common.wgsl.
+// Shared files and bindings: src/gpu/shaders.rs.
 
 @compute @workgroup_size(64)
 fn main(

@@ -3,8 +3,7 @@
 // update as fuse_depth.wgsl, shared in shared/fuse_common.wgsl). `voxels` is the whole pool
 // (512 voxels per slot); `slots[b]` is listed block b's slot, resolved by block_lookup.wgsl.
 // Keep in sync with `FuseUniforms`/`GpuVoxel` in src/gpu/layout.rs and src/gpu/resident.rs.
-// Prepended at load time: shared/dispatch.wgsl, shared/rounding.wgsl, shared/voxel_fuse.wgsl,
-// shared/fuse_common.wgsl, shared/block_hash.wgsl.
+// Shared files and bindings: src/gpu/shaders.rs.
 
 @group(0) @binding(6) var<storage, read> slots: array<u32>;
 // Per listed block: 1 when any of its voxels was updated.

@@ -9,7 +9,7 @@
 // deterministic. `voxels` holds the listed blocks (512 voxels each) in the order the host
 // dispatches them: by decreasing ray count, so that lockstep invocations do similar work and
 // the blocks with rays left in a pass are a prefix (`block_count`).
-// Prepended at load time: shared/dispatch.wgsl, shared/rounding.wgsl, shared/voxel_fuse.wgsl.
+// Shared files and bindings: src/gpu/shaders.rs.
 
 struct LidarUniforms {
     // Blocks in this batch.
@@ -43,12 +43,6 @@ struct LidarRay {
     start_cell_z: i32,
     steps: u32,
     gray: u32,
-}
-
-// `GpuVoxel`: see shared/voxel_fuse.wgsl for the bits.
-struct GpuVoxel {
-    tsdf_weight: u32,
-    color: u32,
 }
 
 // Crossing parameter of an axis the ray does not move along (the CPU's f32::MAX stand-in for ∞).

@@ -1,8 +1,7 @@
 // TGV dual ascent and projection (CPU twin: TgvProblem::iterate in src/depth/tgv.rs, first half):
 // p ← P_{|p|≤α₁}(p + σ T(∇ū − v̄)), q ← P_{|q|≤α₂}(q + σ ε(v̄)) (q skipped for TV), with the
 // CPU's f32 operations in the same order. Buffers and uniforms: shared/tgv_common.wgsl
-// (TgvUniforms in src/gpu/layout.rs). Prepended at load time: shared/dispatch.wgsl,
-// shared/tgv_common.wgsl.
+// (TgvUniforms in src/gpu/layout.rs). Shared files and bindings: src/gpu/shaders.rs.
 
 @compute @workgroup_size(64)
 fn main(

@@ -2,7 +2,7 @@
 // src/depth/tgv.rs): a(x) = argmin_k λ·C(x, k) + (u(x) − d_k)²/(2θ) over the slices within the
 // reach, then a parabola through the winner's neighbours (offset clamped to ±0.5). Integer
 // costs and the CPU's f32 operations in the same order. Keep PointwiseUniforms in sync with
-// src/gpu/layout.rs. Prepended at load time: shared/dispatch.wgsl.
+// src/gpu/layout.rs. Shared files and bindings: src/gpu/shaders.rs.
 
 struct PointwiseUniforms {
     width: u32,

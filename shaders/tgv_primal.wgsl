@@ -2,8 +2,7 @@
 // in src/depth/tgv.rs, second half):
 // u ← (u + τ div(T p) + (τ/θ) a) / (1 + τ/θ), v ← v + τ (T p + div_sym q) (v ≡ 0 for TV),
 // ū ← 2·new − old, with the CPU's f32 operations in the same order. Buffers and uniforms:
-// shared/tgv_common.wgsl (TgvUniforms in src/gpu/layout.rs). Prepended at load time:
-// shared/dispatch.wgsl, shared/tgv_common.wgsl.
+// shared/tgv_common.wgsl (TgvUniforms in src/gpu/layout.rs). Shared files and bindings: src/gpu/shaders.rs.
 
 // T p at pixel j.
 fn tp(j: u32) -> vec2<f32> {

@@ -1,5 +1,5 @@
 // TV dual step: p ← (p + σ∇ū) / max(1, |p + σ∇ū|) on Ω (CPU twin: TvProblem::iterate, first
-// half). Prepended at load time: shared/dispatch.wgsl, shared/tv_common.wgsl.
+// half). Shared files and bindings: src/gpu/shaders.rs.
 
 @compute @workgroup_size(64)
 fn main(

@@ -1,6 +1,6 @@
 // TV primal step and relaxation (CPU twin: TvProblem::iterate, second half):
 // u ← (u + τ div p + τλ w f) / (1 + τλ w), ū ← u_new + θ (u_new − u_old), with div = −∇ᵀ.
-// Prepended at load time: shared/dispatch.wgsl, shared/tv_common.wgsl.
+// Shared files and bindings: src/gpu/shaders.rs.
 
 @compute @workgroup_size(64)
 fn main(

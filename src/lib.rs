@@ -4,8 +4,11 @@
 //! Pipeline (module → stage): [`io`] and [`synth`] read or generate sensor data; [`depth`] turns
 //! stereo pairs into depth maps; [`fusion`] integrates depth maps and LiDAR scans into the hashed
 //! voxel grid ([`grid`]); [`regularize`] runs the Ω-aware TV regulariser; [`mesh`] extracts
-//! coloured surfaces; [`eval`] scores them against ground truth; [`reconstruct`] wires the stages.
+//! coloured surfaces; [`eval`] scores them against ground truth. [`reconstruct`] drives the
+//! stages over a [`store::BlockStore`] (the map in RAM, or paged through chunk files by
+//! [`tiles`]) with the stages of one [`backend::Backend`] (CPU, or GPU through [`gpu`]).
 
+pub mod backend;
 pub mod camera;
 pub mod depth;
 pub mod error;
@@ -16,10 +19,10 @@ pub mod gpu;
 pub mod grid;
 pub mod io;
 pub mod mesh;
-pub mod pipeline;
 pub mod progress;
 pub mod reconstruct;
 pub mod regularize;
+pub mod store;
 pub mod synth;
 pub mod tiles;
 

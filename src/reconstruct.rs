@@ -1,18 +1,20 @@
-//! The [`Reconstructor`]: a thin object that owns a [`Layer`] and wires fusion, regularisation and
-//! meshing, keeping per-stage timings and work counters. It holds no I/O: the CLI's pipelines feed
-//! it frames from readers, stereo or the synthetic city, and evaluate what it returns.
+//! The [`Reconstructor`]: one driver of fusion, regularisation and meshing over any
+//! [`BlockStore`] (the map in RAM, or a map directory paged around the camera) with the stages
+//! of one [`Backend`] (CPU or GPU, chosen once). It keeps per-stage timings and work counters,
+//! commits checkpoints every so many frames, and holds no I/O of its own: callers feed it
+//! frames (`crate::io::sequence`) and score what it writes (`crate::eval::run`).
 
+use crate::backend::{Backend, TvDevices};
 use crate::frame::{DepthFrame, LidarScan};
-use crate::fusion::{
-    integrate_depth, integrate_lidar_plan, DepthFusionParams, FusionStats, LidarFusionParams,
-    LidarPlan,
-};
-use crate::gpu::{GpuContext, ResidentMap, ResidentOptions, ResidentStats};
-use crate::grid::{GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
+use crate::fusion::{DepthFusionParams, DepthPlan, FusionStats, LidarFusionParams, LidarPlan};
+use crate::gpu::ResidentStats;
+use crate::grid::{GridParams, Layer, TouchedBlocks};
+use crate::io::sequence::{for_each_input, RangeInput, Sequence};
 use crate::mesh::{extract_mesh, Field, Mesh};
-use crate::regularize::{regularize_layer, RegionPlan, RegularizeStats, TvParams, TvProblem};
+use crate::regularize::TvParams;
+use crate::store::{BlockStore, MemoryStore, RegularizeSummary, StoreSummary, SurfaceOutput};
 use serde::{Deserialize, Serialize};
-use std::sync::Arc;
+use std::path::Path;
 use std::time::Instant;
 
 /// Everything that parameterises a reconstruction.
@@ -47,9 +49,11 @@ impl ReconstructionConfig {
 pub struct StageTimings {
     /// Seconds spent producing depth frames or scans (reading files, stereo matching).
     pub input_s: f64,
-    /// Seconds spent fusing.
+    /// Seconds spent fusing (planning and updating blocks).
     pub fusion_s: f64,
-    /// Frames or scans fused.
+    /// Seconds the store spent making blocks resident, evicting and committing (0 in RAM).
+    pub paging_s: f64,
+    /// Frames or scans fused in this run.
     pub frames_fused: usize,
     /// Voxel updates applied by fusion.
     pub voxel_updates: usize,
@@ -57,7 +61,7 @@ pub struct StageTimings {
     pub regularize_s: f64,
     /// Voxel-iterations of the regulariser (Ω voxels × iterations).
     pub voxel_iterations: u64,
-    /// Seconds spent in marching cubes.
+    /// Seconds spent in marching cubes and writing surfaces.
     pub mesh_s: f64,
 }
 
@@ -78,84 +82,96 @@ impl StageTimings {
     }
 }
 
-/// Owns the map and runs the in-memory stages.
+/// What [`Reconstructor::regularize`] did, and where.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct RegularizeOutcome {
+    /// The store's counters.
+    pub summary: RegularizeSummary,
+    /// Solves per device in this run.
+    pub devices: TvDevices,
+    /// Seconds.
+    pub seconds: f64,
+}
+
+/// What [`Reconstructor::write_results`] wrote.
+#[derive(Clone, Debug)]
+pub struct Results {
+    /// The raw surface, then the regularised one (when regularised).
+    pub surfaces: Vec<SurfaceOutput>,
+    /// The regularisation, when it ran.
+    pub regularize: Option<RegularizeOutcome>,
+}
+
+impl Results {
+    /// Every file written (meshes, then points).
+    pub fn files(&self) -> Vec<std::path::PathBuf> {
+        self.surfaces
+            .iter()
+            .flat_map(|s| std::iter::once(s.mesh_path.clone()).chain(s.points_path.clone()))
+            .collect()
+    }
+}
+
+/// Drives the stages over a store (see the module documentation).
 pub struct Reconstructor {
     config: ReconstructionConfig,
-    layer: Layer,
+    store: Box<dyn BlockStore>,
+    backend: Backend,
     timings: StageTimings,
-    gpu: Option<Arc<GpuContext>>,
-    /// Blocks resident on the GPU between depth frames (created at the first GPU frame).
-    resident: Option<ResidentMap>,
-    gpu_options: ResidentOptions,
+    /// Frames in the map: those committed before this run plus those fused since.
+    frames_total: u64,
+    checkpoint_every: u64,
 }
 
 impl std::fmt::Debug for Reconstructor {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Reconstructor")
             .field("config", &self.config)
-            .field("blocks", &self.layer.block_count())
+            .field("store", &self.store.summary())
+            .field("backend", &self.backend)
             .field("timings", &self.timings)
-            .field("gpu", &self.gpu.as_ref().map(|g| g.describe()))
-            .field("resident", &self.resident_stats())
             .finish()
     }
 }
 
 impl Reconstructor {
-    /// A reconstructor with an empty map.
+    /// A reconstructor over an empty map in RAM, every stage on the CPU.
     pub fn new(config: ReconstructionConfig) -> crate::Result<Self> {
+        Self::in_memory(config, Backend::cpu())
+    }
+
+    /// A reconstructor over an empty map in RAM with the stages of `backend`.
+    pub fn in_memory(config: ReconstructionConfig, backend: Backend) -> crate::Result<Self> {
+        Self::with_store(config, Box::new(MemoryStore::new(config.grid)), backend, 0)
+    }
+
+    /// A reconstructor over `store` (its grid must be `config.grid`), committing a checkpoint
+    /// every `checkpoint_every` frames (0: only when asked). Fusion continues after the frames
+    /// the store already holds ([`Reconstructor::frames_committed`]).
+    pub fn with_store(
+        config: ReconstructionConfig,
+        store: Box<dyn BlockStore>,
+        backend: Backend,
+        checkpoint_every: u64,
+    ) -> crate::Result<Self> {
         config.grid.validate()?;
         config.tv.validate()?;
-        Ok(Reconstructor {
-            layer: Layer::new(config.grid),
-            config,
-            timings: StageTimings::default(),
-            gpu: None,
-            resident: None,
-            gpu_options: ResidentOptions::default(),
-        })
-    }
-
-    /// Runs depth and LiDAR fusion and regularisation on `gpu` (`None`: on the CPU); meshing
-    /// stays on the CPU. Depth fusion on the GPU keeps the blocks it fuses resident on the device
-    /// between frames ([`ResidentMap`]): the layer is current only after
-    /// [`Reconstructor::sync_gpu`] (which [`Reconstructor::regularize`] calls, as do the
-    /// pipelines before meshing). Call before fusing; a resident map from an earlier GPU is
-    /// written back first.
-    pub fn set_gpu(&mut self, gpu: Option<Arc<GpuContext>>) {
-        if let Some(mut r) = self.resident.take() {
-            if let Err(e) = r.flush_all(&mut self.layer) {
-                tracing::error!("writing the GPU-resident blocks back failed: {e}");
-            }
+        if store.grid() != config.grid {
+            return Err(crate::Error::InvalidArgument(format!(
+                "the map's grid {:?} differs from the reconstruction's {:?}",
+                store.grid(),
+                config.grid
+            )));
         }
-        self.gpu = gpu;
-    }
-
-    /// Size limits of the GPU block pool (used when the first GPU frame creates it).
-    pub fn set_gpu_options(&mut self, options: ResidentOptions) {
-        self.gpu_options = options;
-    }
-
-    /// Copies the blocks the GPU updated back into the layer (they stay resident). Returns how
-    /// many blocks were copied; 0 without a GPU. The time counts as fusion time.
-    pub fn sync_gpu(&mut self) -> crate::Result<usize> {
-        let t = Instant::now();
-        let n = match self.resident.as_mut() {
-            Some(r) => r.sync(&mut self.layer)?,
-            None => 0,
-        };
-        self.timings.fusion_s += t.elapsed().as_secs_f64();
-        Ok(n)
-    }
-
-    /// Counters of the GPU-resident blocks, when depth fusion ran on a GPU.
-    pub fn resident_stats(&self) -> Option<ResidentStats> {
-        self.resident.as_ref().map(|r| r.stats())
-    }
-
-    /// The GPU in use, if any.
-    pub fn gpu(&self) -> Option<&GpuContext> {
-        self.gpu.as_deref()
+        let frames_total = store.frames_committed();
+        Ok(Reconstructor {
+            config,
+            store,
+            backend,
+            timings: StageTimings::default(),
+            frames_total,
+            checkpoint_every,
+        })
     }
 
     /// The configuration.
@@ -163,14 +179,24 @@ impl Reconstructor {
         &self.config
     }
 
-    /// The map in RAM (see [`Reconstructor::sync_gpu`] when fusing on the GPU).
-    pub fn layer(&self) -> &Layer {
-        &self.layer
+    /// The stages' device.
+    pub fn backend(&self) -> &Backend {
+        &self.backend
     }
 
-    /// The map, mutably.
-    pub fn layer_mut(&mut self) -> &mut Layer {
-        &mut self.layer
+    /// The store.
+    pub fn store(&self) -> &dyn BlockStore {
+        self.store.as_ref()
+    }
+
+    /// Takes the store out (e.g. a paged map to inspect after the run).
+    pub fn into_store(self) -> Box<dyn BlockStore> {
+        self.store
+    }
+
+    /// The resident blocks (the whole map in RAM), current after [`Reconstructor::sync`].
+    pub fn layer(&self) -> &Layer {
+        self.store.layer()
     }
 
     /// Timings so far.
@@ -178,120 +204,204 @@ impl Reconstructor {
         &self.timings
     }
 
+    /// Frames the store held when this run began (where a resumed run continues).
+    pub fn frames_committed(&self) -> u64 {
+        self.store.frames_committed()
+    }
+
+    /// Frames in the map (committed before this run plus fused since).
+    pub fn frames_total(&self) -> u64 {
+        self.frames_total
+    }
+
+    /// Counters of the GPU-resident blocks, when depth frames were fused on a GPU.
+    pub fn resident_stats(&self) -> Option<ResidentStats> {
+        self.backend.resident_stats()
+    }
+
+    /// Totals of the map.
+    pub fn summary(&self) -> StoreSummary {
+        self.store.summary()
+    }
+
     /// Adds time spent producing input (reading, stereo) to the timings.
     pub fn add_input_time(&mut self, seconds: f64) {
         self.timings.input_s += seconds;
     }
 
-    fn record(&mut self, started: Instant, stats: FusionStats) {
-        self.timings.fusion_s += started.elapsed().as_secs_f64();
-        self.timings.frames_fused += 1;
-        self.timings.voxel_updates += stats.voxel_updates;
+    /// Fuses one input of a sequence.
+    pub fn fuse(&mut self, input: &RangeInput) -> crate::Result<TouchedBlocks> {
+        match input {
+            RangeInput::Depth(f) => self.fuse_depth(f),
+            RangeInput::Lidar(s) => self.fuse_lidar(s),
+        }
     }
 
-    /// Fuses a depth frame (on the GPU when one is set); returns the blocks it touched.
+    /// Fuses `frames` of `seq` in order, after the ones the store already holds (a resumed
+    /// map continues where it stopped), then [`Reconstructor::sync`]s.
+    pub fn fuse_sequence(&mut self, seq: &dyn Sequence, frames: &[usize]) -> crate::Result<()> {
+        let done = self.frames_committed();
+        if done > frames.len() as u64 {
+            return Err(crate::Error::InvalidArgument(format!(
+                "the map has {done} frames committed but the job has only {}",
+                frames.len()
+            )));
+        }
+        if done > 0 {
+            tracing::info!("resuming after {done} committed frames");
+        }
+        for_each_input(seq, frames, done as usize, |input, seconds| {
+            self.add_input_time(seconds);
+            self.fuse(&input).map(|_| ())
+        })?;
+        self.sync()
+    }
+
+    /// Fuses a depth frame; returns the blocks it touched.
     pub fn fuse_depth(&mut self, frame: &DepthFrame) -> crate::Result<TouchedBlocks> {
         let t = Instant::now();
-        let params = &self.config.depth_fusion;
-        let (touched, stats) = match &self.gpu {
-            Some(gpu) => {
-                if self.resident.is_none() {
-                    self.resident = Some(ResidentMap::new(
-                        gpu.clone(),
-                        self.config.grid,
-                        self.gpu_options,
-                    )?);
-                }
-                let resident = self.resident.as_mut().expect("just set");
-                resident.integrate_depth(&mut self.layer, frame, params)?
-            }
-            None => integrate_depth(&mut self.layer, frame, params),
-        };
-        self.record(t, stats);
+        let plan = DepthPlan::new(&self.config.grid, frame, &self.config.depth_fusion);
+        let planned_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        self.store.prepare_depth(&plan)?;
+        self.timings.paging_s += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let (touched, stats) = self.backend.fuse_depth(
+            self.store.layer_mut(),
+            frame,
+            &self.config.depth_fusion,
+            &plan,
+        )?;
+        self.timings.fusion_s += planned_s + t.elapsed().as_secs_f64();
+        self.after_frame(plan.camera_m, &touched, stats)?;
         Ok(touched)
     }
 
-    /// Fuses a LiDAR scan (on the GPU when one is set, per call); returns the blocks it
-    /// touched. Blocks of the scan resident on the GPU are written back first.
+    /// Fuses a LiDAR scan; returns the blocks it touched.
     pub fn fuse_lidar(&mut self, scan: &LidarScan) -> crate::Result<TouchedBlocks> {
         let t = Instant::now();
         let plan = LidarPlan::new(&self.config.grid, scan, &self.config.lidar_fusion);
-        if let Some(r) = self.resident.as_mut() {
-            r.flush_blocks(&mut self.layer, &plan.blocks())?;
-        }
-        let (touched, stats) = match &self.gpu {
-            Some(gpu) => crate::gpu::integrate_lidar_gpu(gpu, &mut self.layer, &plan)?,
-            None => integrate_lidar_plan(&mut self.layer, &plan),
-        };
-        self.record(t, stats);
+        let planned_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        self.store.prepare_blocks(&plan.blocks())?;
+        self.timings.paging_s += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let (touched, stats) = self.backend.fuse_lidar(self.store.layer_mut(), &plan)?;
+        self.timings.fusion_s += planned_s + t.elapsed().as_secs_f64();
+        self.after_frame(plan.origin_m(), &touched, stats)?;
         Ok(touched)
     }
 
-    /// Regularises the whole map (one global solve), on the GPU when one is set. A map too large
-    /// for one GPU binding is solved on the GPU in regions of 32³ blocks with the exact halo (the
-    /// same result), or, when a region does not fit either, on the CPU; each with a message.
-    pub fn regularize(&mut self) -> crate::Result<RegularizeStats> {
-        self.sync_gpu()?;
-        let t = Instant::now();
-        let gpu_result = match &self.gpu {
-            Some(gpu) => self.regularize_gpu(gpu.clone())?,
-            None => None,
-        };
-        let (_, stats) = match gpu_result {
-            Some(r) => r,
-            None => regularize_layer(&mut self.layer, &self.config.tv)?,
-        };
-        self.timings.regularize_s += t.elapsed().as_secs_f64();
-        self.timings.voxel_iterations += stats.omega_voxels as u64 * stats.iterations as u64;
-        Ok(stats)
-    }
-
-    /// The GPU part of [`Reconstructor::regularize`]: `None` when the map does not fit.
-    fn regularize_gpu(
+    fn after_frame(
         &mut self,
-        gpu: Arc<GpuContext>,
-    ) -> crate::Result<Option<(TouchedBlocks, RegularizeStats)>> {
-        let tv = self.config.tv;
-        let e = match crate::gpu::regularize_layer_gpu(&gpu, &mut self.layer, &tv) {
-            Err(e @ crate::Error::GpuCapacity { .. }) => e,
-            other => return other.map(Some),
-        };
-        let plan = RegionPlan::exact(32, tv.iterations);
-        eprintln!("regularisation: {e}; solving on the GPU in regions of 32³ blocks");
-        let blocks = self.layer.indices_sorted();
-        let mut problem = TvProblem::gather(&self.layer, &blocks);
-        let energy_before = problem.energy(tv.lambda);
-        match crate::gpu::regularize_regions_gpu(&gpu, &mut self.layer, &tv, &plan) {
-            Ok(_) => {}
-            Err(e @ crate::Error::GpuCapacity { .. }) => {
-                eprintln!("regularisation: {e}; solving on the CPU instead");
-                return Ok(None);
-            }
-            Err(e) => return Err(e),
+        camera_m: [f64; 3],
+        touched: &[crate::grid::BlockIndex],
+        stats: FusionStats,
+    ) -> crate::Result<()> {
+        self.timings.frames_fused += 1;
+        self.timings.voxel_updates += stats.voxel_updates;
+        self.frames_total += 1;
+        let t = Instant::now();
+        self.store
+            .finish_frame(touched, camera_m, &mut self.backend)?;
+        if self.checkpoint_every > 0 && self.frames_total.is_multiple_of(self.checkpoint_every) {
+            self.store.commit(self.frames_total, &mut self.backend)?;
         }
-        // The energy of the stored result (quantised u), as the global path reports it.
-        let (u, _, _) = problem.state_mut();
-        for (k, index) in blocks.iter().enumerate() {
-            if let Some(block) = self.layer.get(index) {
-                for i in 0..VOXELS_PER_BLOCK {
-                    u[k * VOXELS_PER_BLOCK + i] = block.regularized_or_raw(i);
-                }
-            }
-        }
-        let stats = RegularizeStats {
-            blocks: blocks.len(),
-            omega_voxels: problem.omega_count(),
-            iterations: tv.iterations,
-            energy_before,
-            energy_after: problem.energy(tv.lambda),
-        };
-        Ok(Some((blocks, stats)))
+        self.timings.paging_s += t.elapsed().as_secs_f64();
+        Ok(())
     }
 
-    /// Marching cubes over the whole map.
+    /// Makes every frame fused so far durable (a checkpoint of a paged map) and the resident
+    /// layer current (GPU blocks written back). The time counts as fusion (the GPU's write-back)
+    /// and paging (the checkpoint).
+    pub fn sync(&mut self) -> crate::Result<()> {
+        let t = Instant::now();
+        self.store.commit(self.frames_total, &mut self.backend)?;
+        self.timings.paging_s += t.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// Regularises the whole map with the backend's solver (`progress(done, total)` after each
+    /// region; returning false stops early, what was done is kept).
+    pub fn regularize_with_progress(
+        &mut self,
+        progress: &mut dyn FnMut(usize, usize) -> bool,
+    ) -> crate::Result<RegularizeOutcome> {
+        self.sync()?;
+        let before = self.backend.tv_devices();
+        let t = Instant::now();
+        let tv = self.config.tv;
+        // The solver reads and writes blocks in RAM: the GPU keeps no copies meanwhile.
+        self.backend.flush_all(self.store.layer_mut())?;
+        let summary = self.store.regularize(&tv, &mut self.backend, progress)?;
+        let seconds = t.elapsed().as_secs_f64();
+        self.timings.regularize_s += seconds;
+        self.timings.voxel_iterations += summary.omega_voxels * summary.iterations as u64;
+        let after = self.backend.tv_devices();
+        Ok(RegularizeOutcome {
+            summary,
+            devices: TvDevices {
+                gpu: after.gpu - before.gpu,
+                cpu: after.cpu - before.cpu,
+            },
+            seconds,
+        })
+    }
+
+    /// [`Reconstructor::regularize_with_progress`] without a progress report.
+    pub fn regularize(&mut self) -> crate::Result<RegularizeOutcome> {
+        self.regularize_with_progress(&mut |_, _| true)
+    }
+
+    /// Meshes `field` into `mesh_path` (binary PLY), and its vertices into `points_path`.
+    pub fn write_surface(
+        &mut self,
+        field: Field,
+        mesh_path: &Path,
+        points_path: Option<&Path>,
+    ) -> crate::Result<SurfaceOutput> {
+        let t = Instant::now();
+        let out = self
+            .store
+            .write_surface(field, mesh_path, points_path, &mut self.backend)?;
+        self.timings.mesh_s += t.elapsed().as_secs_f64();
+        Ok(out)
+    }
+
+    /// The outputs of a reconstruction in `out_dir` (created): `mesh_raw.ply`, then, unless
+    /// `regularize` is false, the regularisation and `mesh_regularized.ply` with its vertices
+    /// as `points_regularized.ply`.
+    pub fn write_results(
+        &mut self,
+        out_dir: &Path,
+        regularize: bool,
+        progress: &mut dyn FnMut(usize, usize) -> bool,
+    ) -> crate::Result<Results> {
+        std::fs::create_dir_all(out_dir).map_err(|e| crate::Error::io(out_dir, e))?;
+        let mut surfaces =
+            vec![self.write_surface(Field::Raw, &out_dir.join("mesh_raw.ply"), None)?];
+        let regularize = if regularize {
+            let r = self.regularize_with_progress(progress)?;
+            surfaces.push(self.write_surface(
+                Field::Regularized,
+                &out_dir.join("mesh_regularized.ply"),
+                Some(&out_dir.join("points_regularized.ply")),
+            )?);
+            Some(r)
+        } else {
+            None
+        };
+        Ok(Results {
+            surfaces,
+            regularize,
+        })
+    }
+
+    /// Marching cubes over the resident layer (the whole map in RAM; after
+    /// [`Reconstructor::sync`] when fusing on a GPU).
     pub fn mesh(&mut self, field: Field) -> Mesh {
         let t = Instant::now();
-        let mesh = extract_mesh(&self.layer, field, None);
+        let mesh = extract_mesh(self.store.layer(), field, None);
         self.timings.mesh_s += t.elapsed().as_secs_f64();
         mesh
     }

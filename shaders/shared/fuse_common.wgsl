@@ -3,7 +3,6 @@
 // CPU twin: `integrate_depth` in src/fusion/depth.rs with `Block::fuse` in src/grid/block.rs.
 // Buffer layouts: keep in sync with `FuseUniforms`, `GpuVoxel` and `PIXEL_VALID` in
 // src/gpu/layout.rs. Bindings 0–5 are common to both kernels.
-// Prepended before it: shared/dispatch.wgsl, shared/rounding.wgsl, shared/voxel_fuse.wgsl.
 
 struct FuseUniforms {
     // Camera-frame step of one voxel along world x, y, z (xyz; w unused), metres.
@@ -24,14 +23,6 @@ struct FuseUniforms {
     use_color: u32,
     _pad0: u32,
     _pad1: u32,
-}
-
-// Bits 0–15: quantised TSDF (i16, two's complement); bits 16–23: weight (0–6) and Ω (7);
-// bit 24: set when the voxel was updated (cleared by the host when it takes the voxel back).
-// `color`: r | g << 8 | b << 16.
-struct GpuVoxel {
-    tsdf_weight: u32,
-    color: u32,
 }
 
 const PIXEL_VALID: u32 = 0x1000000u;

@@ -3,7 +3,14 @@
 // src/gpu/layout.rs: `tsdf_weight` bits 0–15 quantised TSDF (i16), 16–23 weight (0–6) and Ω (7),
 // bit 24 set here (updated); `color` r | g << 8 | b << 16. Keep in sync with both.
 // Used by fuse_lidar.wgsl and, through shared/fuse_common.wgsl, by the depth kernels.
-// Prepended before it: shared/rounding.wgsl.
+
+// Bits 0–15: quantised TSDF (i16, two's complement); bits 16–23: weight (0–6) and Ω (7);
+// bit 24: set when the voxel was updated (cleared by the host when it takes the voxel back).
+// `color`: r | g << 8 | b << 16.
+struct GpuVoxel {
+    tsdf_weight: u32,
+    color: u32,
+}
 
 // Channel at bit `shift` of the running mean of colours `rgb` (new) and `color` (old, weight
 // `w_old`), in place.

@@ -15,11 +15,16 @@
 
 pub mod census;
 pub mod disparity_io;
+mod gpu;
 pub mod ground_truth;
 pub mod metrics;
 pub mod sgm;
 pub mod tgv;
 
+pub use gpu::{
+    census_transform_gpu, cost_volume_gpu, estimate_tgv_gpu, pointwise_search_gpu, refine_gpu,
+    TgvMatcherGpu, TgvProblemGpu,
+};
 pub use ground_truth::disparity_from_points;
 pub use metrics::{evaluate_disparity, StereoMetrics};
 pub use sgm::{SgmMatcher, SgmParams};

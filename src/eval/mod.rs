@@ -27,19 +27,27 @@
 //! * **Pictures** ([`plot_error_histograms_png`], [`plot_top_view_png`]): overlaid histograms
 //!   (x = error in m, y = fraction of points) and a top view coloured by error.
 //!
-//! This module does not read files of sensor data, build ground truth from scans, or run the
-//! reconstruction: the caller (the `denser evaluate` command) hands it a point cloud and meshes.
+//! * **Ground truth** ([`GroundTruth`]): a KITTI sequence's scans merged in the world frame, or a
+//!   point-cloud file; **runs** ([`run`]): scoring labelled meshes, or a reconstruction's
+//!   surfaces, into the report and pictures.
+//!
+//! This module does not run the reconstruction: the caller hands it meshes (or a finished
+//! [`crate::reconstruct::Reconstructor`] and the surfaces it wrote).
 
 mod evaluate;
+mod ground_truth;
 mod nn;
 mod plot;
 mod report;
+pub mod run;
 mod stats;
 
 pub use evaluate::{evaluate_mesh, evaluate_mesh_detailed, EvalOptions, MeshEvaluation};
+pub use ground_truth::{merged_lidar, GroundTruth};
 pub use nn::{sample_mesh_surface, surface_points, CompletenessRegion, GroundTruthIndex};
 pub use plot::{
     error_colour, plot_error_histograms_png, plot_top_view_png, UpAxis, SERIES_COLOURS,
 };
 pub use report::{EvaluationReport, SurfaceReport};
+pub use run::{evaluate_meshes, evaluate_reconstruction, peak_rss_bytes};
 pub use stats::{percentile_of_sorted, ErrorStats, Histogram, HistogramSpec};

@@ -6,7 +6,7 @@ use crate::frame::DepthFrame;
 use crate::grid::{
     round_i64, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
 };
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 use std::collections::HashSet;
 
@@ -146,8 +146,13 @@ pub fn visible_blocks(
     frame: &DepthFrame,
     params: &DepthFusionParams,
 ) -> TouchedBlocks {
+    let frustum = ViewFrustum::new(frame, params, layer.params().truncation_m as f64);
+    visible_blocks_in(layer, &frustum)
+}
+
+/// [`visible_blocks`] for a frustum already built.
+pub fn visible_blocks_in(layer: &Layer, frustum: &ViewFrustum) -> TouchedBlocks {
     let grid = layer.params();
-    let frustum = ViewFrustum::new(frame, params, grid.truncation_m as f64);
     let half = 0.5 * grid.block_size_m();
     let radius = half * 3f64.sqrt();
     let mut v: Vec<BlockIndex> = layer
@@ -162,6 +167,114 @@ pub fn visible_blocks(
     v
 }
 
+/// A depth frame's geometry in the grid, as the f32 quantities the CPU loop and the GPU kernels
+/// both use (the kernels' `FuseUniforms` are built from it): so all three depth paths project
+/// voxels with the same numbers.
+#[derive(Clone, Copy, Debug)]
+pub struct DepthGeometry {
+    /// The inverse of the frame's pose.
+    pub camera_from_world: Isometry3<f64>,
+    /// Camera-frame step of one voxel along world x, y and z, metres.
+    pub axis_m: [Vector3<f32>; 3],
+    /// Focal lengths and principal point, pixels.
+    pub fx: f32,
+    /// Focal length y, pixels.
+    pub fy: f32,
+    /// Principal point x, pixels.
+    pub cx: f32,
+    /// Principal point y, pixels.
+    pub cy: f32,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Truncation μ, metres.
+    pub truncation_m: f32,
+    voxel_size_m: f64,
+}
+
+impl DepthGeometry {
+    /// The geometry of `frame` on `grid`.
+    pub fn new(grid: &GridParams, frame: &DepthFrame) -> Self {
+        let camera_from_world = frame.world_from_camera.inverse();
+        let rot = camera_from_world.rotation.to_rotation_matrix();
+        let vs = grid.voxel_size_m as f64;
+        let k = frame.intrinsics;
+        DepthGeometry {
+            camera_from_world,
+            axis_m: [Vector3::x(), Vector3::y(), Vector3::z()].map(|a| (rot * a * vs).cast()),
+            fx: k.fx as f32,
+            fy: k.fy as f32,
+            cx: k.cx as f32,
+            cy: k.cy as f32,
+            width: frame.depth_m.width,
+            height: frame.depth_m.height,
+            truncation_m: grid.truncation_m,
+            voxel_size_m: vs,
+        }
+    }
+
+    /// Camera-frame centre of voxel (0, 0, 0) of `block`, metres (computed in f64, then f32).
+    pub fn block_base(&self, grid: &GridParams, block: BlockIndex) -> Vector3<f32> {
+        let vs = self.voxel_size_m;
+        let o = grid.block_origin(block);
+        let centre0 = Point3::new(o[0] + 0.5 * vs, o[1] + 0.5 * vs, o[2] + 0.5 * vs);
+        (self.camera_from_world * centre0).coords.cast()
+    }
+}
+
+/// Everything fusion needs to know about one depth frame besides the layer: the blocks its
+/// truncation band crosses (listed once; reads no layer), its view frustum, its geometry and its
+/// usable pixel count. The CPU ([`integrate_depth_plan`]) and both GPU depth paths fuse from the
+/// same plan, as [`super::LidarPlan`] serves both LiDAR paths; a pager builds it first to page
+/// in the chunks of the band and of the frustum.
+#[derive(Clone, Debug)]
+pub struct DepthPlan {
+    /// Blocks crossed by the band of some usable pixel, sorted.
+    pub band: TouchedBlocks,
+    /// The view volume (the allocated blocks it meets are updated too).
+    pub frustum: ViewFrustum,
+    /// Projection quantities.
+    pub geometry: DepthGeometry,
+    /// Usable pixels ([`DepthFusionParams`] depth range, finite).
+    pub measurements: usize,
+    /// The camera centre, world frame, metres.
+    pub camera_m: [f64; 3],
+    /// Seconds spent listing the band.
+    pub listing_s: f64,
+}
+
+impl DepthPlan {
+    /// Lists the band of `frame` on `grid` and its geometry.
+    pub fn new(grid: &GridParams, frame: &DepthFrame, params: &DepthFusionParams) -> Self {
+        let t = std::time::Instant::now();
+        let band = depth_frame_blocks(grid, frame, params);
+        let listing_s = t.elapsed().as_secs_f64();
+        DepthPlan {
+            band,
+            frustum: ViewFrustum::new(frame, params, grid.truncation_m as f64),
+            geometry: DepthGeometry::new(grid, frame),
+            measurements: frame
+                .depth_m
+                .data
+                .iter()
+                .filter(|&&d| usable(d, params))
+                .count(),
+            camera_m: frame.world_from_camera.translation.vector.into(),
+            listing_s,
+        }
+    }
+
+    /// The blocks fusion updates: the band plus the allocated blocks of `layer` in view, sorted.
+    pub fn blocks(&self, layer: &Layer) -> TouchedBlocks {
+        let mut blocks = self.band.clone();
+        blocks.extend(visible_blocks_in(layer, &self.frustum));
+        blocks.sort_unstable();
+        blocks.dedup();
+        blocks
+    }
+}
+
 /// Fuses one depth frame into `layer`: the blocks crossed by this frame's truncation band plus the
 /// allocated blocks in view. Returns the touched blocks (sorted) and work counters.
 pub fn integrate_depth(
@@ -169,48 +282,36 @@ pub fn integrate_depth(
     frame: &DepthFrame,
     params: &DepthFusionParams,
 ) -> (TouchedBlocks, FusionStats) {
-    let band = depth_frame_blocks(&layer.params(), frame, params);
-    integrate_depth_band(layer, frame, params, band)
+    let plan = DepthPlan::new(&layer.params(), frame, params);
+    integrate_depth_plan(layer, frame, params, &plan)
 }
 
-/// [`integrate_depth`] with the frame's band blocks already listed by [`depth_frame_blocks`]
-/// (a pager lists them first to page in their chunks).
-pub fn integrate_depth_band(
+/// [`integrate_depth`] from a plan already made ([`DepthPlan::new`] on this layer's grid).
+pub fn integrate_depth_plan(
     layer: &mut Layer,
     frame: &DepthFrame,
     params: &DepthFusionParams,
-    band: TouchedBlocks,
+    plan: &DepthPlan,
 ) -> (TouchedBlocks, FusionStats) {
     let grid = layer.params();
-    let mut blocks = band;
-    blocks.extend(visible_blocks(layer, frame, params));
-    blocks.sort_unstable();
-    blocks.dedup();
+    let blocks = plan.blocks(layer);
     let mut taken = layer.take_blocks(&blocks);
-    let camera_from_world = frame.world_from_camera.inverse();
-    let rot = camera_from_world.rotation.to_rotation_matrix();
-    let vs = grid.voxel_size_m as f64;
-    let mu = grid.truncation_m;
+    let g = &plan.geometry;
+    let mu = g.truncation_m;
     let inv_mu = 1.0 / mu;
-    let k = frame.intrinsics;
-    let (wid, hei) = (frame.depth_m.width as i64, frame.depth_m.height as i64);
-    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
+    let (wid, hei) = (g.width as i64, g.height as i64);
+    let (fx, fy, cx, cy) = (g.fx, g.fy, g.cx, g.cy);
     let depth = &frame.depth_m.data;
     let color = if params.use_color {
         frame.color.as_ref()
     } else {
         None
     };
-    // Camera-frame steps for one voxel along each world axis.
-    let ax: Vector3<f32> = (rot * Vector3::x() * vs).cast();
-    let ay: Vector3<f32> = (rot * Vector3::y() * vs).cast();
-    let az: Vector3<f32> = (rot * Vector3::z() * vs).cast();
+    let [ax, ay, az] = g.axis_m;
     let updates: usize = taken
         .par_iter_mut()
         .map(|(index, block)| {
-            let o = grid.block_origin(*index);
-            let centre0 = Point3::new(o[0] + 0.5 * vs, o[1] + 0.5 * vs, o[2] + 0.5 * vs);
-            let base: Vector3<f32> = (camera_from_world * centre0).coords.cast();
+            let base = g.block_base(&grid, *index);
             let mut n = 0usize;
             let mut i = 0usize;
             for z in 0..VOXELS_PER_SIDE {
@@ -247,17 +348,11 @@ pub fn integrate_depth_band(
             n
         })
         .sum();
-    let measurements = frame
-        .depth_m
-        .data
-        .iter()
-        .filter(|&&d| usable(d, params))
-        .count();
     let touched = layer.put_blocks_observed(taken);
     let stats = FusionStats {
         blocks: touched.len(),
         voxel_updates: updates,
-        measurements,
+        measurements: plan.measurements,
     };
     (touched, stats)
 }

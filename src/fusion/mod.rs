@@ -19,18 +19,21 @@
 //! Neither integrator carves free space outside the band (blocks are allocated only near surfaces).
 
 mod depth;
+mod depth_gpu;
 mod lidar;
+mod lidar_gpu;
 pub mod traverse;
 
-pub(crate) use depth::usable;
 pub use depth::{
-    depth_frame_blocks, integrate_depth, integrate_depth_band, visible_blocks, DepthFusionParams,
-    ViewFrustum,
+    depth_frame_blocks, integrate_depth, integrate_depth_plan, visible_blocks, visible_blocks_in,
+    DepthFusionParams, DepthGeometry, DepthPlan, ViewFrustum,
 };
+pub use depth_gpu::{integrate_depth_gpu, integrate_depth_resident};
 pub(crate) use lidar::band_m;
 pub use lidar::{
     integrate_lidar, integrate_lidar_plan, lidar_scan_blocks, LidarFusionParams, LidarPlan,
 };
+pub use lidar_gpu::{block_local_ray, integrate_lidar_f32, integrate_lidar_gpu, walk_block_ray};
 
 /// Work counters of one integration call.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -41,4 +44,41 @@ pub struct FusionStats {
     pub voxel_updates: usize,
     /// Measurements used (valid pixels or LiDAR points).
     pub measurements: usize,
+}
+
+/// Checks the blocks at `indices` out of `layer` (allocating missing ones), lets `update` change
+/// them and report its voxel updates, and checks back in the blocks that are now observed. When
+/// `update` fails, puts back exactly what was there (dropping the blocks allocated here), so the
+/// layer is unchanged: how the GPU paths, which write blocks only after a whole readback,
+/// keep a failed call from losing or half-writing data.
+pub(crate) fn update_checked_out(
+    layer: &mut crate::grid::Layer,
+    indices: &[crate::grid::BlockIndex],
+    measurements: usize,
+    update: impl FnOnce(
+        &mut [(crate::grid::BlockIndex, Box<crate::grid::Block>)],
+    ) -> crate::Result<usize>,
+) -> crate::Result<(crate::grid::TouchedBlocks, FusionStats)> {
+    let existed: Vec<bool> = indices.iter().map(|b| layer.contains(b)).collect();
+    let mut taken = layer.take_blocks(indices);
+    match update(&mut taken) {
+        Ok(voxel_updates) => {
+            let touched = layer.put_blocks_observed(taken);
+            let stats = FusionStats {
+                blocks: touched.len(),
+                voxel_updates,
+                measurements,
+            };
+            Ok((touched, stats))
+        }
+        Err(e) => {
+            layer.put_blocks(
+                taken
+                    .into_iter()
+                    .zip(existed)
+                    .filter_map(|(b, was)| was.then_some(b)),
+            );
+            Err(e)
+        }
+    }
 }

@@ -2,7 +2,7 @@
 //! (upload, readback, capacity checks, error scopes). It does not choose between CPU and GPU for
 //! a stage: callers do that with [`DeviceChoice`].
 
-use super::shaders::{self, ShaderSource};
+use super::shaders::ShaderSource;
 use crate::{Error, Result};
 use wgpu::util::DeviceExt;
 
@@ -25,15 +25,15 @@ pub enum DeviceChoice {
 }
 
 impl DeviceChoice {
-    /// Opens the GPU this choice asks for: `None` for the CPU. `Auto` and `Gpu` print the device
-    /// on one line to stderr; `Auto` falls back to the CPU (saying why) when no adapter exists,
-    /// only a software one does, or it fails to open; `Gpu` fails when none exists.
+    /// Opens the GPU this choice asks for: `None` for the CPU. `Auto` and `Gpu` log the device
+    /// on one line (`device: …`); `Auto` falls back to the CPU (saying why) when no adapter
+    /// exists, only a software one does, or it fails to open; `Gpu` fails when none exists.
     pub fn open(self) -> Result<Option<GpuContext>> {
         match self {
             DeviceChoice::Cpu => Ok(None),
             DeviceChoice::Auto => match GpuContext::new() {
                 Ok(Some(c)) if c.is_software() => {
-                    eprintln!(
+                    tracing::info!(
                         "device: only a software adapter ({}), running on the CPU \
                          (--device gpu uses it anyway)",
                         c.describe()
@@ -41,21 +41,21 @@ impl DeviceChoice {
                     Ok(None)
                 }
                 Ok(Some(c)) => {
-                    eprintln!("device: GPU ({})", c.describe());
+                    tracing::info!("device: GPU ({})", c.describe());
                     Ok(Some(c))
                 }
                 Ok(None) => {
-                    eprintln!("device: no GPU adapter found, running on the CPU");
+                    tracing::info!("device: no GPU adapter found, running on the CPU");
                     Ok(None)
                 }
                 Err(e) => {
-                    eprintln!("device: {e}; running on the CPU");
+                    tracing::warn!("device: {e}; running on the CPU");
                     Ok(None)
                 }
             },
             DeviceChoice::Gpu => match GpuContext::new()? {
                 Some(c) => {
-                    eprintln!("device: GPU ({})", c.describe());
+                    tracing::info!("device: GPU ({})", c.describe());
                     Ok(Some(c))
                 }
                 None => Err(Error::Gpu(
@@ -90,9 +90,6 @@ pub struct GpuContext {
     info: wgpu::AdapterInfo,
     limits: wgpu::Limits,
     binding_cap_bytes: Option<u64>,
-    pub(crate) tv_layout: wgpu::BindGroupLayout,
-    pub(crate) tv_dual: wgpu::ComputePipeline,
-    pub(crate) tv_primal: wgpu::ComputePipeline,
     /// Kernels compiled on first use ([`GpuContext::kernel`]), by file name.
     kernels: std::sync::Mutex<std::collections::HashMap<&'static str, std::sync::Arc<Kernel>>>,
 }
@@ -117,17 +114,8 @@ fn layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLay
     }
 }
 
-/// A uniform buffer binding.
-pub(crate) const UNIFORM: wgpu::BufferBindingType = wgpu::BufferBindingType::Uniform;
-/// A read-only storage buffer binding.
-pub(crate) const READ: wgpu::BufferBindingType =
-    wgpu::BufferBindingType::Storage { read_only: true };
-/// A read-write storage buffer binding.
-pub(crate) const READ_WRITE: wgpu::BufferBindingType =
-    wgpu::BufferBindingType::Storage { read_only: false };
-
 /// A compute bind-group layout whose binding `k` has type `types[k]`.
-pub(crate) fn bind_group_layout(
+fn bind_group_layout(
     device: &wgpu::Device,
     label: &str,
     types: &[wgpu::BufferBindingType],
@@ -144,7 +132,7 @@ pub(crate) fn bind_group_layout(
 }
 
 /// The compute pipeline of kernel `src` (entry point `main`) over one bind group `layout`.
-pub(crate) fn compute_pipeline(
+fn compute_pipeline(
     device: &wgpu::Device,
     src: &ShaderSource,
     layout: &wgpu::BindGroupLayout,
@@ -192,32 +180,19 @@ impl GpuContext {
             ..Default::default()
         }))
         .map_err(|e| Error::Gpu(format!("opening {}: {e}", info.name)))?;
-        let scope = ErrorScopes::push(&device);
-        let tv_layout = bind_group_layout(
-            &device,
-            "tv",
-            &[
-                UNIFORM, READ, READ, READ, READ, READ_WRITE, READ_WRITE, READ_WRITE,
-            ],
-        );
-
-        let pipeline = |src: &ShaderSource, layout: &wgpu::BindGroupLayout| {
-            compute_pipeline(&device, src, layout)
-        };
-        let tv_dual = pipeline(&shaders::TV_DUAL, &tv_layout);
-        let tv_primal = pipeline(&shaders::TV_PRIMAL, &tv_layout);
-        scope.pop("compiling the kernels")?;
         Ok(Some(GpuContext {
             device,
             queue,
             info,
             limits,
             binding_cap_bytes: None,
-            tv_layout,
-            tv_dual,
-            tv_primal,
             kernels: Default::default(),
         }))
+    }
+
+    /// The adapter and its backend, for summaries: "llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan)".
+    pub fn name(&self) -> String {
+        format!("{} ({:?})", self.info.name, self.info.backend)
     }
 
     /// Adapter name, type and backend, in words.
@@ -305,13 +280,10 @@ impl GpuContext {
             })
     }
 
-    /// The kernel `src` with binding `k` of type `types[k]`, compiled on first use and cached
-    /// (by file name) for the life of the context. Compilation errors become [`Error::Gpu`].
-    pub(crate) fn kernel(
-        &self,
-        src: &ShaderSource,
-        types: &[wgpu::BufferBindingType],
-    ) -> Result<std::sync::Arc<Kernel>> {
+    /// The kernel `src` (bindings as [`ShaderSource::bindings`] declares them), compiled on
+    /// first use and cached (by file name) for the life of the context. Compilation errors
+    /// become [`Error::Gpu`].
+    pub(crate) fn kernel(&self, src: &ShaderSource) -> Result<std::sync::Arc<Kernel>> {
         let mut cache = self
             .kernels
             .lock()
@@ -320,7 +292,8 @@ impl GpuContext {
             return Ok(k.clone());
         }
         let scope = ErrorScopes::push(&self.device);
-        let layout = bind_group_layout(&self.device, src.file, types);
+        let types: Vec<wgpu::BufferBindingType> = src.bindings.iter().map(|b| b.wgpu()).collect();
+        let layout = bind_group_layout(&self.device, src.file, &types);
         let pipeline = compute_pipeline(&self.device, src, &layout);
         scope.pop(&format!("compiling {}", src.file))?;
         let k = std::sync::Arc::new(Kernel { layout, pipeline });

@@ -1,7 +1,8 @@
 //! Buffer structs shared with the WGSL kernels: `#[repr(C)]` + bytemuck, each with a WGSL twin
 //! that says "keep in sync with src/gpu/layout.rs". Field order, sizes and padding must match
 //! WGSL's uniform/storage layout rules (a `vec4<f32>` is 16-byte aligned; structs are padded to
-//! a multiple of 16 bytes in uniform buffers). Tests check the sizes.
+//! a multiple of 16 bytes in uniform buffers). [`WGSL_STRUCTS`] lists them for the test that
+//! compares their sizes with naga's reflection of the shaders.
 
 use crate::grid::{Block, VOXELS_PER_BLOCK};
 use bytemuck::{Pod, Zeroable};
@@ -268,6 +269,25 @@ impl GpuVoxel {
     }
 }
 
+/// Every buffer struct the kernels share with the host: its WGSL name and the size of its Rust
+/// twin, bytes. `tests/gpu.rs` checks each against the size naga computes for the WGSL struct
+/// (and that every struct a kernel binds is listed here).
+pub const WGSL_STRUCTS: &[(&str, usize)] = &[
+    ("TvUniforms", std::mem::size_of::<TvUniforms>()),
+    ("FuseUniforms", std::mem::size_of::<FuseUniforms>()),
+    ("GpuVoxel", std::mem::size_of::<GpuVoxel>()),
+    ("LookupUniforms", std::mem::size_of::<LookupUniforms>()),
+    ("LidarUniforms", std::mem::size_of::<LidarUniforms>()),
+    ("LidarRay", std::mem::size_of::<GpuLidarRay>()),
+    ("TgvUniforms", std::mem::size_of::<TgvUniforms>()),
+    (
+        "PointwiseUniforms",
+        std::mem::size_of::<PointwiseUniforms>(),
+    ),
+    ("CensusUniforms", std::mem::size_of::<CensusUniforms>()),
+    ("CostUniforms", std::mem::size_of::<CostUniforms>()),
+];
+
 /// Appends `block`'s 512 voxels, packed, to `out` (the layout every fusion kernel reads).
 pub(crate) fn pack_block_into(block: &Block, out: &mut Vec<GpuVoxel>) {
     out.extend(
@@ -276,20 +296,14 @@ pub(crate) fn pack_block_into(block: &Block, out: &mut Vec<GpuVoxel>) {
     );
 }
 
-/// Writes back into `block` the voxels a kernel marked updated in `voxels` (its 512, read back):
-/// TSDF, weight and Ω, colour, and, as `Block::fuse`, a stored regularised value follows the
-/// new TSDF.
+/// Writes back into `block` the voxels a kernel marked updated in `voxels` (its 512, read back),
+/// with [`Block::store_fused`], as `Block::fuse` stores them.
 pub(crate) fn apply_updated(block: &mut Block, voxels: &[GpuVoxel]) {
     for (i, v) in voxels.iter().enumerate() {
         if !v.updated() {
             continue;
         }
-        block.tsdf[i] = v.tsdf();
-        block.weight_omega[i] = v.weight_omega();
-        block.color[i] = v.rgb();
-        if let Some(u) = block.regularized.as_mut() {
-            u[i] = block.tsdf[i];
-        }
+        block.store_fused(i, v.tsdf(), v.weight_omega(), v.rgb());
     }
 }
 
@@ -302,22 +316,6 @@ pub fn pack_rgb(c: [u8; 3]) -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn sizes_match_the_wgsl_layouts() {
-        assert_eq!(std::mem::size_of::<TvUniforms>(), 32);
-        assert_eq!(std::mem::size_of::<FuseUniforms>(), 96);
-        assert_eq!(std::mem::size_of::<GpuVoxel>(), 8);
-        assert_eq!(std::mem::size_of::<LookupUniforms>(), 16);
-        assert_eq!(std::mem::size_of::<LidarUniforms>(), 32);
-        // Thirteen 4-byte scalars: WGSL's array stride is 52 with 4-byte alignment.
-        assert_eq!(std::mem::size_of::<GpuLidarRay>(), 52);
-        assert_eq!(std::mem::align_of::<GpuLidarRay>(), 4);
-        assert_eq!(std::mem::size_of::<TgvUniforms>(), 48);
-        assert_eq!(std::mem::size_of::<PointwiseUniforms>(), 48);
-        assert_eq!(std::mem::size_of::<CensusUniforms>(), 32);
-        assert_eq!(std::mem::size_of::<CostUniforms>(), 32);
-    }
 
     #[test]
     fn voxel_packing_round_trips() {

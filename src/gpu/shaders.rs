@@ -1,156 +1,151 @@
 //! WGSL sources, assembled from `shaders/` at compile time. WGSL has no `#include`: each kernel is
-//! its shared files (`shaders/shared/`) followed by its own file, concatenated here; this list is
-//! what the naga validation test (`tests/gpu_shaders.rs`) checks.
+//! its shared files (`shaders/shared/`) followed by its own file, concatenated here. Each kernel
+//! is declared once, with [`kernel!`]: its file, its shared files (in order) and the types of its
+//! bindings (in binding order). The host builds the kernel's bind-group layout from that list;
+//! `tests/gpu.rs` checks it, and the sizes of the buffer structs, against what naga reflects
+//! from the shader, and that every `.wgsl` file is part of some kernel.
 
-/// One kernel: a label and the assembled WGSL source.
+/// The type of one buffer binding of a kernel (group 0, bindings numbered from 0).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Binding {
+    /// `var<uniform>`.
+    Uniform,
+    /// `var<storage, read>`.
+    Read,
+    /// `var<storage, read_write>`.
+    ReadWrite,
+}
+
+impl Binding {
+    /// The wgpu binding type.
+    pub fn wgpu(self) -> wgpu::BufferBindingType {
+        match self {
+            Binding::Uniform => wgpu::BufferBindingType::Uniform,
+            Binding::Read => wgpu::BufferBindingType::Storage { read_only: true },
+            Binding::ReadWrite => wgpu::BufferBindingType::Storage { read_only: false },
+        }
+    }
+}
+
+/// One kernel: its file, shared files, bindings and the assembled WGSL source.
 #[derive(Clone, Copy, Debug)]
 pub struct ShaderSource {
     /// The kernel's file under `shaders/`.
     pub file: &'static str,
     /// Shared files prepended, in order.
     pub shared: &'static [&'static str],
+    /// Binding `k` of group 0 has type `bindings[k]`.
+    pub bindings: &'static [Binding],
     /// The assembled source.
     pub source: &'static str,
 }
 
+/// Declares a kernel once: `kernel!("file.wgsl", ["shared/a.wgsl", …], [Uniform, Read, …])`.
+macro_rules! kernel {
+    ($file:literal, [$($shared:literal),* $(,)?], [$($binding:ident),* $(,)?]) => {
+        ShaderSource {
+            file: $file,
+            shared: &[$($shared),*],
+            bindings: &[$(Binding::$binding),*],
+            source: concat!(
+                $(include_str!(concat!("../../shaders/", $shared)),)*
+                include_str!(concat!("../../shaders/", $file))
+            ),
+        }
+    };
+}
+
 /// TV dual step.
-pub const TV_DUAL: ShaderSource = ShaderSource {
-    file: "tv_dual.wgsl",
-    shared: &["shared/dispatch.wgsl", "shared/tv_common.wgsl"],
-    source: concat!(
-        include_str!("../../shaders/shared/dispatch.wgsl"),
-        include_str!("../../shaders/shared/tv_common.wgsl"),
-        include_str!("../../shaders/tv_dual.wgsl")
-    ),
-};
+pub const TV_DUAL: ShaderSource = kernel!(
+    "tv_dual.wgsl",
+    ["shared/dispatch.wgsl", "shared/tv_common.wgsl"],
+    [Uniform, Read, Read, Read, Read, ReadWrite, ReadWrite, ReadWrite]
+);
 
 /// TV primal step and relaxation.
-pub const TV_PRIMAL: ShaderSource = ShaderSource {
-    file: "tv_primal.wgsl",
-    shared: &["shared/dispatch.wgsl", "shared/tv_common.wgsl"],
-    source: concat!(
-        include_str!("../../shaders/shared/dispatch.wgsl"),
-        include_str!("../../shaders/shared/tv_common.wgsl"),
-        include_str!("../../shaders/tv_primal.wgsl")
-    ),
-};
+pub const TV_PRIMAL: ShaderSource = kernel!(
+    "tv_primal.wgsl",
+    ["shared/dispatch.wgsl", "shared/tv_common.wgsl"],
+    [Uniform, Read, Read, Read, Read, ReadWrite, ReadWrite, ReadWrite]
+);
 
 /// Depth-map fusion over uploaded blocks.
-pub const FUSE_DEPTH: ShaderSource = ShaderSource {
-    file: "fuse_depth.wgsl",
-    shared: &[
+pub const FUSE_DEPTH: ShaderSource = kernel!(
+    "fuse_depth.wgsl",
+    [
         "shared/dispatch.wgsl",
         "shared/rounding.wgsl",
         "shared/voxel_fuse.wgsl",
-        "shared/fuse_common.wgsl",
+        "shared/fuse_common.wgsl"
     ],
-    source: concat!(
-        include_str!("../../shaders/shared/dispatch.wgsl"),
-        include_str!("../../shaders/shared/rounding.wgsl"),
-        include_str!("../../shaders/shared/voxel_fuse.wgsl"),
-        include_str!("../../shaders/shared/fuse_common.wgsl"),
-        include_str!("../../shaders/fuse_depth.wgsl")
-    ),
-};
+    [Uniform, Read, Read, Read, ReadWrite, ReadWrite]
+);
 
 /// Depth-map fusion into the blocks resident in the GPU pool.
-pub const FUSE_DEPTH_RESIDENT: ShaderSource = ShaderSource {
-    file: "fuse_depth_resident.wgsl",
-    shared: &[
+pub const FUSE_DEPTH_RESIDENT: ShaderSource = kernel!(
+    "fuse_depth_resident.wgsl",
+    [
         "shared/dispatch.wgsl",
         "shared/rounding.wgsl",
         "shared/voxel_fuse.wgsl",
         "shared/fuse_common.wgsl",
-        "shared/block_hash.wgsl",
+        "shared/block_hash.wgsl"
     ],
-    source: concat!(
-        include_str!("../../shaders/shared/dispatch.wgsl"),
-        include_str!("../../shaders/shared/rounding.wgsl"),
-        include_str!("../../shaders/shared/voxel_fuse.wgsl"),
-        include_str!("../../shaders/shared/fuse_common.wgsl"),
-        include_str!("../../shaders/shared/block_hash.wgsl"),
-        include_str!("../../shaders/fuse_depth_resident.wgsl")
-    ),
-};
+    [Uniform, Read, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite]
+);
 
 /// Block keys to pool slots through the GPU hash table.
-pub const BLOCK_LOOKUP: ShaderSource = ShaderSource {
-    file: "block_lookup.wgsl",
-    shared: &["shared/dispatch.wgsl", "shared/block_hash.wgsl"],
-    source: concat!(
-        include_str!("../../shaders/shared/dispatch.wgsl"),
-        include_str!("../../shaders/shared/block_hash.wgsl"),
-        include_str!("../../shaders/block_lookup.wgsl")
-    ),
-};
+pub const BLOCK_LOOKUP: ShaderSource = kernel!(
+    "block_lookup.wgsl",
+    ["shared/dispatch.wgsl", "shared/block_hash.wgsl"],
+    [Uniform, Read, Read, ReadWrite]
+);
 
 /// LiDAR fusion (ray-wise, inside the truncation band) over uploaded blocks.
-pub const FUSE_LIDAR: ShaderSource = ShaderSource {
-    file: "fuse_lidar.wgsl",
-    shared: &[
+pub const FUSE_LIDAR: ShaderSource = kernel!(
+    "fuse_lidar.wgsl",
+    [
         "shared/dispatch.wgsl",
         "shared/rounding.wgsl",
-        "shared/voxel_fuse.wgsl",
+        "shared/voxel_fuse.wgsl"
     ],
-    source: concat!(
-        include_str!("../../shaders/shared/dispatch.wgsl"),
-        include_str!("../../shaders/shared/rounding.wgsl"),
-        include_str!("../../shaders/shared/voxel_fuse.wgsl"),
-        include_str!("../../shaders/fuse_lidar.wgsl")
-    ),
-};
+    [Uniform, Read, Read, ReadWrite, ReadWrite]
+);
 
 /// TGV stereo dual step (`p` with the tensor, `q`).
-pub const TGV_DUAL: ShaderSource = ShaderSource {
-    file: "tgv_dual.wgsl",
-    shared: &["shared/dispatch.wgsl", "shared/tgv_common.wgsl"],
-    source: concat!(
-        include_str!("../../shaders/shared/dispatch.wgsl"),
-        include_str!("../../shaders/shared/tgv_common.wgsl"),
-        include_str!("../../shaders/tgv_dual.wgsl")
-    ),
-};
+pub const TGV_DUAL: ShaderSource = kernel!(
+    "tgv_dual.wgsl",
+    ["shared/dispatch.wgsl", "shared/tgv_common.wgsl"],
+    [Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite]
+);
 
 /// TGV stereo primal step (`u` with the coupling, `v`) and over-relaxation.
-pub const TGV_PRIMAL: ShaderSource = ShaderSource {
-    file: "tgv_primal.wgsl",
-    shared: &["shared/dispatch.wgsl", "shared/tgv_common.wgsl"],
-    source: concat!(
-        include_str!("../../shaders/shared/dispatch.wgsl"),
-        include_str!("../../shaders/shared/tgv_common.wgsl"),
-        include_str!("../../shaders/tgv_primal.wgsl")
-    ),
-};
+pub const TGV_PRIMAL: ShaderSource = kernel!(
+    "tgv_primal.wgsl",
+    ["shared/dispatch.wgsl", "shared/tgv_common.wgsl"],
+    [Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite]
+);
 
 /// Point-wise search of the stereo decoupling.
-pub const TGV_POINTWISE: ShaderSource = ShaderSource {
-    file: "tgv_pointwise.wgsl",
-    shared: &["shared/dispatch.wgsl"],
-    source: concat!(
-        include_str!("../../shaders/shared/dispatch.wgsl"),
-        include_str!("../../shaders/tgv_pointwise.wgsl")
-    ),
-};
+pub const TGV_POINTWISE: ShaderSource = kernel!(
+    "tgv_pointwise.wgsl",
+    ["shared/dispatch.wgsl"],
+    [Uniform, Read, Read, Read, ReadWrite]
+);
 
 /// Census transform.
-pub const CENSUS: ShaderSource = ShaderSource {
-    file: "census.wgsl",
-    shared: &["shared/dispatch.wgsl"],
-    source: concat!(
-        include_str!("../../shaders/shared/dispatch.wgsl"),
-        include_str!("../../shaders/census.wgsl")
-    ),
-};
+pub const CENSUS: ShaderSource = kernel!(
+    "census.wgsl",
+    ["shared/dispatch.wgsl"],
+    [Uniform, Read, ReadWrite]
+);
 
 /// Census cost volume (Hamming distances).
-pub const CENSUS_COST: ShaderSource = ShaderSource {
-    file: "census_cost.wgsl",
-    shared: &["shared/dispatch.wgsl"],
-    source: concat!(
-        include_str!("../../shaders/shared/dispatch.wgsl"),
-        include_str!("../../shaders/census_cost.wgsl")
-    ),
-};
+pub const CENSUS_COST: ShaderSource = kernel!(
+    "census_cost.wgsl",
+    ["shared/dispatch.wgsl"],
+    [Uniform, Read, Read, ReadWrite]
+);
 
 /// Every kernel (one per line, so additions merge cleanly).
 pub const ALL: &[ShaderSource] = &[

@@ -126,20 +126,33 @@ impl Block {
         let w_old = self.weight(i) as f32;
         let w_new = w_old + 1.0;
         let f_old = decode_tsdf(self.tsdf[i]);
-        self.tsdf[i] = encode_tsdf((tsdf_normalized + w_old * f_old) / w_new);
-        if let Some(c) = color {
-            let old = self.color[i];
-            let mut mixed = [0u8; 3];
-            for k in 0..3 {
-                mixed[k] = ((c[k] as f32 + w_old * old[k] as f32) / w_new).round() as u8;
+        let tsdf = encode_tsdf((tsdf_normalized + w_old * f_old) / w_new);
+        let color = match color {
+            Some(c) => {
+                let old = self.color[i];
+                let mut mixed = [0u8; 3];
+                for k in 0..3 {
+                    mixed[k] = ((c[k] as f32 + w_old * old[k] as f32) / w_new).round() as u8;
+                }
+                mixed
             }
-            self.color[i] = mixed;
-        }
+            None => self.color[i],
+        };
         let w = (self.weight(i) + 1).min(MAX_WEIGHT);
-        self.weight_omega[i] = w | OMEGA_BIT;
-        // The raw field changed: a stored regularised value no longer matches it.
+        self.store_fused(i, tsdf, w | OMEGA_BIT, color);
+    }
+
+    /// Stores the result of fusing voxel `i` (by [`Block::fuse`], or read back from a GPU kernel
+    /// that runs its twin): quantised TSDF, weight with the Ω bit, colour. The raw field changed,
+    /// so a stored regularised value follows it (it no longer matches the data; the next
+    /// regularisation recomputes it).
+    #[inline]
+    pub fn store_fused(&mut self, i: usize, tsdf: i16, weight_omega: u8, color: [u8; 3]) {
+        self.tsdf[i] = tsdf;
+        self.weight_omega[i] = weight_omega;
+        self.color[i] = color;
         if let Some(u) = self.regularized.as_mut() {
-            u[i] = self.tsdf[i];
+            u[i] = tsdf;
         }
     }
 

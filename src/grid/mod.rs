@@ -14,6 +14,7 @@
 mod block;
 mod index;
 mod layer;
+mod residency;
 
 pub use block::{decode_tsdf, encode_tsdf, Block, Voxel, MAX_WEIGHT, OMEGA_BIT};
 pub use index::{
@@ -21,3 +22,4 @@ pub use index::{
     VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
 };
 pub use layer::{BlockHasher, Layer, TouchedBlocks};
+pub use residency::{eviction_order, EvictionCandidate};

@@ -9,12 +9,14 @@
 //! What it does not do: resampling, undistortion, interpolation of poses, or any processing of
 //! the data beyond unit conversion and the frame conventions documented per format.
 
+pub mod calib;
 pub mod image;
 pub mod kitti;
 pub mod las;
 pub mod pfm;
 pub mod ply;
 pub mod rgbd;
+pub mod sequence;
 mod text;
 
 use crate::error::Result;
@@ -33,4 +35,27 @@ pub trait DepthSequence {
     /// Loads frame `i` (0-based): depth in metres (NaN invalid), intrinsics, pose, colour.
     /// Fails for `i >= len()` or when a file cannot be read.
     fn frame(&self, i: usize) -> Result<DepthFrame>;
+
+    /// The pose of frame `i` without loading its images (`None` past the end).
+    fn pose(&self, i: usize) -> Option<crate::camera::WorldFromCamera>;
+}
+
+/// Writes `cloud` as PLY, LAS or LAZ, chosen by the extension of `path`.
+pub fn write_point_cloud(
+    path: impl AsRef<std::path::Path>,
+    cloud: &crate::frame::PointCloud,
+) -> Result<()> {
+    let path = path.as_ref();
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "ply" => ply::write_points_ply(path, cloud),
+        "las" | "laz" => las::write_point_cloud(path, cloud),
+        _ => Err(crate::Error::InvalidArgument(format!(
+            "{}: points are written as .ply, .las or .laz",
+            path.display()
+        ))),
+    }
 }

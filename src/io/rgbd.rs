@@ -301,6 +301,10 @@ impl DepthSequence for TumRgbdSequence {
         self.frames.len()
     }
 
+    fn pose(&self, i: usize) -> Option<WorldFromCamera> {
+        TumRgbdSequence::pose(self, i)
+    }
+
     fn frame(&self, i: usize) -> Result<DepthFrame> {
         let f = self
             .frames
@@ -424,6 +428,10 @@ impl SimpleRgbdSequence {
 impl DepthSequence for SimpleRgbdSequence {
     fn len(&self) -> usize {
         self.poses.len()
+    }
+
+    fn pose(&self, i: usize) -> Option<WorldFromCamera> {
+        SimpleRgbdSequence::pose(self, i)
     }
 
     fn frame(&self, i: usize) -> Result<DepthFrame> {

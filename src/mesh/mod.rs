@@ -18,18 +18,18 @@ pub struct Mesh {
     pub triangles: Vec<[u32; 3]>,
 }
 
+/// Area of the triangle with corners `p`, m² (f64 arithmetic).
+pub fn triangle_area_m2(p: [[f32; 3]; 3]) -> f64 {
+    let v = |i: usize| nalgebra::Vector3::new(p[i][0] as f64, p[i][1] as f64, p[i][2] as f64);
+    0.5 * (v(1) - v(0)).cross(&(v(2) - v(0))).norm()
+}
+
 impl Mesh {
     /// Total triangle area, m².
     pub fn surface_area_m2(&self) -> f64 {
         self.triangles
             .iter()
-            .map(|t| {
-                let p = |i: u32| {
-                    let v = self.positions_m[i as usize];
-                    nalgebra::Vector3::new(v[0] as f64, v[1] as f64, v[2] as f64)
-                };
-                0.5 * (p(t[1]) - p(t[0])).cross(&(p(t[2]) - p(t[0]))).norm()
-            })
+            .map(|t| triangle_area_m2(t.map(|i| self.positions_m[i as usize])))
             .sum()
     }
 }

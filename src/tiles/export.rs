@@ -65,6 +65,8 @@ pub struct ExportStats {
     pub vertices: u64,
     /// Triangles written (0 for point clouds).
     pub triangles: u64,
+    /// Surface area of the triangles written, m² (0 for point clouds).
+    pub area_m2: f64,
     /// Voxels (blocks · 512) in the chunks meshed.
     pub voxels: u64,
     /// Vertex keys remembered on chunk faces at the end (the stitching state).
@@ -288,6 +290,8 @@ pub fn export(
                     }
                     faces.write_all(&rec).map_err(|e| Error::io(&*tmp_f, e))?;
                     stats.triangles += 1;
+                    stats.area_m2 +=
+                        crate::mesh::triangle_area_m2(t.map(|i| m.positions_m[i as usize]));
                 }
             }
         }

@@ -14,11 +14,14 @@
 
 pub mod codec;
 pub mod export;
+pub mod job;
 pub mod manifest;
+mod paged;
 pub mod pager;
 pub mod regional;
 pub mod store;
-pub mod stream;
+
+pub use paged::PagedStore;
 
 use crate::grid::BlockIndex;
 use serde::{Deserialize, Serialize};

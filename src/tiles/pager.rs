@@ -17,7 +17,7 @@
 use super::store::{ChunkWriter, MapStore, WrittenChunk};
 use super::{group_by_chunk, ChunkIndex};
 use crate::error::{Error, Result};
-use crate::grid::{Block, BlockIndex, Layer};
+use crate::grid::{eviction_order, Block, BlockIndex, EvictionCandidate, Layer};
 use crossbeam::channel::{bounded, unbounded, Receiver, Sender};
 use std::collections::{HashMap, HashSet};
 
@@ -329,8 +329,9 @@ impl Pager {
     }
 
     /// [`Pager::evict_to_budget`] calling `before_evict(layer, blocks)` with each chunk's blocks
-    /// just before they leave RAM: the hook of a tier above RAM (the GPU's
-    /// [`crate::gpu::ResidentMap::flush_blocks`]) to write its newer copies back first.
+    /// just before they leave RAM: the hook of a tier above RAM (the GPU's resident blocks,
+    /// through [`crate::store::UpperTier::release`]) to write its newer copies back first.
+    /// Chunks leave in [`eviction_order`], the order every tier uses.
     pub fn evict_to_budget_with(
         &mut self,
         camera_world_m: [f64; 3],
@@ -341,19 +342,18 @@ impl Pager {
         if self.used_bytes() > self.config.budget_bytes {
             let grid = self.store.grid();
             let chunk_m = grid.block_size_m() * self.chunk_blocks() as f64;
-            let mut order: Vec<(f64, ChunkIndex)> = self
+            // The RAM tier does not track use: farthest first (then by chunk).
+            let candidates: Vec<EvictionCandidate<ChunkIndex>> = self
                 .resident
                 .keys()
                 .filter(|c| !keep.contains(c))
-                .map(|c| {
-                    let d2: f64 = (0..3)
-                        .map(|a| ((c.0[a] as f64 + 0.5) * chunk_m - camera_world_m[a]).powi(2))
-                        .sum();
-                    (d2, *c)
+                .map(|c| EvictionCandidate {
+                    key: *c,
+                    centre_m: [0, 1, 2].map(|a| (c.0[a] as f64 + 0.5) * chunk_m),
+                    last_used: 0,
                 })
                 .collect();
-            order.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-            for (_, c) in order {
+            for c in eviction_order(candidates, camera_world_m) {
                 if self.used_bytes() <= self.config.budget_bytes {
                     break;
                 }

@@ -81,8 +81,8 @@ pub fn regularize_map(
 }
 
 /// [`regularize_map`] with another solver for each region's problem (it must run
-/// `params.iterations` Chambolle–Pock iterations from the gathered state): the GPU's
-/// [`crate::gpu::solve_gpu`], for one.
+/// `params.iterations` Chambolle–Pock iterations from the gathered state): a
+/// [`crate::regularize::TvSolver`] of the run's backend, for one.
 pub fn regularize_map_with(
     store: &mut MapStore,
     params: &TvParams,

@@ -3,8 +3,19 @@
 
 use std::path::PathBuf;
 
-/// `../shared/data/<sub>` relative to the project root, or `None` (with a message saying the test
-/// is skipped) when that folder is absent, as on a fresh clone.
+/// Says that the running test skips (part of) its checks, on a line of its own that the test
+/// harness does not capture, so a reader of `cargo test`'s output can count them:
+/// `SKIPPED <test name>: <reason>` (`.ci/run` prints the count).
+pub fn skip(reason: &str) {
+    use std::io::Write;
+    let thread = std::thread::current();
+    let name = thread.name().unwrap_or("?");
+    // Written to the process's stderr directly: libtest captures `eprintln!`, not this.
+    let _ = writeln!(std::io::stderr().lock(), "SKIPPED {name}: {reason}");
+}
+
+/// `../shared/data/<sub>` relative to the project root, or `None` (with a counted [`skip`]
+/// message) when that folder is absent, as on a fresh clone.
 pub fn shared_data(sub: &str) -> Option<PathBuf> {
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/data")
@@ -12,10 +23,10 @@ pub fn shared_data(sub: &str) -> Option<PathBuf> {
     if p.exists() {
         Some(p)
     } else {
-        eprintln!(
-            "skipped: {} is absent (real data lives in ../shared/data)",
+        skip(&format!(
+            "{} is absent (real data lives in ../shared/data)",
             p.display()
-        );
+        ));
         None
     }
 }
@@ -217,7 +228,7 @@ pub fn gpu() -> Option<denser::gpu::GpuContext> {
             Some(ctx)
         }
         Ok(None) => {
-            eprintln!("skipping: no GPU adapter (tools/setup.sh installs lavapipe)");
+            skip("no GPU adapter (tools/setup.sh installs lavapipe)");
             None
         }
         Err(e) => panic!("a GPU adapter exists but failed: {e}"),
@@ -240,4 +251,42 @@ pub fn bench_gpu() -> Option<denser::gpu::GpuContext> {
             None
         }
     }
+}
+
+/// Per-call GPU depth fusion of one frame, planned as the CPU plans it
+/// ([`denser::fusion::DepthPlan`]).
+pub fn fuse_depth_gpu(
+    ctx: &denser::gpu::GpuContext,
+    layer: &mut denser::grid::Layer,
+    frame: &DepthFrame,
+    params: &denser::fusion::DepthFusionParams,
+) -> denser::Result<(denser::grid::TouchedBlocks, denser::fusion::FusionStats)> {
+    let plan = denser::fusion::DepthPlan::new(&layer.params(), frame, params);
+    denser::fusion::integrate_depth_gpu(ctx, layer, frame, params, &plan)
+}
+
+/// GPU depth fusion of one frame into the blocks resident in `map`.
+pub fn fuse_depth_resident(
+    map: &mut denser::gpu::ResidentMap,
+    layer: &mut denser::grid::Layer,
+    frame: &DepthFrame,
+    params: &denser::fusion::DepthFusionParams,
+) -> denser::Result<(denser::grid::TouchedBlocks, denser::fusion::FusionStats)> {
+    let plan = denser::fusion::DepthPlan::new(&layer.params(), frame, params);
+    denser::fusion::integrate_depth_resident(map, layer, frame, params, &plan)
+}
+
+/// A reconstructor over `layer` (in RAM) with the stages of `backend`.
+pub fn reconstructor_over(
+    config: denser::reconstruct::ReconstructionConfig,
+    layer: denser::grid::Layer,
+    backend: denser::backend::Backend,
+) -> denser::reconstruct::Reconstructor {
+    denser::reconstruct::Reconstructor::with_store(
+        config,
+        Box::new(denser::store::MemoryStore::from_layer(layer)),
+        backend,
+        0,
+    )
+    .expect("reconstructor")
 }

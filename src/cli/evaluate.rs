@@ -1,0 +1,80 @@
+//! `denser evaluate`: the paper's evaluation of any meshes against ground truth.
+
+use super::{EvaluationTable, Outcome, RangeArgs, Written};
+use anyhow::{Context, Result};
+use denser::eval::{evaluate_meshes, EvaluationReport, GroundTruth};
+use std::fmt;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub(crate) struct Args {
+    /// Meshes to score, as `LABEL=PATH.ply` or `PATH.ply` (label = file stem); the first is the
+    /// baseline for relative changes.
+    #[arg(long = "mesh", required = true)]
+    meshes: Vec<String>,
+    /// Ground truth: .las/.laz/.ply, or a KITTI sequence folder (its scans, merged in the world frame).
+    #[arg(long)]
+    gt: PathBuf,
+    /// KITTI poses file, when not at `<root>/poses/NN.txt`.
+    #[arg(long)]
+    poses: Option<PathBuf>,
+    /// The KITTI scans used (with a sequence folder as ground truth).
+    #[command(flatten)]
+    range: RangeArgs,
+    /// Output folder for report.json, report.md and the pictures.
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+}
+
+struct Evaluated {
+    report: EvaluationReport,
+    written: Vec<PathBuf>,
+}
+
+impl fmt::Display for Evaluated {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{}{}",
+            EvaluationTable(&self.report),
+            Written(&self.written)
+        )
+    }
+}
+
+pub(crate) fn run(a: Args) -> Result<Outcome> {
+    let gt = GroundTruth::from_path(a.gt.clone(), a.poses.clone(), a.range.range());
+    let cloud = gt
+        .load()
+        .with_context(|| format!("loading ground truth {}", a.gt.display()))?;
+    let mut meshes = Vec::new();
+    for spec in &a.meshes {
+        let (label, path) = match spec.split_once('=') {
+            Some((l, p)) => (l.to_string(), PathBuf::from(p)),
+            None => {
+                let p = PathBuf::from(spec);
+                let stem = p
+                    .file_stem()
+                    .and_then(|s| s.to_str())
+                    .unwrap_or("mesh")
+                    .to_string();
+                (stem, p)
+            }
+        };
+        let mesh = denser::io::ply::read_mesh_ply(&path)
+            .with_context(|| format!("reading mesh {}", path.display()))?;
+        meshes.push((label, mesh));
+    }
+    let refs: Vec<(&str, &denser::mesh::Mesh)> =
+        meshes.iter().map(|(l, m)| (l.as_str(), m)).collect();
+    let mut report = EvaluationReport::new(
+        format!(
+            "meshes scored by `denser evaluate`; ground truth: {}",
+            gt.describe()
+        ),
+        cloud.len() as u64,
+    );
+    let written =
+        evaluate_meshes(&refs, &cloud, &mut report, None, &a.out).context("evaluating")?;
+    Ok(Box::new(Evaluated { report, written }))
+}

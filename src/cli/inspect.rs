@@ -1,0 +1,99 @@
+//! `denser inspect`: a stored map's chunks, blocks, voxels and bytes, and with `--verify` its
+//! checksums (exit 1 when a chunk fails).
+
+use super::{mib, Outcome, Problems};
+use anyhow::{Context, Result};
+use denser::tiles::store::MapStore;
+use std::fmt;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub(crate) struct Args {
+    /// Map directory.
+    dir: PathBuf,
+    /// Read every chunk and check its checksums against the manifest.
+    #[arg(long)]
+    verify: bool,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+struct Inspected {
+    dir: PathBuf,
+    store: MapStore,
+    verified: bool,
+    problems: Vec<String>,
+    json: bool,
+}
+
+impl fmt::Display for Inspected {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let s = self.store.summary();
+        let h = self.store.manifest().header;
+        if self.json {
+            let v = serde_json::json!({
+                "summary": s,
+                "bytes_per_voxel": s.bytes_per_voxel(),
+                "voxel_size_m": h.voxel_size_m,
+                "truncation_m": h.truncation_m,
+                "chunk_blocks": h.chunk_blocks,
+                "generation": h.generation,
+                "frames_committed": h.frames_committed,
+                "regularization_pass": h.reg_pass,
+                "verified": self.verified,
+                "problems": self.problems,
+            });
+            let text = serde_json::to_string_pretty(&v).map_err(|_| fmt::Error)?;
+            return writeln!(f, "{text}");
+        }
+        writeln!(f, "map {}", self.dir.display())?;
+        writeln!(
+            f,
+            "  voxel {} m, μ {} m, chunks of {}³ blocks; generation {}, {} frames committed, regularisation pass {}",
+            h.voxel_size_m, h.truncation_m, h.chunk_blocks, h.generation, h.frames_committed, h.reg_pass
+        )?;
+        writeln!(
+            f,
+            "  {} chunks ({} regularised), {} blocks, {} voxels ({} in Ω), {:.1} MiB on disk, {:.3} bytes/voxel",
+            s.chunks,
+            s.regularized_chunks,
+            s.blocks,
+            s.voxels,
+            s.observed_voxels,
+            mib(s.bytes_on_disk),
+            s.bytes_per_voxel()
+        )?;
+        if self.verified {
+            if self.problems.is_empty() {
+                writeln!(f, "  verified: all {} chunks intact", s.chunks)?;
+            }
+            for p in &self.problems {
+                writeln!(f, "  CORRUPT {p}")?;
+            }
+        }
+        Ok(())
+    }
+}
+
+pub(crate) fn run(a: Args) -> Result<Outcome> {
+    let store = MapStore::open_read_only(&a.dir)
+        .with_context(|| format!("opening map {}", a.dir.display()))?;
+    let problems = if a.verify { store.verify() } else { Vec::new() };
+    let chunks = store.summary().chunks;
+    let inspected = Inspected {
+        dir: a.dir,
+        store,
+        verified: a.verify,
+        problems,
+        json: a.json,
+    };
+    if !inspected.problems.is_empty() {
+        return Err(Problems(format!(
+            "{inspected}{} of {chunks} chunks failed verification",
+            inspected.problems.len()
+        ))
+        .into());
+    }
+    Ok(Box::new(inspected))
+}

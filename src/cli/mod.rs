@@ -1,0 +1,417 @@
+//! The `denser` command line, in ripgrep's shape: [`Cli`] parses, one module per command runs
+//! it over the library and returns an outcome that implements `Display` (printed once, on
+//! stdout), errors are printed once with their chain on stderr, and a closed stdout (`denser …
+//! | head`) ends the program quietly. Flags that several commands share are groups defined here
+//! once ([`GridArgs`], [`TvArgs`], [`RangeArgs`], [`DeviceArgs`], [`BudgetArgs`]).
+//!
+//! Exit codes: 0 success; 1 the command ran and found a problem it reports (`inspect --verify`
+//! with damaged chunks); 2 an error (bad input, I/O, GPU) or a usage error.
+
+mod bench;
+mod demo;
+mod evaluate;
+mod export;
+mod inspect;
+mod reconstruct;
+mod regularize;
+mod stereo;
+mod synth;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use denser::gpu::{DeviceChoice, ResidentOptions};
+use denser::io::sequence::FrameRange;
+use denser::reconstruct::ReconstructionConfig;
+use std::fmt;
+use std::io::Write;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(
+    name = "denser",
+    version,
+    about = "Dense, coloured 3D city reconstruction from stereo and LiDAR (DENSER Cities)"
+)]
+struct Cli {
+    /// Log level (error, warn, info, debug, trace); RUST_LOG overrides it.
+    #[arg(long, global = true, default_value = "info")]
+    log: String,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Fuse a sequence (KITTI odometry, TUM RGB-D or simple RGB-D), regularise, mesh and report.
+    Reconstruct(reconstruct::Args),
+    /// Print fusion, regularisation and meshing throughput on real RGB-D frames.
+    Bench(bench::Args),
+    /// Synthesise a short city drive, reconstruct it from stereo, regularise, mesh and evaluate.
+    Demo(demo::Args),
+    /// Score meshes against ground truth (distance to the nearest ground-truth point, as the paper).
+    Evaluate(evaluate::Args),
+    /// Generate a synthetic city drive with exact ground truth, in the KITTI odometry layout.
+    Synth(synth::Args),
+    /// Re-regularise a stored map region by region within a memory budget (resumable).
+    Regularize(regularize::Args),
+    /// Convert a stored map, tile by tile, to one mesh (PLY) or point cloud (PLY, LAS, LAZ).
+    Export(export::Args),
+    /// Summarise a stored map (chunks, blocks, voxels, bytes) and verify its checksums.
+    Inspect(inspect::Args),
+    /// Disparity (and depth) of one rectified stereo pair, written as Middlebury PFM.
+    Stereo(stereo::Args),
+    /// Score a disparity map against ground truth (bad-1/2/3, D1, EPE, density).
+    StereoEval(stereo::EvalArgs),
+}
+
+/// What a command reports when it succeeds: printed once, on stdout.
+pub(crate) type Outcome = Box<dyn fmt::Display>;
+
+/// An outcome that also fails the run (exit 1): the command ran and found a problem.
+#[derive(Debug)]
+pub(crate) struct Problems(pub String);
+
+impl fmt::Display for Problems {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Problems {}
+
+/// Parses the command line, runs the command, prints its outcome or its error once.
+pub fn main() -> ExitCode {
+    ensure_runtime_dir();
+    let cli = Cli::parse();
+    // wgpu probes its GL backend too; EGL failing where only Vulkan exists is noise.
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
+        tracing_subscriber::EnvFilter::new(format!("{},wgpu_hal::gles=off", cli.log))
+    });
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .init();
+    let result = match cli.command {
+        Command::Reconstruct(a) => reconstruct::run(a),
+        Command::Bench(a) => bench::run(a),
+        Command::Synth(a) => synth::run(a),
+        Command::Evaluate(a) => evaluate::run(a),
+        Command::Demo(a) => demo::run(a),
+        Command::Regularize(a) => regularize::run(a),
+        Command::Export(a) => export::run(a),
+        Command::Inspect(a) => inspect::run(a),
+        Command::Stereo(a) => stereo::run(a),
+        Command::StereoEval(a) => stereo::run_eval(a),
+    };
+    let printed = result.and_then(|outcome| {
+        let mut out = std::io::stdout().lock();
+        write!(out, "{outcome}")?;
+        out.flush()?;
+        Ok(())
+    });
+    match printed {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) if is_broken_pipe(&e) => ExitCode::SUCCESS,
+        Err(e) => {
+            if let Some(p) = e.downcast_ref::<Problems>() {
+                // The report itself, then the verdict.
+                let _ = writeln!(std::io::stdout().lock(), "{p}");
+                return ExitCode::from(1);
+            }
+            eprintln!("error: {e}");
+            for cause in e.chain().skip(1) {
+                eprintln!("  caused by: {cause}");
+            }
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// Whether `e` is (caused by) a write to a closed pipe: the reader went away, which is not an
+/// error of ours (`denser inspect MAP | head`).
+fn is_broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+    })
+}
+
+/// Mesa's Vulkan drivers print "XDG_RUNTIME_DIR is invalid or not set" to stderr when probed
+/// without one (servers, containers, CI). Give them a private directory before any thread starts.
+fn ensure_runtime_dir() {
+    if std::env::var_os("XDG_RUNTIME_DIR").is_some() {
+        return;
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::{DirBuilderExt, PermissionsExt};
+        let user = std::env::var("USER").unwrap_or_else(|_| "user".into());
+        let dir = std::env::temp_dir().join(format!("denser-runtime-{user}"));
+        let _ = std::fs::DirBuilder::new().mode(0o700).create(&dir);
+        // Use it only if it is private.
+        if let Ok(m) = std::fs::metadata(&dir) {
+            let private = m.is_dir() && m.permissions().mode() & 0o077 == 0;
+            if private {
+                std::env::set_var("XDG_RUNTIME_DIR", &dir);
+            }
+        }
+    }
+}
+
+/// Parses a byte size: `1GiB`, `512MiB`, `64M` (binary), `2GB` (decimal), or plain bytes.
+pub(crate) fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let n: f64 = num
+        .parse()
+        .map_err(|_| format!("{s:?} is not a size (e.g. 1GiB, 512MiB, 2GB)"))?;
+    let mul: f64 = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1.0,
+        "k" | "kib" => 1024.0,
+        "m" | "mib" => 1024f64.powi(2),
+        "g" | "gib" => 1024f64.powi(3),
+        "t" | "tib" => 1024f64.powi(4),
+        "kb" => 1e3,
+        "mb" => 1e6,
+        "gb" => 1e9,
+        "tb" => 1e12,
+        u => {
+            return Err(format!(
+                "{s:?}: unknown unit {u:?} (use KiB, MiB, GiB, KB, MB, GB)"
+            ))
+        }
+    };
+    if !(n.is_finite() && n >= 0.0) {
+        return Err(format!("{s:?} is not a size"));
+    }
+    Ok((n * mul).round() as u64)
+}
+
+/// Mebibytes, for summaries.
+pub(crate) fn mib(bytes: u64) -> f64 {
+    bytes as f64 / (1u64 << 20) as f64
+}
+
+/// Where the computing stages run.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub(crate) enum DeviceArg {
+    /// A hardware GPU when wgpu finds one, else the CPU (one line says which).
+    Auto,
+    /// The CPU.
+    Cpu,
+    /// The GPU, software adapters (lavapipe) included; an error when no adapter exists.
+    Gpu,
+}
+
+/// `--device` and the GPU's memory.
+#[derive(Args, Clone, Copy, Debug)]
+pub(crate) struct DeviceArgs {
+    /// Where stereo (tv/tgv/tgv-tensor), fusion and regularisation run; meshing uses the CPU.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub device: DeviceArg,
+    /// Largest GPU block pool (4 KiB per block; bounded by the device's largest buffer). Depth
+    /// blocks stay on the GPU between frames; beyond this they spill to RAM.
+    #[arg(long, default_value = "2GiB", value_parser = parse_bytes)]
+    pub gpu_memory_budget: u64,
+}
+
+impl DeviceArgs {
+    /// The backend these flags ask for.
+    pub fn backend(&self) -> denser::Result<denser::backend::Backend> {
+        let choice = match self.device {
+            DeviceArg::Auto => DeviceChoice::Auto,
+            DeviceArg::Cpu => DeviceChoice::Cpu,
+            DeviceArg::Gpu => DeviceChoice::Gpu,
+        };
+        denser::backend::Backend::open(
+            choice,
+            ResidentOptions {
+                max_bytes: self.gpu_memory_budget,
+                ..Default::default()
+            },
+        )
+    }
+}
+
+/// The TV regulariser's parameters.
+#[derive(Args, Clone, Copy, Debug)]
+pub(crate) struct TvArgs {
+    /// TV data weight λ (default: the paper's, 0.8 at 10 cm, 0.4 at 20 cm).
+    #[arg(long)]
+    pub lambda: Option<f32>,
+    /// Primal–dual iterations.
+    #[arg(long, default_value_t = 100)]
+    pub iterations: u32,
+}
+
+impl TvArgs {
+    /// The paper's parameters for `voxel_size_m` with these overrides.
+    pub fn params(&self, voxel_size_m: f32) -> denser::regularize::TvParams {
+        let mut tv = denser::regularize::TvParams::paper(voxel_size_m);
+        if let Some(l) = self.lambda {
+            tv.lambda = l;
+        }
+        tv.iterations = self.iterations;
+        tv
+    }
+}
+
+/// The map's grid and the fusion limits.
+#[derive(Args, Clone, Copy, Debug)]
+pub(crate) struct GridArgs {
+    /// Voxel edge, metres (paper: 0.10 or 0.20).
+    #[arg(long, default_value_t = 0.1)]
+    pub voxel_size: f32,
+    /// Truncation μ, metres (default: the paper's, 1.0 at 10 cm and 1.6 at 20 cm, else 10 voxels).
+    #[arg(long)]
+    pub truncation: Option<f32>,
+    /// Ignore depths beyond this, metres.
+    #[arg(long, default_value_t = 40.0)]
+    pub max_depth: f32,
+}
+
+impl GridArgs {
+    /// The reconstruction settings for these flags and the regulariser's.
+    pub fn config(&self, tv: &TvArgs) -> ReconstructionConfig {
+        let mut c = ReconstructionConfig::paper(self.voxel_size);
+        if let Some(t) = self.truncation {
+            c.grid.truncation_m = t;
+        }
+        c.tv = tv.params(self.voxel_size);
+        c.depth_fusion.max_depth_m = self.max_depth;
+        c.lidar_fusion.max_range_m = self.max_depth.max(c.lidar_fusion.max_range_m);
+        c
+    }
+}
+
+/// Which frames of a sequence.
+#[derive(Args, Clone, Copy, Debug)]
+pub(crate) struct RangeArgs {
+    /// First frame.
+    #[arg(long, default_value_t = 0)]
+    pub first: usize,
+    /// One past the last frame (default: all).
+    #[arg(long)]
+    pub last: Option<usize>,
+    /// Use every n-th frame.
+    #[arg(long, default_value_t = 1)]
+    pub step: usize,
+}
+
+impl RangeArgs {
+    /// The range.
+    pub fn range(&self) -> FrameRange {
+        FrameRange {
+            first: self.first,
+            last: self.last,
+            step: self.step,
+        }
+    }
+}
+
+/// The memory budget of out-of-core work.
+#[derive(Args, Clone, Copy, Debug)]
+pub(crate) struct BudgetArgs {
+    /// Memory budget for resident voxel blocks (fusion) and for one regularisation region
+    /// (e.g. 1GiB, 512MiB).
+    #[arg(long, default_value = "1GiB", value_parser = parse_bytes)]
+    pub memory_budget: u64,
+    /// Regularisation region edge, chunks (bigger regions spend less on halos, need more memory).
+    #[arg(long, default_value_t = 2)]
+    pub region_chunks: u32,
+}
+
+impl BudgetArgs {
+    /// Regional regularisation within this budget (the exact halo).
+    pub fn regional(&self) -> denser::tiles::regional::RegionalOptions {
+        denser::tiles::regional::RegionalOptions {
+            region_chunks: self.region_chunks,
+            budget_bytes: self.memory_budget,
+            halo_blocks: None,
+        }
+    }
+}
+
+/// The stereo matchers, as the CLI names them.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub(crate) enum StereoArg {
+    /// Census + semi-global matching (the baseline).
+    Sgm,
+    /// Census + first-order TV (variational).
+    Tv,
+    /// Census + isotropic TGV.
+    Tgv,
+    /// Census + TGV with the anisotropic tensor (the paper's).
+    TgvTensor,
+}
+
+impl From<StereoArg> for denser::depth::StereoMethod {
+    fn from(s: StereoArg) -> Self {
+        use denser::depth::StereoMethod as M;
+        match s {
+            StereoArg::Sgm => M::Sgm,
+            StereoArg::Tv => M::Tv,
+            StereoArg::Tgv => M::Tgv,
+            StereoArg::TgvTensor => M::TgvTensor,
+        }
+    }
+}
+
+/// The paper's table (median, 75th percentile, mode, area) for each surface, and the changes of
+/// the second against the first.
+pub(crate) struct EvaluationTable<'a>(pub &'a denser::eval::EvaluationReport);
+
+impl fmt::Display for EvaluationTable<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let report = self.0;
+        writeln!(
+            f,
+            "{:<12} {:>10} {:>10} {:>10} {:>12} {:>12}",
+            "surface", "median m", "p75 m", "mode m", "area m²", "complete m"
+        )?;
+        for s in &report.surfaces {
+            writeln!(
+                f,
+                "{:<12} {:>10.4} {:>10.4} {:>10} {:>12.1} {:>12}",
+                s.label,
+                s.accuracy.median_m,
+                s.accuracy.p75_m,
+                s.accuracy
+                    .mode_m
+                    .map_or("-".to_string(), |m| format!("{m:.4}")),
+                s.surface_area_m2,
+                s.completeness
+                    .as_ref()
+                    .map_or("-".to_string(), |c| format!("{:.4}", c.median_m))
+            )?;
+        }
+        if let (Some(a), Some(b)) = (report.surfaces.first(), report.surfaces.get(1)) {
+            let rel = |x: f64, y: f64| 100.0 * (y - x) / x.max(1e-12);
+            writeln!(
+                f,
+                "{} vs {}: median {:+.0} %, p75 {:+.0} %, area {:+.0} %",
+                b.label,
+                a.label,
+                rel(a.accuracy.median_m, b.accuracy.median_m),
+                rel(a.accuracy.p75_m, b.accuracy.p75_m),
+                rel(a.surface_area_m2, b.surface_area_m2)
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// One `wrote PATH` line per file.
+pub(crate) struct Written<'a>(pub &'a [std::path::PathBuf]);
+
+impl fmt::Display for Written<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for p in self.0 {
+            writeln!(f, "wrote {}", p.display())?;
+        }
+        Ok(())
+    }
+}

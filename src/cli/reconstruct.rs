@@ -1,0 +1,515 @@
+//! `denser reconstruct`: a sequence through fusion, regularisation, meshing and evaluation, the
+//! map in RAM or, with `--map`, in a directory of chunk files paged within a budget (resumable).
+//! Both run the same lines over a different store.
+
+use super::{
+    mib, BudgetArgs, DeviceArgs, EvaluationTable, GridArgs, Outcome, RangeArgs, StereoArg, TvArgs,
+    Written,
+};
+use anyhow::{Context, Result};
+use clap::ValueEnum;
+use denser::backend::Backend;
+use denser::depth::tgv::HoleFill;
+use denser::depth::StereoMethod;
+use denser::eval::{evaluate_reconstruction, peak_rss_bytes, EvaluationReport, GroundTruth};
+use denser::io::sequence::{
+    detect_input, open_sequence, FrameRange, InputKind, RangeSource, Sequence,
+};
+use denser::mesh::Field;
+use denser::reconstruct::{ReconstructionConfig, Reconstructor, RegularizeOutcome};
+use denser::store::{BlockStore, MemoryStore, SurfaceOutput};
+use denser::tiles::job::{relative_hint, JobRecord};
+use denser::tiles::pager::{OverrunPolicy, PagerConfig};
+use denser::tiles::store::{MapStore, MANIFEST_FILE};
+use denser::tiles::PagedStore;
+use std::fmt;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub(crate) struct Args {
+    /// Sequence folder: KITTI `sequences/NN`, TUM RGB-D, or numbered RGB-D (`pose.txt`, `depth/`).
+    input: PathBuf,
+    /// Output folder.
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    /// Range source for KITTI-layout input.
+    #[arg(long, value_enum, default_value = "lidar")]
+    depth: DepthArg,
+    /// KITTI poses file (default: `<root>/poses/NN.txt`).
+    #[arg(long)]
+    poses: Option<PathBuf>,
+    #[command(flatten)]
+    range: RangeArgs,
+    /// Ground truth for the report: a .las/.laz/.ply file, or a KITTI sequence folder whose scans
+    /// are merged (default for KITTI-layout input: its own scans, as the paper).
+    #[arg(long)]
+    gt: Option<PathBuf>,
+    /// Skip the evaluation.
+    #[arg(long)]
+    no_eval: bool,
+    /// Stereo matcher (with `--depth stereo`).
+    #[arg(long, value_enum, default_value = "tgv-tensor")]
+    method: StereoArg,
+    /// Disparity search range, pixels (128 sees down to ~3 m on KITTI).
+    #[arg(long, default_value_t = 128)]
+    num_disparities: usize,
+    #[command(flatten)]
+    device: DeviceArgs,
+    #[command(flatten)]
+    grid: GridArgs,
+    #[command(flatten)]
+    tv: TvArgs,
+    #[command(flatten)]
+    map: MapArgs,
+}
+
+/// Where range data comes from for KITTI-layout input.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum DepthArg {
+    /// Velodyne scans.
+    Lidar,
+    /// Ground-truth depth maps of a synthetic drive.
+    Gt,
+    /// Stereo matching on the image pairs.
+    Stereo,
+}
+
+/// `--map` and its out-of-core settings.
+#[derive(clap::Args, Clone, Debug)]
+pub(crate) struct MapArgs {
+    /// Stream the map through this directory of compressed chunk files (created, or resumed when
+    /// it holds a map of the same job) instead of keeping it in RAM.
+    #[arg(long)]
+    map: Option<PathBuf>,
+    #[command(flatten)]
+    budget: BudgetArgs,
+    /// Chunk edge in blocks (a chunk is one file; 16 blocks = 12.8 m at 10 cm voxels).
+    #[arg(long, default_value_t = denser::tiles::DEFAULT_CHUNK_BLOCKS)]
+    chunk_blocks: u32,
+    /// Commit a resumable checkpoint every this many frames (0: only at the end).
+    #[arg(long, default_value_t = 50)]
+    checkpoint_every: u64,
+    /// Go on (with a warning) when one frame needs more than the budget, instead of stopping.
+    #[arg(long)]
+    allow_overrun: bool,
+    /// Fuse (and mesh the raw field) only; regularise later with `denser regularize`.
+    #[arg(long)]
+    skip_regularize: bool,
+}
+
+/// A reconstruction to run: the command's flags, resolved (the demo builds one too).
+pub(crate) struct Job {
+    pub input: PathBuf,
+    pub poses: Option<PathBuf>,
+    pub out_dir: PathBuf,
+    pub source: RangeSource,
+    pub range: FrameRange,
+    pub config: ReconstructionConfig,
+    pub stereo_method: StereoMethod,
+    pub num_disparities: usize,
+    /// `None`: in RAM.
+    pub map: Option<MapJob>,
+    pub regularize: bool,
+    /// Ground truth for the report (`None`: no evaluation).
+    pub ground_truth: Option<GroundTruth>,
+    /// Stages before the reconstruction, for the report (the demo's synthesis).
+    pub earlier_timings_s: Vec<(String, f64)>,
+}
+
+/// Out-of-core settings of a job.
+pub(crate) struct MapJob {
+    pub dir: PathBuf,
+    pub budget: BudgetArgs,
+    pub chunk_blocks: u32,
+    pub checkpoint_every: u64,
+    pub overrun: OverrunPolicy,
+}
+
+/// What a reconstruction did (printed as the command's summary).
+pub(crate) struct Report {
+    pub input: String,
+    pub device: String,
+    pub stereo_device: Option<String>,
+    pub frames: usize,
+    pub resumed_from_frame: u64,
+    pub timings: denser::reconstruct::StageTimings,
+    pub summary: denser::store::StoreSummary,
+    pub gpu: Option<denser::gpu::ResidentStats>,
+    pub regularize: Option<RegularizeOutcome>,
+    pub surfaces: Vec<SurfaceOutput>,
+    pub evaluation: Option<EvaluationReport>,
+    pub written: Vec<PathBuf>,
+    pub peak_rss_bytes: Option<u64>,
+}
+
+pub(crate) fn run(a: Args) -> Result<Outcome> {
+    let config = a.grid.config(&a.tv);
+    let range = a.range.range();
+    let ground_truth = if a.no_eval {
+        None
+    } else {
+        match (&a.gt, detect_input(&a.input)) {
+            (Some(p), _) => Some(GroundTruth::from_path(p.clone(), a.poses.clone(), range)),
+            (None, Ok(InputKind::Kitti)) => Some(GroundTruth::KittiLidar {
+                sequence: a.input.clone(),
+                poses: a.poses.clone(),
+                frames: range,
+            }),
+            _ => None,
+        }
+    };
+    let job = Job {
+        input: a.input.clone(),
+        poses: a.poses.clone(),
+        out_dir: a.out.clone(),
+        source: match a.depth {
+            DepthArg::Lidar => RangeSource::Lidar,
+            DepthArg::Gt => RangeSource::GroundTruthDepth,
+            DepthArg::Stereo => RangeSource::Stereo,
+        },
+        range,
+        config,
+        stereo_method: a.method.into(),
+        num_disparities: a.num_disparities,
+        map: a.map.map.as_ref().map(|dir| MapJob {
+            dir: dir.clone(),
+            budget: a.map.budget,
+            chunk_blocks: a.map.chunk_blocks,
+            checkpoint_every: a.map.checkpoint_every,
+            overrun: if a.map.allow_overrun {
+                OverrunPolicy::Warn
+            } else {
+                OverrunPolicy::Error
+            },
+        }),
+        regularize: !a.map.skip_regularize,
+        ground_truth,
+        earlier_timings_s: Vec::new(),
+    };
+    let backend = a.device.backend()?;
+    let report = run_job(&job, backend)?;
+    Ok(Box::new(report))
+}
+
+/// Runs `job` with `backend`'s stages: fusion (resuming a map), regularisation, surfaces,
+/// evaluation.
+pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
+    let context = || match &job.map {
+        Some(m) => format!(
+            "reconstructing {} into map {}",
+            job.input.display(),
+            m.dir.display()
+        ),
+        None => format!("reconstructing {}", job.input.display()),
+    };
+    let stereo = match job.source {
+        RangeSource::Stereo => Some(
+            backend
+                .stereo_matcher(job.stereo_method, job.num_disparities, HoleFill::None)
+                .with_context(context)?,
+        ),
+        _ => None,
+    };
+    let stereo_device = stereo
+        .as_ref()
+        .map(|_| backend.stereo_device(job.stereo_method));
+    let seq = open_sequence(&job.input, job.source, job.poses.as_deref(), stereo)
+        .with_context(context)?;
+    let frames = job.range.indices(seq.len());
+    let store: Box<dyn BlockStore> = match &job.map {
+        None => Box::new(MemoryStore::new(job.config.grid)),
+        Some(m) => Box::new(open_map(job, m, seq.as_ref()).with_context(context)?),
+    };
+    let checkpoint_every = job.map.as_ref().map_or(0, |m| m.checkpoint_every);
+    let mut rec = Reconstructor::with_store(job.config, store, backend, checkpoint_every)?;
+    let resumed = rec.frames_committed();
+    rec.fuse_sequence(seq.as_ref(), &frames)
+        .with_context(context)?;
+    let bar = denser::progress::bar(0, "regularising");
+    let results = rec
+        .write_results(&job.out_dir, job.regularize, &mut |done, total| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+            true
+        })
+        .with_context(context)?;
+    bar.finish_and_clear();
+    let mut written = results.files();
+    let (surfaces, regularize) = (results.surfaces, results.regularize);
+    let evaluation = match &job.ground_truth {
+        Some(gt) => {
+            let (report, files) = evaluate_reconstruction(
+                &rec,
+                &surfaces,
+                regularize.as_ref(),
+                gt,
+                &seq.describe(),
+                &job.earlier_timings_s,
+                &job.out_dir,
+            )
+            .context("evaluating")?;
+            written.extend(files);
+            Some(report)
+        }
+        None => None,
+    };
+    let report = Report {
+        input: seq.describe(),
+        device: rec.backend().device_name(),
+        stereo_device,
+        frames: frames.len(),
+        resumed_from_frame: resumed,
+        timings: *rec.timings(),
+        summary: rec.summary(),
+        gpu: rec.resident_stats(),
+        regularize,
+        surfaces,
+        evaluation,
+        written,
+        peak_rss_bytes: peak_rss_bytes(),
+    };
+    if job.map.is_some() {
+        let path = job.out_dir.join("map_report.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&report.json())?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(report)
+}
+
+/// Opens (resuming) or creates the job's map, checking its job record.
+fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedStore> {
+    let source = match detect_input(&job.input)? {
+        InputKind::Kitti => job.source.as_str(),
+        _ => "rgbd",
+    };
+    let stereo = job.source == RangeSource::Stereo && source == "stereo";
+    let record = JobRecord {
+        source: source.to_string(),
+        input_fingerprint: seq.fingerprint(),
+        input_frames: seq.len() as u64,
+        first_frame: job.range.first as u64,
+        last_frame: job.range.last.map(|l| l as u64),
+        frame_step: job.range.step.max(1) as u64,
+        voxel_size_m: job.config.grid.voxel_size_m,
+        truncation_m: job.config.grid.truncation_m,
+        max_depth_m: job.config.depth_fusion.max_depth_m,
+        stereo_method: if stereo {
+            job.stereo_method.as_str().to_string()
+        } else {
+            String::new()
+        },
+        num_disparities: if stereo {
+            job.num_disparities as u32
+        } else {
+            0
+        },
+        input_hint: String::new(),
+        created_by: format!("denser {}", env!("CARGO_PKG_VERSION")),
+    };
+    let store = if m.dir.join(MANIFEST_FILE).exists() {
+        record.check_or_write(&m.dir, &job.input)?;
+        MapStore::open(&m.dir)?
+    } else {
+        let s = MapStore::create(&m.dir, job.config.grid, m.chunk_blocks)?;
+        JobRecord {
+            input_hint: relative_hint(&m.dir, &job.input),
+            ..record
+        }
+        .write(&m.dir)?;
+        s
+    };
+    Ok(PagedStore::new(
+        store,
+        PagerConfig {
+            budget_bytes: m.budget.memory_budget,
+            overrun: m.overrun,
+            writer_threads: 2,
+        },
+        m.budget.regional(),
+    ))
+}
+
+impl Report {
+    fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "input": self.input,
+            "device": self.device,
+            "frames": self.frames,
+            "resumed_from_frame": self.resumed_from_frame,
+            "timings": self.timings,
+            "map": self.summary,
+            "gpu": self.gpu,
+            "regularize": self.regularize,
+            "surfaces": self.surfaces.iter().map(|s| serde_json::json!({
+                "field": format!("{:?}", s.field).to_lowercase(),
+                "path": s.mesh_path,
+                "vertices": s.vertices,
+                "triangles": s.triangles,
+                "area_m2": s.area_m2,
+                "seconds": s.seconds,
+            })).collect::<Vec<_>>(),
+            "peak_rss_bytes": self.peak_rss_bytes,
+        })
+    }
+}
+
+impl fmt::Display for Report {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let t = &self.timings;
+        let s = &self.summary;
+        if self.resumed_from_frame > 0 {
+            writeln!(
+                f,
+                "resumed after {} committed frames",
+                self.resumed_from_frame
+            )?;
+        }
+        if let Some(dev) = &self.stereo_device {
+            writeln!(
+                f,
+                "stereo on {dev}: {:.2} s per frame (reading and matching)",
+                t.input_s / t.frames_fused.max(1) as f64
+            )?;
+        }
+        writeln!(
+            f,
+            "fused {} frames of {} on {}: {:.1} ms/frame, {:.2} M voxel updates/s; {} blocks, {} voxels in Ω",
+            t.frames_fused,
+            self.input,
+            self.device,
+            t.fusion_ms_per_frame(),
+            t.voxel_updates_per_s() / 1e6,
+            s.blocks,
+            s.observed_voxels,
+        )?;
+        match &s.paging {
+            None => writeln!(
+                f,
+                "map in RAM: {:.1} MiB, {:.2} bytes/voxel",
+                mib(s.ram_bytes),
+                s.ram_bytes_per_voxel
+            )?,
+            Some(p) => {
+                writeln!(
+                    f,
+                    "map on disk: {:.1} MiB, {:.3} bytes/voxel; paging {:.1} ms/frame ({:.1} % of fusion)",
+                    mib(s.disk_bytes),
+                    s.disk_bytes as f64 / s.voxels().max(1) as f64,
+                    1e3 * t.paging_s / t.frames_fused.max(1) as f64,
+                    100.0 * t.paging_s / t.fusion_s.max(1e-9)
+                )?;
+                writeln!(
+                    f,
+                    "pager: budget {} MiB, peak {:.1} MiB resident+writing, {} chunks evicted, {} written ({:.1} MiB), {} read back, {} over budget",
+                    p.budget_bytes >> 20,
+                    mib(p.peak_bytes),
+                    p.chunks_evicted,
+                    p.chunks_written,
+                    mib(p.bytes_written),
+                    p.chunks_read,
+                    p.budget_overruns
+                )?;
+            }
+        }
+        if let Some(g) = &self.gpu {
+            writeln!(
+                f,
+                "GPU tier: pool {} blocks (max {}), peak {} resident, {} uploaded, {} read back, {} spilled to RAM, {} grows, {} oversize frames",
+                g.capacity_blocks,
+                g.max_blocks,
+                g.peak_resident_blocks,
+                g.blocks_uploaded,
+                g.blocks_downloaded,
+                g.blocks_spilled,
+                g.grows,
+                g.oversize_frames
+            )?;
+            let per = |s: f64| 1e3 * s / g.frames.max(1) as f64;
+            writeln!(
+                f,
+                "GPU tier per frame: listing blocks (CPU) {:.1} ms, residency {:.1} ms, kernels {:.1} ms, write-back {:.1} ms",
+                per(g.list_s),
+                per(g.residency_s),
+                per(g.kernel_s),
+                per(g.download_s)
+            )?;
+        }
+        match &self.regularize {
+            None => writeln!(
+                f,
+                "regularisation skipped (run `denser regularize` on the map)"
+            )?,
+            Some(r) => write!(f, "{}", RegularizeLine(r, &self.device, t))?,
+        }
+        let surface = |field: Field| self.surfaces.iter().find(|s| s.field == field);
+        if let Some(raw) = surface(Field::Raw) {
+            write!(
+                f,
+                "meshes: raw {} triangles, {:.1} m²",
+                raw.triangles, raw.area_m2
+            )?;
+            if let Some(reg) = surface(Field::Regularized) {
+                write!(
+                    f,
+                    "; regularised {} triangles, {:.1} m²",
+                    reg.triangles, reg.area_m2
+                )?;
+            }
+            writeln!(f, " (marching cubes on the CPU, {:.1} s)", t.mesh_s)?;
+        }
+        if let Some(e) = &self.evaluation {
+            write!(f, "{}", EvaluationTable(e))?;
+        }
+        write!(f, "{}", Written(&self.written))?;
+        if let Some(rss) = self.peak_rss_bytes {
+            writeln!(f, "peak RSS {:.1} MiB", mib(rss))?;
+        }
+        Ok(())
+    }
+}
+
+/// The regularisation summary line: which device solved how much, how fast.
+pub(crate) struct RegularizeLine<'a>(
+    pub &'a RegularizeOutcome,
+    pub &'a str,
+    pub &'a denser::reconstruct::StageTimings,
+);
+
+impl fmt::Display for RegularizeLine<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let (r, device, t) = (self.0, self.1, self.2);
+        let s = &r.summary;
+        let on = if r.devices.gpu > 0 && r.devices.cpu > 0 {
+            format!(
+                "{device} ({} solves; {} too large for it on the CPU)",
+                r.devices.gpu, r.devices.cpu
+            )
+        } else if r.devices.gpu > 0 {
+            device.to_string()
+        } else {
+            "CPU".to_string()
+        };
+        write!(
+            f,
+            "regularised on {on}: {} iterations over {} Ω voxels in {:.1} s, {:.1} M voxel-iterations/s",
+            s.iterations,
+            s.omega_voxels,
+            r.seconds,
+            t.voxel_iterations_per_s() / 1e6
+        )?;
+        if let Some((a, b)) = s.energy {
+            write!(f, ", energy {a:.4e} → {b:.4e}")?;
+        }
+        if s.halo_blocks > 0 {
+            write!(
+                f,
+                "; {} regions ({} already done), halo {} blocks, {:.2}× blocks solved",
+                s.regions,
+                s.regions_skipped,
+                s.halo_blocks,
+                s.solved_blocks as f64 / s.blocks.max(1) as f64
+            )?;
+        }
+        writeln!(f)
+    }
+}

@@ -1,0 +1,240 @@
+//! `denser stereo` (disparity, and depth, of one rectified pair) and `denser stereo-eval`
+//! (scores against ground truth).
+
+use super::{DeviceArgs, Outcome, StereoArg};
+use anyhow::{bail, Context, Result};
+use denser::depth::tgv::HoleFill;
+use denser::depth::{DisparityMap, StereoMethod, StereoMetrics};
+use denser::frame::Image;
+use denser::io::calib::read_stereo_calibration;
+use denser::Error;
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+#[derive(clap::Args)]
+pub(crate) struct Args {
+    /// Left (reference) image (any format the `image` crate reads; colour is converted to grey).
+    left: PathBuf,
+    /// Right image.
+    right: PathBuf,
+    /// Disparity output: PFM (float32, rows bottom-up, inf = invalid).
+    #[arg(long)]
+    out: PathBuf,
+    /// Calibration for depth: KITTI odometry or Middlebury 2014 `calib.txt`.
+    #[arg(long)]
+    calib: Option<PathBuf>,
+    /// Depth output: 16-bit PNG, depth_m = value / 256, 0 = invalid (needs --calib).
+    #[arg(long)]
+    depth_out: Option<PathBuf>,
+    /// Matcher.
+    #[arg(long, value_enum, default_value = "tgv-tensor")]
+    method: StereoArg,
+    /// Disparity search range from 0, pixels.
+    #[arg(long, default_value_t = 128)]
+    num_disparities: usize,
+    /// tv/tgv/tgv-tensor: keep occluded and poorly matching pixels (dense output for benchmarks
+    /// that count missing pixels as errors).
+    #[arg(long)]
+    dense: bool,
+    #[command(flatten)]
+    device: DeviceArgs,
+}
+
+#[derive(clap::Args)]
+pub(crate) struct EvalArgs {
+    /// Ground-truth disparity: Middlebury PFM (inf = unknown) or KITTI 16-bit PNG (value/256, 0 = unknown).
+    gt: PathBuf,
+    /// Predicted disparity, same formats (missing = NaN/inf/0 counts as an error).
+    pred: PathBuf,
+    /// Optional Middlebury-style mask PNG: only pixels of value 255 are scored.
+    #[arg(long)]
+    mask: Option<PathBuf>,
+    /// Also write the scores as JSON here.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+struct Matched {
+    method: StereoMethod,
+    device: String,
+    width: u32,
+    height: u32,
+    valid_px: usize,
+    matching_s: f64,
+    written: Vec<PathBuf>,
+}
+
+impl fmt::Display for Matched {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "{} on {}: {}×{} px, {} valid disparities ({:.1} %), matched in {:.2} s",
+            self.method,
+            self.device,
+            self.width,
+            self.height,
+            self.valid_px,
+            100.0 * self.valid_px as f64 / (self.width as f64 * self.height as f64),
+            self.matching_s
+        )?;
+        write!(f, "{}", super::Written(&self.written))
+    }
+}
+
+pub(crate) fn run(a: Args) -> Result<Outcome> {
+    let method: StereoMethod = a.method.into();
+    let context = || {
+        format!(
+            "stereo matching {} / {}",
+            a.left.display(),
+            a.right.display()
+        )
+    };
+    let calib = a
+        .calib
+        .as_deref()
+        .map(read_stereo_calibration)
+        .transpose()
+        .with_context(context)?;
+    if a.depth_out.is_some() && calib.is_none() {
+        bail!("--depth-out needs --calib (KITTI or Middlebury calib.txt)");
+    }
+    if a.dense && !method.is_variational() {
+        bail!("--dense applies to the variational methods (tv, tgv, tgv-tensor), not sgm");
+    }
+    let backend = a.device.backend()?;
+    let left = denser::io::image::read_grey(&a.left).with_context(context)?;
+    let right = denser::io::image::read_grey(&a.right).with_context(context)?;
+    if left.width != right.width || left.height != right.height {
+        return Err(Error::bad_input(
+            &a.right,
+            format!(
+                "right image is {}×{} but the left image {} is {}×{}",
+                right.width,
+                right.height,
+                a.left.display(),
+                left.width,
+                left.height
+            ),
+        ))
+        .with_context(context);
+    }
+    let fill = if a.dense {
+        HoleFill::All
+    } else {
+        HoleFill::Visible
+    };
+    let estimator = backend.stereo_matcher(method, a.num_disparities, fill)?;
+    let started = std::time::Instant::now();
+    let map = estimator.estimate(&left, &right).with_context(context)?;
+    let matching_s = started.elapsed().as_secs_f64();
+    denser::io::pfm::write_pfm(&a.out, &map.disparity_px)?;
+    let mut written = vec![a.out.clone()];
+    if let (Some(path), Some(c)) = (&a.depth_out, calib) {
+        let shifted = DisparityMap {
+            disparity_px: Image {
+                width: map.disparity_px.width,
+                height: map.disparity_px.height,
+                data: map
+                    .disparity_px
+                    .data
+                    .iter()
+                    .map(|&d| d + c.doffs_px as f32)
+                    .collect(),
+            },
+            confidence: None,
+        };
+        let mut depth = denser::depth::disparity_to_depth(&shifted, c.fx_px, c.baseline_m);
+        for z in depth.data.iter_mut() {
+            if *z * 256.0 > u16::MAX as f32 {
+                *z = f32::NAN;
+            }
+        }
+        denser::io::image::write_depth_png_u16(path, &depth, 256.0)?;
+        written.push(path.clone());
+    }
+    Ok(Box::new(Matched {
+        method,
+        device: backend.stereo_device(method),
+        width: left.width,
+        height: left.height,
+        valid_px: map.valid_count(),
+        matching_s,
+        written,
+    }))
+}
+
+struct Scores {
+    metrics: StereoMetrics,
+    json: Option<PathBuf>,
+}
+
+impl fmt::Display for Scores {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let m = &self.metrics;
+        writeln!(f, "| metric | value |")?;
+        writeln!(f, "|---|---|")?;
+        writeln!(f, "| scored pixels | {} |", m.gt_pixels)?;
+        writeln!(f, "| bad-1.0 % | {:.2} |", m.bad1_pct)?;
+        writeln!(f, "| bad-2.0 % | {:.2} |", m.bad2_pct)?;
+        writeln!(f, "| bad-3.0 % | {:.2} |", m.bad3_pct)?;
+        writeln!(f, "| D1 % | {:.2} |", m.d1_pct)?;
+        writeln!(f, "| EPE px | {:.3} |", m.epe_px)?;
+        writeln!(f, "| density % | {:.2} |", m.density_pct)?;
+        if let Some(p) = &self.json {
+            writeln!(f, "wrote {}", p.display())?;
+        }
+        Ok(())
+    }
+}
+
+pub(crate) fn run_eval(a: EvalArgs) -> Result<Outcome> {
+    let metrics = stereo_eval(&a.gt, &a.pred, a.mask.as_deref())
+        .with_context(|| format!("scoring {} against {}", a.pred.display(), a.gt.display()))?;
+    if let Some(path) = &a.json {
+        let text = serde_json::to_string_pretty(&metrics).context("serialising the scores")?;
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(Box::new(Scores {
+        metrics,
+        json: a.json,
+    }))
+}
+
+/// `denser stereo-eval`: scores a predicted disparity map (PFM or KITTI 16-bit PNG) against a
+/// ground truth in either format, over all ground-truth pixels (missing predictions count as
+/// errors), optionally inside a Middlebury-style mask PNG (255 = scored).
+fn stereo_eval(gt: &Path, pred: &Path, mask: Option<&Path>) -> denser::Result<StereoMetrics> {
+    let gt_img = denser::depth::disparity_io::read_disparity(gt)?;
+    let pred_img = denser::depth::disparity_io::read_disparity(pred)?;
+    if gt_img.width != pred_img.width || gt_img.height != pred_img.height {
+        return Err(Error::bad_input(
+            pred,
+            format!(
+                "prediction is {}×{} but the ground truth {} is {}×{}",
+                pred_img.width,
+                pred_img.height,
+                gt.display(),
+                gt_img.width,
+                gt_img.height
+            ),
+        ));
+    }
+    let mask_img = match mask {
+        Some(m) => {
+            let grey = denser::io::image::read_grey(m)?;
+            if grey.width != gt_img.width || grey.height != gt_img.height {
+                return Err(Error::bad_input(
+                    m,
+                    format!(
+                        "mask is {}×{} but the ground truth is {}×{}",
+                        grey.width, grey.height, gt_img.width, gt_img.height
+                    ),
+                ));
+            }
+            Some(denser::depth::metrics::mask_from_middlebury(&grey))
+        }
+        None => None,
+    };
+    denser::depth::evaluate_disparity(&pred_img, &gt_img, mask_img.as_ref())
+}

@@ -1,0 +1,634 @@
+//! The variational stereo matcher on the GPU, twin of `src/depth/tgv.rs` and the census cost of
+//! `src/depth/census.rs` / `src/depth/sgm.rs`:
+//!
+//! - [`TgvProblemGpu`]: [`TgvProblem::iterate`] (Chambolle–Pock with the tensor, quadratic
+//!   coupling toward `a`) as two kernels per iteration, `shaders/tgv_dual.wgsl` (`p`, `q`) and
+//!   `shaders/tgv_primal.wgsl` (`u`, `v`, over-relaxation), over `TgvProblem`'s arrays.
+//! - [`pointwise_search_gpu`]: the decoupling search over the census costs
+//!   (`shaders/tgv_pointwise.wgsl`), twin of [`crate::depth::tgv::decoupling_search`].
+//! - [`census_transform_gpu`] and [`cost_volume_gpu`]: census signatures and Hamming costs
+//!   (`shaders/census.wgsl`, `shaders/census_cost.wgsl`).
+//! - [`refine_gpu`] / [`estimate_tgv_gpu`]: [`TgvMatcher::refine`] /
+//!   [`TgvMatcher::estimate_with_stages`] with the cost volume, the point-wise searches and the
+//!   primal–dual iterations on the GPU; the state stays on the GPU between rounds.
+//!
+//! Each kernel repeats its CPU twin's f32 operations in the same order (no `hypot`: the CPU's
+//! dual projection uses `sqrt(p1² + p2²)` for this reason), and the costs are integers. On
+//! lavapipe census, costs and point-wise search are bit-identical, and so are TV/TGV
+//! iterations; with the image tensors (TGV-tensor) u differs by 1 ulp on ~1 % of pixels
+//! (cause not found: Mesa's compiler evaluates part of `div(T p)` differently; 7.6e-6 px after
+//! 50 iterations on Motorcycle, none of the final disparities by > 0.1 px). Other GPUs may
+//! contract to FMA or divide within 2.5 ULP; `tests/gpu_stereo.rs` states the tolerances
+//! (|Δu| ≤ 1e-3 px after 50 iterations). What stays on the CPU: SGM (the initialisation), the window averaging of the
+//! costs (integer sums, uploaded), the diffusion tensors, the invalidation. Every array must fit
+//! one storage binding (the largest is the window-averaged cost volume, 2 bytes per pixel and
+//! disparity: 119 MB for 1241×376×128, under llvmpipe's 128 MiB); a larger input is an
+//! [`crate::Error::GpuCapacity`], never truncated.
+
+use crate::depth::census::{CensusImage, CensusKind, CensusParams};
+use crate::depth::sgm::{CostVolume, SgmMatcher};
+use crate::depth::tgv::{check_search, DataCost, Regulariser, TgvMatcher, TgvProblem, TgvStages};
+use crate::depth::{DisparityEstimator, DisparityMap};
+use crate::frame::GreyImage;
+use crate::gpu::layout::{CensusUniforms, CostUniforms, PointwiseUniforms, TgvUniforms};
+use crate::gpu::shaders;
+use crate::gpu::{ErrorScopes, GpuContext};
+use crate::{Error, Result};
+
+/// Primal–dual iterations recorded per command buffer (bounds the size of one submission).
+const ITERATIONS_PER_SUBMIT: u32 = 64;
+
+fn to_f32(bytes: &[u8]) -> Vec<f32> {
+    // Staging bytes carry no alignment guarantee: copy into a typed vector.
+    bytemuck::pod_collect_to_vec::<u8, f32>(bytes)
+}
+
+/// A [`TgvProblem`] resident on the GPU: tensors, coupling target, primal, over-relaxed primal
+/// and dual, in the CPU's layout (`[u, v1, v2]`, `[p1, p2, q11, q22, q12]` per pixel).
+#[derive(Debug)]
+pub struct TgvProblemGpu<'c> {
+    ctx: &'c GpuContext,
+    width: usize,
+    height: usize,
+    regulariser: Regulariser,
+    alpha1: f32,
+    alpha2: f32,
+    tau: f32,
+    sigma: f32,
+    tensors: wgpu::Buffer,
+    target: wgpu::Buffer,
+    primal: wgpu::Buffer,
+    primal_bar: wgpu::Buffer,
+    dual: wgpu::Buffer,
+}
+
+impl<'c> TgvProblemGpu<'c> {
+    /// Uploads `problem` (its parameters and whole state). Fails with
+    /// [`Error::GpuCapacity`] when the dual (20 bytes per pixel) does not fit one binding.
+    pub fn upload(ctx: &'c GpuContext, problem: &TgvProblem) -> Result<Self> {
+        let n = (problem.width * problem.height) as u64;
+        ctx.check_binding("TGV dual (20 bytes per pixel)", n * 20)?;
+        if n > u32::MAX as u64 / 5 {
+            return Err(Error::GpuCapacity {
+                what: "TGV pixels (u32 indices)".into(),
+                needed_bytes: n,
+                limit_bytes: u32::MAX as u64 / 5,
+            });
+        }
+        let (tau, sigma) = problem.steps();
+        let (primal, primal_bar, dual) = problem.state();
+        let scope = ErrorScopes::push(&ctx.device);
+        let gpu = TgvProblemGpu {
+            ctx,
+            width: problem.width,
+            height: problem.height,
+            regulariser: problem.regulariser,
+            alpha1: problem.alpha1,
+            alpha2: problem.alpha2,
+            tau,
+            sigma,
+            tensors: ctx.storage(
+                "tgv_tensors",
+                bytemuck::cast_slice(problem.tensors.as_slice()),
+            ),
+            target: ctx.storage("tgv_target", &vec![0u8; n as usize * 4]),
+            primal: ctx.storage("tgv_primal", bytemuck::cast_slice(primal)),
+            primal_bar: ctx.storage("tgv_primal_bar", bytemuck::cast_slice(primal_bar)),
+            dual: ctx.storage("tgv_dual", bytemuck::cast_slice(dual)),
+        };
+        scope.pop("uploading the TGV problem")?;
+        Ok(gpu)
+    }
+
+    /// Width, pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height, pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    fn pixels(&self) -> usize {
+        self.width * self.height
+    }
+
+    /// [`TgvProblem::iterate`] on the GPU: `iterations` primal–dual iterations toward the
+    /// coupling target `a` (one disparity per pixel, pixels) with weight `1/(2θ)`. The state
+    /// stays on the GPU ([`TgvProblemGpu::download`] fetches it).
+    pub fn iterate(&mut self, a: &[f32], theta: f32, iterations: u32) -> Result<()> {
+        if a.len() != self.pixels() {
+            return Err(Error::InvalidArgument(format!(
+                "coupling target has {} values, the problem {}×{}",
+                a.len(),
+                self.width,
+                self.height
+            )));
+        }
+        self.check_theta(theta)?;
+        if self.pixels() == 0 {
+            return Ok(());
+        }
+        self.ctx
+            .queue
+            .write_buffer(&self.target, 0, bytemuck::cast_slice(a));
+        self.run(theta, iterations)
+    }
+
+    fn check_theta(&self, theta: f32) -> Result<()> {
+        if !(theta.is_finite() && theta > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "θ must be positive and finite, got {theta}"
+            )));
+        }
+        Ok(())
+    }
+
+    /// `iterations` iterations toward the target already in `self.target`.
+    fn run(&self, theta: f32, iterations: u32) -> Result<()> {
+        let ctx = self.ctx;
+        let n = self.pixels() as u64;
+        let dual_kernel = ctx.kernel(&shaders::TGV_DUAL)?;
+        let primal_kernel = ctx.kernel(&shaders::TGV_PRIMAL)?;
+        let uniforms = TgvUniforms {
+            width: self.width as u32,
+            height: self.height as u32,
+            tv: (self.regulariser == Regulariser::Tv) as u32,
+            pad0: 0,
+            sigma: self.sigma,
+            tau: self.tau,
+            alpha1: self.alpha1,
+            alpha2: self.alpha2,
+            // The CPU's `coupling = tau / theta`, in f32.
+            coupling: self.tau / theta,
+            pad1: [0; 3],
+        };
+        let scope = ErrorScopes::push(&ctx.device);
+        let buf_uniforms = ctx.uniform("tgv_uniforms", bytemuck::bytes_of(&uniforms));
+        let buffers = [
+            &buf_uniforms,
+            &self.tensors,
+            &self.target,
+            &self.primal,
+            &self.primal_bar,
+            &self.dual,
+        ];
+        // The two kernels share one layout (shared/tgv_common.wgsl), but each pipeline has its
+        // own layout object: one bind group per kernel.
+        let bind_dual = ctx.bind_group("tgv_dual", &dual_kernel.layout, &buffers);
+        let bind_primal = ctx.bind_group("tgv_primal", &primal_kernel.layout, &buffers);
+        let mut left = iterations;
+        while left > 0 {
+            let batch = left.min(ITERATIONS_PER_SUBMIT);
+            left -= batch;
+            let mut encoder = ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("tgv") });
+            for _ in 0..batch {
+                // One pass per step: a pass boundary orders the dual writes before the primal
+                // reads (and the primal writes before the next dual step).
+                ctx.record_dispatch(&mut encoder, &dual_kernel.pipeline, &bind_dual, n)?;
+                ctx.record_dispatch(&mut encoder, &primal_kernel.pipeline, &bind_primal, n)?;
+            }
+            ctx.queue.submit([encoder.finish()]);
+        }
+        scope.pop("running the TGV kernels")
+    }
+
+    /// The disparity `u`, pixels (read back).
+    pub fn u(&self) -> Result<Vec<f32>> {
+        let n = self.pixels() as u64;
+        let out = self.ctx.read_back(&[(&self.primal, n * 12)])?;
+        Ok(to_f32(&out[0]).chunks_exact(3).map(|p| p[0]).collect())
+    }
+
+    /// Writes the GPU state (primal, over-relaxed primal, dual) into `problem`, which must be the
+    /// one uploaded (same size), so that it can continue on either device.
+    pub fn download(&self, problem: &mut TgvProblem) -> Result<()> {
+        if (problem.width, problem.height) != (self.width, self.height) {
+            return Err(Error::InvalidArgument(format!(
+                "downloading a {}×{} GPU problem into a {}×{} one",
+                self.width, self.height, problem.width, problem.height
+            )));
+        }
+        let n = self.pixels() as u64;
+        let out = self.ctx.read_back(&[
+            (&self.primal, n * 12),
+            (&self.primal_bar, n * 12),
+            (&self.dual, n * 20),
+        ])?;
+        let (primal, primal_bar, dual) = problem.state_mut();
+        primal.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&out[0]));
+        primal_bar.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&out[1]));
+        dual.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, [f32; 5]>(&out[2]));
+        Ok(())
+    }
+}
+
+/// The data term on the GPU: packed costs (raw `u8` or window sums `u16`) and per-pixel divisors.
+struct DataCostGpu {
+    costs: wgpu::Buffer,
+    counts: wgpu::Buffer,
+    cost_bytes: u32,
+    width: u32,
+    height: u32,
+    num_disparities: u32,
+    min_disparity_px: f32,
+    max_cost: u8,
+}
+
+impl DataCostGpu {
+    fn upload(ctx: &GpuContext, data: &DataCost) -> Result<Self> {
+        let v = data.volume;
+        let n = v.width as usize * v.height as usize;
+        let entries = (n * v.num_disparities) as u64;
+        let cost_bytes = if data.filtered.is_some() { 2 } else { 1 };
+        ctx.check_binding(
+            &format!("census costs ({cost_bytes} bytes per pixel and disparity)"),
+            entries * cost_bytes,
+        )?;
+        if entries > u32::MAX as u64 || v.num_disparities > u32::MAX as usize {
+            return Err(Error::GpuCapacity {
+                what: "cost volume entries (u32 indices)".into(),
+                needed_bytes: entries,
+                limit_bytes: u32::MAX as u64,
+            });
+        }
+        let scope = ErrorScopes::push(&ctx.device);
+        let (costs, counts) = match &data.filtered {
+            Some((sum, count)) => {
+                let count: Vec<u32> = count.iter().map(|&c| c as u32).collect();
+                (
+                    ctx.storage("tgv_costs", bytemuck::cast_slice(sum)),
+                    ctx.storage("tgv_counts", bytemuck::cast_slice(&count)),
+                )
+            }
+            None => (
+                ctx.storage("tgv_costs", &v.cost),
+                ctx.storage("tgv_counts", bytemuck::cast_slice(&vec![1u32; n])),
+            ),
+        };
+        scope.pop("uploading the census costs")?;
+        Ok(DataCostGpu {
+            costs,
+            counts,
+            cost_bytes: cost_bytes as u32,
+            width: v.width,
+            height: v.height,
+            num_disparities: v.num_disparities as u32,
+            min_disparity_px: v.min_disparity_px as f32,
+            max_cost: v.max_cost,
+        })
+    }
+
+    /// Records one point-wise search reading `u` (stride `u_stride` floats) and writing `a`.
+    #[allow(clippy::too_many_arguments)]
+    fn record_search(
+        &self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        u: &wgpu::Buffer,
+        u_stride: u32,
+        a: &wgpu::Buffer,
+        lambda: f32,
+        theta: f32,
+    ) -> Result<()> {
+        let kernel = ctx.kernel(&shaders::TGV_POINTWISE)?;
+        let uniforms = PointwiseUniforms {
+            width: self.width,
+            height: self.height,
+            num_disparities: self.num_disparities,
+            cost_bytes: self.cost_bytes,
+            u_stride,
+            lambda,
+            theta,
+            // The CPU's `reach`, in f32.
+            reach: (2.0 * theta * lambda * self.max_cost as f32).sqrt(),
+            min_disparity_px: self.min_disparity_px,
+            pad: [0; 3],
+        };
+        let buf_uniforms = ctx.uniform("pointwise_uniforms", bytemuck::bytes_of(&uniforms));
+        let bind = ctx.bind_group(
+            "tgv_pointwise",
+            &kernel.layout,
+            &[&buf_uniforms, &self.costs, &self.counts, u, a],
+        );
+        let n = self.width as u64 * self.height as u64;
+        ctx.record_dispatch(encoder, &kernel.pipeline, &bind, n)
+    }
+}
+
+/// [`crate::depth::tgv::decoupling_search`] on the GPU: for each pixel the disparity `a`
+/// (pixels) minimising `λ·C(x, a) + (u(x) − a)²/(2θ)` over the census costs of `volume`
+/// averaged over `cost_window` × `cost_window` (averaged on the CPU, searched on the GPU), with
+/// the parabola fit. Uploads the costs on every call ([`refine_gpu`] keeps them resident).
+pub fn pointwise_search_gpu(
+    ctx: &GpuContext,
+    volume: &CostVolume,
+    cost_window: u32,
+    u: &[f32],
+    lambda: f32,
+    theta: f32,
+) -> Result<Vec<f32>> {
+    check_search(volume, cost_window, u, lambda, theta)?;
+    let n = u.len() as u64;
+    let data = DataCostGpu::upload(ctx, &DataCost::new(volume, cost_window))?;
+    let scope = ErrorScopes::push(&ctx.device);
+    let buf_u = ctx.storage("pointwise_u", bytemuck::cast_slice(u));
+    let buf_a = ctx.storage("pointwise_a", &vec![0u8; u.len() * 4]);
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("pointwise"),
+        });
+    data.record_search(ctx, &mut encoder, &buf_u, 1, &buf_a, lambda, theta)?;
+    ctx.queue.submit([encoder.finish()]);
+    scope.pop("running the point-wise search")?;
+    let out = ctx.read_back(&[(&buf_a, n * 4)])?;
+    Ok(to_f32(&out[0]))
+}
+
+/// Checks that a stereo pair is non-empty, equally sized, with consistent buffers.
+fn check_pair(left: &GreyImage, right: &GreyImage) -> Result<()> {
+    for img in [left, right] {
+        if img.data.len() != img.width as usize * img.height as usize {
+            return Err(Error::InvalidArgument(
+                "image buffer length does not match its size".into(),
+            ));
+        }
+    }
+    if (left.width, left.height) != (right.width, right.height) {
+        return Err(Error::InvalidArgument(format!(
+            "stereo images differ in size: {}×{} vs {}×{}",
+            left.width, left.height, right.width, right.height
+        )));
+    }
+    if left.width == 0 || left.height == 0 {
+        return Err(Error::InvalidArgument("stereo images are empty".into()));
+    }
+    Ok(())
+}
+
+/// Records the census transform of `image` into a new signature buffer (`words` u32 per pixel).
+fn record_census(
+    ctx: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    image: &GreyImage,
+    params: &CensusParams,
+    words: u32,
+) -> Result<wgpu::Buffer> {
+    let n = image.width as u64 * image.height as u64;
+    ctx.check_binding("census signatures", n * words as u64 * 4)?;
+    let kernel = ctx.kernel(&shaders::CENSUS)?;
+    let (ternary, threshold) = match params.kind {
+        CensusKind::Binary => (0, 0),
+        CensusKind::Ternary { threshold } => (1, threshold as u32),
+    };
+    let uniforms = CensusUniforms {
+        width: image.width,
+        height: image.height,
+        window_width: params.window_width,
+        window_height: params.window_height,
+        ternary,
+        threshold,
+        words,
+        pad: 0,
+    };
+    let buf_uniforms = ctx.uniform("census_uniforms", bytemuck::bytes_of(&uniforms));
+    let buf_image = ctx.storage("census_image", &image.data);
+    let buf_sig = ctx.storage(
+        "census_signatures",
+        &vec![0u8; (n * words as u64 * 4) as usize],
+    );
+    let bind = ctx.bind_group(
+        "census",
+        &kernel.layout,
+        &[&buf_uniforms, &buf_image, &buf_sig],
+    );
+    ctx.record_dispatch(encoder, &kernel.pipeline, &bind, n)?;
+    Ok(buf_sig)
+}
+
+/// `u32` words of a signature of `params` (two per `u64` word of [`CensusImage`]).
+fn census_words(params: &CensusParams) -> u32 {
+    if params.bits() > 64 {
+        4
+    } else {
+        2
+    }
+}
+
+/// [`crate::depth::census::census_transform`] on the GPU (bit-identical: integer comparisons).
+pub fn census_transform_gpu(
+    ctx: &GpuContext,
+    image: &GreyImage,
+    params: &CensusParams,
+) -> Result<CensusImage> {
+    params.validate()?;
+    if image.data.len() != image.width as usize * image.height as usize {
+        return Err(Error::InvalidArgument(format!(
+            "image data holds {} pixels, expected {}×{}",
+            image.data.len(),
+            image.width,
+            image.height
+        )));
+    }
+    let words = census_words(params);
+    let n = image.width as u64 * image.height as u64;
+    if n == 0 {
+        return Ok(CensusImage {
+            width: image.width,
+            height: image.height,
+            words_per_pixel: words as usize / 2,
+            bits: params.bits(),
+            data: Vec::new(),
+        });
+    }
+    let scope = ErrorScopes::push(&ctx.device);
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("census"),
+        });
+    let sig = record_census(ctx, &mut encoder, image, params, words)?;
+    ctx.queue.submit([encoder.finish()]);
+    scope.pop("running the census kernel")?;
+    let out = ctx.read_back(&[(&sig, n * words as u64 * 4)])?;
+    Ok(CensusImage {
+        width: image.width,
+        height: image.height,
+        words_per_pixel: words as usize / 2,
+        bits: params.bits(),
+        data: bytemuck::pod_collect_to_vec::<u8, u64>(&out[0]),
+    })
+}
+
+/// The census cost volume of a rectified pair on the GPU: census signatures of both images and
+/// their Hamming distances for disparities `[min_disparity_px, min_disparity_px +
+/// num_disparities)`, bit-identical to [`SgmMatcher::cost_volume`] (CPU: `census_transform` and
+/// `CostVolume::from_census`). Fails with [`Error::GpuCapacity`] when the volume (1 byte per
+/// pixel and disparity) does not fit one binding.
+pub fn cost_volume_gpu(
+    ctx: &GpuContext,
+    left: &GreyImage,
+    right: &GreyImage,
+    census: &CensusParams,
+    min_disparity_px: i32,
+    num_disparities: usize,
+) -> Result<CostVolume> {
+    census.validate()?;
+    check_pair(left, right)?;
+    let max_cost = u8::try_from(census.bits()).map_err(|_| {
+        Error::InvalidArgument(format!(
+            "census signatures of {} bits do not fit u8 costs",
+            census.bits()
+        ))
+    })?;
+    let n = left.width as u64 * left.height as u64;
+    let entries = n * num_disparities as u64;
+    ctx.check_binding("cost volume (1 byte per pixel and disparity)", entries)?;
+    if entries > u32::MAX as u64 || num_disparities == 0 {
+        return Err(Error::InvalidArgument(format!(
+            "cost volume of {entries} entries: must be between 1 and 2³² − 1"
+        )));
+    }
+    let words = census_words(census);
+    let kernel = ctx.kernel(&shaders::CENSUS_COST)?;
+    let scope = ErrorScopes::push(&ctx.device);
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("census_cost"),
+        });
+    let sig_left = record_census(ctx, &mut encoder, left, census, words)?;
+    let sig_right = record_census(ctx, &mut encoder, right, census, words)?;
+    let uniforms = CostUniforms {
+        width: left.width,
+        height: left.height,
+        num_disparities: num_disparities as u32,
+        min_disparity_px,
+        max_cost: max_cost as u32,
+        words,
+        entries: entries as u32,
+        pad: 0,
+    };
+    let buf_uniforms = ctx.uniform("cost_uniforms", bytemuck::bytes_of(&uniforms));
+    let packed_words = entries.div_ceil(4);
+    let buf_volume = ctx.storage("cost_volume", &vec![0u8; (packed_words * 4) as usize]);
+    let bind = ctx.bind_group(
+        "census_cost",
+        &kernel.layout,
+        &[&buf_uniforms, &sig_left, &sig_right, &buf_volume],
+    );
+    ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, packed_words)?;
+    ctx.queue.submit([encoder.finish()]);
+    scope.pop("running the census cost kernels")?;
+    let mut out = ctx.read_back(&[(&buf_volume, packed_words * 4)])?;
+    let mut cost = std::mem::take(&mut out[0]);
+    cost.truncate(entries as usize);
+    Ok(CostVolume {
+        width: left.width,
+        height: left.height,
+        min_disparity_px,
+        num_disparities,
+        max_cost,
+        cost,
+    })
+}
+
+/// [`TgvMatcher::refine`] on the GPU: the same rounds (point-wise search, then
+/// `inner_iterations` primal–dual iterations, θ annealed) with the costs, `a` and the TGV state
+/// resident on the GPU; returns the dense regularised disparity, pixels. Window averaging of the
+/// costs, the tensors and the initialisation are computed on the CPU.
+pub fn refine_gpu(
+    ctx: &GpuContext,
+    matcher: &TgvMatcher,
+    left: &GreyImage,
+    volume: &CostVolume,
+    init: &DisparityMap,
+) -> Result<Vec<f32>> {
+    let p = &matcher.params;
+    p.validate()?;
+    let (problem, _u0) = matcher.initial_problem(left, volume, init)?;
+    let gpu = TgvProblemGpu::upload(ctx, &problem)?;
+    drop(problem);
+    let data = DataCostGpu::upload(ctx, &DataCost::new(volume, p.cost_window))?;
+    for k in 0..p.outer_iterations {
+        let theta = p.theta(k);
+        let scope = ErrorScopes::push(&ctx.device);
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("pointwise"),
+            });
+        // u is the first of the primal's three floats per pixel; a is the problem's target.
+        data.record_search(
+            ctx,
+            &mut encoder,
+            &gpu.primal,
+            3,
+            &gpu.target,
+            p.lambda,
+            theta,
+        )?;
+        ctx.queue.submit([encoder.finish()]);
+        scope.pop("running the point-wise search")?;
+        gpu.run(theta, p.inner_iterations)?;
+    }
+    gpu.u()
+}
+
+/// [`TgvMatcher::estimate_with_stages`] with the cost volume ([`cost_volume_gpu`]) and the
+/// refinement ([`refine_gpu`]) on the GPU; SGM and the invalidation run on the CPU.
+pub fn estimate_tgv_gpu(
+    ctx: &GpuContext,
+    matcher: &TgvMatcher,
+    left: &GreyImage,
+    right: &GreyImage,
+) -> Result<TgvStages> {
+    let p = &matcher.params;
+    p.validate()?;
+    let sgm = SgmMatcher::new(p.sgm)?;
+    let volume = cost_volume_gpu(
+        ctx,
+        left,
+        right,
+        &p.sgm.census,
+        p.sgm.min_disparity_px,
+        p.sgm.num_disparities,
+    )?;
+    let init = sgm.estimate_from_volume(left, &volume)?;
+    let dense = refine_gpu(ctx, matcher, left, &volume, &init)?;
+    let result = matcher.invalidate(&dense, &init, &volume);
+    Ok(TgvStages {
+        sgm: init,
+        dense_px: dense,
+        result,
+    })
+}
+
+/// A [`TgvMatcher`] that runs on the GPU ([`estimate_tgv_gpu`]), as a [`DisparityEstimator`]
+/// (every stereo stage of a GPU `crate::backend::Backend`).
+#[derive(Debug)]
+pub struct TgvMatcherGpu {
+    ctx: std::sync::Arc<GpuContext>,
+    matcher: TgvMatcher,
+}
+
+impl TgvMatcherGpu {
+    /// `matcher` on the device of `ctx`.
+    pub fn new(ctx: std::sync::Arc<GpuContext>, matcher: TgvMatcher) -> Self {
+        TgvMatcherGpu { ctx, matcher }
+    }
+}
+
+impl DisparityEstimator for TgvMatcherGpu {
+    fn name(&self) -> &str {
+        self.matcher.name()
+    }
+
+    fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap> {
+        Ok(estimate_tgv_gpu(&self.ctx, &self.matcher, left, right)?.result)
+    }
+}

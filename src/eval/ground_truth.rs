@@ -1,0 +1,96 @@
+//! Where ground truth comes from: the LiDAR scans of a KITTI-layout sequence merged in the world
+//! frame (the paper's), or a point-cloud file (LAS/LAZ converted to metres, PLY).
+
+use crate::frame::PointCloud;
+use crate::io::kitti::KittiSequence;
+use crate::io::sequence::FrameRange;
+use crate::{Error, Result};
+use std::path::PathBuf;
+
+/// Ground truth for evaluation.
+#[derive(Clone, Debug)]
+pub enum GroundTruth {
+    /// All Velodyne scans of a KITTI-layout sequence (the frames given) in the world frame.
+    KittiLidar {
+        /// Sequence folder.
+        sequence: PathBuf,
+        /// Poses file, when not at the default place.
+        poses: Option<PathBuf>,
+        /// The scans used.
+        frames: FrameRange,
+    },
+    /// A point cloud file: `.las`, `.laz` (coordinates converted to metres) or `.ply`.
+    File(PathBuf),
+}
+
+impl GroundTruth {
+    /// Ground truth named on the command line: a folder is a KITTI sequence (its scans in
+    /// `frames`), anything else a point-cloud file.
+    pub fn from_path(path: PathBuf, poses: Option<PathBuf>, frames: FrameRange) -> Self {
+        if path.is_dir() {
+            GroundTruth::KittiLidar {
+                sequence: path,
+                poses,
+                frames,
+            }
+        } else {
+            GroundTruth::File(path)
+        }
+    }
+
+    /// Loads the ground-truth points (world frame, metres).
+    pub fn load(&self) -> Result<PointCloud> {
+        match self {
+            GroundTruth::KittiLidar {
+                sequence,
+                poses,
+                frames,
+            } => {
+                let seq = KittiSequence::open(sequence, poses.as_deref())?;
+                merged_lidar(&seq, &frames.indices(seq.len()))
+            }
+            GroundTruth::File(path) => {
+                let ext = path
+                    .extension()
+                    .and_then(|e| e.to_str())
+                    .unwrap_or("")
+                    .to_ascii_lowercase();
+                match ext.as_str() {
+                    "las" | "laz" => crate::io::las::read_point_cloud_metres(path),
+                    "ply" => Ok(crate::io::ply::read_ply(path)?.0),
+                    _ => Err(Error::bad_input(
+                        path,
+                        "ground truth must be .las, .laz or .ply",
+                    )),
+                }
+            }
+        }
+    }
+
+    /// A short description for reports.
+    pub fn describe(&self) -> String {
+        match self {
+            GroundTruth::KittiLidar { sequence, .. } => {
+                format!("LiDAR scans of {}", sequence.display())
+            }
+            GroundTruth::File(p) => p.display().to_string(),
+        }
+    }
+}
+
+/// All Velodyne scans of the given frames in the world frame: the paper's ground truth.
+pub fn merged_lidar(seq: &KittiSequence, frames: &[usize]) -> Result<PointCloud> {
+    let mut cloud = PointCloud::default();
+    for &i in frames {
+        if !seq.has_velodyne(i) {
+            continue;
+        }
+        let scan = seq.velodyne(i)?;
+        let t = scan.world_from_sensor;
+        cloud.points_m.extend(scan.points_sensor_m.iter().map(|p| {
+            let w = t * nalgebra::Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            [w.x, w.y, w.z]
+        }));
+    }
+    Ok(cloud)
+}

@@ -1,0 +1,304 @@
+//! Projective depth-map fusion (DENSER Sec. III-A) on the GPU: the host side of
+//! `shaders/fuse_depth.wgsl` (blocks uploaded per call) and `shaders/fuse_depth_resident.wgsl`
+//! (blocks resident in the GPU pool, [`ResidentMap`]). Both fuse from the CPU's own
+//! [`DepthPlan`] (the same blocks, the same f32 geometry) and apply the per-voxel update of
+//! `shaders/shared/fuse_common.wgsl`, the twin of [`integrate_depth_plan`]'s loop with
+//! `Block::fuse`, one invocation per voxel.
+//!
+//! The kernels repeat the CPU's f32 arithmetic in the same order, with exact twins of its
+//! rounding (`shaders/shared/rounding.wgsl`). Remaining differences come from WGSL's FMA
+//! contraction and division precision: a voxel near a pixel border may project to the
+//! neighbouring pixel, and a running average may land one quantisation step away
+//! (`tests/gpu.rs` states the tolerance). Per-call blocks are sent in batches that fit one
+//! storage binding (4 KiB per block: 32 768 blocks in 128 MiB), so any number of blocks works.
+//!
+//! [`integrate_depth_plan`]: super::integrate_depth_plan
+
+use super::depth::{usable, DepthFusionParams, DepthPlan};
+use super::FusionStats;
+use crate::frame::DepthFrame;
+use crate::gpu::layout::PIXEL_VALID;
+use crate::gpu::layout::{apply_updated, pack_block_into, pack_rgb, FuseUniforms, GpuVoxel};
+use crate::gpu::resident::{lookup_buffers, ResidentMap};
+use crate::gpu::{shaders, ErrorScopes, GpuContext};
+use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
+use crate::{Error, Result};
+
+/// Fuses one depth frame into `layer` on the GPU with blocks uploaded per call, like
+/// [`super::integrate_depth_plan`]: the plan's band plus the allocated blocks in view. Returns
+/// the touched blocks (sorted) and work counters. On error the layer holds the blocks as before.
+pub fn integrate_depth_gpu(
+    ctx: &GpuContext,
+    layer: &mut Layer,
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+    plan: &DepthPlan,
+) -> Result<(TouchedBlocks, FusionStats)> {
+    let grid = layer.params();
+    let blocks = plan.blocks(layer);
+    super::update_checked_out(layer, &blocks, plan.measurements, |taken| {
+        fuse_blocks(ctx, &grid, taken, frame, params, plan)
+    })
+}
+
+/// Runs the per-call kernel over `blocks` in batches; returns the number of voxel updates.
+fn fuse_blocks(
+    ctx: &GpuContext,
+    grid: &GridParams,
+    blocks: &mut [(BlockIndex, Box<Block>)],
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+    plan: &DepthPlan,
+) -> Result<usize> {
+    if blocks.is_empty() {
+        return Ok(0);
+    }
+    let uniforms = fuse_uniforms(plan, frame, params);
+    let pixels = frame.depth_m.data.len() as u64;
+    ctx.check_binding("depth image (4 bytes per pixel)", pixels * 4)?;
+    let pixel_words = pixel_words(frame, params);
+    let kernel = ctx.kernel(&shaders::FUSE_DEPTH)?;
+    let scope = ErrorScopes::push(&ctx.device);
+    let buf_depth = ctx.storage("fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
+    let buf_pixel = ctx.storage("fuse_pixel", bytemuck::cast_slice(&pixel_words));
+    scope.pop("uploading the depth image")?;
+    let block_bytes = (VOXELS_PER_BLOCK * std::mem::size_of::<GpuVoxel>()) as u64;
+    let per_batch = (ctx.max_binding_bytes() / block_bytes).max(1) as usize;
+    let mut updates = 0usize;
+    // Results of every batch, applied only once all succeeded (an error leaves blocks untouched).
+    let mut results: Vec<Vec<GpuVoxel>> = Vec::new();
+    for batch in blocks.chunks(per_batch) {
+        let voxel_count = (batch.len() * VOXELS_PER_BLOCK) as u64;
+        ctx.check_binding("voxel batch (8 bytes per voxel)", voxel_count * 8)?;
+        let mut voxels = Vec::with_capacity(voxel_count as usize);
+        let mut bases = Vec::with_capacity(batch.len());
+        for (index, block) in batch.iter() {
+            bases.push(base_words(grid, plan, *index));
+            pack_block_into(block, &mut voxels);
+        }
+        let uniforms = FuseUniforms {
+            voxel_count: voxel_count as u32,
+            ..uniforms
+        };
+        let scope = ErrorScopes::push(&ctx.device);
+        let buf_uniforms = ctx.uniform("fuse_uniforms", bytemuck::bytes_of(&uniforms));
+        let buf_bases = ctx.storage("fuse_block_base", bytemuck::cast_slice(&bases));
+        let buf_voxels = ctx.storage("fuse_voxels", bytemuck::cast_slice(&voxels));
+        let buf_counters = ctx.storage("fuse_counters", bytemuck::cast_slice(&[0u32; 4]));
+        let bind = ctx.bind_group(
+            "fuse_depth",
+            &kernel.layout,
+            &[
+                &buf_uniforms,
+                &buf_bases,
+                &buf_depth,
+                &buf_pixel,
+                &buf_voxels,
+                &buf_counters,
+            ],
+        );
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("fuse_depth"),
+            });
+        ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, voxel_count)?;
+        ctx.queue.submit([encoder.finish()]);
+        scope.pop("running the fusion kernel")?;
+        let out = ctx.read_back(&[(&buf_voxels, voxel_count * 8), (&buf_counters, 4)])?;
+        // Staging bytes carry no alignment guarantee: copy into typed vectors.
+        let counter: Vec<u32> = bytemuck::pod_collect_to_vec(&out[1]);
+        updates += counter[0] as usize;
+        results.push(bytemuck::pod_collect_to_vec(&out[0]));
+    }
+    for (batch, result) in blocks.chunks_mut(per_batch).zip(&results) {
+        for ((_, block), vox) in batch.iter_mut().zip(result.chunks_exact(VOXELS_PER_BLOCK)) {
+            apply_updated(block, vox);
+        }
+    }
+    Ok(updates)
+}
+
+/// Fuses one depth frame into the blocks resident in `map` (the GPU tier over `layer`), like
+/// [`super::integrate_depth_plan`]: the plan's blocks are made resident (grown into or spilled
+/// for), resolved to pool slots on the GPU (`block_lookup.wgsl`) and updated in place. A frame
+/// whose blocks exceed the largest pool goes through [`integrate_depth_gpu`] after its resident
+/// blocks are written back (counted, with a warning). Returns the touched blocks (sorted).
+pub fn integrate_depth_resident(
+    map: &mut ResidentMap,
+    layer: &mut Layer,
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+    plan: &DepthPlan,
+) -> Result<(TouchedBlocks, FusionStats)> {
+    if layer.params() != map.grid() {
+        return Err(Error::InvalidArgument(
+            "resident GPU map and layer have different grids".into(),
+        ));
+    }
+    let t = std::time::Instant::now();
+    let blocks = plan.blocks(layer);
+    map.begin_frame(blocks.len(), plan.listing_s + t.elapsed().as_secs_f64());
+    if blocks.is_empty() {
+        return Ok((Vec::new(), FusionStats::default()));
+    }
+    if blocks.len() > map.max_blocks() as usize {
+        // The frame alone exceeds the largest pool: give its resident blocks back to RAM and
+        // fuse it in batches.
+        map.note_oversize();
+        tracing::warn!(
+            "frame needs {} blocks, more than the GPU pool's {} (raise the GPU memory budget); \
+             fusing it in batches",
+            blocks.len(),
+            map.max_blocks()
+        );
+        map.flush_blocks(layer, &blocks)?;
+        let ctx = map.context().clone();
+        return integrate_depth_gpu(&ctx, layer, frame, params, plan);
+    }
+    map.make_resident(layer, &blocks, plan.camera_m)?;
+    let t = std::time::Instant::now();
+    let (updated, voxel_updates) = run_resident(map, &blocks, frame, params, plan)?;
+    map.add_kernel_time(t.elapsed().as_secs_f64());
+    let touched = map.finish_frame(layer, &blocks, &updated);
+    let stats = FusionStats {
+        blocks: touched.len(),
+        voxel_updates,
+        measurements: plan.measurements,
+    };
+    Ok((touched, stats))
+}
+
+/// Resolves `blocks` (resident) to slots on the GPU and fuses the frame into them. Returns, per
+/// block, whether any voxel was updated, and the number of voxel updates.
+fn run_resident(
+    map: &ResidentMap,
+    blocks: &[BlockIndex],
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+    plan: &DepthPlan,
+) -> Result<(Vec<bool>, usize)> {
+    let ctx = map.context().clone();
+    let grid = map.grid();
+    let n = blocks.len() as u64;
+    let voxel_count = n * VOXELS_PER_BLOCK as u64;
+    if voxel_count > u32::MAX as u64 {
+        return Err(Error::GpuCapacity {
+            what: "voxels of one dispatch".into(),
+            needed_bytes: voxel_count,
+            limit_bytes: u32::MAX as u64,
+        });
+    }
+    let uniforms = FuseUniforms {
+        voxel_count: voxel_count as u32,
+        ..fuse_uniforms(plan, frame, params)
+    };
+    ctx.check_binding(
+        "depth image (4 bytes per pixel)",
+        frame.depth_m.data.len() as u64 * 4,
+    )?;
+    ctx.check_binding("block bases (16 bytes per block)", n * 16)?;
+    let bases: Vec<[f32; 4]> = blocks.iter().map(|b| base_words(&grid, plan, *b)).collect();
+    let pixels = pixel_words(frame, params);
+    let lookup = ctx.kernel(&shaders::BLOCK_LOOKUP)?;
+    let fuse = ctx.kernel(&shaders::FUSE_DEPTH_RESIDENT)?;
+    let (table, mask) = map.table_buffer();
+    let scope = ErrorScopes::push(&ctx.device);
+    let (buf_keys, buf_slots, buf_lookup) = lookup_buffers(&ctx, mask, blocks)?;
+    let buf_uniforms = ctx.uniform("fuse_uniforms", bytemuck::bytes_of(&uniforms));
+    let buf_bases = ctx.storage("fuse_block_base", bytemuck::cast_slice(&bases));
+    let buf_depth = ctx.storage("fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
+    let buf_pixel = ctx.storage("fuse_pixel", bytemuck::cast_slice(&pixels));
+    let buf_counters = ctx.storage("fuse_counters", bytemuck::cast_slice(&[0u32; 4]));
+    let buf_updated = ctx.storage("block_updated", bytemuck::cast_slice(&vec![0u32; n as _]));
+    let bind_lookup = ctx.bind_group(
+        "block_lookup",
+        &lookup.layout,
+        &[&buf_lookup, table, &buf_keys, &buf_slots],
+    );
+    let bind_fuse = ctx.bind_group(
+        "fuse_depth_resident",
+        &fuse.layout,
+        &[
+            &buf_uniforms,
+            &buf_bases,
+            &buf_depth,
+            &buf_pixel,
+            map.pool_buffer(),
+            &buf_counters,
+            &buf_slots,
+            &buf_updated,
+        ],
+    );
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("fuse_depth_resident"),
+        });
+    ctx.record_dispatch(&mut encoder, &lookup.pipeline, &bind_lookup, n)?;
+    ctx.record_dispatch(&mut encoder, &fuse.pipeline, &bind_fuse, voxel_count)?;
+    ctx.queue.submit([encoder.finish()]);
+    scope.pop("running the resident fusion kernel")?;
+    let out = ctx.read_back(&[(&buf_counters, 8), (&buf_updated, n * 4)])?;
+    let counters: Vec<u32> = bytemuck::pod_collect_to_vec(&out[0]);
+    if counters[1] != 0 {
+        return Err(Error::Gpu(format!(
+            "the GPU hash table could not resolve {} of {} resident blocks",
+            counters[1], n
+        )));
+    }
+    let flags: Vec<u32> = bytemuck::pod_collect_to_vec(&out[1]);
+    Ok((
+        flags.iter().map(|&f| f != 0).collect(),
+        counters[0] as usize,
+    ))
+}
+
+/// The frame's fusion uniforms (with `voxel_count` 0: set per dispatch), from the plan's
+/// geometry: the same camera-frame quantities as the CPU path.
+fn fuse_uniforms(plan: &DepthPlan, frame: &DepthFrame, params: &DepthFusionParams) -> FuseUniforms {
+    let g = &plan.geometry;
+    let [ax, ay, az] = g.axis_m;
+    FuseUniforms {
+        axis_x: [ax.x, ax.y, ax.z, 0.0],
+        axis_y: [ay.x, ay.y, ay.z, 0.0],
+        axis_z: [az.x, az.y, az.z, 0.0],
+        fx: g.fx,
+        fy: g.fy,
+        cx: g.cx,
+        cy: g.cy,
+        width: g.width,
+        height: g.height,
+        mu: g.truncation_m,
+        inv_mu: 1.0 / g.truncation_m,
+        voxel_count: 0,
+        use_color: (params.use_color && frame.color.is_some()) as u32,
+        pad: [0; 2],
+    }
+}
+
+/// One word per pixel: its colour (`r | g << 8 | b << 16`, 0 without colour) and
+/// [`PIXEL_VALID`] when its depth is usable.
+fn pixel_words(frame: &DepthFrame, params: &DepthFusionParams) -> Vec<u32> {
+    let color = if params.use_color {
+        frame.color.as_ref()
+    } else {
+        None
+    };
+    frame
+        .depth_m
+        .data
+        .iter()
+        .enumerate()
+        .map(|(i, &d)| {
+            let rgb = color.map_or(0, |c| pack_rgb(c.data[i]));
+            rgb | if usable(d, params) { PIXEL_VALID } else { 0 }
+        })
+        .collect()
+}
+
+/// [`crate::fusion::DepthGeometry::block_base`] as the kernels read it (`vec4`, w = 0).
+fn base_words(grid: &GridParams, plan: &DepthPlan, index: BlockIndex) -> [f32; 4] {
+    let b = plan.geometry.block_base(grid, index);
+    [b.x, b.y, b.z, 0.0]
+}

@@ -1,0 +1,400 @@
+//! The GPU tier of the map: blocks stay resident in a device pool across frames, so a frame
+//! uploads only the blocks it newly needs and reads back nothing but a flag per block.
+//!
+//! - [`table`]: the GPU hash table ([`BlockTable`]) that maps block keys to pool slots; kernels
+//!   resolve keys through its device copy.
+//! - [`pool`]: the slots on the device and the copies between RAM and the pool.
+//! - [`policy`]: growing, and which blocks spill when the pool is full (the same eviction order
+//!   as the RAM pager's, [`crate::grid::eviction_order`]).
+//! - [`ResidentMap`] (here) ties them together: it makes a frame's blocks resident
+//!   ([`ResidentMap::make_resident`]), records what a kernel changed
+//!   ([`ResidentMap::finish_frame`]), and writes blocks back to the RAM [`Layer`]
+//!   ([`ResidentMap::sync`], [`ResidentMap::flush_blocks`]). The fusion dispatch into the pool
+//!   lives beside the CPU's fusion (`src/fusion/depth_gpu.rs`).
+//!
+//! **Write-back.** The GPU copy of a resident block is authoritative; the RAM layer holds a
+//! shadow (possibly stale, an empty block for blocks created on the GPU) so that it still knows
+//! every allocated block. Every voxel a kernel updates carries a mark
+//! ([`crate::gpu::layout::UPDATED_BIT`]) until it is copied back with
+//! [`crate::grid::Block::store_fused`], the rule `Block::fuse` itself stores voxels by (a stored
+//! regularised value follows the raw one), so the shadow is exact after a write-back.
+//!
+//! **Overflow** is never silent: the pool grows up to `max_bytes` (and the device's binding
+//! limit), then spills; a frame whose own blocks exceed the largest pool is the caller's to fuse
+//! another way (the fusion dispatch uses the per-call kernel and counts it). Every grow, spill
+//! and oversize frame is counted in [`ResidentStats`].
+//!
+//! After an error the device copy may be partly updated: drop the map without syncing; the layer
+//! holds the state of the last successful sync.
+
+mod policy;
+mod pool;
+mod table;
+
+pub use pool::SLOT_BYTES;
+pub(crate) use table::lookup_buffers;
+pub use table::{block_hash, lookup_table_on_gpu, mix32, BlockTable, SLOT_EMPTY, SLOT_TOMBSTONE};
+
+use super::context::GpuContext;
+use super::layout::{apply_updated, pack_block_into, GpuVoxel, UPDATED_BIT};
+use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
+use crate::{Error, Result};
+use pool::BlockPool;
+use std::collections::HashSet;
+use std::sync::Arc;
+use table::DeviceTable;
+
+/// Size limits of a [`ResidentMap`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ResidentOptions {
+    /// Slots allocated at start.
+    pub initial_blocks: u32,
+    /// Largest pool, bytes (4 KiB per block); also bounded by the device's binding limit.
+    pub max_bytes: u64,
+}
+
+impl Default for ResidentOptions {
+    fn default() -> Self {
+        ResidentOptions {
+            initial_blocks: 4096,
+            max_bytes: 2 << 30,
+        }
+    }
+}
+
+/// Counters of a [`ResidentMap`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct ResidentStats {
+    /// Slots in the pool now.
+    pub capacity_blocks: u32,
+    /// Slots the pool may grow to.
+    pub max_blocks: u32,
+    /// Blocks resident now.
+    pub resident_blocks: usize,
+    /// Most blocks resident at once.
+    pub peak_resident_blocks: usize,
+    /// Frames fused.
+    pub frames: u64,
+    /// Blocks uploaded (from RAM or fresh).
+    pub blocks_uploaded: u64,
+    /// Blocks read back to RAM (syncs, flushes, spills).
+    pub blocks_downloaded: u64,
+    /// Blocks released to make room (the spill to RAM).
+    pub blocks_spilled: u64,
+    /// Times the pool grew.
+    pub grows: u32,
+    /// Frames whose own blocks exceeded the largest pool (fused by the batched path).
+    pub oversize_frames: u64,
+    /// Most blocks one frame listed (its working set on the GPU).
+    pub largest_frame_blocks: usize,
+    /// Seconds listing each frame's blocks on the CPU (band and visible blocks).
+    pub list_s: f64,
+    /// Seconds making blocks resident (growing, spilling, uploading blocks and table entries).
+    pub residency_s: f64,
+    /// Seconds in the lookup and fusion dispatches, waiting included, and the flag readback.
+    pub kernel_s: f64,
+    /// Seconds copying blocks back to RAM (syncs, flushes, spills).
+    pub download_s: f64,
+}
+
+/// Blocks resident on the GPU across frames, over a RAM [`Layer`] (see the module
+/// documentation).
+pub struct ResidentMap {
+    ctx: Arc<GpuContext>,
+    grid: GridParams,
+    max_blocks: u32,
+    pool: BlockPool,
+    table: DeviceTable,
+    frame: u64,
+    stats: ResidentStats,
+}
+
+impl std::fmt::Debug for ResidentMap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ResidentMap")
+            .field("stats", &self.stats())
+            .finish()
+    }
+}
+
+impl ResidentMap {
+    /// An empty pool on `ctx` for maps on `grid`.
+    pub fn new(ctx: Arc<GpuContext>, grid: GridParams, options: ResidentOptions) -> Result<Self> {
+        let device_max = ctx.max_binding_bytes() / SLOT_BYTES;
+        let max_blocks = (options.max_bytes / SLOT_BYTES).min(device_max).max(1) as u32;
+        let capacity = options.initial_blocks.clamp(1, max_blocks);
+        let scope = super::context::ErrorScopes::push(&ctx.device);
+        let pool = BlockPool::new(&ctx, capacity)?;
+        let table = DeviceTable::new(&ctx, max_blocks.min(capacity.saturating_mul(2)));
+        scope.pop("allocating the GPU block pool")?;
+        Ok(ResidentMap {
+            ctx,
+            grid,
+            max_blocks,
+            pool,
+            table,
+            frame: 0,
+            stats: ResidentStats {
+                capacity_blocks: capacity,
+                max_blocks,
+                ..Default::default()
+            },
+        })
+    }
+
+    /// The counters.
+    pub fn stats(&self) -> ResidentStats {
+        ResidentStats {
+            resident_blocks: self.table.host.len(),
+            ..self.stats
+        }
+    }
+
+    /// The GPU this map lives on.
+    pub fn context(&self) -> &Arc<GpuContext> {
+        &self.ctx
+    }
+
+    /// The grid of the maps it holds blocks of.
+    pub fn grid(&self) -> GridParams {
+        self.grid
+    }
+
+    /// The most blocks the pool can hold.
+    pub fn max_blocks(&self) -> u32 {
+        self.max_blocks
+    }
+
+    /// The slot of a resident block (the host's table).
+    pub fn slot_of(&self, b: BlockIndex) -> Option<u32> {
+        self.table.host.lookup(b)
+    }
+
+    /// Resident blocks, sorted.
+    pub fn resident_blocks(&self) -> Vec<BlockIndex> {
+        let mut v: Vec<BlockIndex> = self.pool.occupied().map(|(_, k, _)| k).collect();
+        v.sort_unstable();
+        v
+    }
+
+    /// Whether a resident block holds updates not yet copied to RAM.
+    pub fn is_dirty(&self, b: BlockIndex) -> bool {
+        self.slot_of(b).is_some_and(|s| self.pool.is_dirty(s))
+    }
+
+    /// Looks `keys` up in the device's copy of the table (`block_lookup.wgsl`): the GPU's view
+    /// of residency, which must equal [`ResidentMap::slot_of`].
+    pub fn lookup_on_gpu(&mut self, keys: &[BlockIndex]) -> Result<Vec<Option<u32>>> {
+        self.table.upload(&self.ctx);
+        table::run_lookup(&self.ctx, self.table.buffer(), self.table.host.mask(), keys)
+    }
+
+    /// The pool's device buffer (every slot; `512 · slot + i` is voxel `i` of a slot).
+    pub(crate) fn pool_buffer(&self) -> &wgpu::Buffer {
+        self.pool.device_buffer()
+    }
+
+    /// The device table and its probe mask, current after [`ResidentMap::make_resident`].
+    pub(crate) fn table_buffer(&self) -> (&wgpu::Buffer, u32) {
+        (self.table.buffer(), self.table.host.mask())
+    }
+
+    /// Counts a frame of `blocks` blocks (before any other work on it).
+    pub(crate) fn begin_frame(&mut self, blocks: usize, listing_s: f64) {
+        self.frame += 1;
+        self.stats.frames += 1;
+        self.stats.list_s += listing_s;
+        self.stats.largest_frame_blocks = self.stats.largest_frame_blocks.max(blocks);
+    }
+
+    /// Counts a frame too large for the pool (its caller fuses it another way).
+    pub(crate) fn note_oversize(&mut self) {
+        self.stats.oversize_frames += 1;
+    }
+
+    /// Adds kernel time (dispatches, waiting, flag readback) to the counters.
+    pub(crate) fn add_kernel_time(&mut self, seconds: f64) {
+        self.stats.kernel_s += seconds;
+    }
+
+    /// Makes every block of `blocks` (sorted; at most [`ResidentMap::max_blocks`]) resident:
+    /// grows or spills ([`policy`]) to free the slots it needs, uploads the missing blocks (the
+    /// layer's copy, or empty) and the changed table entries.
+    pub(crate) fn make_resident(
+        &mut self,
+        layer: &mut Layer,
+        blocks: &[BlockIndex],
+        camera_m: [f64; 3],
+    ) -> Result<()> {
+        let t = std::time::Instant::now();
+        let missing: Vec<BlockIndex> = blocks
+            .iter()
+            .copied()
+            .filter(|b| self.table.host.lookup(*b).is_none())
+            .collect();
+        if self.pool.free_count() < missing.len() {
+            let in_frame: HashSet<BlockIndex> = blocks.iter().copied().collect();
+            self.make_room(layer, missing.len(), &in_frame, camera_m)?;
+        }
+        self.upload_blocks(layer, &missing)?;
+        self.table.upload(&self.ctx);
+        self.stats.residency_s += t.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// Records what a kernel did to `blocks` (`updated[k]`: whether block `k` changed): updated
+    /// blocks become dirty and the layer learns the blocks created on the GPU; blocks the frame
+    /// did not update and the layer never had are released. Returns the touched blocks (those
+    /// now in the layer), in `blocks` order.
+    pub(crate) fn finish_frame(
+        &mut self,
+        layer: &mut Layer,
+        blocks: &[BlockIndex],
+        updated: &[bool],
+    ) -> TouchedBlocks {
+        let mut touched = Vec::with_capacity(blocks.len());
+        for (b, &up) in blocks.iter().zip(updated) {
+            let slot = self.table.host.lookup(*b).expect("resident");
+            let in_layer = layer.contains(b);
+            if up {
+                self.pool.mark_dirty(slot);
+                if !in_layer {
+                    layer.insert(*b, Block::new_boxed());
+                }
+            } else if !in_layer {
+                self.release(slot);
+                continue;
+            }
+            touched.push(*b);
+            self.pool.touch(slot, self.frame);
+        }
+        self.stats.peak_resident_blocks =
+            self.stats.peak_resident_blocks.max(self.table.host.len());
+        touched
+    }
+
+    /// Frees `need` slots: grows the pool, then spills blocks outside `in_frame` to RAM.
+    fn make_room(
+        &mut self,
+        layer: &mut Layer,
+        need: usize,
+        in_frame: &HashSet<BlockIndex>,
+        camera_m: [f64; 3],
+    ) -> Result<()> {
+        if let Some(capacity) = policy::grown_capacity(&self.pool, need, self.max_blocks) {
+            let old = self.pool.capacity();
+            self.pool.grow(&self.ctx, capacity)?;
+            self.table.host.rebuild(2 * capacity as usize);
+            self.stats.grows += 1;
+            self.stats.capacity_blocks = capacity;
+            tracing::info!(
+                "GPU block pool grown from {old} to {capacity} blocks ({} MiB)",
+                (capacity as u64 * SLOT_BYTES) >> 20
+            );
+            if self.pool.free_count() >= need {
+                return Ok(());
+            }
+        }
+        let slots = policy::spill_slots(&self.pool, &self.grid, in_frame, camera_m, need);
+        self.stats.blocks_spilled += slots.len() as u64;
+        self.write_back(layer, &slots, true)?;
+        if self.pool.free_count() < need {
+            return Err(Error::GpuCapacity {
+                what: "GPU block pool (frame working set)".into(),
+                needed_bytes: (need + self.table.host.len()) as u64 * SLOT_BYTES,
+                limit_bytes: self.pool.capacity() as u64 * SLOT_BYTES,
+            });
+        }
+        Ok(())
+    }
+
+    /// Gives `slot` back (its key leaves the table).
+    fn release(&mut self, slot: u32) {
+        if let Some(k) = self.pool.release(slot) {
+            self.table.host.remove(k);
+        }
+    }
+
+    /// Uploads `blocks` (absent from the pool, with room made) into free slots: the layer's
+    /// copy, or an empty block.
+    fn upload_blocks(&mut self, layer: &Layer, blocks: &[BlockIndex]) -> Result<()> {
+        if blocks.is_empty() {
+            return Ok(());
+        }
+        let mut empty = Vec::with_capacity(VOXELS_PER_BLOCK);
+        pack_block_into(&Block::default(), &mut empty);
+        let mut data: Vec<GpuVoxel> = Vec::with_capacity(blocks.len() * VOXELS_PER_BLOCK);
+        let mut slots = Vec::with_capacity(blocks.len());
+        for b in blocks {
+            let slot = self.pool.occupy(*b, self.frame).expect("room was made");
+            match layer.get(b) {
+                Some(block) => pack_block_into(block, &mut data),
+                None => data.extend_from_slice(&empty),
+            }
+            self.table.host.insert(*b, slot);
+            slots.push(slot);
+        }
+        self.pool
+            .write_slots(&self.ctx, &slots, &data, "uploading blocks to the GPU pool")?;
+        self.stats.blocks_uploaded += blocks.len() as u64;
+        Ok(())
+    }
+
+    /// Copies the dirty ones of `slots` back into the layer, then either clears their updated
+    /// marks on the GPU or, with `release`, gives the slots back. Returns how many were copied.
+    fn write_back(&mut self, layer: &mut Layer, slots: &[u32], release: bool) -> Result<usize> {
+        let t = std::time::Instant::now();
+        let dirty: Vec<u32> = slots
+            .iter()
+            .copied()
+            .filter(|&s| self.pool.key(s).is_some() && self.pool.is_dirty(s))
+            .collect();
+        if !dirty.is_empty() {
+            let mut voxels = self.pool.read_slots(&self.ctx, &dirty)?;
+            for (&slot, vox) in dirty.iter().zip(voxels.chunks_exact_mut(VOXELS_PER_BLOCK)) {
+                let key = self.pool.key(slot).expect("resident");
+                apply_updated(layer.get_or_allocate(key), vox);
+                for v in vox.iter_mut() {
+                    v.tsdf_weight &= !UPDATED_BIT;
+                }
+                self.pool.mark_clean(slot);
+            }
+            self.stats.blocks_downloaded += dirty.len() as u64;
+            if !release {
+                self.pool
+                    .write_slots(&self.ctx, &dirty, &voxels, "clearing updated marks")?;
+            }
+        }
+        if release {
+            for &s in slots {
+                self.release(s);
+            }
+        }
+        self.stats.download_s += t.elapsed().as_secs_f64();
+        Ok(dirty.len())
+    }
+
+    /// Copies every dirty block back to the layer; blocks stay resident. Returns the number of
+    /// blocks copied. Call before any CPU stage reads the layer (meshing, regularisation,
+    /// checkpoints).
+    pub fn sync(&mut self, layer: &mut Layer) -> Result<usize> {
+        let slots = self.pool.dirty_slots();
+        self.write_back(layer, &slots, false)
+    }
+
+    /// Copies the resident blocks among `blocks` back to the layer (when dirty) and releases
+    /// them: before the pager evicts their chunk, or before a CPU stage updates them.
+    pub fn flush_blocks(&mut self, layer: &mut Layer, blocks: &[BlockIndex]) -> Result<usize> {
+        let slots: Vec<u32> = blocks
+            .iter()
+            .filter_map(|b| self.table.host.lookup(*b))
+            .collect();
+        self.write_back(layer, &slots, true)
+    }
+
+    /// Copies everything back and releases every slot.
+    pub fn flush_all(&mut self, layer: &mut Layer) -> Result<usize> {
+        let slots: Vec<u32> = self.pool.occupied().map(|(s, _, _)| s).collect();
+        self.write_back(layer, &slots, true)
+    }
+}

@@ -1,0 +1,248 @@
+//! The block pool: one storage buffer of block slots (512 [`GpuVoxel`]s, 4 KiB each) and the
+//! host's record of each slot (its block, whether the GPU changed it since the last write-back,
+//! the frame that last used it), with the copies between RAM and the pool. It decides nothing:
+//! the resident map ([`super::ResidentMap`]) chooses what to upload, and [`super::policy`] what
+//! to spill.
+
+use crate::gpu::context::{ErrorScopes, GpuContext};
+use crate::gpu::layout::GpuVoxel;
+use crate::grid::{BlockIndex, VOXELS_PER_BLOCK};
+use crate::Result;
+
+/// Bytes of one block slot in the pool.
+pub const SLOT_BYTES: u64 = (VOXELS_PER_BLOCK * std::mem::size_of::<GpuVoxel>()) as u64;
+
+/// Slots on the device and the host's record of them.
+pub(crate) struct BlockPool {
+    buffer: wgpu::Buffer,
+    capacity: u32,
+    slot_key: Vec<Option<BlockIndex>>,
+    free: Vec<u32>,
+    dirty: Vec<bool>,
+    last_used: Vec<u64>,
+}
+
+impl BlockPool {
+    /// A pool of `capacity` empty slots.
+    pub(crate) fn new(ctx: &GpuContext, capacity: u32) -> Result<Self> {
+        Ok(BlockPool {
+            buffer: Self::buffer(ctx, capacity)?,
+            capacity,
+            slot_key: vec![None; capacity as usize],
+            free: (0..capacity).rev().collect(),
+            dirty: vec![false; capacity as usize],
+            last_used: vec![0; capacity as usize],
+        })
+    }
+
+    fn buffer(ctx: &GpuContext, capacity: u32) -> Result<wgpu::Buffer> {
+        let bytes = capacity as u64 * SLOT_BYTES;
+        ctx.check_binding("GPU block pool (4 KiB per block)", bytes)?;
+        Ok(ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("block_pool"),
+            size: bytes,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        }))
+    }
+
+    /// The device buffer (all slots).
+    pub(crate) fn device_buffer(&self) -> &wgpu::Buffer {
+        &self.buffer
+    }
+
+    /// Slots in the pool.
+    pub(crate) fn capacity(&self) -> u32 {
+        self.capacity
+    }
+
+    /// Free slots.
+    pub(crate) fn free_count(&self) -> usize {
+        self.free.len()
+    }
+
+    /// The block in `slot`, if any.
+    pub(crate) fn key(&self, slot: u32) -> Option<BlockIndex> {
+        self.slot_key[slot as usize]
+    }
+
+    /// Occupied slots with their blocks and last use, in slot order.
+    pub(crate) fn occupied(&self) -> impl Iterator<Item = (u32, BlockIndex, u64)> + '_ {
+        self.slot_key
+            .iter()
+            .enumerate()
+            .filter_map(|(s, k)| k.map(|k| (s as u32, k, self.last_used[s])))
+    }
+
+    /// Whether `slot` holds changes not yet written back to RAM.
+    pub(crate) fn is_dirty(&self, slot: u32) -> bool {
+        self.dirty[slot as usize]
+    }
+
+    /// Slots holding changes not yet written back, in slot order.
+    pub(crate) fn dirty_slots(&self) -> Vec<u32> {
+        (0..self.capacity)
+            .filter(|&s| self.dirty[s as usize])
+            .collect()
+    }
+
+    /// Records that the GPU changed `slot` (it will be written back).
+    pub(crate) fn mark_dirty(&mut self, slot: u32) {
+        self.dirty[slot as usize] = true;
+    }
+
+    /// Records that `slot` now equals its RAM copy.
+    pub(crate) fn mark_clean(&mut self, slot: u32) {
+        self.dirty[slot as usize] = false;
+    }
+
+    /// Records a use of `slot` in frame `frame`.
+    pub(crate) fn touch(&mut self, slot: u32, frame: u64) {
+        self.last_used[slot as usize] = frame;
+    }
+
+    /// Takes a free slot for `key` (clean, used in `frame`); `None` when the pool is full.
+    pub(crate) fn occupy(&mut self, key: BlockIndex, frame: u64) -> Option<u32> {
+        let slot = self.free.pop()?;
+        self.slot_key[slot as usize] = Some(key);
+        self.dirty[slot as usize] = false;
+        self.last_used[slot as usize] = frame;
+        Some(slot)
+    }
+
+    /// Gives `slot` back; returns the block it held.
+    pub(crate) fn release(&mut self, slot: u32) -> Option<BlockIndex> {
+        let key = self.slot_key[slot as usize].take()?;
+        self.dirty[slot as usize] = false;
+        self.free.push(slot);
+        Some(key)
+    }
+
+    /// Reallocates the pool with `capacity` slots, keeping every block in its slot; new slots go
+    /// under the old free ones, lowest first.
+    pub(crate) fn grow(&mut self, ctx: &GpuContext, capacity: u32) -> Result<()> {
+        if capacity <= self.capacity {
+            return Ok(());
+        }
+        let scope = ErrorScopes::push(&ctx.device);
+        let buffer = Self::buffer(ctx, capacity)?;
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("grow_pool"),
+            });
+        encoder.copy_buffer_to_buffer(
+            &self.buffer,
+            0,
+            &buffer,
+            0,
+            self.capacity as u64 * SLOT_BYTES,
+        );
+        ctx.queue.submit([encoder.finish()]);
+        scope.pop("growing the GPU block pool")?;
+        self.buffer = buffer;
+        let old = self.capacity;
+        self.capacity = capacity;
+        self.slot_key.resize(capacity as usize, None);
+        self.dirty.resize(capacity as usize, false);
+        self.last_used.resize(capacity as usize, 0);
+        let mut free: Vec<u32> = (old..capacity).rev().collect();
+        free.append(&mut self.free);
+        self.free = free;
+        Ok(())
+    }
+
+    /// Writes `data` (512 voxels per slot, in `slots` order) into the pool: one staging buffer,
+    /// one copy per run of consecutive slots.
+    pub(crate) fn write_slots(
+        &self,
+        ctx: &GpuContext,
+        slots: &[u32],
+        data: &[GpuVoxel],
+        doing: &str,
+    ) -> Result<()> {
+        let scope = ErrorScopes::push(&ctx.device);
+        let staging = ctx.storage("pool_upload", bytemuck::cast_slice(data));
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("pool_upload"),
+            });
+        for (k, run) in runs(slots) {
+            encoder.copy_buffer_to_buffer(
+                &staging,
+                k as u64 * SLOT_BYTES,
+                &self.buffer,
+                slots[k] as u64 * SLOT_BYTES,
+                run as u64 * SLOT_BYTES,
+            );
+        }
+        ctx.queue.submit([encoder.finish()]);
+        scope.pop(doing)
+    }
+
+    /// Reads `slots` back (512 voxels per slot, in `slots` order).
+    pub(crate) fn read_slots(&self, ctx: &GpuContext, slots: &[u32]) -> Result<Vec<GpuVoxel>> {
+        if slots.is_empty() {
+            return Ok(Vec::new());
+        }
+        let bytes = slots.len() as u64 * SLOT_BYTES;
+        ctx.check_binding("block readback", bytes)?;
+        let scope = ErrorScopes::push(&ctx.device);
+        let gather = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("pool_download"),
+            size: bytes,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("pool_download"),
+            });
+        for (k, run) in runs(slots) {
+            encoder.copy_buffer_to_buffer(
+                &self.buffer,
+                slots[k] as u64 * SLOT_BYTES,
+                &gather,
+                k as u64 * SLOT_BYTES,
+                run as u64 * SLOT_BYTES,
+            );
+        }
+        ctx.queue.submit([encoder.finish()]);
+        scope.pop("gathering blocks for readback")?;
+        let out = ctx.read_back(&[(&gather, bytes)])?;
+        // Staging bytes carry no alignment guarantee: copy into a typed vector.
+        Ok(bytemuck::pod_collect_to_vec(&out[0]))
+    }
+}
+
+/// Runs of consecutive values in `values`: (start position, length).
+pub(crate) fn runs(values: &[u32]) -> Vec<(usize, usize)> {
+    let mut out = Vec::new();
+    let mut k = 0;
+    while k < values.len() {
+        let mut len = 1;
+        while k + len < values.len() && values[k + len] == values[k] + len as u32 {
+            len += 1;
+        }
+        out.push((k, len));
+        k += len;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn runs_split_at_gaps() {
+        assert_eq!(runs(&[3, 4, 5, 9, 10, 2]), vec![(0, 3), (3, 2), (5, 1)]);
+        assert!(runs(&[]).is_empty());
+    }
+}

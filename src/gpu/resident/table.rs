@@ -1,0 +1,353 @@
+//! The GPU hash table of resident blocks: open addressing with linear probing, `vec4<u32>`
+//! entries (key x, y, z, slot), at most half full (tombstones included). The host owns it (it
+//! decides residency) and uploads the entries it changed; kernels resolve block keys through
+//! the device copy (`shaders/block_lookup.wgsl`, twin of [`BlockTable::lookup`]).
+
+use crate::gpu::context::{ErrorScopes, GpuContext};
+use crate::gpu::layout::LookupUniforms;
+use crate::gpu::shaders;
+use crate::grid::BlockIndex;
+use crate::Result;
+
+/// Table entry of an empty position (keep in sync with `shaders/shared/block_hash.wgsl`).
+pub const SLOT_EMPTY: u32 = u32::MAX;
+/// Table entry of a removed key (keep in sync with `shaders/shared/block_hash.wgsl`).
+pub const SLOT_TOMBSTONE: u32 = u32::MAX - 1;
+
+/// A 32-bit integer finaliser (bijective); twin of `mix32` in `shaders/shared/block_hash.wgsl`.
+#[inline]
+pub fn mix32(x: u32) -> u32 {
+    let mut h = x;
+    h ^= h >> 16;
+    h = h.wrapping_mul(0x7feb_352d);
+    h ^= h >> 15;
+    h = h.wrapping_mul(0x846c_a68b);
+    h ^= h >> 16;
+    h
+}
+
+/// Hash of a block key; twin of `block_hash` in `shaders/shared/block_hash.wgsl`.
+#[inline]
+pub fn block_hash(k: BlockIndex) -> u32 {
+    let a = mix32(k.0[0] as u32);
+    let b = mix32(a ^ k.0[1] as u32);
+    mix32(b ^ k.0[2] as u32)
+}
+
+/// The host's copy of the GPU block hash table (see the module documentation).
+#[derive(Clone, Debug)]
+pub struct BlockTable {
+    entries: Vec<[u32; 4]>,
+    live: usize,
+    tombstones: usize,
+    /// Positions changed since the last upload (`None`: upload everything).
+    changed: Option<Vec<u32>>,
+}
+
+impl BlockTable {
+    /// An empty table for up to `blocks` live keys (capacity a power of two ≥ 2·blocks).
+    pub fn for_blocks(blocks: u32) -> Self {
+        let capacity = (2 * blocks as usize).next_power_of_two().max(64);
+        BlockTable {
+            entries: vec![[0, 0, 0, SLOT_EMPTY]; capacity],
+            live: 0,
+            tombstones: 0,
+            changed: None,
+        }
+    }
+
+    /// Entries (a power of two).
+    pub fn capacity(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Live keys.
+    pub fn len(&self) -> usize {
+        self.live
+    }
+
+    /// Whether no key is live.
+    pub fn is_empty(&self) -> bool {
+        self.live == 0
+    }
+
+    /// Capacity − 1 (the probe mask).
+    pub fn mask(&self) -> u32 {
+        (self.entries.len() - 1) as u32
+    }
+
+    fn key_words(k: BlockIndex) -> [u32; 3] {
+        k.0.map(|c| c as u32)
+    }
+
+    /// The slot of `k`, probing as `block_lookup.wgsl` does.
+    pub fn lookup(&self, k: BlockIndex) -> Option<u32> {
+        let want = Self::key_words(k);
+        let mask = self.mask();
+        let mut pos = block_hash(k) & mask;
+        for _ in 0..self.entries.len() {
+            let e = self.entries[pos as usize];
+            if e[3] == SLOT_EMPTY {
+                return None;
+            }
+            if e[3] != SLOT_TOMBSTONE && e[..3] == want {
+                return Some(e[3]);
+            }
+            pos = (pos + 1) & mask;
+        }
+        None
+    }
+
+    fn note(&mut self, pos: u32) {
+        if let Some(c) = self.changed.as_mut() {
+            c.push(pos);
+        }
+    }
+
+    /// Inserts `k → slot`; `k` must be absent. Rebuilds (dropping tombstones) first when the
+    /// table would pass half full.
+    pub fn insert(&mut self, k: BlockIndex, slot: u32) {
+        debug_assert!(self.lookup(k).is_none());
+        debug_assert!(slot < SLOT_TOMBSTONE);
+        if 2 * (self.live + self.tombstones + 1) > self.entries.len() {
+            let capacity = if 2 * (self.live + 1) > self.entries.len() / 2 {
+                self.entries.len() * 2
+            } else {
+                self.entries.len()
+            };
+            self.rebuild(capacity);
+        }
+        let mask = self.mask();
+        let mut pos = block_hash(k) & mask;
+        loop {
+            let e = &mut self.entries[pos as usize];
+            if e[3] == SLOT_EMPTY || e[3] == SLOT_TOMBSTONE {
+                if e[3] == SLOT_TOMBSTONE {
+                    self.tombstones -= 1;
+                }
+                let w = Self::key_words(k);
+                *e = [w[0], w[1], w[2], slot];
+                self.live += 1;
+                self.note(pos);
+                return;
+            }
+            pos = (pos + 1) & mask;
+        }
+    }
+
+    /// Removes `k`, returning its slot.
+    pub fn remove(&mut self, k: BlockIndex) -> Option<u32> {
+        let want = Self::key_words(k);
+        let mask = self.mask();
+        let mut pos = block_hash(k) & mask;
+        for _ in 0..self.entries.len() {
+            let e = &mut self.entries[pos as usize];
+            if e[3] == SLOT_EMPTY {
+                return None;
+            }
+            if e[3] != SLOT_TOMBSTONE && e[..3] == want {
+                let slot = e[3];
+                e[3] = SLOT_TOMBSTONE;
+                self.live -= 1;
+                self.tombstones += 1;
+                self.note(pos);
+                return Some(slot);
+            }
+            pos = (pos + 1) & mask;
+        }
+        None
+    }
+
+    /// Re-inserts every live key into `capacity` entries (a power of two); the whole table is
+    /// uploaded next.
+    pub fn rebuild(&mut self, capacity: usize) {
+        let capacity = capacity.next_power_of_two().max(64);
+        let old = std::mem::replace(&mut self.entries, vec![[0, 0, 0, SLOT_EMPTY]; capacity]);
+        self.live = 0;
+        self.tombstones = 0;
+        self.changed = None;
+        for e in old {
+            if e[3] < SLOT_TOMBSTONE {
+                let k = BlockIndex([e[0] as i32, e[1] as i32, e[2] as i32]);
+                let mask = self.mask();
+                let mut pos = block_hash(k) & mask;
+                while self.entries[pos as usize][3] != SLOT_EMPTY {
+                    pos = (pos + 1) & mask;
+                }
+                self.entries[pos as usize] = e;
+                self.live += 1;
+            }
+        }
+    }
+
+    /// The changed positions since the last call (`None`: everything), and resets the record.
+    pub(crate) fn take_changes(&mut self) -> Option<Vec<u32>> {
+        self.changed.replace(Vec::new())
+    }
+
+    /// The raw entries (what the device copy holds after an upload).
+    pub fn entries(&self) -> &[[u32; 4]] {
+        &self.entries
+    }
+}
+
+/// A [`BlockTable`] and its copy on the device, kept in step by uploading the entries the host
+/// changed ([`DeviceTable::upload`]) before each kernel that reads it.
+pub(crate) struct DeviceTable {
+    /// The host's table (authoritative).
+    pub(crate) host: BlockTable,
+    buffer: wgpu::Buffer,
+}
+
+impl DeviceTable {
+    /// An empty table for `blocks` keys, uploaded whole; later uploads send only changes.
+    pub(crate) fn new(ctx: &GpuContext, blocks: u32) -> Self {
+        let mut host = BlockTable::for_blocks(blocks);
+        let buffer = ctx.storage("block_table", bytemuck::cast_slice(host.entries()));
+        host.changed = Some(Vec::new());
+        DeviceTable { host, buffer }
+    }
+
+    /// The device copy (valid after [`DeviceTable::upload`]).
+    pub(crate) fn buffer(&self) -> &wgpu::Buffer {
+        &self.buffer
+    }
+
+    /// Uploads the entries changed since the last upload (everything after a rebuild).
+    pub(crate) fn upload(&mut self, ctx: &GpuContext) {
+        match self.host.take_changes() {
+            None => {
+                self.buffer = ctx.storage("block_table", bytemuck::cast_slice(self.host.entries()));
+            }
+            Some(mut positions) => {
+                positions.sort_unstable();
+                positions.dedup();
+                // Contiguous runs in one write each.
+                for (k, run) in super::pool::runs(&positions) {
+                    let start = positions[k] as usize;
+                    let e = &self.host.entries()[start..start + run];
+                    ctx.queue.write_buffer(
+                        &self.buffer,
+                        start as u64 * 16,
+                        bytemuck::cast_slice(e),
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Looks `keys` up in a copy of `table` uploaded whole (`block_lookup.wgsl`): the GPU twin of
+/// [`BlockTable::lookup`].
+pub fn lookup_table_on_gpu(
+    ctx: &GpuContext,
+    table: &BlockTable,
+    keys: &[BlockIndex],
+) -> Result<Vec<Option<u32>>> {
+    let buf_table = ctx.storage("block_table", bytemuck::cast_slice(table.entries()));
+    run_lookup(ctx, &buf_table, table.mask(), keys)
+}
+
+/// Runs `block_lookup.wgsl` over `keys` against the device table `buf_table`.
+pub(crate) fn run_lookup(
+    ctx: &GpuContext,
+    buf_table: &wgpu::Buffer,
+    mask: u32,
+    keys: &[BlockIndex],
+) -> Result<Vec<Option<u32>>> {
+    if keys.is_empty() {
+        return Ok(Vec::new());
+    }
+    let kernel = ctx.kernel(&shaders::BLOCK_LOOKUP)?;
+    let scope = ErrorScopes::push(&ctx.device);
+    let (buf_keys, buf_slots, buf_uniforms) = lookup_buffers(ctx, mask, keys)?;
+    let bind = ctx.bind_group(
+        "block_lookup",
+        &kernel.layout,
+        &[&buf_uniforms, buf_table, &buf_keys, &buf_slots],
+    );
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("block_lookup"),
+        });
+    ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, keys.len() as u64)?;
+    ctx.queue.submit([encoder.finish()]);
+    scope.pop("looking blocks up on the GPU")?;
+    let out = ctx.read_back(&[(&buf_slots, keys.len() as u64 * 4)])?;
+    let slots: Vec<u32> = bytemuck::pod_collect_to_vec(&out[0]);
+    Ok(slots
+        .into_iter()
+        .map(|s| (s < SLOT_TOMBSTONE).then_some(s))
+        .collect())
+}
+
+/// Keys, slots (all [`SLOT_EMPTY`]) and uniforms of a `block_lookup.wgsl` dispatch.
+pub(crate) fn lookup_buffers(
+    ctx: &GpuContext,
+    mask: u32,
+    keys: &[BlockIndex],
+) -> Result<(wgpu::Buffer, wgpu::Buffer, wgpu::Buffer)> {
+    ctx.check_binding("block keys (16 bytes per block)", keys.len() as u64 * 16)?;
+    let words: Vec<[i32; 4]> = keys.iter().map(|k| [k.0[0], k.0[1], k.0[2], 0]).collect();
+    let buf_keys = ctx.storage("lookup_keys", bytemuck::cast_slice(&words));
+    let buf_slots = ctx.storage(
+        "lookup_slots",
+        bytemuck::cast_slice(&vec![SLOT_EMPTY; keys.len()]),
+    );
+    let uniforms = LookupUniforms {
+        key_count: keys.len() as u32,
+        mask,
+        pad: [0; 2],
+    };
+    let buf_uniforms = ctx.uniform("lookup_uniforms", bytemuck::bytes_of(&uniforms));
+    Ok((buf_keys, buf_slots, buf_uniforms))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table_finds_what_it_holds_through_removals_and_rebuilds() {
+        let mut t = BlockTable::for_blocks(32);
+        let mut truth = std::collections::HashMap::new();
+        let mut rng = 12345u64;
+        for step in 0..5000u32 {
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let k = BlockIndex([
+                ((rng >> 33) % 17) as i32 - 8,
+                ((rng >> 45) % 9) as i32 - 4,
+                ((rng >> 53) % 5) as i32 - 2_000_000,
+            ]);
+            if let Some(slot) = truth.remove(&k) {
+                assert_eq!(t.remove(k), Some(slot));
+            } else {
+                t.insert(k, step);
+                truth.insert(k, step);
+            }
+            assert!(2 * (t.live + t.tombstones) <= t.capacity());
+        }
+        assert_eq!(t.len(), truth.len());
+        for (k, s) in &truth {
+            assert_eq!(t.lookup(*k), Some(*s));
+        }
+        assert_eq!(t.lookup(BlockIndex([1000, 0, 0])), None);
+    }
+
+    #[test]
+    fn hash_spreads_a_neighbourhood() {
+        let mut seen = std::collections::HashSet::new();
+        for z in 0..16 {
+            for y in 0..16 {
+                for x in 0..16 {
+                    seen.insert(block_hash(BlockIndex([x, y, z])) & 4095);
+                }
+            }
+        }
+        // A uniform hash puts 4096 keys into about 4096·(1 − 1/e) ≈ 2589 of 4096 buckets.
+        assert!(seen.len() > 2450, "{}", seen.len());
+    }
+}

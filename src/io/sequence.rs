@@ -1,0 +1,375 @@
+//! A job's input as one [`Sequence`] of range inputs, whatever the layout: KITTI odometry with
+//! LiDAR scans, ground-truth depth or depth from its stereo pairs; TUM RGB-D; numbered RGB-D.
+//! [`for_each_input`] is the one loop every command reads frames with (in order, one at a time,
+//! timing each, with a progress bar), so nothing is held beyond the current frame.
+//!
+//! What it does not do: fuse, or choose a stereo matcher (the caller passes one, built for its
+//! device).
+
+use super::kitti::KittiSequence;
+use super::rgbd::{SimpleRgbdOptions, SimpleRgbdSequence, TumOptions, TumRgbdSequence};
+use super::DepthSequence;
+use crate::depth::DisparityEstimator;
+use crate::frame::{DepthFrame, Image, LidarScan};
+use crate::{Error, Result};
+use std::path::Path;
+
+/// The layouts `denser reconstruct` understands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InputKind {
+    /// KITTI odometry: a `sequences/NN` folder with `calib.txt`.
+    Kitti,
+    /// TUM RGB-D: `depth.txt`, `rgb.txt`, `groundtruth.txt`.
+    Tum,
+    /// Numbered RGB-D frames: `depth/N.pgm|png`, `color/N.png`, `pose.txt`.
+    SimpleRgbd,
+}
+
+/// Recognises the layout of `dir`.
+pub fn detect_input(dir: &Path) -> Result<InputKind> {
+    if !dir.is_dir() {
+        return Err(Error::bad_input(
+            dir,
+            "not a directory (expected a KITTI sequence or an RGB-D folder)",
+        ));
+    }
+    if dir.join("calib.txt").is_file() {
+        Ok(InputKind::Kitti)
+    } else if dir.join("depth.txt").is_file() {
+        Ok(InputKind::Tum)
+    } else if dir.join("pose.txt").is_file() && dir.join("depth").is_dir() {
+        Ok(InputKind::SimpleRgbd)
+    } else {
+        Err(Error::bad_input(
+            dir,
+            "unrecognised layout: expected calib.txt (KITTI odometry), depth.txt (TUM RGB-D) or pose.txt with depth/ (simple RGB-D)",
+        ))
+    }
+}
+
+/// Where range data comes from for a KITTI-layout sequence (RGB-D layouts always give depth).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum RangeSource {
+    /// Velodyne scans.
+    Lidar,
+    /// Ground-truth depth maps (`depth_gt/`, written by `denser synth`).
+    GroundTruthDepth,
+    /// Depth from the stereo pair (image_0/image_1).
+    Stereo,
+}
+
+impl RangeSource {
+    /// The CLI name (`--depth`): `lidar`, `gt`, `stereo`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RangeSource::Lidar => "lidar",
+            RangeSource::GroundTruthDepth => "gt",
+            RangeSource::Stereo => "stereo",
+        }
+    }
+}
+
+impl std::fmt::Display for RangeSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl std::str::FromStr for RangeSource {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "lidar" => Ok(RangeSource::Lidar),
+            "gt" => Ok(RangeSource::GroundTruthDepth),
+            "stereo" => Ok(RangeSource::Stereo),
+            other => Err(Error::InvalidArgument(format!(
+                "range source must be lidar, gt or stereo, got {other:?}"
+            ))),
+        }
+    }
+}
+
+/// One range measurement, ready to fuse.
+pub enum RangeInput {
+    /// A depth map with pose (RGB-D, ground-truth depth, or stereo).
+    Depth(DepthFrame),
+    /// A LiDAR scan with pose.
+    Lidar(LidarScan),
+}
+
+/// Which frames of a sequence a job uses: `first..last` (to the end when `last` is `None`),
+/// every `step`-th.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct FrameRange {
+    /// First frame (0-based).
+    pub first: usize,
+    /// One past the last frame; `None` for all.
+    pub last: Option<usize>,
+    /// Use every n-th frame (0 counts as 1).
+    pub step: usize,
+}
+
+impl FrameRange {
+    /// Every frame.
+    pub const ALL: FrameRange = FrameRange {
+        first: 0,
+        last: None,
+        step: 1,
+    };
+
+    /// The frame indices of a sequence of `len` frames, in order.
+    pub fn indices(&self, len: usize) -> Vec<usize> {
+        let end = self.last.unwrap_or(len).min(len);
+        (self.first.min(len)..end)
+            .step_by(self.step.max(1))
+            .collect()
+    }
+}
+
+/// A random-access sequence of range inputs.
+pub trait Sequence {
+    /// Number of frames.
+    fn len(&self) -> usize;
+
+    /// Whether there are no frames.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Reads (for stereo: computes) frame `i`.
+    fn read(&self, i: usize) -> Result<RangeInput>;
+
+    /// The sequence in words, for reports ("KITTI sequence … (LiDAR)").
+    fn describe(&self) -> String;
+
+    /// A digest of what identifies the data (frame count and poses), independent of where the
+    /// files are: a resumed map compares it to refuse other data.
+    fn fingerprint(&self) -> u64;
+}
+
+/// Opens `input` (layout detected) as a sequence of `source` inputs; `stereo` is the matcher
+/// for [`RangeSource::Stereo`] (ignored otherwise). KITTI poses come from `poses` or their
+/// default place. RGB-D layouts give depth whatever `source` says.
+pub fn open_sequence(
+    input: &Path,
+    source: RangeSource,
+    poses: Option<&Path>,
+    stereo: Option<Box<dyn DisparityEstimator>>,
+) -> Result<Box<dyn Sequence>> {
+    Ok(match detect_input(input)? {
+        InputKind::Kitti => {
+            let seq = KittiSequence::open(input, poses)?;
+            match source {
+                RangeSource::Lidar => Box::new(KittiLidar(seq)),
+                RangeSource::GroundTruthDepth => Box::new(KittiGtDepth(seq)),
+                RangeSource::Stereo => Box::new(KittiStereo {
+                    seq,
+                    estimator: stereo.ok_or_else(|| {
+                        Error::InvalidArgument("stereo input needs a stereo matcher".into())
+                    })?,
+                }),
+            }
+        }
+        InputKind::Tum => Box::new(Rgbd {
+            dir: input.to_path_buf(),
+            seq: Box::new(TumRgbdSequence::open(input, TumOptions::default())?),
+        }),
+        InputKind::SimpleRgbd => Box::new(Rgbd {
+            dir: input.to_path_buf(),
+            seq: Box::new(SimpleRgbdSequence::open(
+                input,
+                SimpleRgbdOptions::slambook2(),
+            )?),
+        }),
+    })
+}
+
+/// Reads `frames` of `seq` after the first `skip` of them (already fused by a resumed run), in
+/// order, and hands each to `sink` with the seconds spent producing it; a progress bar counts
+/// them.
+pub fn for_each_input(
+    seq: &dyn Sequence,
+    frames: &[usize],
+    skip: usize,
+    mut sink: impl FnMut(RangeInput, f64) -> Result<()>,
+) -> Result<()> {
+    let bar = crate::progress::bar(frames.len() as u64, "fusing");
+    bar.inc(skip.min(frames.len()) as u64);
+    for &i in frames.iter().skip(skip) {
+        let t = std::time::Instant::now();
+        let input = seq.read(i)?;
+        sink(input, t.elapsed().as_secs_f64())?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(())
+}
+
+/// FNV-1a over the frame count and every pose's matrix (f64 bits).
+fn pose_digest<'a>(len: usize, poses: impl Iterator<Item = &'a nalgebra::Isometry3<f64>>) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |bytes: &[u8]| {
+        for &b in bytes {
+            h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    eat(&(len as u64).to_le_bytes());
+    for p in poses {
+        for v in p.to_homogeneous().iter() {
+            eat(&v.to_bits().to_le_bytes());
+        }
+    }
+    h
+}
+
+fn kitti_fingerprint(seq: &KittiSequence) -> u64 {
+    pose_digest(seq.len(), seq.poses().unwrap_or(&[]).iter())
+}
+
+fn kitti_pose(seq: &KittiSequence, i: usize) -> Result<nalgebra::Isometry3<f64>> {
+    seq.pose(i)
+        .ok_or_else(|| Error::bad_input(seq.dir(), format!("no pose for frame {i}")))
+}
+
+/// Colour for a depth frame of cam0: `image_2` where the colour camera coincides with cam0
+/// (synthetic drives), else none.
+fn kitti_color(seq: &KittiSequence, i: usize) -> Result<Option<Image<[u8; 3]>>> {
+    if seq.has_image(2, i) && seq.calib().cam_from_cam0_translation_m(2).norm() < 1e-6 {
+        Ok(Some(seq.color(2, i)?))
+    } else {
+        Ok(None)
+    }
+}
+
+/// KITTI Velodyne scans.
+struct KittiLidar(KittiSequence);
+
+impl Sequence for KittiLidar {
+    fn len(&self) -> usize {
+        self.0.len()
+    }
+    fn read(&self, i: usize) -> Result<RangeInput> {
+        Ok(RangeInput::Lidar(self.0.velodyne(i)?))
+    }
+    fn describe(&self) -> String {
+        format!("KITTI sequence {} (LiDAR)", self.0.dir().display())
+    }
+    fn fingerprint(&self) -> u64 {
+        kitti_fingerprint(&self.0)
+    }
+}
+
+/// Ground-truth depth of a synthetic drive (`depth_gt/NNNNNN.png`, 16-bit, depth·256, 0
+/// invalid, in the left grey camera), coloured from `image_2` when it coincides with cam0.
+struct KittiGtDepth(KittiSequence);
+
+impl Sequence for KittiGtDepth {
+    fn len(&self) -> usize {
+        self.0.len()
+    }
+    fn read(&self, i: usize) -> Result<RangeInput> {
+        let seq = &self.0;
+        let path = seq.dir().join("depth_gt").join(format!("{i:06}.png"));
+        if !path.is_file() {
+            return Err(Error::bad_input(&path, "no ground-truth depth for this frame (only synthetic drives written by `denser synth` have depth_gt/)"));
+        }
+        let depth_m = super::image::read_depth_png_u16(&path, 256.0)?;
+        let mut intrinsics = seq.intrinsics(0)?;
+        intrinsics.width = depth_m.width;
+        intrinsics.height = depth_m.height;
+        Ok(RangeInput::Depth(DepthFrame {
+            intrinsics,
+            world_from_camera: kitti_pose(seq, i)?,
+            depth_m,
+            color: kitti_color(seq, i)?,
+        }))
+    }
+    fn describe(&self) -> String {
+        format!(
+            "KITTI sequence {} (ground-truth depth)",
+            self.0.dir().display()
+        )
+    }
+    fn fingerprint(&self) -> u64 {
+        kitti_fingerprint(&self.0)
+    }
+}
+
+/// Depth from a KITTI-layout sequence's rectified grey pair (image_0, image_1), `z = fx·B/d`.
+/// Colour comes from image_2 where the colour camera coincides with cam0 (synthetic drives);
+/// otherwise the grey value is used as colour.
+struct KittiStereo {
+    seq: KittiSequence,
+    estimator: Box<dyn DisparityEstimator>,
+}
+
+impl Sequence for KittiStereo {
+    fn len(&self) -> usize {
+        self.seq.len()
+    }
+    fn read(&self, i: usize) -> Result<RangeInput> {
+        let seq = &self.seq;
+        let left = seq.grey(0, i)?;
+        let right = seq.grey(1, i)?;
+        let disparity = self.estimator.estimate(&left, &right)?;
+        let mut intrinsics = seq.intrinsics(0)?;
+        intrinsics.width = left.width;
+        intrinsics.height = left.height;
+        let baseline_m = seq.calib().baseline_m(0, 1);
+        if !(baseline_m.is_finite() && baseline_m > 0.0) {
+            return Err(Error::bad_input(
+                seq.dir().join("calib.txt"),
+                format!("stereo baseline P0→P1 must be positive, got {baseline_m} m"),
+            ));
+        }
+        let depth_m = crate::depth::disparity_to_depth(&disparity, intrinsics.fx, baseline_m);
+        let color = match kitti_color(seq, i)? {
+            Some(c) => c,
+            None => Image {
+                width: left.width,
+                height: left.height,
+                data: left.data.iter().map(|&g| [g; 3]).collect(),
+            },
+        };
+        Ok(RangeInput::Depth(DepthFrame {
+            intrinsics,
+            world_from_camera: kitti_pose(seq, i)?,
+            depth_m,
+            color: Some(color),
+        }))
+    }
+    fn describe(&self) -> String {
+        format!(
+            "KITTI sequence {} (stereo, {})",
+            self.seq.dir().display(),
+            self.estimator.name()
+        )
+    }
+    fn fingerprint(&self) -> u64 {
+        kitti_fingerprint(&self.seq)
+    }
+}
+
+/// An RGB-D sequence (TUM or numbered layout).
+struct Rgbd {
+    dir: std::path::PathBuf,
+    seq: Box<dyn DepthSequence>,
+}
+
+impl Sequence for Rgbd {
+    fn len(&self) -> usize {
+        self.seq.len()
+    }
+    fn read(&self, i: usize) -> Result<RangeInput> {
+        Ok(RangeInput::Depth(self.seq.frame(i)?))
+    }
+    fn describe(&self) -> String {
+        format!("RGB-D sequence {}", self.dir.display())
+    }
+    fn fingerprint(&self) -> u64 {
+        let poses: Vec<_> = (0..self.seq.len())
+            .filter_map(|i| self.seq.pose(i))
+            .collect();
+        pose_digest(self.seq.len(), poses.iter())
+    }
+}

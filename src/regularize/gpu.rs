@@ -1,0 +1,142 @@
+//! The Ω-aware TV primal–dual (DENSER Sec. III-C) on the GPU: `shaders/tv_dual.wgsl` and
+//! `shaders/tv_primal.wgsl` run over the flat arrays and neighbour table of a [`TvProblem`]
+//! (the CPU twin, `src/regularize/`), with the same data layout (masks widened to `u32`, `p` as
+//! three `f32` per voxel) and the same f32 arithmetic in the same order.
+//!
+//! Differences from the CPU come only from floating point: WGSL allows FMA contraction and
+//! division within 2.5 ULP, so results agree to about 1e-6 per iteration, not bit for bit
+//! (`tests/gpu_compare.rs` states the tolerance). The whole problem must fit one storage binding
+//! per array (`p` is the largest: 12 bytes per voxel, about 11 M voxels or 21 845 blocks in
+//! 128 MiB); a larger problem is an [`crate::Error::GpuCapacity`], never truncated — solve it
+//! in regions with [`regularize_regions_gpu`] and an exact halo instead (the same result).
+
+use crate::gpu::layout::TvUniforms;
+use crate::gpu::shaders;
+use crate::gpu::{ErrorScopes, GpuContext};
+use crate::grid::{Layer, TouchedBlocks};
+use crate::regularize::{
+    regularize_regions_with, RegionPlan, RegionStats, RegularizeStats, TvParams, TvProblem,
+    TvSolver,
+};
+use crate::Result;
+
+/// Iterations recorded per command buffer (bounds the size of one submission).
+const ITERATIONS_PER_SUBMIT: u32 = 64;
+
+/// Runs `params.iterations` primal–dual iterations of `problem` on the GPU and writes the state
+/// (`u`, `ū`, `p`) back, so that the problem can continue on either device.
+pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -> Result<()> {
+    params.validate()?;
+    let n = problem.masks().len();
+    if n == 0 || params.iterations == 0 {
+        return Ok(());
+    }
+    let n64 = n as u64;
+    ctx.check_binding("TV dual variable p (12 bytes per voxel)", n64 * 12)?;
+    ctx.check_binding("TV arrays (4 bytes per voxel)", n64 * 4)?;
+    let dual = ctx.kernel(&shaders::TV_DUAL)?;
+    let primal = ctx.kernel(&shaders::TV_PRIMAL)?;
+    let neighbors: Vec<u32> = problem.neighbor_table().iter().flatten().copied().collect();
+    let mask: Vec<u32> = problem.masks().iter().map(|&m| m as u32).collect();
+    let uniforms = TvUniforms {
+        sigma: params.sigma,
+        tau: params.tau,
+        lambda: params.lambda,
+        theta: params.theta,
+        voxel_count: n as u32,
+        pad: [0; 3],
+    };
+    let scope = ErrorScopes::push(&ctx.device);
+    let (u, ubar, p) = problem.state();
+    let buf_uniforms = ctx.uniform("tv_uniforms", bytemuck::bytes_of(&uniforms));
+    let buf_neighbors = ctx.storage("tv_neighbors", bytemuck::cast_slice(&neighbors));
+    let buf_mask = ctx.storage("tv_mask", bytemuck::cast_slice(&mask));
+    let buf_f = ctx.storage("tv_f", bytemuck::cast_slice(&problem.f));
+    let buf_w = ctx.storage("tv_w", bytemuck::cast_slice(&problem.w));
+    let buf_u = ctx.storage("tv_u", bytemuck::cast_slice(u));
+    let buf_ubar = ctx.storage("tv_ubar", bytemuck::cast_slice(ubar));
+    let buf_p = ctx.storage("tv_p", bytemuck::cast_slice(p));
+    let buffers = [
+        &buf_uniforms,
+        &buf_neighbors,
+        &buf_mask,
+        &buf_f,
+        &buf_w,
+        &buf_u,
+        &buf_ubar,
+        &buf_p,
+    ];
+    // The two kernels declare the same bindings (shared/tv_common.wgsl); each pipeline has its
+    // own layout object: one bind group per kernel.
+    let bind_dual = ctx.bind_group("tv_dual", &dual.layout, &buffers);
+    let bind_primal = ctx.bind_group("tv_primal", &primal.layout, &buffers);
+    let mut left = params.iterations;
+    while left > 0 {
+        let batch = left.min(ITERATIONS_PER_SUBMIT);
+        left -= batch;
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("tv") });
+        for _ in 0..batch {
+            // One pass per step: a pass boundary orders the dual writes before the primal reads.
+            ctx.record_dispatch(&mut encoder, &dual.pipeline, &bind_dual, n64)?;
+            ctx.record_dispatch(&mut encoder, &primal.pipeline, &bind_primal, n64)?;
+        }
+        ctx.queue.submit([encoder.finish()]);
+    }
+    scope.pop("running the TV kernels")?;
+    let out = ctx.read_back(&[(&buf_u, n64 * 4), (&buf_ubar, n64 * 4), (&buf_p, n64 * 12)])?;
+    let (u, ubar, p) = problem.state_mut();
+    // Staging bytes carry no alignment guarantee: copy into typed vectors.
+    u.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&out[0]));
+    ubar.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&out[1]));
+    p.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&out[2]));
+    Ok(())
+}
+
+/// [`crate::regularize::regularize_layer`] on the GPU: one global solve of every block of
+/// `layer`, `u` stored in each block's `regularized` field. Energies are computed on the CPU.
+/// Returns the touched blocks (sorted) and counters; the layer is unchanged on error.
+pub fn regularize_layer_gpu(
+    ctx: &GpuContext,
+    layer: &mut Layer,
+    params: &TvParams,
+) -> Result<(TouchedBlocks, RegularizeStats)> {
+    crate::regularize::regularize_layer_with(layer, params, |problem| {
+        solve_gpu(ctx, problem, params)
+    })
+}
+
+/// [`crate::regularize::regularize_regions`] on the GPU: each region (with its halo) is one GPU
+/// solve, so maps larger than one storage binding can be regularised; with
+/// [`RegionPlan::exact`] the result equals the global solve. A region whose gathered blocks do
+/// not fit is an [`crate::Error::GpuCapacity`] (regions written before it keep their result).
+pub fn regularize_regions_gpu(
+    ctx: &GpuContext,
+    layer: &mut Layer,
+    params: &TvParams,
+    plan: &RegionPlan,
+) -> Result<(TouchedBlocks, RegionStats)> {
+    regularize_regions_with(layer, params, plan, |problem| {
+        solve_gpu(ctx, problem, params)
+    })
+}
+
+/// [`solve_gpu`] as a [`TvSolver`]: problems up to one storage binding of `p` (12 bytes per
+/// voxel); a larger one is an [`crate::Error::GpuCapacity`] (drivers split before that, see
+/// [`TvSolver::max_voxels`]).
+#[derive(Clone, Copy, Debug)]
+pub struct GpuSolver<'c> {
+    /// The device.
+    pub ctx: &'c GpuContext,
+}
+
+impl TvSolver for GpuSolver<'_> {
+    fn solve(&mut self, problem: &mut TvProblem, params: &TvParams) -> Result<()> {
+        solve_gpu(self.ctx, problem, params)
+    }
+
+    fn max_voxels(&self) -> Option<usize> {
+        Some((self.ctx.max_binding_bytes() / 12) as usize)
+    }
+}

@@ -1,0 +1,309 @@
+//! The seam between the stages and where blocks live: a [`BlockStore`] holds the map and makes
+//! resident, in a RAM [`Layer`], every block a frame may update; the [`Reconstructor`] drives
+//! fusion, regularisation and meshing over any store, so an in-memory run and a `--map` run share
+//! every line above this trait.
+//!
+//! - [`MemoryStore`]: the whole map is one layer in RAM; nothing to page, commits are no-ops.
+//! - [`crate::tiles::PagedStore`]: the map is a directory of chunk files; blocks are paged in
+//!   around the camera within a byte budget, commits are checkpoints a killed run resumes from,
+//!   regularisation runs region by region with exact halos, meshes are exported tile by tile.
+//!
+//! A tier above RAM (the GPU's resident blocks) may hold newer copies of blocks than the layer;
+//! stores call its [`UpperTier`] hooks before blocks leave RAM and before they read the layer
+//! whole, so every tier reads current blocks. This module knows nothing of the GPU.
+//!
+//! [`Reconstructor`]: crate::reconstruct::Reconstructor
+
+use crate::fusion::DepthPlan;
+use crate::grid::{BlockIndex, GridParams, Layer, VOXELS_PER_BLOCK};
+use crate::mesh::{extract_mesh, Field, Mesh};
+use crate::regularize::{regularize_layer_by, TvParams, TvSolver};
+use crate::Result;
+use std::path::Path;
+
+/// A tier above RAM whose copies of blocks may be newer than the layer's (the GPU's resident
+/// blocks, `crate::backend::Backend`).
+pub trait UpperTier {
+    /// Writes `blocks` back into `layer` and forgets them: they are about to leave RAM.
+    fn release(&mut self, layer: &mut Layer, blocks: &[BlockIndex]) -> Result<()>;
+    /// Writes every changed block back into `layer` (blocks stay): the layer is about to be
+    /// read whole (a checkpoint, regularisation, meshing).
+    fn sync(&mut self, layer: &mut Layer) -> Result<()>;
+}
+
+/// No tier above RAM.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoUpperTier;
+
+impl UpperTier for NoUpperTier {
+    fn release(&mut self, _: &mut Layer, _: &[BlockIndex]) -> Result<()> {
+        Ok(())
+    }
+    fn sync(&mut self, _: &mut Layer) -> Result<()> {
+        Ok(())
+    }
+}
+
+/// What a store's regularisation did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RegularizeSummary {
+    /// Blocks written with a regularised field.
+    pub blocks: usize,
+    /// Ω voxels written.
+    pub omega_voxels: u64,
+    /// Iterations run.
+    pub iterations: u32,
+    /// Energy before and after, where the store computes it (in memory: the whole map).
+    pub energy: Option<(f64, f64)>,
+    /// Regions solved (1 for a global solve).
+    pub regions: usize,
+    /// Regions found already done (a resumed pass over a stored map).
+    pub regions_skipped: usize,
+    /// Blocks solved, halos included (≥ `blocks`; the ratio is the halo's cost).
+    pub solved_blocks: usize,
+    /// Halo thickness, blocks (0 for a global solve).
+    pub halo_blocks: i32,
+    /// Largest estimated working memory of one region, bytes (0 in memory).
+    pub peak_region_bytes: u64,
+    /// Pass number written into a stored map's manifest (0 in memory).
+    pub pass: u32,
+}
+
+/// What writing a surface produced.
+#[derive(Clone, Debug)]
+pub struct SurfaceOutput {
+    /// The field meshed.
+    pub field: Field,
+    /// The mesh file written.
+    pub mesh_path: std::path::PathBuf,
+    /// The point file written, if asked for.
+    pub points_path: Option<std::path::PathBuf>,
+    /// Vertices written.
+    pub vertices: u64,
+    /// Triangles written.
+    pub triangles: u64,
+    /// Surface area, m².
+    pub area_m2: f64,
+    /// The mesh itself, when the store had it in memory anyway (an in-memory map); a paged map
+    /// streams its mesh to the file and leaves this `None`.
+    pub mesh: Option<Mesh>,
+    /// Seconds meshing and writing.
+    pub seconds: f64,
+}
+
+/// Counters of a store that pages blocks between RAM and disk.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PagingSummary {
+    /// Bytes of blocks the store may keep in RAM (resident plus being written).
+    pub budget_bytes: u64,
+    /// Largest resident + in-flight bytes seen after a frame's eviction.
+    pub peak_bytes: u64,
+    /// Chunks evicted from RAM.
+    pub chunks_evicted: u64,
+    /// Chunk files written (evictions and checkpoints).
+    pub chunks_written: u64,
+    /// Bytes of chunk files written.
+    pub bytes_written: u64,
+    /// Chunks read back (revisits, loops, resumes).
+    pub chunks_read: u64,
+    /// Frames whose working set alone exceeded the budget.
+    pub budget_overruns: u64,
+}
+
+/// Totals of a map, wherever it lives.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct StoreSummary {
+    /// Allocated blocks.
+    pub blocks: u64,
+    /// Voxels in Ω.
+    pub observed_voxels: u64,
+    /// Bytes in RAM per allocated voxel now (resident blocks).
+    pub ram_bytes_per_voxel: f64,
+    /// Bytes of the resident blocks in RAM.
+    pub ram_bytes: u64,
+    /// Bytes on disk (0 in memory).
+    pub disk_bytes: u64,
+    /// Paging counters of this run (`None` in memory).
+    pub paging: Option<PagingSummary>,
+}
+
+impl StoreSummary {
+    /// Allocated voxels (blocks · 512).
+    pub fn voxels(&self) -> u64 {
+        self.blocks * VOXELS_PER_BLOCK as u64
+    }
+}
+
+/// Where the map's blocks live (see the module documentation).
+pub trait BlockStore {
+    /// Voxel size and truncation of the map.
+    fn grid(&self) -> GridParams;
+
+    /// The resident blocks: the whole map in memory, the working set of a paged map.
+    fn layer(&self) -> &Layer;
+
+    /// The resident blocks, mutably (fusion updates them).
+    fn layer_mut(&mut self) -> &mut Layer;
+
+    /// Frames already committed to the store when it was opened (where a run resumes).
+    fn frames_committed(&self) -> u64;
+
+    /// Makes resident every block a depth frame with `plan` may update: its band and every
+    /// existing block in its view frustum.
+    fn prepare_depth(&mut self, plan: &DepthPlan) -> Result<()>;
+
+    /// Makes resident the sorted `blocks` (a LiDAR scan's band).
+    fn prepare_blocks(&mut self, blocks: &[BlockIndex]) -> Result<()>;
+
+    /// After a frame that updated `touched` (sorted), with the camera at `camera_m`: records
+    /// the changes and may evict blocks to stay within a budget (`tier` writes its copies back
+    /// first).
+    fn finish_frame(
+        &mut self,
+        touched: &[BlockIndex],
+        camera_m: [f64; 3],
+        tier: &mut dyn UpperTier,
+    ) -> Result<()>;
+
+    /// Makes everything fused so far durable, as `frames_fused` frames (a checkpoint a killed
+    /// run resumes from). `tier` is synced first.
+    fn commit(&mut self, frames_fused: u64, tier: &mut dyn UpperTier) -> Result<()>;
+
+    /// Regularises the whole map with `solver` (`progress(done, total)` after each region;
+    /// returning false stops early, what was done is kept). No tier above RAM may hold blocks
+    /// (the caller writes them back first).
+    fn regularize(
+        &mut self,
+        params: &TvParams,
+        solver: &mut dyn TvSolver,
+        progress: &mut dyn FnMut(usize, usize) -> bool,
+    ) -> Result<RegularizeSummary>;
+
+    /// Meshes `field` into a binary PLY at `mesh_path` and, with `points_path`, its vertices as
+    /// a point cloud (PLY, LAS or LAZ by extension). `tier` is synced first.
+    fn write_surface(
+        &mut self,
+        field: Field,
+        mesh_path: &Path,
+        points_path: Option<&Path>,
+        tier: &mut dyn UpperTier,
+    ) -> Result<SurfaceOutput>;
+
+    /// Totals of the map.
+    fn summary(&self) -> StoreSummary;
+}
+
+/// The whole map in one RAM [`Layer`].
+#[derive(Clone, Debug)]
+pub struct MemoryStore {
+    layer: Layer,
+}
+
+impl MemoryStore {
+    /// An empty map on `grid`.
+    pub fn new(grid: GridParams) -> Self {
+        MemoryStore {
+            layer: Layer::new(grid),
+        }
+    }
+
+    /// A store over an existing layer.
+    pub fn from_layer(layer: Layer) -> Self {
+        MemoryStore { layer }
+    }
+
+    /// The layer.
+    pub fn into_layer(self) -> Layer {
+        self.layer
+    }
+}
+
+impl BlockStore for MemoryStore {
+    fn grid(&self) -> GridParams {
+        self.layer.params()
+    }
+
+    fn layer(&self) -> &Layer {
+        &self.layer
+    }
+
+    fn layer_mut(&mut self) -> &mut Layer {
+        &mut self.layer
+    }
+
+    fn frames_committed(&self) -> u64 {
+        0
+    }
+
+    fn prepare_depth(&mut self, _: &DepthPlan) -> Result<()> {
+        Ok(())
+    }
+
+    fn prepare_blocks(&mut self, _: &[BlockIndex]) -> Result<()> {
+        Ok(())
+    }
+
+    fn finish_frame(&mut self, _: &[BlockIndex], _: [f64; 3], _: &mut dyn UpperTier) -> Result<()> {
+        Ok(())
+    }
+
+    fn commit(&mut self, _: u64, tier: &mut dyn UpperTier) -> Result<()> {
+        tier.sync(&mut self.layer)
+    }
+
+    fn regularize(
+        &mut self,
+        params: &TvParams,
+        solver: &mut dyn TvSolver,
+        progress: &mut dyn FnMut(usize, usize) -> bool,
+    ) -> Result<RegularizeSummary> {
+        let (blocks, stats) = regularize_layer_by(&mut self.layer, params, solver)?;
+        progress(1, 1);
+        Ok(RegularizeSummary {
+            blocks: blocks.len(),
+            omega_voxels: stats.omega_voxels as u64,
+            iterations: stats.iterations,
+            energy: Some((stats.energy_before, stats.energy_after)),
+            regions: 1,
+            solved_blocks: blocks.len(),
+            ..Default::default()
+        })
+    }
+
+    fn write_surface(
+        &mut self,
+        field: Field,
+        mesh_path: &Path,
+        points_path: Option<&Path>,
+        tier: &mut dyn UpperTier,
+    ) -> Result<SurfaceOutput> {
+        tier.sync(&mut self.layer)?;
+        let t = std::time::Instant::now();
+        let mesh = extract_mesh(&self.layer, field, None);
+        crate::io::ply::write_mesh_ply(mesh_path, &mesh)?;
+        if let Some(p) = points_path {
+            crate::io::write_point_cloud(p, &mesh.to_point_cloud())?;
+        }
+        Ok(SurfaceOutput {
+            field,
+            mesh_path: mesh_path.to_path_buf(),
+            points_path: points_path.map(Path::to_path_buf),
+            vertices: mesh.positions_m.len() as u64,
+            triangles: mesh.triangles.len() as u64,
+            area_m2: mesh.surface_area_m2(),
+            mesh: Some(mesh),
+            seconds: t.elapsed().as_secs_f64(),
+        })
+    }
+
+    fn summary(&self) -> StoreSummary {
+        StoreSummary {
+            blocks: self.layer.block_count() as u64,
+            observed_voxels: self.layer.observed_voxel_count() as u64,
+            ram_bytes_per_voxel: self.layer.bytes_per_voxel(),
+            ram_bytes: self.layer.memory_bytes() as u64,
+            disk_bytes: 0,
+            paging: None,
+        }
+    }
+}

@@ -1,0 +1,10 @@
+//! The `denser` binary run as a user would, in fresh temporary folders.
+
+#[path = "../common/mod.rs"]
+mod common;
+#[path = "../depth_support/mod.rs"]
+mod depth_support;
+
+mod basics;
+mod map;
+mod stereo;

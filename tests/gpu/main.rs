@@ -1,0 +1,12 @@
+//! The GPU kernels against their CPU twins (skipped, counted, where no adapter exists), and
+//! every shader validated and reflected by naga (no GPU needed).
+
+#[path = "../common/mod.rs"]
+mod common;
+#[path = "../depth_support/mod.rs"]
+mod depth_support;
+
+mod compare;
+mod lidar;
+mod shaders;
+mod stereo;
