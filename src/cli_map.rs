@@ -94,20 +94,35 @@ pub struct ExportArgs {
     /// Map directory.
     pub dir: PathBuf,
     /// Write a mesh (binary PLY).
-    #[arg(long, conflicts_with = "points")]
+    #[arg(long, conflicts_with_all = ["points", "tiles"])]
     pub mesh: Option<PathBuf>,
-    /// Write surface points (.ply, .las or .laz).
-    #[arg(long)]
+    /// Write surface points (.ply, .las, .laz, or COPC as .copc.laz).
+    #[arg(long, conflicts_with = "tiles")]
     pub points: Option<PathBuf>,
+    /// Write a 3D Tiles 1.1 tileset (tileset.json and one GLB per tile) into this folder.
+    #[arg(long)]
+    pub tiles: Option<PathBuf>,
     /// Export the raw field f.
     #[arg(long, conflicts_with = "regularized")]
     pub raw: bool,
     /// Export the regularised field u (the default).
     #[arg(long)]
     pub regularized: bool,
-    /// Only this box: xmin,ymin,zmin,xmax,ymax,zmax (metres, world frame).
+    /// Only this box: xmin,ymin,zmin,xmax,ymax,zmax (metres, in the output's frame: the map frame
+    /// for PLY without --georef/--world-frame, else the world frame).
     #[arg(long, allow_hyphen_values = true)]
     pub bbox: Option<String>,
+    /// Georeference: EPSG:<code>@<x>,<y>,<z>[,<heading_deg>] (the map origin in that CRS and the
+    /// compass heading of the map's forward axis), or a file holding a 4×4 world_from_map matrix
+    /// (and optionally EPSG:<code>). See formats/georef.md.
+    #[arg(long)]
+    pub georef: Option<String>,
+    /// Write PLY in the local z-up world frame (LAS/LAZ/COPC/3D Tiles always use it).
+    #[arg(long)]
+    pub world_frame: bool,
+    /// RAM for building the COPC octree (e.g. 1GiB); larger clouds spill to disk.
+    #[arg(long, default_value = "1GiB", value_parser = parse_bytes)]
+    pub memory_budget: u64,
 }
 
 #[derive(Args)]
@@ -196,22 +211,48 @@ pub fn export(a: ExportArgs) -> Result<()> {
     } else {
         Field::Regularized
     };
-    let target = match (a.mesh, a.points) {
-        (Some(m), None) => export::ExportTarget::Mesh(m),
-        (None, Some(p)) => export::ExportTarget::Points(p),
-        _ => bail!("give --mesh OUT.ply or --points OUT.(ply|las|laz)"),
+    let target = match (a.mesh, a.points, a.tiles) {
+        (Some(m), None, None) => export::ExportTarget::Mesh(m),
+        (None, Some(p), None) => export::ExportTarget::Points(p),
+        (None, None, Some(t)) => export::ExportTarget::Tiles(t),
+        _ => bail!("give --mesh OUT.ply, --points OUT.(ply|las|laz|copc.laz) or --tiles DIR"),
     };
-    let bbox = a.bbox.as_deref().map(export::Bbox::parse).transpose()?;
+    let mut options = export::ExportOptions::new(field);
+    options.bbox = a.bbox.as_deref().map(export::Bbox::parse).transpose()?;
+    options.memory_budget_bytes = a.memory_budget;
+    options.frame = match (&a.georef, a.world_frame) {
+        (Some(g), _) => Some(denser::geo::WorldFrame::parse(g).context("reading --georef")?),
+        (None, true) => Some(denser::geo::WorldFrame::local_z_up()),
+        (None, false) => None,
+    };
     if field == Field::Regularized && store.summary().regularized_chunks == 0 {
         tracing::warn!(
             "{} has no regularised chunks: exporting f (run `denser regularize` first)",
             a.dir.display()
         );
     }
-    let stats = export::export(&store, field, bbox, &target).context("exporting")?;
+    let stats = export::export_with(&store, &options, &target).context("exporting")?;
     let path = match &target {
-        export::ExportTarget::Mesh(p) | export::ExportTarget::Points(p) => p,
+        export::ExportTarget::Mesh(p)
+        | export::ExportTarget::Points(p)
+        | export::ExportTarget::Tiles(p) => p,
     };
+    if let Some(t) = stats.tileset {
+        println!(
+            "wrote {}: {} tiles in {} levels ({} full-resolution: {} vertices, {} triangles; root {} triangles), {} bytes of GLB, from {} voxels in {:.2} s",
+            path.join("tileset.json").display(),
+            t.tiles,
+            t.levels,
+            t.leaf_tiles,
+            t.leaf_vertices,
+            t.leaf_triangles,
+            t.root_triangles,
+            t.glb_bytes,
+            t.voxels,
+            stats.seconds
+        );
+        return Ok(());
+    }
     println!(
         "wrote {}: {} vertices, {} triangles from {} chunks ({} voxels) in {:.2} s ({:.2} s per million voxels)",
         path.display(),
@@ -222,6 +263,16 @@ pub fn export(a: ExportArgs) -> Result<()> {
         stats.seconds,
         stats.seconds / (stats.voxels.max(1) as f64 / 1e6)
     );
+    if let Some(c) = stats.copc {
+        println!(
+            "COPC octree: {} nodes, {} levels, {} points at the root; {} nodes streamed from disk; {} bytes",
+            c.nodes,
+            c.max_level + 1,
+            c.root_points,
+            c.streamed_nodes,
+            c.bytes
+        );
+    }
     Ok(())
 }
 
