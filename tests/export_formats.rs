@@ -199,7 +199,7 @@ fn las_and_laz_exports_are_z_up_with_complete_headers_and_a_crs() {
         let mut top = f64::NEG_INFINITY;
         for p in &cloud.points_m {
             let d = sdf_map(map_of_local(*p));
-            assert!(d.abs() < 0.03, "{name}: {p:?} is {d} m off the surface");
+            assert!(d.abs() < 0.06, "{name}: {p:?} is {d} m off the surface");
             if (p[2] + GROUND_Y_MAP).abs() < 0.01 {
                 on_ground += 1;
             }
@@ -211,11 +211,9 @@ fn las_and_laz_exports_are_z_up_with_complete_headers_and_a_crs() {
         assert!(on_ground * 2 > cloud.points_m.len(), "{on_ground}");
         assert!((top - SPHERE_R).abs() < 0.1, "sphere top at z = {top}");
         // Return numbers: 1 of 1 on every point.
-        let mut r = las::Reader::from_path(&path).unwrap();
-        for p in r.points().take(100) {
-            let p = p.unwrap();
-            assert_eq!((p.return_number, p.number_of_returns), (1, 1));
-        }
+        let data = las::Reader::from_path(&path).unwrap().read_all().unwrap();
+        assert!(data.return_number().all(|r| r == 1));
+        assert!(data.number_of_returns().all(|r| r == 1));
     }
 
     // An empty export (a box that meets nothing) has zero bounds, not ±inf.
@@ -244,7 +242,7 @@ fn las_and_laz_exports_are_z_up_with_complete_headers_and_a_crs() {
         let fwd = d[0] * h.sin() + d[1] * h.cos();
         let left = -d[0] * h.cos() + d[1] * h.sin();
         let sdf = sdf_map(map_of_local([fwd, left, d[2]]));
-        assert!(sdf.abs() < 0.03, "{p:?}: {sdf}");
+        assert!(sdf.abs() < 0.06, "{p:?}: {sdf}");
     }
     let reader = las::Reader::from_path(&geo).unwrap();
     let wkt = reader.header().get_wkt_crs_bytes().expect("a WKT VLR");
@@ -303,17 +301,14 @@ fn bad_georef_names_the_file_and_the_problem() {
 
 /// All points of a LAS/LAZ/COPC file as sorted integer coordinates and colours.
 fn sorted_points(path: &Path) -> Vec<([i64; 3], [u16; 3])> {
-    let mut r = las::Reader::from_path(path).expect("open");
-    let mut v: Vec<([i64; 3], [u16; 3])> = r
-        .points()
-        .map(|p| {
-            let p = p.expect("point");
-            let c = p.color.expect("colour");
-            (
-                [p.x, p.y, p.z].map(|x| (x * 1000.0).round() as i64),
-                [c.red, c.green, c.blue],
-            )
-        })
+    let data = las::Reader::from_path(path)
+        .expect("open")
+        .read_all()
+        .expect("points");
+    let xyz = data.x().zip(data.y()).zip(data.z());
+    let mut v: Vec<([i64; 3], [u16; 3])> = xyz
+        .zip(data.rgb().expect("colour"))
+        .map(|(((x, y), z), (r, g, b))| ([x, y, z].map(|c| (c * 1000.0).round() as i64), [r, g, b]))
         .collect();
     v.sort_unstable();
     v

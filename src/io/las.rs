@@ -25,8 +25,9 @@
 //!   complete: creation date (UTC day of writing), system identifier `EXTRACTION` (the points are
 //!   extracted from a fused map), generating software `denser <version>`, every point return 1
 //!   of 1 (so the by-return counts add up), the WKT bit set with an OGC WKT CRS VLR
-//!   (`LASF_Projection`, record 2112) when a CRS is given, and zero bounds for an empty file
-//!   (the `las` crate would write ±inf).
+//!   (`LASF_Projection`, record 2112) when a CRS is given, legacy point counts 0 (as LAS 1.4
+//!   asks for formats 6–10), and zero bounds for an empty file (the `las` crate would write ±inf
+//!   and fill in the legacy counts; the header is patched after closing).
 
 use crate::error::{Error, Result};
 use crate::frame::PointCloud;
@@ -359,28 +360,34 @@ impl LasPointWriter {
             return Err(las_err(&self.path, e));
         }
         drop(w);
-        if self.points == 0 {
-            zero_header_bounds(&self.path)?;
-        }
-        Ok(())
+        patch_header(&self.path, self.points == 0)
     }
 }
 
+/// Offset of the legacy point count in a LAS header; the five legacy by-return counts follow.
+const HEADER_LEGACY_COUNT_OFFSET: u64 = 107;
 /// Offset of `max_x` in a LAS header; the six bounds (`f64`: max x, min x, max y, min y, max z,
 /// min z) follow it.
 const HEADER_BOUNDS_OFFSET: u64 = 179;
 
-/// Writes zero bounds into the header of a file with no points (the `las` crate leaves ±inf).
-fn zero_header_bounds(path: &Path) -> Result<()> {
+/// Fixes what the `las` crate writes differently from LAS 1.4: the legacy point counts must be 0
+/// for point formats 6–10 (it fills them in), and a file with no points gets zero bounds (it
+/// leaves ±inf).
+fn patch_header(path: &Path, empty: bool) -> Result<()> {
     use std::io::{Seek, SeekFrom, Write};
     let mut f = std::fs::OpenOptions::new()
         .write(true)
         .open(path)
         .map_err(|e| Error::io(path, e))?;
-    f.seek(SeekFrom::Start(HEADER_BOUNDS_OFFSET))
-        .and_then(|_| f.write_all(&[0u8; 48]))
-        .and_then(|_| f.sync_all())
-        .map_err(|e| Error::io(path, e))
+    f.seek(SeekFrom::Start(HEADER_LEGACY_COUNT_OFFSET))
+        .and_then(|_| f.write_all(&[0u8; 24]))
+        .map_err(|e| Error::io(path, e))?;
+    if empty {
+        f.seek(SeekFrom::Start(HEADER_BOUNDS_OFFSET))
+            .and_then(|_| f.write_all(&[0u8; 48]))
+            .map_err(|e| Error::io(path, e))?;
+    }
+    f.sync_all().map_err(|e| Error::io(path, e))
 }
 
 impl Drop for LasPointWriter {
