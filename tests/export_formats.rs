@@ -446,6 +446,17 @@ fn walk_tiles(
     }
 }
 
+/// The absolute path of a program on PATH (puppeteer needs one).
+fn chromium_path(name: &str) -> PathBuf {
+    std::env::var_os("PATH")
+        .and_then(|p| {
+            std::env::split_paths(&p)
+                .map(|d| d.join(name))
+                .find(|f| f.is_file())
+        })
+        .unwrap_or_else(|| PathBuf::from(name))
+}
+
 /// A static file server on 127.0.0.1 for the browser test: `/data/…` from `data`, the rest from
 /// `root`. Serves `requests` requests at most and stops when the test ends.
 fn serve(root: PathBuf, data: PathBuf) -> u16 {
@@ -573,28 +584,21 @@ fn tileset_has_levels_valid_glbs_and_draws_in_a_browser() {
     };
     let port = serve(web.clone(), dir.clone());
     let shot = tmp.path().join("shot.png");
-    let profile = tmp.path().join("chromium-profile");
-    let o = Command::new(chromium)
-        .args([
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu-sandbox",
-            "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader",
-            "--hide-scrollbars",
-            "--window-size=800,600",
-            "--virtual-time-budget=20000",
-            &format!("--user-data-dir={}", profile.display()),
-            &format!("--screenshot={}", shot.display()),
-            &format!("http://127.0.0.1:{port}/viewer.html"),
-        ])
+    let o = Command::new("node")
+        .arg(web.join("screenshot.mjs"))
+        .arg(format!("http://127.0.0.1:{port}/viewer.html"))
+        .arg(&shot)
+        .arg(chromium_path(chromium))
+        .arg("60000")
         .output()
-        .expect("chromium");
-    assert!(
-        shot.exists(),
-        "no screenshot: {}",
+        .expect("node");
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
         String::from_utf8_lossy(&o.stderr)
     );
+    eprintln!("{log}");
+    assert!(o.status.success() && shot.exists(), "no screenshot: {log}");
     let img = image::open(&shot).expect("png").into_rgb8();
     let lit = img.pixels().filter(|p| p.0.iter().any(|&c| c > 16)).count();
     let blue = img

@@ -4,7 +4,8 @@
 //! # Tiles and levels
 //! Level 0 tiles are the map's chunks, meshed at full resolution exactly as `export --mesh` meshes
 //! them (same triangles; each tile is its own GLB, so vertices on chunk faces appear in both
-//! neighbours). A level-`k` tile covers 2×2×2 level-`k−1` tiles (chunk index `>> k`); its content
+//! neighbours). A level-`k` tile covers 2×2×2 level-`k−1` tiles (key = (chunk index − lowest
+//! chunk index) `>> k`); its content
 //! is the union of its children's meshes simplified by **vertex clustering** (Rossignac & Borrel,
 //! 1993) on a grid of `2^k` voxels aligned with the tiles: every vertex in a cell becomes the
 //! cell's mean position and colour, triangles whose corners fall in fewer than three cells
@@ -157,6 +158,8 @@ struct Writer<'a> {
     /// Children of each (level, key), sorted.
     children: BTreeMap<(u32, [i32; 3]), Vec<[i32; 3]>>,
     voxel_m: f64,
+    /// Chunk index of tile key 0.
+    origin: [i32; 3],
     stats: TilesetStats,
 }
 
@@ -169,7 +172,8 @@ impl Writer<'_> {
     /// frame) for the parent's clustering.
     fn build(&mut self, level: u32, key: [i32; 3]) -> Result<Option<(TileNode, Mesh)>> {
         let (mesh, mut lo, mut hi, children) = if level == 0 {
-            let (m, _, own) = mesh_chunk(self.store, ChunkIndex(key), self.field)?;
+            let c = ChunkIndex([0, 1, 2].map(|a| key[a] + self.origin[a]));
+            let (m, _, own) = mesh_chunk(self.store, c, self.field)?;
             self.stats.voxels += own as u64 * 512;
             let m = self.crop(m);
             if m.triangles.is_empty() {
@@ -340,9 +344,15 @@ pub fn write_tileset(
         std::fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))?;
     }
     let chunks = chunks_in(store, frame, bbox);
+    // Tile keys count from the lowest chunk index, so halving always reaches one root tile
+    // (arithmetic shifts of −1 and 0 would never meet).
+    let origin = [0, 1, 2].map(|a| chunks.iter().map(|c| c.0[a]).min().unwrap_or(0));
     // The tree: children per (level, key), up to the level where one key remains.
     let mut children: BTreeMap<(u32, [i32; 3]), Vec<[i32; 3]>> = BTreeMap::new();
-    let mut level_keys: BTreeSet<[i32; 3]> = chunks.iter().map(|c| c.0).collect();
+    let mut level_keys: BTreeSet<[i32; 3]> = chunks
+        .iter()
+        .map(|c| [0, 1, 2].map(|a| c.0[a] - origin[a]))
+        .collect();
     let mut root_level = 0u32;
     while level_keys.len() > 1 {
         root_level += 1;
@@ -363,6 +373,7 @@ pub fn write_tileset(
         dir,
         children,
         voxel_m: store.grid().voxel_size_m as f64,
+        origin,
         stats: TilesetStats {
             levels: root_level + 1,
             ..Default::default()
