@@ -160,16 +160,21 @@ fn check_las14_header(bytes: &[u8], format: u8, name: &str) -> u64 {
     assert_eq!(text(26), "EXTRACTION", "{name}: system identifier");
     assert!(text(58).starts_with("denser "), "{name}: {}", text(58));
     let (day, year) = (u16_at(bytes, 90), u16_at(bytes, 92));
-    let now_year = 1970 + (std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_secs()
-        / 31_556_952) as u16;
+    let now_year = 1970
+        + (std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .as_secs()
+            / 31_556_952) as u16;
     assert!(
         (1..=366).contains(&day) && year.abs_diff(now_year) <= 1,
         "{name}: date {day}/{year}"
     );
-    assert_eq!(u32_at(bytes, 107), 0, "{name}: legacy count is 0 for format ≥ 6");
+    assert_eq!(
+        u32_at(bytes, 107),
+        0,
+        "{name}: legacy count is 0 for format ≥ 6"
+    );
     let n = u64_at(bytes, 247);
     assert_eq!(u64_at(bytes, 255), n, "{name}: all points are return 1");
     for r in 1..15 {
@@ -226,7 +231,9 @@ fn las_and_laz_exports_are_z_up_with_complete_headers_and_a_crs() {
     for k in 0..6 {
         assert_eq!(f64_at(&bytes, 179 + 8 * k), 0.0);
     }
-    assert!(denser::io::las::read_point_cloud(&empty).unwrap().is_empty());
+    assert!(denser::io::las::read_point_cloud(&empty)
+        .unwrap()
+        .is_empty());
 
     // Georeferenced: the map origin at UTM 32N (691000, 5335000, 500), forward heading 30°.
     options.bbox = None;
@@ -278,7 +285,11 @@ fn las_and_laz_exports_are_z_up_with_complete_headers_and_a_crs() {
         let t = String::from_utf8_lossy(&o.stdout);
         assert!(o.status.success(), "{t}");
         let j: serde_json::Value = serde_json::from_str(&t).unwrap();
-        assert_eq!(j["summary"]["num_points"].as_u64(), Some(st.vertices), "{t}");
+        assert_eq!(
+            j["summary"]["num_points"].as_u64(),
+            Some(st.vertices),
+            "{t}"
+        );
         assert!(t.contains("32632"), "{t}");
     } else {
         eprintln!("skipped: pdal is not installed (Debian 12 does not ship it)");
@@ -289,12 +300,19 @@ fn las_and_laz_exports_are_z_up_with_complete_headers_and_a_crs() {
 fn bad_georef_names_the_file_and_the_problem() {
     let tmp = tempfile::tempdir().unwrap();
     let missing = tmp.path().join("nowhere.txt");
-    let e = WorldFrame::parse(missing.to_str().unwrap()).unwrap_err().to_string();
+    let e = WorldFrame::parse(missing.to_str().unwrap())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("nowhere.txt"), "{e}");
     let bad = tmp.path().join("skewed.txt");
     std::fs::write(&bad, "1 0.5 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n").unwrap();
-    let e = WorldFrame::parse(bad.to_str().unwrap()).unwrap_err().to_string();
-    assert!(e.contains("skewed.txt") && e.contains("not a rotation"), "{e}");
+    let e = WorldFrame::parse(bad.to_str().unwrap())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("skewed.txt") && e.contains("not a rotation"),
+        "{e}"
+    );
     let e = WorldFrame::parse("EPSG:32632@1,2").unwrap_err().to_string();
     assert!(e.contains("expected 3 coordinates"), "{e}");
 }
@@ -332,7 +350,10 @@ fn copc_is_an_octree_that_independent_readers_query() {
     let c2 = st2.copc.expect("copc stats");
     assert!(c2.streamed_nodes > 0, "{c2:?}");
     assert!(c.max_level >= 2 && c.nodes > 8, "{c:?}");
-    assert!(!tmp.path().join("b.copc.laz.tmp").exists(), "spill folder left behind");
+    assert!(
+        !tmp.path().join("b.copc.laz.tmp").exists(),
+        "spill folder left behind"
+    );
     // The octree does not depend on where nodes were built: same bytes.
     assert!(
         std::fs::read(&copc).unwrap() == std::fs::read(&small).unwrap(),
@@ -355,10 +376,12 @@ fn copc_is_an_octree_that_independent_readers_query() {
     let (q_lo, q_hi) = ([5.0, -3.0, -2.0], [17.0, 3.0, 0.5]);
     let inside = all
         .iter()
-        .filter(|(p, _)| (0..3).all(|a| {
-            let v = p[a] as f64 / 1000.0;
-            v >= q_lo[a] && v <= q_hi[a]
-        }))
+        .filter(|(p, _)| {
+            (0..3).all(|a| {
+                let v = p[a] as f64 / 1000.0;
+                v >= q_lo[a] && v <= q_hi[a]
+            })
+        })
         .count();
     let out = run_python(
         "import sys, numpy as np, laspy\n\
@@ -429,10 +452,16 @@ fn walk_tiles(
         level_tris[depth] += json["accessors"][2]["count"].as_u64().unwrap() / 3;
         // Every vertex (glTF y-up → tileset z-up: x, −z, y) inside the tile's box.
         for i in 0..n {
-            let f = |k: usize| f32::from_le_bytes(bin[12 * i + 4 * k..12 * i + 4 * k + 4].try_into().unwrap()) as f64;
+            let f = |k: usize| {
+                f32::from_le_bytes(bin[12 * i + 4 * k..12 * i + 4 * k + 4].try_into().unwrap())
+                    as f64
+            };
             let p = [f(0), -f(2), f(1)];
             for a in 0..3 {
-                assert!((p[a] - b[a]).abs() <= b[3 + 4 * a] + 1e-3, "{uri}: vertex {p:?} outside");
+                assert!(
+                    (p[a] - b[a]).abs() <= b[3 + 4 * a] + 1e-3,
+                    "{uri}: vertex {p:?} outside"
+                );
             }
         }
         glbs.push(path);
@@ -477,7 +506,13 @@ fn serve(root: PathBuf, data: PathBuf) -> u16 {
                     break;
                 }
             }
-            let path = line.split(' ').nth(1).unwrap_or("/").split('?').next().unwrap_or("/");
+            let path = line
+                .split(' ')
+                .nth(1)
+                .unwrap_or("/")
+                .split('?')
+                .next()
+                .unwrap_or("/");
             let file = if let Some(rest) = path.strip_prefix("/data/") {
                 data.join(rest)
             } else {
@@ -500,7 +535,8 @@ fn serve(root: PathBuf, data: PathBuf) -> u16 {
                     v.extend(body);
                     v
                 }
-                _ => b"HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\nConnection: close\r\n\r\n".to_vec(),
+                _ => b"HTTP/1.1 404 Not Found\r\nContent-Length: 0\r\nConnection: close\r\n\r\n"
+                    .to_vec(),
             };
             let _ = s.write_all(&reply);
         }
@@ -524,7 +560,10 @@ fn tileset_has_levels_valid_glbs_and_draws_in_a_browser() {
     let ts: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.join("tileset.json")).unwrap()).unwrap();
     assert_eq!(ts["asset"]["version"], "1.1");
-    assert!(ts["root"]["transform"].is_null(), "no georeference, no transform");
+    assert!(
+        ts["root"]["transform"].is_null(),
+        "no georeference, no transform"
+    );
     let mut level_tris = Vec::new();
     let mut glbs = Vec::new();
     let top = ts["geometricError"].as_f64().unwrap();
@@ -568,7 +607,11 @@ fn tileset_has_levels_valid_glbs_and_draws_in_a_browser() {
     }
     let o = cmd.output().expect("node");
     let out = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{out}{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     assert!(
         out.contains(&format!("validated {} files: 0 errors", glbs.len())),
         "{out}"

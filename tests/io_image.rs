@@ -205,7 +205,9 @@ fn other_formats_read_like_png() {
     )
     .unwrap();
     assert_eq!(
-        denser::io::image::read_depth_u16(&pgm, 1000.0).unwrap().data[1..],
+        denser::io::image::read_depth_u16(&pgm, 1000.0)
+            .unwrap()
+            .data[1..],
         d.data[1..]
     );
     // Not an image at all: the message names the file and the formats.

@@ -103,7 +103,10 @@ impl WorldFrame {
     ///   `world_from_map` matrix, optionally with an `EPSG:<code>` token; `#` starts a comment.
     pub fn parse(spec: &str) -> Result<Self> {
         let bad = |m: String| Error::InvalidArgument(format!("--georef {spec:?}: {m}"));
-        if let Some(rest) = spec.strip_prefix("EPSG:").or_else(|| spec.strip_prefix("epsg:")) {
+        if let Some(rest) = spec
+            .strip_prefix("EPSG:")
+            .or_else(|| spec.strip_prefix("epsg:"))
+        {
             let (code, origin) = rest
                 .split_once('@')
                 .ok_or_else(|| bad("expected EPSG:<code>@<x>,<y>,<z>[,<heading_deg>]".into()))?;
@@ -139,7 +142,10 @@ impl WorldFrame {
                 if tok.is_empty() {
                     continue;
                 }
-                if let Some(code) = tok.strip_prefix("EPSG:").or_else(|| tok.strip_prefix("epsg:")) {
+                if let Some(code) = tok
+                    .strip_prefix("EPSG:")
+                    .or_else(|| tok.strip_prefix("epsg:"))
+                {
                     crs = Some(crs_for(code)?);
                 } else {
                     nums.push(
@@ -188,7 +194,8 @@ impl WorldFrame {
     /// World coordinates of a map-frame point.
     pub fn to_world(&self, p_map: [f64; 3]) -> [f64; 3] {
         let m = &self.world_from_map;
-        [0, 1, 2].map(|r| m[(r, 0)] * p_map[0] + m[(r, 1)] * p_map[1] + m[(r, 2)] * p_map[2] + m[(r, 3)])
+        [0, 1, 2]
+            .map(|r| m[(r, 0)] * p_map[0] + m[(r, 1)] * p_map[1] + m[(r, 2)] * p_map[2] + m[(r, 3)])
     }
 
     /// Local z-up frame → world ( = `world_from_map · LOCAL_FROM_MAPᵀ`).
@@ -278,7 +285,9 @@ mod tests {
         assert!(e.contains("not a rotation"), "{e}");
         let e = WorldFrame::parse_matrix_text("1 0 0").unwrap_err();
         assert!(e.contains("found 3"), "{e}");
-        let e = WorldFrame::parse("EPSG:2056@1,2,3").unwrap_err().to_string();
+        let e = WorldFrame::parse("EPSG:2056@1,2,3")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("EPSG:2056") && e.contains("UTM"), "{e}");
     }
 

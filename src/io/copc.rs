@@ -141,7 +141,8 @@ impl CopcWriter {
         }
         std::fs::create_dir_all(&tmp_dir).map_err(io_err(&tmp_dir))?;
         let spill_path = tmp_dir.join("input.pts");
-        let spill = BufWriter::new(std::fs::File::create(&spill_path).map_err(io_err(&spill_path))?);
+        let spill =
+            BufWriter::new(std::fs::File::create(&spill_path).map_err(io_err(&spill_path))?);
         Ok(CopcWriter {
             path: path.to_path_buf(),
             tmp_dir,
@@ -250,7 +251,9 @@ impl Builder<'_> {
                 .compress_one(&self.record)
                 .map_err(io_err(&path))?;
         }
-        self.compressor.finish_current_chunk().map_err(io_err(&path))?;
+        self.compressor
+            .finish_current_chunk()
+            .map_err(io_err(&path))?;
         let end = self
             .compressor
             .get_mut()
@@ -451,7 +454,7 @@ fn las_header(
     let mut h = Vec::with_capacity(HEADER_BYTES as usize);
     h.extend_from_slice(b"LASF");
     h.extend_from_slice(&0u16.to_le_bytes()); // file source id
-    // Global encoding: bit 4, CRS (if any) as WKT, which LAS 1.4 requires for point format 7.
+                                              // Global encoding: bit 4, CRS (if any) as WKT, which LAS 1.4 requires for point format 7.
     h.extend_from_slice(&16u16.to_le_bytes());
     h.extend_from_slice(&[0u8; 16]); // GUID
     h.extend_from_slice(&[1, 4]);
@@ -581,7 +584,12 @@ fn write_file(
                 out.display()
             )));
         }
-        vlrs.extend(vlr_header("LASF_Projection", 2112, w.len() as u64, "OGC WKT"));
+        vlrs.extend(vlr_header(
+            "LASF_Projection",
+            2112,
+            w.len() as u64,
+            "OGC WKT",
+        ));
         vlrs.extend(w);
         n_vlrs += 1;
     }
@@ -590,8 +598,8 @@ fn write_file(
     file.write_all(&[0u8; HEADER_BYTES as usize])
         .and_then(|_| file.write_all(&vlrs))
         .map_err(io_err(out))?;
-    let mut compressor =
-        LasZipCompressor::new(file, laz_vlr).map_err(|e| Error::bad_input(out, format!("LAZ: {e}")))?;
+    let mut compressor = LasZipCompressor::new(file, laz_vlr)
+        .map_err(|e| Error::bad_input(out, format!("LAZ: {e}")))?;
     compressor
         .reserve_offset_to_chunk_table()
         .map_err(io_err(out))?;

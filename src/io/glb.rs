@@ -23,7 +23,7 @@ fn srgb_to_linear_u16(c: u8) -> u16 {
 }
 
 fn pad4(v: &mut Vec<u8>, byte: u8) {
-    while v.len() % 4 != 0 {
+    while !v.len().is_multiple_of(4) {
         v.push(byte);
     }
 }
@@ -110,8 +110,8 @@ pub fn encode_glb(
         ],
         "buffers": [{"byteLength": bin.len()}]
     });
-    let mut json = serde_json::to_vec(&json)
-        .map_err(|e| Error::InvalidArgument(format!("GLB JSON: {e}")))?;
+    let mut json =
+        serde_json::to_vec(&json).map_err(|e| Error::InvalidArgument(format!("GLB JSON: {e}")))?;
     pad4(&mut json, b' ');
     let total = 12 + 8 + json.len() + 8 + bin.len();
     let mut out = Vec::with_capacity(total);
@@ -184,7 +184,7 @@ mod tests {
         // 36 bytes of positions, 24 of colours, 6 of indices padded to 8.
         assert_eq!(bin.len(), 36 + 24 + 8);
         assert_eq!(&bin[36..38], &u16::MAX.to_le_bytes()); // red 255 → linear 1.0
-        // sRGB 128 → linear 0.2158605.
+                                                           // sRGB 128 → linear 0.2158605.
         let g = u16::from_le_bytes([bin[44 + 2], bin[44 + 3]]) as f64 / 65535.0;
         assert!((g - 0.2158605).abs() < 1e-4, "{g}");
         assert!(parse_glb(&glb[..glb.len() - 4]).is_err());

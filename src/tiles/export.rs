@@ -126,7 +126,11 @@ pub enum ExportTarget {
 /// Whether a file name asks for COPC (`*.copc.laz`, any case).
 pub fn is_copc_path(path: &Path) -> bool {
     path.file_name()
-        .map(|n| n.to_string_lossy().to_ascii_lowercase().ends_with(".copc.laz"))
+        .map(|n| {
+            n.to_string_lossy()
+                .to_ascii_lowercase()
+                .ends_with(".copc.laz")
+        })
         .unwrap_or(false)
 }
 
@@ -239,7 +243,8 @@ pub fn export_with(
         ExportTarget::Points(p) => (p.clone(), false),
         ExportTarget::Tiles(dir) => {
             let frame = options.frame.clone().unwrap_or_else(WorldFrame::local_z_up);
-            let st = super::tileset::write_tileset(store, options.field, options.bbox, &frame, dir)?;
+            let st =
+                super::tileset::write_tileset(store, options.field, options.bbox, &frame, dir)?;
             return Ok(ExportStats {
                 chunks: st.leaf_tiles,
                 vertices: st.leaf_vertices,
@@ -341,9 +346,8 @@ pub fn export_with(
             .iter()
             .map(|t| {
                 bbox.is_none_or(|b| {
-                    let cen = [0, 1, 2].map(|a| {
-                        t.iter().map(|&i| world[i as usize][a]).sum::<f64>() / 3.0
-                    });
+                    let cen = [0, 1, 2]
+                        .map(|a| t.iter().map(|&i| world[i as usize][a]).sum::<f64>() / 3.0);
                     b.contains(cen)
                 })
             })

@@ -134,8 +134,7 @@ impl Clusters {
                     remap[i as usize] = out.positions_m.len() as u32;
                     let (p, c, n) = self.sum[i as usize];
                     let n = n as f64;
-                    out.positions_m
-                        .push([0, 1, 2].map(|a| (p[a] / n) as f32));
+                    out.positions_m.push([0, 1, 2].map(|a| (p[a] / n) as f32));
                     out.colors
                         .push([0, 1, 2].map(|a| (c[a] as f64 / n).round() as u8));
                 }
@@ -187,7 +186,11 @@ impl Writer<'_> {
             let mut nodes = Vec::new();
             let mut lo = [f64::INFINITY; 3];
             let mut hi = [f64::NEG_INFINITY; 3];
-            let kids = self.children.get(&(level, key)).cloned().unwrap_or_default();
+            let kids = self
+                .children
+                .get(&(level, key))
+                .cloned()
+                .unwrap_or_default();
             for child in kids {
                 if let Some((node, m)) = self.build(level - 1, child)? {
                     clusters.add(&m);
@@ -393,7 +396,11 @@ pub fn write_tileset(
         None => {
             // An empty map: a valid tileset with an empty root around the origin.
             let (lo, hi) = match chunks.first() {
-                Some(c) => frame_bounds(&WorldFrame::local_z_up(), chunk_bounds_m(store, *c).0, chunk_bounds_m(store, *c).1),
+                Some(c) => frame_bounds(
+                    &WorldFrame::local_z_up(),
+                    chunk_bounds_m(store, *c).0,
+                    chunk_bounds_m(store, *c).1,
+                ),
                 None => ([-0.5; 3], [0.5; 3]),
             };
             serde_json::json!({"boundingVolume": box_json(lo, hi), "geometricError": 0.0})
@@ -409,7 +416,9 @@ pub fn write_tileset(
     };
     if let Some(m) = transform {
         // Column-major, as 3D Tiles stores matrices.
-        let cols: Vec<f64> = (0..4).flat_map(|c| (0..4).map(move |r| m[(r, c)])).collect();
+        let cols: Vec<f64> = (0..4)
+            .flat_map(|c| (0..4).map(move |r| m[(r, c)]))
+            .collect();
         root_json["transform"] = serde_json::json!(cols);
     }
     let root_error = root.as_ref().map_or(0.0, |n| n.geometric_error_m);
