@@ -93,7 +93,7 @@ impl UtmZone {
         let lam = (lon_deg - self.central_meridian_deg()).to_radians();
         let t = (phi.sin().atanh() - s.e * (s.e * phi.sin()).atanh()).sinh();
         let xi_p = t.atan2(lam.cos());
-        let eta_p = (lam.sin() / (1.0 + t * t).sqrt()).asinh();
+        let eta_p = (lam.sin() / (t * t + lam.cos() * lam.cos()).sqrt()).asinh();
         let mut xi = xi_p;
         let mut eta = eta_p;
         for (j, a) in s.alpha.iter().enumerate() {
