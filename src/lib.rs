@@ -15,6 +15,7 @@ pub mod error;
 pub mod eval;
 pub mod frame;
 pub mod fusion;
+pub mod geo;
 pub mod gpu;
 pub mod grid;
 pub mod io;

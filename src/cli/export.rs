@@ -1,10 +1,12 @@
-//! `denser export`: a stored map, tile by tile, to one mesh (PLY) or point cloud (PLY, LAS, LAZ),
-//! stitched with no cracks or duplicate vertices.
+//! `denser export`: a stored map, tile by tile, to one mesh (PLY), point cloud (PLY, LAS, LAZ,
+//! COPC) or 3D Tiles tileset, stitched with no cracks or duplicate vertices, in the map frame or
+//! a z-up world frame (`--georef`, `formats/georef.md`).
 
 use super::Outcome;
 use anyhow::{bail, Context, Result};
+use denser::geo::WorldFrame;
 use denser::mesh::Field;
-use denser::tiles::export::{self, Bbox, ExportStats, ExportTarget};
+use denser::tiles::export::{self, Bbox, ExportOptions, ExportStats, ExportTarget};
 use denser::tiles::store::MapStore;
 use std::fmt;
 use std::path::PathBuf;
@@ -14,20 +16,35 @@ pub(crate) struct Args {
     /// Map directory.
     dir: PathBuf,
     /// Write a mesh (binary PLY).
-    #[arg(long, conflicts_with = "points")]
+    #[arg(long, conflicts_with_all = ["points", "tiles"])]
     mesh: Option<PathBuf>,
-    /// Write surface points (.ply, .las or .laz).
-    #[arg(long)]
+    /// Write surface points (.ply, .las, .laz, or COPC as .copc.laz).
+    #[arg(long, conflicts_with = "tiles")]
     points: Option<PathBuf>,
+    /// Write a 3D Tiles 1.1 tileset (tileset.json and one GLB per tile) into this folder.
+    #[arg(long)]
+    tiles: Option<PathBuf>,
     /// Export the raw field f.
     #[arg(long, conflicts_with = "regularized")]
     raw: bool,
     /// Export the regularised field u (the default).
     #[arg(long)]
     regularized: bool,
-    /// Only this box: xmin,ymin,zmin,xmax,ymax,zmax (metres, world frame).
+    /// Only this box: xmin,ymin,zmin,xmax,ymax,zmax (metres, in the output's frame: the map frame
+    /// for PLY without --georef/--world-frame, else the world frame).
     #[arg(long, allow_hyphen_values = true)]
     bbox: Option<String>,
+    /// Georeference: EPSG:<code>@<x>,<y>,<z>[,<heading_deg>] (the map origin in that CRS and the
+    /// compass heading of the map's forward axis), or a file holding a 4×4 world_from_map matrix
+    /// (and optionally EPSG:<code>). See formats/georef.md.
+    #[arg(long)]
+    georef: Option<String>,
+    /// Write PLY in the local z-up world frame (LAS/LAZ/COPC/3D Tiles always use it).
+    #[arg(long)]
+    world_frame: bool,
+    /// RAM for building the COPC octree (e.g. 1GiB); larger clouds spill to disk.
+    #[arg(long, default_value = "1GiB", value_parser = super::parse_bytes)]
+    memory_budget: u64,
 }
 
 struct Exported {
@@ -38,6 +55,22 @@ struct Exported {
 impl fmt::Display for Exported {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let s = &self.stats;
+        if let Some(t) = &s.tileset {
+            return writeln!(
+                f,
+                "wrote {}: {} tiles in {} levels ({} full-resolution: {} vertices, {} triangles; root {} triangles), {} bytes of GLB, from {} voxels in {:.2} s",
+                self.path.join("tileset.json").display(),
+                t.tiles,
+                t.levels,
+                t.leaf_tiles,
+                t.leaf_vertices,
+                t.leaf_triangles,
+                t.root_triangles,
+                t.glb_bytes,
+                t.voxels,
+                s.seconds
+            );
+        }
         writeln!(
             f,
             "wrote {}: {} vertices, {} triangles from {} chunks ({} voxels) in {:.2} s ({:.2} s per million voxels)",
@@ -48,7 +81,19 @@ impl fmt::Display for Exported {
             s.voxels,
             s.seconds,
             s.seconds / (s.voxels.max(1) as f64 / 1e6)
-        )
+        )?;
+        if let Some(c) = &s.copc {
+            writeln!(
+                f,
+                "COPC octree: {} nodes, {} levels, {} points at the root; {} nodes streamed from disk; {} bytes",
+                c.nodes,
+                c.max_level + 1,
+                c.root_points,
+                c.streamed_nodes,
+                c.bytes
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -60,21 +105,29 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     } else {
         Field::Regularized
     };
-    let target = match (a.mesh, a.points) {
-        (Some(m), None) => ExportTarget::Mesh(m),
-        (None, Some(p)) => ExportTarget::Points(p),
-        _ => bail!("give --mesh OUT.ply or --points OUT.(ply|las|laz)"),
+    let target = match (a.mesh, a.points, a.tiles) {
+        (Some(m), None, None) => ExportTarget::Mesh(m),
+        (None, Some(p), None) => ExportTarget::Points(p),
+        (None, None, Some(t)) => ExportTarget::Tiles(t),
+        _ => bail!("give --mesh OUT.ply, --points OUT.(ply|las|laz|copc.laz) or --tiles DIR"),
     };
-    let bbox = a.bbox.as_deref().map(Bbox::parse).transpose()?;
+    let mut options = ExportOptions::new(field);
+    options.bbox = a.bbox.as_deref().map(Bbox::parse).transpose()?;
+    options.memory_budget_bytes = a.memory_budget;
+    options.frame = match (&a.georef, a.world_frame) {
+        (Some(g), _) => Some(WorldFrame::parse(g).context("reading --georef")?),
+        (None, true) => Some(WorldFrame::local_z_up()),
+        (None, false) => None,
+    };
     if field == Field::Regularized && store.summary().regularized_chunks == 0 {
         tracing::warn!(
             "{} has no regularised chunks: exporting f (run `denser regularize` first)",
             a.dir.display()
         );
     }
-    let stats = export::export(&store, field, bbox, &target).context("exporting")?;
+    let stats = export::export_with(&store, &options, &target).context("exporting")?;
     let path = match target {
-        ExportTarget::Mesh(p) | ExportTarget::Points(p) => p,
+        ExportTarget::Mesh(p) | ExportTarget::Points(p) | ExportTarget::Tiles(p) => p,
     };
     Ok(Box::new(Exported { path, stats }))
 }

@@ -1,15 +1,19 @@
-//! Image files: 8-bit grey and RGB PNG, 16-bit depth PNG and 16-bit (or 8-bit) binary PGM.
+//! Image files: 8-bit grey and colour images in every format the `image` crate reads here (PNG,
+//! JPEG, TIFF, PNM = PBM/PGM/PPM, BMP, WebP), 16-bit depth images (PNG, TIFF, PGM) and 16-bit (or
+//! 8-bit) binary PGM through an own decoder.
 //!
 //! What it does: decodes into the crate's [`Image`] types and encodes them back, converting
 //! integer depth units to metres (and back) with an explicit `units_per_m` factor, e.g. 5000 for
-//! TUM RGB-D PNGs and 1000 for millimetre PGMs. Every error names the file.
+//! TUM RGB-D PNGs and 1000 for millimetre PGMs. The format is guessed from the file's first bytes
+//! (then the extension), so a `.png` that holds a JPEG still reads. Every error names the file.
 //!
-//! What it does not do: colour management (pixels are taken as stored, sRGB assumed), other
-//! formats than PNG and binary PGM, or 16-bit colour (decoded and reduced to 8 bits).
+//! What it does not do: colour management (pixels are taken as stored, sRGB assumed), 16-bit
+//! colour (decoded and reduced to 8 bits), floating-point depth images, or lossy-format checks
+//! (a JPEG depth map is refused only when it is not 16-bit, which JPEG never is).
 //!
 //! # Byte layouts
-//! * PNG: whatever the `image` crate reads; 16-bit samples are stored big-endian inside PNG, the
-//!   crate hands them over as native `u16`.
+//! * PNG and TIFF: whatever the `image` crate reads; 16-bit samples are stored big-endian inside
+//!   PNG (either order in TIFF), the crate hands them over as native `u16`.
 //! * Binary PGM (`P5`, Netpbm spec): ASCII header `P5 <width> <height> <maxval>` separated by
 //!   whitespace (with `#` comments up to end of line), then exactly one whitespace byte, then
 //!   `width·height` samples, row-major, top row first. A sample is one byte when
@@ -23,14 +27,54 @@ use crate::frame::{DepthImage, GreyImage, Image, RgbImage};
 use image::{DynamicImage, ImageBuffer, ImageReader, Luma, Rgb};
 use std::path::Path;
 
-/// Decodes any image file the `image` crate understands (PNG here).
+/// File extensions (lower case) of the image formats this build reads, in the order a frame
+/// folder is searched when several exist ([`find_image`]).
+pub const IMAGE_EXTENSIONS: &[&str] = &[
+    "png", "jpg", "jpeg", "tif", "tiff", "pgm", "ppm", "pnm", "pbm", "bmp", "webp",
+];
+
+/// Whether `path` has one of [`IMAGE_EXTENSIONS`] (any case).
+pub fn has_image_extension(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| IMAGE_EXTENSIONS.iter().any(|x| e.eq_ignore_ascii_case(x)))
+}
+
+/// The first existing file `dir/stem.EXT` for `EXT` in [`IMAGE_EXTENSIONS`] order (lower, then
+/// upper case), or `None`.
+pub fn find_image(dir: &Path, stem: &str) -> Option<std::path::PathBuf> {
+    IMAGE_EXTENSIONS.iter().find_map(|ext| {
+        [ext.to_string(), ext.to_ascii_uppercase()]
+            .into_iter()
+            .map(|e| dir.join(format!("{stem}.{e}")))
+            .find(|p| p.is_file())
+    })
+}
+
+/// Decodes any image file the `image` crate understands (see [`IMAGE_EXTENSIONS`]).
 fn decode(path: &Path) -> Result<DynamicImage> {
     let reader = ImageReader::open(path)
         .map_err(|e| Error::io(path, e))?
         .with_guessed_format()
         .map_err(|e| Error::io(path, e))?;
+    if reader.format().is_none() {
+        return Err(Error::bad_input(
+            path,
+            format!(
+                "not an image this build reads (formats: {})",
+                IMAGE_EXTENSIONS.join(", ")
+            ),
+        ));
+    }
     reader.decode().map_err(|e| match e {
         image::ImageError::IoError(io) => Error::io(path, io),
+        image::ImageError::Unsupported(u) => Error::bad_input(
+            path,
+            format!(
+                "cannot decode image: {u} (formats read: {})",
+                IMAGE_EXTENSIONS.join(", ")
+            ),
+        ),
         other => Error::bad_input(path, format!("cannot decode image: {other}")),
     })
 }
@@ -64,9 +108,16 @@ pub fn read_rgb(path: impl AsRef<Path>) -> Result<RgbImage> {
     })
 }
 
-/// Reads a single-channel 16-bit image (PNG) as raw integer samples. An 8-bit grey PNG is
-/// accepted and widened without scaling; a colour PNG is an error.
+/// Reads a single-channel 16-bit image (PNG; any format of [`read_u16`]) as raw integer samples.
+/// Kept for callers that name PNG; it is [`read_u16`].
 pub fn read_png_u16(path: impl AsRef<Path>) -> Result<Image<u16>> {
+    read_u16(path)
+}
+
+/// Reads a single-channel 16-bit image (PNG, TIFF, PGM, any format the `image` crate decodes) as
+/// raw integer samples. An 8-bit grey image is accepted and widened without scaling; a colour
+/// image is an error.
+pub fn read_u16(path: impl AsRef<Path>) -> Result<Image<u16>> {
     let path = path.as_ref();
     let img = decode(path)?;
     let (width, height) = (img.width(), img.height());
@@ -126,6 +177,22 @@ fn check_units(units_per_m: f64) -> Result<()> {
 pub fn read_depth_png_u16(path: impl AsRef<Path>, units_per_m: f64) -> Result<DepthImage> {
     check_units(units_per_m)?;
     Ok(depth_from_u16(&read_png_u16(path)?, units_per_m))
+}
+
+/// Reads a 16-bit depth image in any format of [`read_u16`] (binary PGM through
+/// [`read_pgm_u16`]) where a sample `s` means `s / units_per_m` metres; 0 becomes NaN.
+pub fn read_depth_u16(path: impl AsRef<Path>, units_per_m: f64) -> Result<DepthImage> {
+    let path = path.as_ref();
+    check_units(units_per_m)?;
+    let is_pgm = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("pgm"));
+    let raw = if is_pgm {
+        read_pgm_u16(path)?
+    } else {
+        read_u16(path)?
+    };
+    Ok(depth_from_u16(&raw, units_per_m))
 }
 
 /// Reads a binary PGM (`P5`, 8 or 16 bits, 16-bit samples big-endian) as raw samples.

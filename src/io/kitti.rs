@@ -29,7 +29,8 @@
 //!   rotation (SVD) since they are printed with ~7 significant digits.
 //! * `velodyne/*.bin`: little-endian `f32` quadruples `x, y, z, reflectance` per point (16
 //!   bytes), sensor frame (x forward, y left, z up), metres; reflectance in [0, 1]. No header.
-//! * Frame files are named by their decimal index (`000042.png`; any zero padding is accepted).
+//! * Frame files are named by their decimal index (`000042.png`; any zero padding is accepted);
+//!   images may be in any format of [`super::image::IMAGE_EXTENSIONS`] (`000042.jpg`, `.tif`, …).
 //!
 //! # Frame count
 //! The sequence length `N` is the number of lines of `times.txt` if present, else the number of
@@ -361,7 +362,7 @@ pub fn read_velodyne_bin(path: impl AsRef<Path>) -> Result<LidarScan> {
 }
 
 /// Frame files of one stream (`image_k` or `velodyne`), by frame index.
-fn scan_stream(dir: &Path, ext: &str) -> Result<BTreeMap<usize, PathBuf>> {
+fn scan_stream(dir: &Path, exts: &[&str]) -> Result<BTreeMap<usize, PathBuf>> {
     let mut files = BTreeMap::new();
     if !dir.is_dir() {
         return Ok(files);
@@ -373,7 +374,7 @@ fn scan_stream(dir: &Path, ext: &str) -> Result<BTreeMap<usize, PathBuf>> {
         else {
             continue;
         };
-        if !e.eq_ignore_ascii_case(ext)
+        if !exts.iter().any(|x| e.eq_ignore_ascii_case(x))
             || stem.is_empty()
             || !stem.bytes().all(|b| b.is_ascii_digit())
         {
@@ -449,10 +450,15 @@ impl KittiSequence {
         } else {
             None
         };
-        let images = [0, 1, 2, 3].map(|k| scan_stream(&dir.join(format!("image_{k}")), "png"));
+        let images = [0, 1, 2, 3].map(|k| {
+            scan_stream(
+                &dir.join(format!("image_{k}")),
+                super::image::IMAGE_EXTENSIONS,
+            )
+        });
         let [i0, i1, i2, i3] = images;
         let images = [i0?, i1?, i2?, i3?];
-        let velodyne = scan_stream(&dir.join("velodyne"), "bin")?;
+        let velodyne = scan_stream(&dir.join("velodyne"), &["bin"])?;
 
         let streams: Vec<(String, &BTreeMap<usize, PathBuf>)> = images
             .iter()

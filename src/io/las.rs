@@ -2,7 +2,8 @@
 //!
 //! What it does: reads every point's coordinates (and RGB when the point format has it) into a
 //! [`PointCloud`], reads the declared linear units from the GeoTIFF keys, and writes a
-//! [`PointCloud`] as LAS 1.2 (compressed LAZ when the path ends in `.laz`).
+//! [`PointCloud`] as LAS 1.4 (compressed LAZ when the path ends in `.laz`), with an optional
+//! OGC WKT coordinate reference system.
 //!
 //! What it does not do: reproject between coordinate reference systems, keep classification,
 //! intensity, GPS time or other per-point attributes, or stream files larger than memory.
@@ -18,9 +19,15 @@
 //!   the 16-bit fields (a common writer bug) and are taken as is; otherwise the high byte is
 //!   kept (`v >> 8`). The writer stores `v·257` so that 255 maps to 65535 and reading returns
 //!   the original 8-bit values exactly.
-//! * Writing: LAS 1.2, point format 2 (with RGB) when the cloud has colours, else 0;
+//! * Writing: LAS 1.4, point format 7 (with RGB) when the cloud has colours, else 6;
 //!   `scale` = 0.001 (1 mm steps, so at most 0.5 mm rounding) and `offset` = the bounding-box
-//!   centre rounded to whole metres, so coordinates within ±2 147 km of the centre fit.
+//!   centre rounded to whole metres, so coordinates within ±2 147 km of the centre fit. Headers are
+//!   complete: creation date (UTC day of writing), system identifier `EXTRACTION` (the points are
+//!   extracted from a fused map), generating software `denser <version>`, every point return 1
+//!   of 1 (so the by-return counts add up), the WKT bit set with an OGC WKT CRS VLR
+//!   (`LASF_Projection`, record 2112) when a CRS is given, legacy point counts 0 (as LAS 1.4
+//!   asks for formats 6–10), and zero bounds for an empty file (the `las` crate would write ±inf
+//!   and fill in the legacy counts; the header is patched after closing).
 
 use crate::error::{Error, Result};
 use crate::frame::PointCloud;
@@ -192,9 +199,10 @@ pub fn read_point_cloud_metres(path: impl AsRef<Path>) -> Result<PointCloud> {
     Ok(cloud)
 }
 
-/// Writes `cloud` as LAS 1.2 (LAZ when `path` ends in `.laz`, any case); see the module doc for
-/// scale, offset and point format. Fails on non-finite coordinates, colour count mismatch, or a
-/// cloud wider than the 32-bit integer range at 1 mm (±2 147 km around its centre).
+/// Writes `cloud` as LAS 1.4 (LAZ when `path` ends in `.laz`, any case) with no CRS; see the
+/// module doc for scale, offset, point format and header fields. Fails on non-finite coordinates,
+/// colour count mismatch, or a cloud wider than the 32-bit integer range at 1 mm (±2 147 km
+/// around its centre).
 pub fn write_point_cloud(path: impl AsRef<Path>, cloud: &PointCloud) -> Result<()> {
     let path = path.as_ref();
     if let Some(c) = &cloud.colors {
@@ -236,29 +244,52 @@ pub fn write_point_cloud(path: impl AsRef<Path>, cloud: &PointCloud) -> Result<(
             }
         }
     }
-    let mut writer = LasPointWriter::create(path, offset, cloud.colors.is_some())?;
+    let mut writer = LasPointWriter::create(path, offset, cloud.colors.is_some(), None)?;
     for (i, p) in cloud.points_m.iter().enumerate() {
         writer.write(*p, cloud.colors.as_ref().map(|c| c[i]))?;
     }
     writer.close()
 }
 
-/// A LAS/LAZ file written point by point (for exports larger than memory): LAS 1.2, point format
-/// 2 with colour or 0 without, scale [`WRITE_SCALE_M`] around a fixed offset; LAZ when the path
+/// The system identifier written into every LAS header (the LAS 1.4 value for data extracted
+/// from other data).
+pub const SYSTEM_IDENTIFIER: &str = "EXTRACTION";
+
+/// The generating software written into every LAS header.
+pub fn generating_software() -> String {
+    format!("denser {}", env!("CARGO_PKG_VERSION"))
+}
+
+/// Today's date (UTC) for the header's creation day and year.
+fn today() -> Option<chrono::NaiveDate> {
+    Some(chrono::Utc::now().date_naive())
+}
+
+/// A LAS/LAZ file written point by point (for exports larger than memory): LAS 1.4, point format
+/// 7 with colour or 6 without, scale [`WRITE_SCALE_M`] around a fixed offset; LAZ when the path
 /// ends in `.laz`. Header bounds and counts are filled in by [`LasPointWriter::close`].
 pub struct LasPointWriter {
     path: std::path::PathBuf,
     writer: Option<Writer<std::io::BufWriter<std::fs::File>>>,
     offset_m: [f64; 3],
+    points: u64,
 }
 
 impl LasPointWriter {
-    /// Creates the file; points must lie within ±2 147 km of `offset_m`.
-    pub fn create(path: &Path, offset_m: [f64; 3], colors: bool) -> Result<Self> {
-        let mut builder = Builder::from(Version::new(1, 2));
-        let format = if colors { 2 } else { 0 };
+    /// Creates the file; points must lie within ±2 147 km of `offset_m`. `crs_wkt`: OGC WKT of
+    /// the coordinates' CRS, written as a WKT VLR.
+    pub fn create(
+        path: &Path,
+        offset_m: [f64; 3],
+        colors: bool,
+        crs_wkt: Option<&str>,
+    ) -> Result<Self> {
+        let mut builder = Builder::from(Version::new(1, 4));
+        let format = if colors { 7 } else { 6 };
         builder.point_format = las::point::Format::new(format).map_err(|e| las_err(path, e))?;
-        builder.generating_software = "denser".into();
+        builder.generating_software = generating_software();
+        builder.system_identifier = SYSTEM_IDENTIFIER.into();
+        builder.date = today();
         let t = |k: usize| Transform {
             scale: WRITE_SCALE_M,
             offset: offset_m[k],
@@ -271,7 +302,13 @@ impl LasPointWriter {
         builder.point_format.is_compressed = path
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("laz"));
-        let header = builder.into_header().map_err(|e| las_err(path, e))?;
+        let mut header = builder.into_header().map_err(|e| las_err(path, e))?;
+        if let Some(wkt) = crs_wkt {
+            // WKT strings in LAS are null-terminated.
+            let mut bytes = wkt.as_bytes().to_vec();
+            bytes.push(0);
+            header.set_wkt_crs(bytes).map_err(|e| las_err(path, e))?;
+        }
         let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
         let writer =
             Writer::new(std::io::BufWriter::new(file), header).map_err(|e| las_err(path, e))?;
@@ -279,6 +316,7 @@ impl LasPointWriter {
             path: path.to_path_buf(),
             writer: Some(writer),
             offset_m,
+            points: 0,
         })
     }
 
@@ -302,22 +340,54 @@ impl LasPointWriter {
             y: p[1],
             z: p[2],
             color,
+            return_number: 1,
+            number_of_returns: 1,
+            gps_time: Some(0.0),
             ..Default::default()
         };
         let w = self.writer.as_mut().expect("open until closed");
-        w.write_point(point).map_err(|e| las_err(&self.path, e))
+        w.write_point(point).map_err(|e| las_err(&self.path, e))?;
+        self.points += 1;
+        Ok(())
     }
 
     /// Finishes the file (header bounds and counts).
     pub fn close(mut self) -> Result<()> {
         let mut w = self.writer.take().expect("open until closed");
-        let closed = w.close();
-        if closed.is_err() {
+        if let Err(e) = w.close() {
             // `las::Writer` panics when dropped unclosed; after a failed close, leak it instead.
             std::mem::forget(w);
+            return Err(las_err(&self.path, e));
         }
-        closed.map_err(|e| las_err(&self.path, e))
+        drop(w);
+        patch_header(&self.path, self.points == 0)
     }
+}
+
+/// Offset of the legacy point count in a LAS header; the five legacy by-return counts follow.
+const HEADER_LEGACY_COUNT_OFFSET: u64 = 107;
+/// Offset of `max_x` in a LAS header; the six bounds (`f64`: max x, min x, max y, min y, max z,
+/// min z) follow it.
+const HEADER_BOUNDS_OFFSET: u64 = 179;
+
+/// Fixes what the `las` crate writes differently from LAS 1.4: the legacy point counts must be 0
+/// for point formats 6–10 (it fills them in), and a file with no points gets zero bounds (it
+/// leaves ±inf).
+fn patch_header(path: &Path, empty: bool) -> Result<()> {
+    use std::io::{Seek, SeekFrom, Write};
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .open(path)
+        .map_err(|e| Error::io(path, e))?;
+    f.seek(SeekFrom::Start(HEADER_LEGACY_COUNT_OFFSET))
+        .and_then(|_| f.write_all(&[0u8; 24]))
+        .map_err(|e| Error::io(path, e))?;
+    if empty {
+        f.seek(SeekFrom::Start(HEADER_BOUNDS_OFFSET))
+            .and_then(|_| f.write_all(&[0u8; 48]))
+            .map_err(|e| Error::io(path, e))?;
+    }
+    f.sync_all().map_err(|e| Error::io(path, e))
 }
 
 impl Drop for LasPointWriter {

@@ -1,5 +1,6 @@
 //! Readers and writers for sensor data and results: KITTI odometry ([`kitti`]), TUM RGB-D and
-//! the simple slambook-style RGB-D layout ([`rgbd`]), LAS/LAZ point clouds ([`las`]), PLY meshes
+//! the simple slambook-style RGB-D layout ([`rgbd`]), LAS/LAZ point clouds ([`las`]), COPC
+//! ([`copc`]), binary glTF ([`glb`]), PLY meshes
 //! and point clouds ([`ply`]) and image files ([`image`]).
 //!
 //! What it does: turns files into the crate's in-memory types ([`crate::frame`],
@@ -10,6 +11,8 @@
 //! the data beyond unit conversion and the frame conventions documented per format.
 
 pub mod calib;
+pub mod copc;
+pub mod glb;
 pub mod image;
 pub mod kitti;
 pub mod las;

@@ -20,11 +20,12 @@
 //!
 //! # Simple layout (slambook2 `ch5/rgbd`)
 //! * `pose.txt`: line `k` (1-based) is `tx ty tz qx qy qz qw`, `world_from_camera` of frame `k`.
-//! * `depth/k.pgm` (binary PGM, 16-bit big-endian, millimetres) or `depth/k.png` (16-bit).
-//! * `color/k.png`: 8-bit colour registered to the depth (optional).
+//! * `depth/k.pgm` (binary PGM, 16-bit big-endian, millimetres) or `depth/k.png` / `.tif`
+//!   (16-bit single channel; any format of [`super::image::IMAGE_EXTENSIONS`]).
+//! * `color/k.png` (or `.jpg`, `.ppm`, `.tif`, …): 8-bit colour registered to the depth (optional).
 //! * Frame `i` of the sequence (0-based) is file number `i + first_index` (1 for slambook2).
 
-use super::image::{read_depth_pgm_u16, read_depth_png_u16, read_rgb};
+use super::image::{read_depth_pgm_u16, read_depth_u16, read_rgb};
 use super::text::{parse_n, read_to_string};
 use super::DepthSequence;
 use crate::camera::{PinholeIntrinsics, WorldFromCamera};
@@ -310,7 +311,7 @@ impl DepthSequence for TumRgbdSequence {
             .frames
             .get(i)
             .ok_or_else(|| out_of_range(i, self.frames.len()))?;
-        let depth = read_depth_png_u16(&f.depth, self.options.depth_units_per_m)?;
+        let depth = read_depth_u16(&f.depth, self.options.depth_units_per_m)?;
         let color = match &f.rgb {
             Some(p) => Some((p.clone(), read_rgb(p)?)),
             None => None,
@@ -386,12 +387,7 @@ impl SimpleRgbdSequence {
         for i in 0..poses.len() {
             let n = i + options.first_index;
             let pgm = dir.join(format!("depth/{n}.pgm"));
-            let png = dir.join(format!("depth/{n}.png"));
-            let d = if pgm.is_file() {
-                pgm
-            } else if png.is_file() {
-                png
-            } else {
+            let Some(d) = super::image::find_image(&dir.join("depth"), &n.to_string()) else {
                 return Err(Error::bad_input(
                     &pgm,
                     format!(
@@ -402,8 +398,7 @@ impl SimpleRgbdSequence {
                 ));
             };
             depth.push(d);
-            let c = dir.join(format!("color/{n}.png"));
-            color.push(c.is_file().then_some(c));
+            color.push(super::image::find_image(&dir.join("color"), &n.to_string()));
         }
         Ok(SimpleRgbdSequence {
             dir,
@@ -446,7 +441,7 @@ impl DepthSequence for SimpleRgbdSequence {
         let depth = if is_pgm {
             read_depth_pgm_u16(path, units)?
         } else {
-            read_depth_png_u16(path, units)?
+            read_depth_u16(path, units)?
         };
         let color = match &self.color[i] {
             Some(p) => Some((p.clone(), read_rgb(p)?)),

@@ -1,4 +1,5 @@
-//! Tile-by-tile export of a stored map to one mesh (PLY) or one point cloud (PLY, LAS, LAZ).
+//! Tile-by-tile export of a stored map to one mesh (PLY), one point cloud (PLY, LAS, LAZ, COPC)
+//! or a 3D Tiles tileset ([`super::tileset`]).
 //!
 //! Chunks are meshed one at a time, each with the one-voxel layer it reads from its +x/+y/+z
 //! neighbours, so memory holds at most eight chunks plus the vertices on chunk faces. Marching
@@ -7,13 +8,21 @@
 //! the stitched mesh has neither cracks nor duplicate vertices at chunk borders (tested against a
 //! whole-map extraction). Vertices and faces stream to temporary files that are joined under the
 //! PLY header at the end; the output appears under its name only when complete.
+//!
+//! # Frames
+//! Coordinates leave in the output's [`WorldFrame`] (`formats/georef.md`): PLY keeps the map frame
+//! (x right, y down, z forward; `f32`, byte-identical to earlier versions) unless a frame is given,
+//! and is then written with `double` coordinates; LAS, LAZ, COPC and 3D Tiles always use a world
+//! frame, the local z-up frame by default. `--bbox` is in the output's frame.
 
 use super::store::MapStore;
 use super::ChunkIndex;
 use crate::error::{Error, Result};
+use crate::geo::WorldFrame;
 use crate::grid::{BlockIndex, Layer, VOXELS_PER_SIDE};
+use crate::io::copc::{CopcOptions, CopcStats, CopcWriter};
 use crate::io::las::LasPointWriter;
-use crate::mesh::{extract_mesh_keyed, EdgeKey, Field};
+use crate::mesh::{extract_mesh_keyed, EdgeKey, Field, Mesh};
 use std::collections::HashMap;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
@@ -51,7 +60,8 @@ impl Bbox {
         (0..3).all(|a| p[a] >= self.min_m[a] && p[a] <= self.max_m[a])
     }
 
-    fn meets(&self, lo: [f64; 3], hi: [f64; 3]) -> bool {
+    /// Whether the box meets `[lo, hi]`.
+    pub fn meets(&self, lo: [f64; 3], hi: [f64; 3]) -> bool {
         (0..3).all(|a| hi[a] >= self.min_m[a] && lo[a] <= self.max_m[a])
     }
 }
@@ -65,7 +75,7 @@ pub struct ExportStats {
     pub vertices: u64,
     /// Triangles written (0 for point clouds).
     pub triangles: u64,
-    /// Surface area of the triangles written, m² (0 for point clouds).
+    /// Surface area of the triangles written, m² (0 for point clouds and tilesets).
     pub area_m2: f64,
     /// Voxels (blocks · 512) in the chunks meshed.
     pub voxels: u64,
@@ -73,6 +83,35 @@ pub struct ExportStats {
     pub face_keys: usize,
     /// Wall time, seconds.
     pub seconds: f64,
+    /// COPC octree figures (COPC outputs only).
+    pub copc: Option<CopcStats>,
+    /// Tileset figures (3D Tiles outputs only).
+    pub tileset: Option<super::tileset::TilesetStats>,
+}
+
+/// How to export: which field, which part, which frame, how much RAM.
+#[derive(Clone, Debug)]
+pub struct ExportOptions {
+    /// The TSDF to mesh.
+    pub field: Field,
+    /// Keep only this box (output frame): triangles by centroid, points by position.
+    pub bbox: Option<Bbox>,
+    /// Output frame; `None`: the format's default (map frame for PLY, local z-up otherwise).
+    pub frame: Option<WorldFrame>,
+    /// RAM for outputs that need more than a chunk at a time (the COPC octree), bytes.
+    pub memory_budget_bytes: u64,
+}
+
+impl ExportOptions {
+    /// `field`, everything, default frame, 1 GiB.
+    pub fn new(field: Field) -> Self {
+        ExportOptions {
+            field,
+            bbox: None,
+            frame: None,
+            memory_budget_bytes: 1 << 30,
+        }
+    }
 }
 
 /// Output of [`export`].
@@ -80,8 +119,21 @@ pub struct ExportStats {
 pub enum ExportTarget {
     /// A binary PLY mesh (vertices with colour, triangles).
     Mesh(PathBuf),
-    /// Surface points (mesh vertices) as PLY, LAS or LAZ, chosen by the extension.
+    /// Surface points (mesh vertices) as PLY, LAS, LAZ or COPC (`*.copc.laz`), chosen by the name.
     Points(PathBuf),
+    /// A 3D Tiles 1.1 tileset in this folder ([`super::tileset`]).
+    Tiles(PathBuf),
+}
+
+/// Whether a file name asks for COPC (`*.copc.laz`, any case).
+pub fn is_copc_path(path: &Path) -> bool {
+    path.file_name()
+        .map(|n| {
+            n.to_string_lossy()
+                .to_ascii_lowercase()
+                .ends_with(".copc.laz")
+        })
+        .unwrap_or(false)
 }
 
 /// Whether a vertex on this edge can be shared with a cube of another chunk.
@@ -90,11 +142,70 @@ fn on_chunk_face(key: &EdgeKey, chunk_voxels: i64) -> bool {
     (0..3).any(|b| b != axis && v[b].rem_euclid(chunk_voxels) == 0)
 }
 
-fn chunk_bounds_m(store: &MapStore, c: ChunkIndex) -> ([f64; 3], [f64; 3]) {
+/// Map-frame bounds of chunk `c`, metres.
+pub fn chunk_bounds_m(store: &MapStore, c: ChunkIndex) -> ([f64; 3], [f64; 3]) {
     let chunk_m = store.grid().block_size_m() * store.chunk_blocks() as f64;
     let lo = [0, 1, 2].map(|a| c.0[a] as f64 * chunk_m);
     let hi = [0, 1, 2].map(|a| (c.0[a] + 1) as f64 * chunk_m);
     (lo, hi)
+}
+
+/// The axis-aligned box (in `frame`) of a map-frame box's eight corners.
+pub fn frame_bounds(frame: &WorldFrame, lo: [f64; 3], hi: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+    let mut a = [f64::INFINITY; 3];
+    let mut b = [f64::NEG_INFINITY; 3];
+    for k in 0..8 {
+        let p = [0, 1, 2].map(|d| if (k >> d) & 1 == 0 { lo[d] } else { hi[d] });
+        let w = frame.to_world(p);
+        for d in 0..3 {
+            a[d] = a[d].min(w[d]);
+            b[d] = b[d].max(w[d]);
+        }
+    }
+    (a, b)
+}
+
+/// The chunks of `store` whose box (in `frame`) meets `bbox` (all without a box), sorted.
+pub fn chunks_in(store: &MapStore, frame: &WorldFrame, bbox: Option<Bbox>) -> Vec<ChunkIndex> {
+    store
+        .chunk_indices()
+        .into_iter()
+        .filter(|c| {
+            let (lo, hi) = chunk_bounds_m(store, *c);
+            let (lo, hi) = frame_bounds(frame, lo, hi);
+            bbox.is_none_or(|b| b.meets(lo, hi))
+        })
+        .collect()
+}
+
+/// Meshes chunk `c` of the map (reading the neighbour blocks its cubes need): the mesh in the map
+/// frame, each vertex's edge key, and the number of the chunk's own blocks.
+pub fn mesh_chunk(
+    store: &MapStore,
+    c: ChunkIndex,
+    field: Field,
+) -> Result<(Mesh, Vec<EdgeKey>, usize)> {
+    let cb = store.chunk_blocks();
+    let mut layer = Layer::new(store.grid());
+    let mut own: Vec<BlockIndex> = Vec::new();
+    let hi_block = c.origin_block(cb).map(|o| o + cb as i32);
+    for d in 0..8i32 {
+        let off = [d & 1, (d >> 1) & 1, (d >> 2) & 1];
+        let Some(dec) = store.read_chunk(c.offset(off))? else {
+            continue;
+        };
+        for (b, block) in dec.blocks {
+            if d == 0 {
+                own.push(b);
+                layer.insert(b, block);
+            } else if (0..3).all(|a| off[a] == 0 || b.0[a] == hi_block[a]) {
+                // Only the neighbour blocks touching this chunk's +faces are read by its cubes.
+                layer.insert(b, block);
+            }
+        }
+    }
+    let (m, keys) = extract_mesh_keyed(&layer, field, Some(&own));
+    Ok((m, keys, own.len()))
 }
 
 enum Sink {
@@ -105,20 +216,49 @@ enum Sink {
         tmp_f: PathBuf,
     },
     Las(LasPointWriter),
+    Copc(CopcWriter),
 }
 
 /// Exports `field` of the stored map tile by tile (all chunks, or those meeting `bbox`; with a box,
-/// triangles are kept when their centroid is inside, points when inside).
+/// triangles are kept when their centroid is inside, points when inside), in the format's
+/// default frame (see the module doc).
 pub fn export(
     store: &MapStore,
     field: Field,
     bbox: Option<Bbox>,
     target: &ExportTarget,
 ) -> Result<ExportStats> {
+    let mut o = ExportOptions::new(field);
+    o.bbox = bbox;
+    export_with(store, &o, target)
+}
+
+/// Exports the stored map tile by tile with `options` (see [`export`] and the module doc).
+pub fn export_with(
+    store: &MapStore,
+    options: &ExportOptions,
+    target: &ExportTarget,
+) -> Result<ExportStats> {
     let t0 = std::time::Instant::now();
     let (path, mesh) = match target {
         ExportTarget::Mesh(p) => (p.clone(), true),
         ExportTarget::Points(p) => (p.clone(), false),
+        ExportTarget::Tiles(dir) => {
+            let frame = options.frame.clone().unwrap_or_else(WorldFrame::local_z_up);
+            let st =
+                super::tileset::write_tileset(store, options.field, options.bbox, &frame, dir)?;
+            return Ok(ExportStats {
+                chunks: st.leaf_tiles,
+                vertices: st.leaf_vertices,
+                triangles: st.leaf_triangles,
+                area_m2: 0.0,
+                voxels: st.voxels,
+                face_keys: 0,
+                seconds: t0.elapsed().as_secs_f64(),
+                copc: None,
+                tileset: Some(st),
+            });
+        }
     };
     let ext = path
         .extension()
@@ -132,18 +272,20 @@ pub fn export(
     }
     if !mesh && !matches!(ext.as_str(), "ply" | "las" | "laz") {
         return Err(Error::InvalidArgument(format!(
-            "{}: points are written as .ply, .las or .laz",
+            "{}: points are written as .ply, .las, .laz or .copc.laz",
             path.display()
         )));
     }
-    let chunks: Vec<ChunkIndex> = store
-        .chunk_indices()
-        .into_iter()
-        .filter(|c| {
-            let (lo, hi) = chunk_bounds_m(store, *c);
-            bbox.map_or(true, |b| b.meets(lo, hi))
-        })
-        .collect();
+    let frame = match &options.frame {
+        Some(f) => f.clone(),
+        None if ext == "ply" => WorldFrame::map(),
+        None => WorldFrame::local_z_up(),
+    };
+    // PLY in the map frame keeps its f32 layout; any other frame is written as double.
+    let ply_f64 = !frame.is_map_frame();
+    let bbox = options.bbox;
+    let field = options.field;
+    let chunks = chunks_in(store, &frame, bbox);
     let partial = path.with_extension(format!("partial.{ext}"));
     let mut sink = if ext == "ply" {
         let tmp_v = path.with_extension("vertices.tmp");
@@ -159,23 +301,33 @@ pub fn export(
             tmp_v,
             tmp_f,
         }
+    } else if is_copc_path(&path) {
+        Sink::Copc(CopcWriter::create(
+            &path,
+            CopcOptions {
+                crs_wkt: frame.crs.as_ref().map(|c| c.wkt.clone()),
+                memory_budget_bytes: options.memory_budget_bytes,
+            },
+        )?)
     } else {
         // Offset at the centre of the map's chunks: every point is within ±2 147 km of it.
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];
         for c in &chunks {
             let (l, h) = chunk_bounds_m(store, *c);
+            let (l, h) = frame_bounds(&frame, l, h);
             for a in 0..3 {
                 lo[a] = lo[a].min(l[a]);
                 hi[a] = hi[a].max(h[a]);
             }
         }
         let offset = if chunks.is_empty() {
-            [0.0; 3]
+            frame.to_world([0.0; 3]).map(f64::round)
         } else {
             [0, 1, 2].map(|a| (0.5 * (lo[a] + hi[a])).round())
         };
-        Sink::Las(LasPointWriter::create(&partial, offset, true)?)
+        let wkt = frame.crs.as_ref().map(|c| c.wkt.as_str());
+        Sink::Las(LasPointWriter::create(&partial, offset, true, wkt)?)
     };
     let cb = store.chunk_blocks();
     let chunk_voxels = cb as i64 * VOXELS_PER_SIDE as i64;
@@ -184,39 +336,21 @@ pub fn export(
     let mut next_id: u64 = 0;
     let bar = crate::progress::bar(chunks.len() as u64, "exporting");
     for &c in &chunks {
-        let mut layer = Layer::new(store.grid());
-        let mut own: Vec<BlockIndex> = Vec::new();
-        let hi_block = c.origin_block(cb).map(|o| o + cb as i32);
-        for d in 0..8i32 {
-            let off = [d & 1, (d >> 1) & 1, (d >> 2) & 1];
-            let Some(dec) = store.read_chunk(c.offset(off))? else {
-                continue;
-            };
-            for (b, block) in dec.blocks {
-                if d == 0 {
-                    own.push(b);
-                    layer.insert(b, block);
-                } else if (0..3).all(|a| off[a] == 0 || b.0[a] == hi_block[a]) {
-                    // Only the neighbour blocks touching this chunk's +faces are read by its cubes.
-                    layer.insert(b, block);
-                }
-            }
-        }
-        stats.voxels += own.len() as u64 * 512;
-        let (m, keys) = extract_mesh_keyed(&layer, field, Some(&own));
-        drop(layer);
+        let (m, keys, own) = mesh_chunk(store, c, field)?;
+        stats.voxels += own as u64 * 512;
+        let world: Vec<[f64; 3]> = m
+            .positions_m
+            .iter()
+            .map(|p| frame.to_world([p[0] as f64, p[1] as f64, p[2] as f64]))
+            .collect();
         // Keep triangles (and the vertices they use) inside the box.
         let keep_tri: Vec<bool> = m
             .triangles
             .iter()
             .map(|t| {
-                bbox.map_or(true, |b| {
-                    let cen = [0, 1, 2].map(|a| {
-                        t.iter()
-                            .map(|&i| m.positions_m[i as usize][a] as f64)
-                            .sum::<f64>()
-                            / 3.0
-                    });
+                bbox.is_none_or(|b| {
+                    let cen = [0, 1, 2]
+                        .map(|a| t.iter().map(|&i| world[i as usize][a]).sum::<f64>() / 3.0);
                     b.contains(cen)
                 })
             })
@@ -236,9 +370,8 @@ pub fn export(
             if !used[i] {
                 continue;
             }
-            let p = m.positions_m[i];
-            let p64 = [p[0] as f64, p[1] as f64, p[2] as f64];
-            if !mesh && bbox.is_some_and(|b| !b.contains(p64)) {
+            let pw = world[i];
+            if !mesh && bbox.is_some_and(|b| !b.contains(pw)) {
                 continue;
             }
             let shared = on_chunk_face(key, chunk_voxels);
@@ -265,16 +398,26 @@ pub fn export(
                 Sink::Ply {
                     vertices, tmp_v, ..
                 } => {
-                    let mut rec = [0u8; 15];
-                    for a in 0..3 {
-                        rec[4 * a..4 * a + 4].copy_from_slice(&p[a].to_le_bytes());
-                    }
-                    rec[12..15].copy_from_slice(&color);
-                    vertices
-                        .write_all(&rec)
-                        .map_err(|e| Error::io(&*tmp_v, e))?;
+                    let written = if ply_f64 {
+                        let mut rec = [0u8; 27];
+                        for a in 0..3 {
+                            rec[8 * a..8 * a + 8].copy_from_slice(&pw[a].to_le_bytes());
+                        }
+                        rec[24..27].copy_from_slice(&color);
+                        vertices.write_all(&rec)
+                    } else {
+                        let p = m.positions_m[i];
+                        let mut rec = [0u8; 15];
+                        for a in 0..3 {
+                            rec[4 * a..4 * a + 4].copy_from_slice(&p[a].to_le_bytes());
+                        }
+                        rec[12..15].copy_from_slice(&color);
+                        vertices.write_all(&rec)
+                    };
+                    written.map_err(|e| Error::io(&*tmp_v, e))?;
                 }
-                Sink::Las(w) => w.write(p64, Some(color))?,
+                Sink::Las(w) => w.write(pw, Some(color))?,
+                Sink::Copc(w) => w.write(pw, color)?,
             }
         }
         if mesh {
@@ -303,6 +446,12 @@ pub fn export(
     stats.face_keys = face_ids.len();
     match sink {
         Sink::Las(w) => w.close()?,
+        Sink::Copc(w) => {
+            // The COPC writer renames its own partial file.
+            stats.copc = Some(w.finish()?);
+            stats.seconds = t0.elapsed().as_secs_f64();
+            return Ok(stats);
+        }
         Sink::Ply {
             vertices,
             faces,
@@ -320,10 +469,17 @@ pub fn export(
             let mut out = BufWriter::new(
                 std::fs::File::create(&partial).map_err(|e| Error::io(&partial, e))?,
             );
+            let coord = if ply_f64 { "double" } else { "float" };
             let mut header = format!(
-                "ply\nformat binary_little_endian 1.0\ncomment written by denser export\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n",
+                "ply\nformat binary_little_endian 1.0\ncomment written by denser export\nelement vertex {}\nproperty {coord} x\nproperty {coord} y\nproperty {coord} z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n",
                 stats.vertices
             );
+            if ply_f64 {
+                header = header.replace(
+                    "comment written by denser export\n",
+                    "comment written by denser export\ncomment frame: world (see formats/georef.md)\n",
+                );
+            }
             if mesh {
                 header.push_str(&format!(
                     "element face {}\nproperty list uchar int vertex_indices\n",

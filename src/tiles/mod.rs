@@ -6,8 +6,9 @@
 //!   reads, checkpoints that commit a manifest, verification.
 //! - [`pager`]: residency around the camera within a byte budget; evicted chunks are encoded and
 //!   written by background workers; revisited chunks are read back.
-//! - [`regional`]: offline regularisation of a stored map region by region with exact halos, and
-//!   tile-by-tile export of meshes and point clouds.
+//! - [`regional`]: offline regularisation of a stored map region by region with exact halos.
+//! - [`export`]: tile-by-tile export of meshes and point clouds (PLY, LAS, LAZ, COPC) in a world
+//!   frame; [`tileset`]: the map as a 3D Tiles tileset with levels of detail.
 //!
 //! A chunk is a cube of `chunk_blocks`³ blocks (default 16³ = 128³ voxels). Nothing here changes
 //! voxel values: fusing with paging gives the same bits as fusing in memory (tested).
@@ -20,6 +21,7 @@ mod paged;
 pub mod pager;
 pub mod regional;
 pub mod store;
+pub mod tileset;
 
 pub use paged::PagedStore;
 

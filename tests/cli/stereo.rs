@@ -276,3 +276,54 @@ fn stereo_on_the_gpu_writes_the_cpu_disparities() {
     assert!(same_validity as f64 >= 0.995 * cpu.data.len() as f64);
     assert!(far as f64 <= 0.005 * cpu.data.len() as f64);
 }
+
+/// Issue 13: `denser stereo left.jpg right.jpg` said "The image format Jpeg is not supported".
+/// A rendered pair saved as JPEG (quality 95) and as TIFF gives the disparities the PNG pair gives.
+#[test]
+fn stereo_reads_a_jpeg_and_a_tiff_pair() {
+    use image::codecs::jpeg::JpegEncoder;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let (w, h) = (200u32, 80u32);
+    let (left, right, gt) = depth_support::planar_pair(w, h, 12.0, 0.02, 0.0, 5);
+    let mut gt_known = gt.clone();
+    for y in 0..h {
+        for x in 0..24 {
+            *gt_known.at_mut(x, y) = f32::NAN;
+        }
+    }
+    for (img, name) in [(&left, "l"), (&right, "r")] {
+        let buf = image::GrayImage::from_raw(w, h, img.data.clone()).unwrap();
+        let mut f = std::fs::File::create(d.join(format!("{name}.jpg"))).unwrap();
+        JpegEncoder::new_with_quality(&mut f, 95)
+            .encode_image(&buf)
+            .unwrap();
+        buf.save_with_format(d.join(format!("{name}.tif")), image::ImageFormat::Tiff)
+            .unwrap();
+    }
+    for (l, r) in [("l.jpg", "r.jpg"), ("l.tif", "r.tif")] {
+        let o = denser(
+            &[
+                "stereo",
+                l,
+                r,
+                "--out",
+                "disp.pfm",
+                "--method",
+                "sgm",
+                "--num-disparities",
+                "24",
+            ],
+            d,
+        );
+        assert!(o.status.success(), "{l}: {}", text(&o));
+        let pred = read_pfm(d.join("disp.pfm")).unwrap();
+        assert_eq!((pred.width, pred.height), (w, h));
+        let m = evaluate_disparity(&pred, &gt_known, None).unwrap();
+        eprintln!("{l}: {m:?}");
+        assert!(
+            m.epe_px < 0.3 && m.bad2_pct < 3.0 && m.density_pct > 90.0,
+            "{l}: {m:?}"
+        );
+    }
+}

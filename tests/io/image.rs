@@ -145,3 +145,79 @@ fn errors_name_the_file() {
     };
     assert!(write_grey_png(tmp.path().join("w.png"), &wrong).is_err());
 }
+
+/// Issue 13: JPEG, TIFF, PNM, BMP and WebP inputs read as PNG does; 16-bit TIFF depth round trip.
+#[test]
+fn other_formats_read_like_png() {
+    use image::{ImageBuffer, ImageFormat, Luma, Rgb};
+    let tmp = tempfile::tempdir().unwrap();
+    let (w, h) = (64u32, 48u32);
+    // A smooth colour ramp (JPEG keeps it within a few levels).
+    let rgb: ImageBuffer<Rgb<u8>, Vec<u8>> = ImageBuffer::from_fn(w, h, |x, y| {
+        Rgb([(x * 4) as u8, (y * 5) as u8, ((x + y) * 2) as u8])
+    });
+    for (name, fmt, lossless) in [
+        ("c.png", ImageFormat::Png, true),
+        ("c.jpg", ImageFormat::Jpeg, false),
+        ("c.tif", ImageFormat::Tiff, true),
+        ("c.ppm", ImageFormat::Pnm, true),
+        ("c.bmp", ImageFormat::Bmp, true),
+        ("c.webp", ImageFormat::WebP, true),
+    ] {
+        let p = tmp.path().join(name);
+        rgb.save_with_format(&p, fmt).unwrap();
+        let back = read_rgb(&p).unwrap();
+        assert_eq!((back.width, back.height), (w, h), "{name}");
+        assert_eq!(image_size(&p).unwrap(), (w, h), "{name}");
+        let worst = back
+            .data
+            .iter()
+            .zip(rgb.pixels())
+            .flat_map(|(a, b)| (0..3).map(move |k| (a[k] as i32 - b.0[k] as i32).abs()))
+            .max()
+            .unwrap();
+        if lossless {
+            assert_eq!(worst, 0, "{name}");
+        } else {
+            assert!(worst <= 12, "{name}: {worst}");
+        }
+        let grey = read_grey(&p).unwrap();
+        assert_eq!(grey.data.len(), (w * h) as usize, "{name}");
+    }
+    // 16-bit depth as TIFF and as PGM through the image crate's reader.
+    let depth: ImageBuffer<Luma<u16>, Vec<u16>> =
+        ImageBuffer::from_fn(w, h, |x, y| Luma([(x * 1000 + y) as u16]));
+    let tif = tmp.path().join("d.tif");
+    depth.save_with_format(&tif, ImageFormat::Tiff).unwrap();
+    let back = denser::io::image::read_u16(&tif).unwrap();
+    assert_eq!(back.data, depth.as_raw().clone());
+    let d = denser::io::image::read_depth_u16(&tif, 1000.0).unwrap();
+    assert!(d.data[0].is_nan()); // sample 0 = no depth
+    assert_eq!(d.data[1], 1.0); // x = 1: 1000 units = 1 m
+    let pgm = tmp.path().join("d.pgm");
+    write_pgm_u16(
+        &pgm,
+        &Image {
+            width: w,
+            height: h,
+            data: depth.as_raw().clone(),
+        },
+    )
+    .unwrap();
+    assert_eq!(
+        denser::io::image::read_depth_u16(&pgm, 1000.0)
+            .unwrap()
+            .data[1..],
+        d.data[1..]
+    );
+    // Not an image at all: the message names the file and the formats.
+    let txt = tmp.path().join("notes.jpg");
+    std::fs::write(&txt, "hello").unwrap();
+    let e = read_grey(&txt).unwrap_err().to_string();
+    assert!(e.contains("notes.jpg") && e.contains("decode"), "{e}");
+    // Frame folders find any format.
+    assert_eq!(
+        denser::io::image::find_image(tmp.path(), "c").unwrap(),
+        tmp.path().join("c.png")
+    );
+}

@@ -137,9 +137,10 @@ fn round_trip_las_and_laz() {
         assert_eq!(back.colors, cloud.colors, "{name}");
         let bytes = std::fs::read(&path).unwrap();
         assert_eq!(&bytes[..4], b"LASF");
-        // Point format 2 (RGB) with bit 7 set when compressed (LAZ).
+        // LAS 1.4, point format 7 (RGB) with bit 7 set when compressed (LAZ).
+        assert_eq!((bytes[24], bytes[25]), (1, 4), "{name}");
         let compressed = name.to_lowercase().ends_with(".laz");
-        assert_eq!(bytes[104], 2 | if compressed { 0x80 } else { 0 }, "{name}");
+        assert_eq!(bytes[104], 7 | if compressed { 0x80 } else { 0 }, "{name}");
     }
     let plain = tmp.path().join("plain.las");
     let cloud = synthetic_cloud(100, false);
@@ -147,7 +148,7 @@ fn round_trip_las_and_laz() {
     let back = read_point_cloud(&plain).unwrap();
     assert!(back.colors.is_none());
     assert!(max_error(&cloud, &back) <= 0.0005 + 1e-9);
-    assert_eq!(std::fs::read(&plain).unwrap()[104], 0);
+    assert_eq!(std::fs::read(&plain).unwrap()[104], 6);
     // Empty clouds are valid files.
     let empty = tmp.path().join("empty.laz");
     write_point_cloud(&empty, &PointCloud::default()).unwrap();

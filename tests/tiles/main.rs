@@ -1,7 +1,9 @@
-//! The map on disk: chunk and manifest formats, crash safety, paging, regional regularisation.
+//! The map on disk: chunk and manifest formats, crash safety, paging, regional regularisation,
+//! and the exports (LAS/LAZ in a world frame, COPC, 3D Tiles) checked by independent readers.
 
 #[path = "../common/mod.rs"]
 mod common;
 
+mod export_formats;
 mod format;
 mod paging;
