@@ -348,7 +348,9 @@ fn tiled_export_stitches_into_the_whole_map_mesh() {
             "same triangles"
         );
     }
-    // Points as LAZ, within a box: every point inside, and as many as the mesh vertices inside.
+    // Points as LAZ (in the z-up world frame, formats/georef.md), within a box given in that
+    // frame: every point inside, and as many as the mesh vertices inside it.
+    let frame = denser::geo::WorldFrame::local_z_up();
     let bbox = Bbox::parse("-5,-5,-5,0.3,5,5").expect("bbox");
     let laz = dir.path().join("points.laz");
     let st = export(
@@ -363,7 +365,7 @@ fn tiled_export_stitches_into_the_whole_map_mesh() {
     let inside = whole
         .positions_m
         .iter()
-        .filter(|p| bbox.contains([p[0] as f64, p[1] as f64, p[2] as f64]))
+        .filter(|p| bbox.contains(frame.to_world([p[0] as f64, p[1] as f64, p[2] as f64])))
         .count();
     assert_eq!(cloud.points_m.len() as u64, st.vertices);
     assert_eq!(cloud.points_m.len(), inside);
