@@ -1,5 +1,5 @@
-//! The out-of-core subcommands of the `denser` CLI: `regularize`, `export`, `inspect`, and the
-//! `--map` options of `reconstruct`.
+//! The out-of-core subcommands of the `denser` CLI: `regularize`, `export`, `inspect`, `repair`,
+//! and the `--map` options of `reconstruct`.
 
 use anyhow::{bail, Context, Result};
 use clap::Args;
@@ -108,6 +108,23 @@ pub struct ExportArgs {
     /// Only this box: xmin,ymin,zmin,xmax,ymax,zmax (metres, world frame).
     #[arg(long, allow_hyphen_values = true)]
     pub bbox: Option<String>,
+    /// Export the regularised field even though the latest regularisation pass has not reached
+    /// every chunk (chunks of different passes mixed; the chunks of each pass are listed).
+    #[arg(long, conflicts_with = "raw")]
+    pub allow_incomplete_pass: bool,
+    /// Export the regularised field of this pass: the latest, or the last complete one while a
+    /// newer pass is incomplete (its files are kept until the newer pass completes).
+    #[arg(long, conflicts_with_all = ["raw", "allow_incomplete_pass"])]
+    pub pass: Option<u32>,
+}
+
+#[derive(Args)]
+pub struct RepairArgs {
+    /// Map directory whose manifest is lost or unreadable.
+    pub dir: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    pub json: bool,
 }
 
 #[derive(Args)]
@@ -202,6 +219,51 @@ pub fn export(a: ExportArgs) -> Result<()> {
         _ => bail!("give --mesh OUT.ply or --points OUT.(ply|las|laz)"),
     };
     let bbox = a.bbox.as_deref().map(export::Bbox::parse).transpose()?;
+    let status = store.manifest().pass_status();
+    let store = match a.pass {
+        Some(p) if p == status.pass && status.is_complete() => store,
+        Some(p) if p == status.complete_pass && p > 0 => {
+            println!(
+                "exporting pass {p} (λ {}), the last complete one",
+                status.complete_params.lambda
+            );
+            store.complete_pass_view()?
+        }
+        Some(p) => bail!(
+            "{}: pass {p} cannot be exported whole; {}",
+            a.dir.display(),
+            status.describe()
+        ),
+        None if field == Field::Regularized && !status.is_complete() => {
+            if !a.allow_incomplete_pass {
+                let previous = if status.complete_pass > 0 {
+                    format!(
+                        ", export the last complete pass with --pass {}",
+                        status.complete_pass
+                    )
+                } else {
+                    String::new()
+                };
+                bail!(
+                    "{}: regularisation {}. Finish it with `denser regularize {} --lambda {} --iterations {}`{previous}, or mix the passes with --allow-incomplete-pass",
+                    a.dir.display(),
+                    status.describe(),
+                    a.dir.display(),
+                    status.params.lambda,
+                    status.params.iterations
+                );
+            }
+            println!(
+                "exporting an incomplete regularisation ({}):",
+                status.describe()
+            );
+            for line in status.chunks_by_pass_lines(None) {
+                println!("  {line}");
+            }
+            store
+        }
+        None => store,
+    };
     if field == Field::Regularized && store.summary().regularized_chunks == 0 {
         tracing::warn!(
             "{} has no regularised chunks: exporting f (run `denser regularize` first)",
@@ -230,6 +292,12 @@ pub fn inspect(a: InspectArgs) -> Result<()> {
         .with_context(|| format!("opening map {}", a.dir.display()))?;
     let s = store.summary();
     let h = store.manifest().header;
+    let passes = store.manifest().pass_status();
+    let frames = if h.frames_committed == denser::tiles::manifest::FRAMES_UNKNOWN {
+        "unknown (repaired map: fusion cannot resume)".to_string()
+    } else {
+        h.frames_committed.to_string()
+    };
     let problems = if a.verify { store.verify() } else { Vec::new() };
     if a.json {
         let v = serde_json::json!({
@@ -241,6 +309,8 @@ pub fn inspect(a: InspectArgs) -> Result<()> {
             "generation": h.generation,
             "frames_committed": h.frames_committed,
             "regularization_pass": h.reg_pass,
+            "regularization": passes,
+            "regularization_status": passes.describe(),
             "verified": a.verify,
             "problems": problems,
         });
@@ -248,11 +318,17 @@ pub fn inspect(a: InspectArgs) -> Result<()> {
     } else {
         println!("map {}", a.dir.display());
         println!(
-            "  voxel {} m, μ {} m, chunks of {}³ blocks; generation {}, {} frames committed, regularisation pass {}",
-            h.voxel_size_m, h.truncation_m, h.chunk_blocks, h.generation, h.frames_committed, h.reg_pass
+            "  voxel {} m, μ {} m, chunks of {}³ blocks; generation {}, frames committed: {frames}",
+            h.voxel_size_m, h.truncation_m, h.chunk_blocks, h.generation
         );
+        println!("  regularisation: {}", passes.describe());
+        if !passes.is_complete() {
+            for line in passes.chunks_by_pass_lines(Some(12)) {
+                println!("    {line}");
+            }
+        }
         println!(
-            "  {} chunks ({} regularised), {} blocks, {} voxels ({} in Ω), {:.1} MiB on disk, {:.3} bytes/voxel",
+            "  {} chunks ({} carry u), {} blocks, {} voxels ({} in Ω), {:.1} MiB on disk, {:.3} bytes/voxel",
             s.chunks,
             s.regularized_chunks,
             s.blocks,
@@ -277,5 +353,39 @@ pub fn inspect(a: InspectArgs) -> Result<()> {
             s.chunks
         );
     }
+    Ok(())
+}
+
+pub fn repair(a: RepairArgs) -> Result<()> {
+    let r = denser::tiles::repair::repair(&a.dir)
+        .with_context(|| format!("repairing map {}", a.dir.display()))?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+        return Ok(());
+    }
+    println!(
+        "repaired {}: new manifest from the newest intact version of each chunk: {} chunks, {} blocks ({} in Ω), from {} chunk files",
+        a.dir.display(),
+        r.chunks,
+        r.blocks,
+        r.observed_voxels,
+        r.files_examined
+    );
+    if let Some(p) = &r.unreadable_manifest_moved_to {
+        println!("  the unreadable manifest was moved to {}", p.display());
+    }
+    for l in &r.older_versions_used {
+        println!("  older version: {l}");
+    }
+    for l in &r.not_kept {
+        println!("  not kept: {l}");
+    }
+    for l in &r.notes {
+        println!("  note: {l}");
+    }
+    println!("  regularisation: {}", r.passes.describe());
+    println!(
+        "  fusion progress was in the lost manifest: `reconstruct --map` cannot resume this map; regularize, export and inspect work"
+    );
     Ok(())
 }

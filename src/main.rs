@@ -41,6 +41,8 @@ enum Command {
     Export(cli_map::ExportArgs),
     /// Summarise a stored map (chunks, blocks, voxels, bytes) and verify its checksums.
     Inspect(cli_map::InspectArgs),
+    /// Rebuild a lost or unreadable map manifest from the chunk files (newest intact versions).
+    Repair(cli_map::RepairArgs),
     /// Disparity (and depth) of one rectified stereo pair, written as Middlebury PFM.
     Stereo(StereoArgs),
     /// Score a disparity map against ground truth (bad-1/2/3, D1, EPE, density).
@@ -344,6 +346,7 @@ fn main() {
         Command::Regularize(a) => cli_map::regularize(a),
         Command::Export(a) => cli_map::export(a),
         Command::Inspect(a) => cli_map::inspect(a),
+        Command::Repair(a) => cli_map::repair(a),
         Command::Stereo(a) => stereo(a),
         Command::StereoEval(a) => stereo_eval(a),
     };

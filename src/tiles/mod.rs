@@ -6,6 +6,7 @@
 //!   reads checked against the manifest entry, checkpoints that commit a manifest, verification.
 //! - [`lock`]: one writer per map (an advisory lock naming its holder), readers that never lose
 //!   the files their manifest names.
+//! - [`repair`]: rebuilds a lost manifest from the chunk files' self-describing headers.
 //! - [`pager`]: residency around the camera within a byte budget; evicted chunks are encoded and
 //!   written by background workers; revisited chunks are read back.
 //! - [`regional`]: offline regularisation of a stored map region by region with exact halos, and
@@ -20,6 +21,7 @@ pub mod lock;
 pub mod manifest;
 pub mod pager;
 pub mod regional;
+pub mod repair;
 pub mod store;
 pub mod stream;
 

@@ -13,8 +13,8 @@
 //!
 //! Every read checks the file against the manifest entry that names it ([`MapStore::read_entry`]),
 //! so a file swapped for another (with valid checksums) is an error naming the chunk, never data.
-//! A directory with chunk files but no manifest is refused by every opener (`denser repair`
-//! rebuilds the manifest).
+//! A directory with chunk files but no manifest is refused by every opener; [`super::repair`]
+//! rebuilds the manifest.
 
 use super::codec::{
     decode_chunk, decode_header_with_origin, encode_chunk_with, ChunkHeader, ChunkOrigin,
@@ -321,6 +321,18 @@ impl MapStore {
             zstd_level: DEFAULT_ZSTD_LEVEL,
             access: Access::Reader(guard),
         })
+    }
+
+    /// A writer over a manifest rebuilt by [`super::repair`] (committed by the caller).
+    pub(crate) fn from_repair(dir: &Path, lock: WriterLock, manifest: Manifest) -> Self {
+        MapStore {
+            dir: dir.to_path_buf(),
+            manifest,
+            superseded: Vec::new(),
+            deferred: Vec::new(),
+            zstd_level: DEFAULT_ZSTD_LEVEL,
+            access: Access::Writer(lock),
+        }
     }
 
     /// Whether this store holds the writer lock.
