@@ -23,6 +23,14 @@ pub enum Error {
         /// What is wrong with it, in words a user can act on.
         message: String,
     },
+    /// Another writer holds the map's lock (`MAP/lock`): one writer per map at a time.
+    #[error("{dir}: the map is locked by another writer: {holder}; wait for it to finish (inspect and export may run meanwhile)")]
+    MapLocked {
+        /// The map directory.
+        dir: PathBuf,
+        /// Who holds the lock (pid, host, command line, for how long), as its lock file says.
+        holder: String,
+    },
     /// A parameter or argument is out of its valid range.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),

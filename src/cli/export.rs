@@ -45,15 +45,28 @@ pub(crate) struct Args {
     /// RAM for building the COPC octree (e.g. 1GiB); larger clouds spill to disk.
     #[arg(long, default_value = "1GiB", value_parser = super::parse_bytes)]
     memory_budget: u64,
+    /// Export the regularised field even though the latest regularisation pass has not reached
+    /// every chunk (chunks of different passes mixed; the chunks of each pass are listed).
+    #[arg(long, conflicts_with = "raw")]
+    allow_incomplete_pass: bool,
+    /// Export the regularised field of this pass: the latest, or the last complete one while a
+    /// newer pass is incomplete (its files are kept until the newer pass completes).
+    #[arg(long, conflicts_with_all = ["raw", "allow_incomplete_pass"])]
+    pass: Option<u32>,
 }
 
 struct Exported {
     path: PathBuf,
     stats: ExportStats,
+    /// Which regularisation pass was exported, when not simply the latest complete one.
+    notes: Vec<String>,
 }
 
 impl fmt::Display for Exported {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for n in &self.notes {
+            writeln!(f, "{n}")?;
+        }
         let s = &self.stats;
         if let Some(t) = &s.tileset {
             return writeln!(
@@ -111,6 +124,55 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         (None, None, Some(t)) => ExportTarget::Tiles(t),
         _ => bail!("give --mesh OUT.ply, --points OUT.(ply|las|laz|copc.laz) or --tiles DIR"),
     };
+    let mut notes = Vec::new();
+    let status = store.manifest().pass_status();
+    let store = match a.pass {
+        Some(p) if p == status.pass && status.is_complete() => store,
+        Some(p) if p == status.complete_pass && p > 0 => {
+            notes.push(format!(
+                "exporting pass {p} (λ {}), the last complete one",
+                status.complete_params.lambda
+            ));
+            store.complete_pass_view()?
+        }
+        Some(p) => bail!(
+            "{}: pass {p} cannot be exported whole; {}",
+            a.dir.display(),
+            status.describe()
+        ),
+        None if field == Field::Regularized && !status.is_complete() => {
+            if !a.allow_incomplete_pass {
+                let previous = if status.complete_pass > 0 {
+                    format!(
+                        ", export the last complete pass with --pass {}",
+                        status.complete_pass
+                    )
+                } else {
+                    String::new()
+                };
+                bail!(
+                    "{}: regularisation {}. Finish it with `denser regularize {} --lambda {} --iterations {}`{previous}, or mix the passes with --allow-incomplete-pass",
+                    a.dir.display(),
+                    status.describe(),
+                    a.dir.display(),
+                    status.params.lambda,
+                    status.params.iterations
+                );
+            }
+            notes.push(format!(
+                "exporting an incomplete regularisation ({}):",
+                status.describe()
+            ));
+            notes.extend(
+                status
+                    .chunks_by_pass_lines(None)
+                    .into_iter()
+                    .map(|l| format!("  {l}")),
+            );
+            store
+        }
+        None => store,
+    };
     let mut options = ExportOptions::new(field);
     options.bbox = a.bbox.as_deref().map(Bbox::parse).transpose()?;
     options.memory_budget_bytes = a.memory_budget;
@@ -129,5 +191,5 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     let path = match target {
         ExportTarget::Mesh(p) | ExportTarget::Points(p) | ExportTarget::Tiles(p) => p,
     };
-    Ok(Box::new(Exported { path, stats }))
+    Ok(Box::new(Exported { path, stats, notes }))
 }

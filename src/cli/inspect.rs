@@ -31,6 +31,12 @@ impl fmt::Display for Inspected {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let s = self.store.summary();
         let h = self.store.manifest().header;
+        let passes = self.store.manifest().pass_status();
+        let frames = if h.frames_committed == denser::tiles::manifest::FRAMES_UNKNOWN {
+            "unknown (repaired map: fusion cannot resume)".to_string()
+        } else {
+            h.frames_committed.to_string()
+        };
         if self.json {
             let v = serde_json::json!({
                 "summary": s,
@@ -41,6 +47,8 @@ impl fmt::Display for Inspected {
                 "generation": h.generation,
                 "frames_committed": h.frames_committed,
                 "regularization_pass": h.reg_pass,
+                "regularization": passes,
+                "regularization_status": passes.describe(),
                 "verified": self.verified,
                 "problems": self.problems,
             });
@@ -50,12 +58,18 @@ impl fmt::Display for Inspected {
         writeln!(f, "map {}", self.dir.display())?;
         writeln!(
             f,
-            "  voxel {} m, μ {} m, chunks of {}³ blocks; generation {}, {} frames committed, regularisation pass {}",
-            h.voxel_size_m, h.truncation_m, h.chunk_blocks, h.generation, h.frames_committed, h.reg_pass
+            "  voxel {} m, μ {} m, chunks of {}³ blocks; generation {}, frames committed: {frames}",
+            h.voxel_size_m, h.truncation_m, h.chunk_blocks, h.generation
         )?;
+        writeln!(f, "  regularisation: {}", passes.describe())?;
+        if !passes.is_complete() {
+            for line in passes.chunks_by_pass_lines(Some(12)) {
+                writeln!(f, "    {line}")?;
+            }
+        }
         writeln!(
             f,
-            "  {} chunks ({} regularised), {} blocks, {} voxels ({} in Ω), {:.1} MiB on disk, {:.3} bytes/voxel",
+            "  {} chunks ({} carry u), {} blocks, {} voxels ({} in Ω), {:.1} MiB on disk, {:.3} bytes/voxel",
             s.chunks,
             s.regularized_chunks,
             s.blocks,

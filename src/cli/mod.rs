@@ -14,6 +14,7 @@ mod export;
 mod inspect;
 mod reconstruct;
 mod regularize;
+mod repair;
 mod stereo;
 mod synth;
 
@@ -57,6 +58,8 @@ enum Command {
     Export(export::Args),
     /// Summarise a stored map (chunks, blocks, voxels, bytes) and verify its checksums.
     Inspect(inspect::Args),
+    /// Rebuild a lost or unreadable map manifest from the chunk files (newest intact versions).
+    Repair(repair::Args),
     /// Disparity (and depth) of one rectified stereo pair, written as Middlebury PFM.
     Stereo(stereo::Args),
     /// Score a disparity map against ground truth (bad-1/2/3, D1, EPE, density).
@@ -100,6 +103,7 @@ pub fn main() -> ExitCode {
         Command::Regularize(a) => regularize::run(a),
         Command::Export(a) => export::run(a),
         Command::Inspect(a) => inspect::run(a),
+        Command::Repair(a) => repair::run(a),
         Command::Stereo(a) => stereo::run(a),
         Command::StereoEval(a) => stereo::run_eval(a),
     };

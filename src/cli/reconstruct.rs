@@ -19,6 +19,7 @@ use denser::mesh::Field;
 use denser::reconstruct::{ReconstructionConfig, Reconstructor, RegularizeOutcome};
 use denser::store::{BlockStore, MemoryStore, SurfaceOutput};
 use denser::tiles::job::{relative_hint, JobRecord};
+use denser::tiles::manifest::FRAMES_UNKNOWN;
 use denser::tiles::pager::{OverrunPolicy, PagerConfig};
 use denser::tiles::store::{MapStore, MANIFEST_FILE};
 use denser::tiles::PagedStore;
@@ -307,8 +308,16 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
         created_by: format!("denser {}", env!("CARGO_PKG_VERSION")),
     };
     let store = if m.dir.join(MANIFEST_FILE).exists() {
+        // The writer lock first: the job record is checked (and a legacy one upgraded) under it.
+        let store = MapStore::open(&m.dir)?;
+        if store.manifest().header.frames_committed == FRAMES_UNKNOWN {
+            return Err(denser::Error::bad_input(
+                &m.dir,
+                "this map's manifest was rebuilt by `denser repair`, which cannot know how many frames were fused: fusion cannot resume it (regularize, export and inspect work); reconstruct into a new --map folder",
+            ));
+        }
         record.check_or_write(&m.dir, &job.input)?;
-        MapStore::open(&m.dir)?
+        store
     } else {
         let s = MapStore::create(&m.dir, job.config.grid, m.chunk_blocks)?;
         JobRecord {

@@ -11,16 +11,51 @@
 //! non-empty voxels only (empty voxels hold known defaults; a block where they do not is coded
 //! densely). TSDF values are stored as the zigzag-coded difference to the previous coded voxel of
 //! the block (x fastest), low bytes then high bytes; the regularised field as zigzag `u − f`.
+//!
+//! Two header versions share the payload: format 1 (64 bytes) and format 2 (128 bytes), which adds
+//! the file's **origin** ([`ChunkOrigin`]: map id, file sequence number, the regularisation pass
+//! that wrote `u` and its parameters) so that a file can be checked against the manifest entry
+//! that names it and a lost manifest can be rebuilt from the files alone. The store writes format
+//! 2 ([`encode_chunk_with`]); both are read.
 
 use super::ChunkIndex;
 use crate::grid::{Block, BlockIndex, VOXELS_PER_BLOCK};
+use crate::regularize::TvParams;
 
 /// First 8 bytes of every chunk file.
 pub const CHUNK_MAGIC: [u8; 8] = *b"DNSRCHNK";
-/// Chunk format version written by this build (readers reject others by name).
+/// Chunk format version of [`encode_chunk`] (no origin; still read).
 pub const CHUNK_VERSION: u16 = 1;
-/// Size of the fixed header, bytes.
+/// Chunk format version with an origin ([`encode_chunk_with`]); the store writes this one.
+pub const CHUNK_VERSION_2: u16 = 2;
+/// Size of the fixed header of format 1, bytes.
 pub const CHUNK_HEADER_BYTES: usize = 64;
+/// Size of the fixed header of format 2, bytes.
+pub const CHUNK_HEADER_V2_BYTES: usize = 128;
+
+/// Where a chunk file comes from (format 2 only): what the store checks against the manifest
+/// entry naming the file, and what `repair` rebuilds a lost manifest from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ChunkOrigin {
+    /// Identity of the map the file was written for (random, fixed when the map is created;
+    /// 0 = unknown).
+    pub map_id: u64,
+    /// The file's sequence number (also in its name).
+    pub file_seq: u64,
+    /// The regularisation pass that wrote the file's `u` (0: written by fusion, or no `u`).
+    pub reg_pass: u32,
+    /// That pass's parameters (all zero when `reg_pass` is 0).
+    pub reg_params: TvParams,
+}
+
+/// TV parameters that are all zero: the "no pass" value stored in headers.
+pub const NO_PARAMS: TvParams = TvParams {
+    lambda: 0.0,
+    sigma: 0.0,
+    tau: 0.0,
+    theta: 0.0,
+    iterations: 0,
+};
 /// Header flag bit 0: at least one block carries a regularised field.
 pub const FLAG_HAS_REGULARIZED: u16 = 1;
 /// Block flag bit 0: this block carries a regularised field.
@@ -62,7 +97,7 @@ pub enum CodecError {
     BadMagic,
     /// A version this build cannot read.
     #[error(
-        "chunk format version {found} is not supported (this build reads version {CHUNK_VERSION})"
+        "chunk format version {found} is not supported (this build reads versions {CHUNK_VERSION} and {CHUNK_VERSION_2})"
     )]
     UnsupportedVersion {
         /// Version found in the header.
@@ -129,8 +164,8 @@ fn unzigzag(z: u16) -> i16 {
 }
 
 /// Encodes `blocks` (all inside `header.chunk`, any order, no duplicates) into a complete chunk
-/// file. `header.block_count`, `flags`, payload lengths and CRC are filled in here; the other
-/// header fields are taken as given.
+/// file of format 1 (no origin). `header.block_count`, `flags`, payload lengths and CRC are filled
+/// in here; the other header fields are taken as given.
 ///
 /// Panics if a block lies outside the chunk or appears twice (a caller bug, not bad input).
 pub fn encode_chunk(
@@ -138,12 +173,23 @@ pub fn encode_chunk(
     blocks: &[(BlockIndex, &Block)],
     zstd_level: i32,
 ) -> Vec<u8> {
+    encode_chunk_with(header, None, blocks, zstd_level)
+}
+
+/// [`encode_chunk`] with a choice of format: `Some(origin)` writes format 2 (128-byte header
+/// carrying `origin`), `None` format 1.
+pub fn encode_chunk_with(
+    header: &ChunkHeader,
+    origin: Option<&ChunkOrigin>,
+    blocks: &[(BlockIndex, &Block)],
+    zstd_level: i32,
+) -> Vec<u8> {
     let cb = header.chunk_blocks as i32;
-    let origin = header.chunk.origin_block(header.chunk_blocks);
+    let first_block = header.chunk.origin_block(header.chunk_blocks);
     let mut order: Vec<([u8; 3], &Block)> = blocks
         .iter()
         .map(|(b, blk)| {
-            let l = [0, 1, 2].map(|a| b.0[a] - origin[a]);
+            let l = [0, 1, 2].map(|a| b.0[a] - first_block[a]);
             assert!(
                 l.iter().all(|&c| (0..cb).contains(&c)),
                 "block {b:?} is outside chunk {:?}",
@@ -225,8 +271,11 @@ pub fn encode_chunk(
         payload_crc32: crc32fast::hash(&zstd_payload),
         ..*header
     };
-    let mut out = Vec::with_capacity(CHUNK_HEADER_BYTES + zstd_payload.len());
-    out.extend_from_slice(&encode_header(&h));
+    let mut out = Vec::with_capacity(CHUNK_HEADER_V2_BYTES + zstd_payload.len());
+    match origin {
+        Some(o) => out.extend_from_slice(&encode_header_v2(&h, o)),
+        None => out.extend_from_slice(&encode_header(&h)),
+    }
     out.extend_from_slice(&zstd_payload);
     out
 }
@@ -236,13 +285,46 @@ fn push_planes(raw: &mut Vec<u8>, z: &[u16]) {
     raw.extend(z.iter().map(|v| (*v >> 8) as u8));
 }
 
-/// The 64 header bytes of `h` (CRC of bytes 0..60 in bytes 60..64).
+/// The 64 header bytes of `h` in format 1 (CRC of bytes 0..60 in bytes 60..64).
 pub fn encode_header(h: &ChunkHeader) -> [u8; CHUNK_HEADER_BYTES] {
     let mut b = [0u8; CHUNK_HEADER_BYTES];
+    put_common(&mut b, h, CHUNK_VERSION);
+    // 56..60 reserved, zero.
+    let crc = crc32fast::hash(&b[0..60]);
+    b[60..64].copy_from_slice(&crc.to_le_bytes());
+    b
+}
+
+/// The 128 header bytes of `h` with `origin` in format 2 (CRC of bytes 0..124 in bytes 124..128).
+pub fn encode_header_v2(h: &ChunkHeader, origin: &ChunkOrigin) -> [u8; CHUNK_HEADER_V2_BYTES] {
+    let mut b = [0u8; CHUNK_HEADER_V2_BYTES];
+    put_common(&mut b, h, CHUNK_VERSION_2);
+    b[56..64].copy_from_slice(&origin.map_id.to_le_bytes());
+    b[64..72].copy_from_slice(&origin.file_seq.to_le_bytes());
+    b[72..76].copy_from_slice(&origin.reg_pass.to_le_bytes());
+    let p = &origin.reg_params;
+    b[76..80].copy_from_slice(&p.iterations.to_le_bytes());
+    b[80..84].copy_from_slice(&p.lambda.to_le_bytes());
+    b[84..88].copy_from_slice(&p.sigma.to_le_bytes());
+    b[88..92].copy_from_slice(&p.tau.to_le_bytes());
+    b[92..96].copy_from_slice(&p.theta.to_le_bytes());
+    // 96..124 reserved, zero.
+    let crc = crc32fast::hash(&b[0..124]);
+    b[124..128].copy_from_slice(&crc.to_le_bytes());
+    b
+}
+
+/// Bytes 0..56, common to both formats.
+fn put_common(b: &mut [u8], h: &ChunkHeader, version: u16) {
+    let len = if version == CHUNK_VERSION {
+        CHUNK_HEADER_BYTES
+    } else {
+        CHUNK_HEADER_V2_BYTES
+    };
     b[0..8].copy_from_slice(&CHUNK_MAGIC);
-    b[8..10].copy_from_slice(&CHUNK_VERSION.to_le_bytes());
+    b[8..10].copy_from_slice(&version.to_le_bytes());
     b[10..12].copy_from_slice(&h.flags.to_le_bytes());
-    b[12..16].copy_from_slice(&(CHUNK_HEADER_BYTES as u32).to_le_bytes());
+    b[12..16].copy_from_slice(&(len as u32).to_le_bytes());
     b[16..20].copy_from_slice(&h.voxel_size_m.to_le_bytes());
     b[20..24].copy_from_slice(&h.truncation_m.to_le_bytes());
     for a in 0..3 {
@@ -253,10 +335,6 @@ pub fn encode_header(h: &ChunkHeader) -> [u8; CHUNK_HEADER_BYTES] {
     b[44..48].copy_from_slice(&h.payload_raw_bytes.to_le_bytes());
     b[48..52].copy_from_slice(&h.payload_zstd_bytes.to_le_bytes());
     b[52..56].copy_from_slice(&h.payload_crc32.to_le_bytes());
-    // 56..60 reserved, zero.
-    let crc = crc32fast::hash(&b[0..60]);
-    b[60..64].copy_from_slice(&crc.to_le_bytes());
-    b
 }
 
 fn le_u16(b: &[u8], at: usize) -> u16 {
@@ -266,8 +344,25 @@ fn le_u32(b: &[u8], at: usize) -> u32 {
     u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
 }
 
-/// Checks and parses the header at the start of `bytes` (magic, version, header CRC, ranges).
+/// Checks and parses the header at the start of `bytes` (magic, version, header CRC, ranges), of
+/// either format; the origin (format 2) is dropped: see [`decode_header_with_origin`].
 pub fn decode_header(bytes: &[u8]) -> Result<ChunkHeader, CodecError> {
+    decode_header_with_origin(bytes).map(|(h, _)| h)
+}
+
+/// Length of the header of a file whose header decoded with `origin` (format 2) or without.
+pub fn header_len(origin: Option<&ChunkOrigin>) -> usize {
+    if origin.is_some() {
+        CHUNK_HEADER_V2_BYTES
+    } else {
+        CHUNK_HEADER_BYTES
+    }
+}
+
+/// [`decode_header`] returning the origin too (`None` for a format-1 file).
+pub fn decode_header_with_origin(
+    bytes: &[u8],
+) -> Result<(ChunkHeader, Option<ChunkOrigin>), CodecError> {
     if bytes.len() < 8 || bytes[0..8] != CHUNK_MAGIC {
         if bytes.len() < 8 && CHUNK_MAGIC.starts_with(bytes) {
             return Err(CodecError::Truncated(format!(
@@ -277,31 +372,44 @@ pub fn decode_header(bytes: &[u8]) -> Result<ChunkHeader, CodecError> {
         }
         return Err(CodecError::BadMagic);
     }
-    if bytes.len() < CHUNK_HEADER_BYTES {
+    if bytes.len() < 10 {
         return Err(CodecError::Truncated(format!(
             "{} bytes, header needs {CHUNK_HEADER_BYTES}",
             bytes.len()
         )));
     }
     let version = le_u16(bytes, 8);
-    if version != CHUNK_VERSION {
-        return Err(CodecError::UnsupportedVersion { found: version });
+    let len = match version {
+        CHUNK_VERSION => CHUNK_HEADER_BYTES,
+        CHUNK_VERSION_2 => CHUNK_HEADER_V2_BYTES,
+        _ => return Err(CodecError::UnsupportedVersion { found: version }),
+    };
+    if bytes.len() < len {
+        return Err(CodecError::Truncated(format!(
+            "{} bytes, header needs {len}",
+            bytes.len()
+        )));
     }
-    let stored = le_u32(bytes, 60);
-    let computed = crc32fast::hash(&bytes[0..60]);
+    let stored = le_u32(bytes, len - 4);
+    let computed = crc32fast::hash(&bytes[0..len - 4]);
     if stored != computed {
         return Err(CodecError::HeaderChecksum { stored, computed });
     }
     let header_len = le_u32(bytes, 12);
-    if header_len as usize != CHUNK_HEADER_BYTES {
+    if header_len as usize != len {
         return Err(CodecError::Malformed(format!(
-            "header length {header_len}, expected {CHUNK_HEADER_BYTES}"
+            "header length {header_len}, expected {len}"
         )));
     }
-    if bytes[56..60] != [0; 4] {
-        return Err(CodecError::Malformed(
-            "reserved header bytes 56..60 are not zero".into(),
-        ));
+    let reserved = if version == CHUNK_VERSION {
+        56..60
+    } else {
+        96..124
+    };
+    if bytes[reserved.clone()].iter().any(|x| *x != 0) {
+        return Err(CodecError::Malformed(format!(
+            "reserved header bytes {reserved:?} are not zero"
+        )));
     }
     let h = ChunkHeader {
         flags: le_u16(bytes, 10),
@@ -352,7 +460,19 @@ pub fn decode_header(bytes: &[u8]) -> Result<ChunkHeader, CodecError> {
             h.payload_raw_bytes
         )));
     }
-    Ok(h)
+    let origin = (version == CHUNK_VERSION_2).then(|| ChunkOrigin {
+        map_id: u64::from_le_bytes(bytes[56..64].try_into().expect("8 bytes")),
+        file_seq: u64::from_le_bytes(bytes[64..72].try_into().expect("8 bytes")),
+        reg_pass: le_u32(bytes, 72),
+        reg_params: TvParams {
+            iterations: le_u32(bytes, 76),
+            lambda: f32::from_le_bytes(bytes[80..84].try_into().expect("4 bytes")),
+            sigma: f32::from_le_bytes(bytes[84..88].try_into().expect("4 bytes")),
+            tau: f32::from_le_bytes(bytes[88..92].try_into().expect("4 bytes")),
+            theta: f32::from_le_bytes(bytes[92..96].try_into().expect("4 bytes")),
+        },
+    });
+    Ok((h, origin))
 }
 
 /// A decoded chunk: its header and its blocks, sorted by block index.
@@ -360,14 +480,17 @@ pub fn decode_header(bytes: &[u8]) -> Result<ChunkHeader, CodecError> {
 pub struct DecodedChunk {
     /// The header as stored.
     pub header: ChunkHeader,
+    /// The file's origin (format 2; `None` for a format-1 file).
+    pub origin: Option<ChunkOrigin>,
     /// The blocks, sorted by [`BlockIndex`].
     pub blocks: Vec<(BlockIndex, Box<Block>)>,
 }
 
-/// Checks and decodes a complete chunk file (header + payload; trailing bytes are an error).
+/// Checks and decodes a complete chunk file of either format (header + payload; trailing bytes
+/// are an error).
 pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
-    let h = decode_header(bytes)?;
-    let body = &bytes[CHUNK_HEADER_BYTES..];
+    let (h, origin) = decode_header_with_origin(bytes)?;
+    let body = &bytes[header_len(origin.as_ref())..];
     let zlen = h.payload_zstd_bytes as usize;
     if body.len() < zlen {
         return Err(CodecError::Truncated(format!(
@@ -408,7 +531,7 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
     };
     let coords = take(3 * n)?;
     let flags = take(n)?;
-    let origin = h.chunk.origin_block(h.chunk_blocks);
+    let first_block = h.chunk.origin_block(h.chunk_blocks);
     let mut blocks: Vec<(BlockIndex, Box<Block>)> = Vec::with_capacity(n);
     let mut prev: Option<[u8; 3]> = None;
     for i in 0..n {
@@ -430,7 +553,7 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
                 flags[i]
             )));
         }
-        let index = BlockIndex([0, 1, 2].map(|a| origin[a] + l[a] as i32));
+        let index = BlockIndex([0, 1, 2].map(|a| first_block[a] + l[a] as i32));
         blocks.push((index, Block::new_boxed()));
     }
     let n_reg = flags
@@ -502,5 +625,9 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
         }
         b.regularized = Some(u);
     }
-    Ok(DecodedChunk { header: h, blocks })
+    Ok(DecodedChunk {
+        header: h,
+        origin,
+        blocks,
+    })
 }

@@ -3,7 +3,10 @@
 //! - [`codec`]: pure chunk encoder/decoder (`formats/chunk.md`).
 //! - [`manifest`]: the map's manifest, the commit point of every write (`formats/manifest.md`).
 //! - [`store`]: the map directory: crash-safe chunk writes (new file, fsync, rename), memory-mapped
-//!   reads, checkpoints that commit a manifest, verification.
+//!   reads checked against the manifest entry, checkpoints that commit a manifest, verification.
+//! - [`lock`]: one writer per map (an advisory lock naming its holder), readers that never lose
+//!   the files their manifest names.
+//! - [`repair`]: rebuilds a lost manifest from the chunk files' self-describing headers.
 //! - [`pager`]: residency around the camera within a byte budget; evicted chunks are encoded and
 //!   written by background workers; revisited chunks are read back.
 //! - [`regional`]: offline regularisation of a stored map region by region with exact halos.
@@ -16,10 +19,12 @@
 pub mod codec;
 pub mod export;
 pub mod job;
+pub mod lock;
 pub mod manifest;
 mod paged;
 pub mod pager;
 pub mod regional;
+pub mod repair;
 pub mod store;
 pub mod tileset;
 

@@ -9,7 +9,9 @@
 //!
 //! Progress is part of the manifest: a pass number and its parameters in the header, and per chunk
 //! the pass that wrote it. The manifest is committed after every region, so a killed run resumes
-//! with the first region not committed; a run with other parameters starts a new pass.
+//! with the first region not committed; a run with other parameters starts a new pass. Until a
+//! new pass reaches every chunk, the files of the last complete pass stay on disk and in the
+//! manifest ([`crate::tiles::manifest::Manifest::kept`]), so that pass remains readable whole.
 
 use super::pager::BLOCK_RESIDENT_BYTES;
 use super::store::MapStore;
@@ -87,35 +89,54 @@ pub fn regularize_map_with(
     store: &mut MapStore,
     params: &TvParams,
     options: &RegionalOptions,
-    mut progress: impl FnMut(usize, usize) -> bool,
-    mut solve: impl FnMut(&mut TvProblem) -> Result<()>,
+    progress: impl FnMut(usize, usize) -> bool,
+    solve: impl FnMut(&mut TvProblem) -> Result<()>,
 ) -> Result<MapRegularizeStats> {
     params.validate()?;
-    let (region_chunks, budget_bytes) = (options.region_chunks, options.budget_bytes);
-    if region_chunks == 0 {
+    if options.region_chunks == 0 {
         return Err(Error::InvalidArgument(
             "--region-chunks must be at least 1".into(),
         ));
     }
     let t0 = std::time::Instant::now();
-    let cb = store.chunk_blocks() as i32;
-    let r = region_chunks as i32;
     let h = store.manifest().header;
-    let all_done = |s: &MapStore| {
-        s.manifest()
-            .chunks
-            .values()
-            .all(|e| e.reg_pass == s.manifest().header.reg_pass)
-    };
-    let pass = if h.reg_pass > 0 && h.reg_params == *params {
-        h.reg_pass
+    // Same parameters as the latest pass: continue it (a resumed run, or chunks fused since).
+    // Other parameters: a new pass, recorded with its first committed region. The last complete
+    // pass stays readable (kept files) until the new one reaches every chunk.
+    let (pass, new_pass) = if h.reg_pass > 0 && h.reg_params == *params {
+        (h.reg_pass, false)
     } else {
-        let hm = store.header_mut();
-        hm.reg_pass += 1;
-        hm.reg_params = *params;
-        store.commit()?;
-        store.manifest().header.reg_pass
+        (store.begin_pass(params), true)
     };
+    let result = regularize_pass(store, params, options, pass, new_pass, progress, solve);
+    if result.is_err() && new_pass && store.manifest().header.reg_pass == pass {
+        // Nothing of the new pass may have been committed: forget it unless a region was.
+        let committed = store.manifest().chunks.values().any(|e| e.reg_pass == pass);
+        if !committed {
+            let hm = store.header_mut();
+            hm.reg_pass = h.reg_pass;
+            hm.reg_params = h.reg_params;
+        }
+    }
+    result.map(|mut stats| {
+        stats.seconds = t0.elapsed().as_secs_f64();
+        stats
+    })
+}
+
+/// The regions of pass `pass` (begun by the caller; `new_pass` when not yet committed).
+fn regularize_pass(
+    store: &mut MapStore,
+    params: &TvParams,
+    options: &RegionalOptions,
+    pass: u32,
+    new_pass: bool,
+    mut progress: impl FnMut(usize, usize) -> bool,
+    mut solve: impl FnMut(&mut TvProblem) -> Result<()>,
+) -> Result<MapRegularizeStats> {
+    let cb = store.chunk_blocks() as i32;
+    let r = options.region_chunks as i32;
+    let all_done = |s: &MapStore| s.manifest().chunks.values().all(|e| e.reg_pass == pass);
     let halo = options
         .halo_blocks
         .unwrap_or_else(|| RegionPlan::exact_halo_blocks(params.iterations))
@@ -126,7 +147,9 @@ pub fn regularize_map_with(
         ..Default::default()
     };
     if all_done(store) {
-        stats.seconds = t0.elapsed().as_secs_f64();
+        if new_pass || store.manifest().header.complete_pass != pass {
+            store.commit()?;
+        }
         return Ok(stats);
     }
     let mut regions: BTreeMap<[i32; 3], Vec<ChunkIndex>> = BTreeMap::new();
@@ -175,11 +198,11 @@ pub fn regularize_map_with(
             }
             let bytes = gathered.len() as u64
                 * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
-            if bytes > budget_bytes {
+            if bytes > options.budget_bytes {
                 return Err(Error::InvalidArgument(format!(
                     "region {key:?} with its {halo}-block halo needs about {} MiB, over the {} MiB budget; use a smaller --region-chunks or a larger --memory-budget",
                     bytes >> 20,
-                    budget_bytes >> 20
+                    options.budget_bytes >> 20
                 )));
             }
         }
@@ -211,6 +234,5 @@ pub fn regularize_map_with(
             break;
         }
     }
-    stats.seconds = t0.elapsed().as_secs_f64();
     Ok(stats)
 }

@@ -6,5 +6,6 @@ mod common;
 mod depth_support;
 
 mod basics;
+mod engine;
 mod map;
 mod stereo;

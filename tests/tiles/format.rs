@@ -6,8 +6,9 @@
 use denser::grid::{encode_tsdf, Block, BlockIndex, GridParams, OMEGA_BIT, VOXELS_PER_BLOCK};
 use denser::regularize::TvParams;
 use denser::tiles::codec::{
-    decode_chunk, decode_header, encode_chunk, encode_header, ChunkHeader, CodecError,
-    CHUNK_HEADER_BYTES,
+    decode_chunk, decode_header, decode_header_with_origin, encode_chunk, encode_chunk_with,
+    encode_header, encode_header_v2, ChunkHeader, ChunkOrigin, CodecError, CHUNK_HEADER_BYTES,
+    CHUNK_HEADER_V2_BYTES,
 };
 use denser::tiles::manifest::{
     decode_manifest, encode_manifest, ChunkEntry, Manifest, ManifestHeader, MANIFEST_HEADER_BYTES,
@@ -149,6 +150,94 @@ fn chunk_header_golden_bytes() {
 }
 
 #[test]
+fn chunk_header_v2_golden_bytes() {
+    // The version-2 table of formats/chunk.md: bytes 0..56 as in version 1, then the origin.
+    let h = ChunkHeader {
+        voxel_size_m: 0.1,
+        truncation_m: 1.0,
+        chunk: ChunkIndex([-1, 2, 3]),
+        chunk_blocks: 16,
+        block_count: 5,
+        flags: 1,
+        payload_raw_bytes: 0x4414,
+        payload_zstd_bytes: 0x0000_6789,
+        payload_crc32: 0xDEAD_BEEF,
+    };
+    let o = ChunkOrigin {
+        map_id: 0x1122_3344_5566_7788,
+        file_seq: 0x0102_0304_0506,
+        reg_pass: 3,
+        reg_params: TvParams {
+            lambda: 0.7,
+            ..TvParams::paper(0.1)
+        },
+    };
+    let b = encode_header_v2(&h, &o);
+    assert_eq!(b.len(), CHUNK_HEADER_V2_BYTES);
+    let v1 = encode_header(&h);
+    assert_eq!(&b[0..8], &v1[0..8], "magic");
+    assert_eq!(
+        &b[8..16],
+        &[2, 0, 1, 0, 128, 0, 0, 0],
+        "version 2, flags, length"
+    );
+    assert_eq!(
+        &b[16..56],
+        &v1[16..56],
+        "grid, chunk, counts, payload: as version 1"
+    );
+    assert_eq!(
+        &b[56..64],
+        &0x1122_3344_5566_7788u64.to_le_bytes(),
+        "map id"
+    );
+    assert_eq!(
+        &b[64..72],
+        &0x0102_0304_0506u64.to_le_bytes(),
+        "file number"
+    );
+    assert_eq!(
+        &b[72..80],
+        &[3, 0, 0, 0, 100, 0, 0, 0],
+        "pass 3, 100 iterations"
+    );
+    assert_eq!(&b[80..84], &0.7f32.to_le_bytes(), "λ");
+    assert_eq!(&b[84..88], &0.5f32.to_le_bytes(), "σ");
+    assert_eq!(&b[88..92], &(1.0f32 / 6.0).to_le_bytes(), "τ");
+    assert_eq!(&b[92..96], &1.0f32.to_le_bytes(), "θ");
+    assert!(b[96..124].iter().all(|x| *x == 0), "reserved");
+    assert_eq!(&b[124..128], &crc32fast::hash(&b[0..124]).to_le_bytes());
+    assert_eq!(decode_header_with_origin(&b).expect("decode"), (h, Some(o)));
+    assert_eq!(decode_header(&b).expect("decode"), h);
+    // A whole version-2 file round-trips, origin included, and every flipped byte and every
+    // truncation is rejected.
+    let (h, blocks) = sample_chunk();
+    let refs: Vec<(BlockIndex, &Block)> = blocks.iter().map(|(i, b)| (*i, &**b)).collect();
+    let file = encode_chunk_with(&h, Some(&o), &refs, 3);
+    let v1_file = encode_chunk(&h, &refs, 3);
+    assert_eq!(
+        file.len(),
+        v1_file.len() + 64,
+        "the same payload behind a longer header"
+    );
+    assert_eq!(&file[128..], &v1_file[64..]);
+    let d = decode_chunk(&file).expect("decode");
+    assert_eq!(d.origin, Some(o));
+    assert_eq!(d.blocks.len(), blocks.len());
+    for at in 0..CHUNK_HEADER_V2_BYTES {
+        let mut c = file.clone();
+        c[at] ^= 0x10;
+        assert!(
+            decode_chunk(&c).is_err(),
+            "flipped header byte {at} accepted"
+        );
+    }
+    for len in [0, 10, 64, 127, 128, file.len() - 1] {
+        assert!(decode_chunk(&file[..len]).is_err(), "truncated to {len}");
+    }
+}
+
+#[test]
 fn chunk_payload_golden_layout() {
     // One block at local (1, 2, 3) of chunk (0,0,0), edge 4, with two observed voxels: only they
     // carry TSDF and colour (the columns of formats/chunk.md).
@@ -278,6 +367,10 @@ proptest! {
         let mut b = encode_header(&h).to_vec();
         b.extend_from_slice(&z);
         let _ = decode_chunk(&b);
+        let o = ChunkOrigin { map_id: 7, file_seq: 9, reg_pass: 1, reg_params: TvParams::paper(0.1) };
+        let mut b = encode_header_v2(&h, &o).to_vec();
+        b.extend_from_slice(&z);
+        let _ = decode_chunk(&b);
         let _ = decode_manifest(&data);
     }
 
@@ -335,8 +428,27 @@ fn sample_manifest() -> Manifest {
             next_file_seq: 5,
             reg_pass: 2,
             reg_params: TvParams::paper(0.1),
+            complete_pass: 1,
+            complete_params: TvParams {
+                lambda: 0.5,
+                ..TvParams::paper(0.1)
+            },
+            map_id: 0x0123_4567_89AB_CDEF,
         },
         chunks,
+        kept: [(
+            ChunkIndex([-2, 0, 1]),
+            ChunkEntry {
+                block_count: 7,
+                observed_voxels: 1230,
+                flags: 1,
+                file_seq: 2,
+                file_bytes: 990,
+                payload_crc32: 0x1111_2222,
+                reg_pass: 1,
+            },
+        )]
+        .into(),
     }
 }
 
@@ -344,9 +456,9 @@ fn sample_manifest() -> Manifest {
 fn manifest_round_trip_and_golden_bytes() {
     let m = sample_manifest();
     let b = encode_manifest(&m);
-    assert_eq!(b.len(), MANIFEST_HEADER_BYTES + 2 * 48 + 4);
+    assert_eq!(b.len(), MANIFEST_HEADER_BYTES + (2 + 1) * 48 + 4);
     assert_eq!(&b[0..8], b"DNSRMANI");
-    assert_eq!(&b[8..16], &[1, 0, 0, 0, 128, 0, 0, 0]);
+    assert_eq!(&b[8..16], &[2, 0, 0, 0, 128, 0, 0, 0]);
     assert_eq!(
         &b[24..32],
         &[16, 0, 0, 0, 2, 0, 0, 0],
@@ -360,7 +472,19 @@ fn manifest_round_trip_and_golden_bytes() {
         "pass 2, 100 iterations"
     );
     assert_eq!(&b[64..68], &0.8f32.to_le_bytes(), "λ");
-    assert!(b[80..124].iter().all(|x| *x == 0), "reserved");
+    assert_eq!(
+        &b[80..88],
+        &[1, 0, 0, 0, 100, 0, 0, 0],
+        "complete pass 1, 100 iterations"
+    );
+    assert_eq!(&b[88..92], &0.5f32.to_le_bytes(), "complete pass λ");
+    assert_eq!(
+        &b[104..112],
+        &0x0123_4567_89AB_CDEFu64.to_le_bytes(),
+        "map id"
+    );
+    assert_eq!(&b[112..116], &1u32.to_le_bytes(), "kept entries");
+    assert!(b[116..124].iter().all(|x| *x == 0), "reserved");
     // First entry: chunk (-2, 0, 1), sorted before (0, 0, 0).
     let e = MANIFEST_HEADER_BYTES;
     assert_eq!(
@@ -372,6 +496,14 @@ fn manifest_round_trip_and_golden_bytes() {
         &3u64.to_le_bytes(),
         "file sequence number"
     );
+    // The kept table follows the entries, in the same 48-byte layout.
+    let k = MANIFEST_HEADER_BYTES + 2 * 48;
+    assert_eq!(
+        &b[k..k + 12],
+        &b[e..e + 12],
+        "kept file of chunk (-2, 0, 1)"
+    );
+    assert_eq!(&b[k + 24..k + 32], &2u64.to_le_bytes(), "its file number");
     assert_eq!(decode_manifest(&b).expect("decode"), m);
     for at in 0..b.len() {
         let mut c = b.clone();
@@ -449,6 +581,7 @@ fn corrupted_chunk_is_reported_by_name() {
     let mid = bytes.len() / 2 + 20;
     bytes[mid] ^= 0x01;
     std::fs::write(&path, &bytes).expect("write");
+    drop(s); // the writer closes the map (one writer per map)
     let s = MapStore::open_read_only(&root).expect("open");
     let err = s
         .read_chunk(c)
@@ -464,11 +597,11 @@ fn corrupted_chunk_is_reported_by_name() {
     let problems = s.verify();
     assert_eq!(problems.len(), 1);
     assert!(problems[0].contains(&name), "{problems:?}");
-    // A missing manifest is named too.
+    // A missing manifest is named too (with the repair command: chunk files are there).
     std::fs::remove_file(root.join("manifest.dmf")).expect("rm");
-    let err = MapStore::open(&root)
-        .err()
-        .expect("no manifest")
-        .to_string();
-    assert!(err.contains("manifest.dmf"), "{err}");
+    let err = MapStore::open(&root).expect_err("no manifest").to_string();
+    assert!(
+        err.contains("manifest.dmf") && err.contains("denser repair"),
+        "{err}"
+    );
 }

@@ -132,7 +132,8 @@ fn paged_depth_fusion_is_bit_identical_to_in_memory() {
         frames.len() as u64
     );
     assert_layers_identical(&mem, &store_layer(&store));
-    // Reopening from disk gives the same map.
+    // Reopening from disk gives the same map (after the writer closes it: one writer per map).
+    drop(store);
     let reopened = MapStore::open(&dir.path().join("map")).expect("open");
     assert_layers_identical(&mem, &store_layer(&reopened));
 }

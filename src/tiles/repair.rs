@@ -1,0 +1,396 @@
+//! Rebuilding a lost or unreadable manifest from the chunk files alone (`denser repair MAP`).
+//!
+//! Chunk files are self-describing: the header of every file (format 2, `formats/chunk.md`) names
+//! its chunk, grid, map, sequence number and the regularisation pass (with its parameters) that
+//! wrote its `u`. [`repair`] reads and checks every file in `chunks/` (both CRCs and the whole
+//! payload), keeps for each chunk the **newest intact version** (largest sequence number that
+//! decodes), and writes a new manifest naming those. Files whose grid (voxel size, μ, chunk edge)
+//! or map id disagree with the majority are not kept, nor are damaged files; each is reported with
+//! the reason. The regularisation state is rebuilt from the kept files: the latest pass and its
+//! parameters, and — where the chunks that pass did not reach all stand at one older pass and the
+//! others still have an intact file of it — that older pass as the last complete one, with those
+//! files kept. Nothing is deleted: files not kept stay where they are (the next writer removes
+//! older versions of chunks the manifest names; the rest it reports and leaves).
+//!
+//! What cannot be rebuilt: how many frames of the reconstruct job every chunk contains. The new
+//! manifest says "unknown" ([`FRAMES_UNKNOWN`]), which `reconstruct --map` refuses to resume;
+//! regularize, export and inspect work. Format-1 files carry no pass: they count as unregularised.
+
+use super::codec::{ChunkHeader, ChunkOrigin, FLAG_HAS_REGULARIZED};
+use super::lock::WriterLock;
+use super::manifest::{
+    parse_chunk_file_name, ChunkEntry, Manifest, ManifestHeader, PassStatus, ENTRY_HAS_REGULARIZED,
+    FRAMES_UNKNOWN,
+};
+use super::store::{
+    new_map_id, read_chunk_file, read_manifest, MapStore, CHUNKS_DIR, MANIFEST_FILE,
+};
+use super::ChunkIndex;
+use crate::error::{Error, Result};
+use crate::regularize::TvParams;
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+
+/// What [`repair`] did.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct RepairReport {
+    /// Where an unreadable manifest was moved (kept for inspection), if there was one.
+    pub unreadable_manifest_moved_to: Option<PathBuf>,
+    /// Chunk files examined (`*.dchk`).
+    pub files_examined: usize,
+    /// Chunks in the new manifest.
+    pub chunks: usize,
+    /// Blocks in the new manifest.
+    pub blocks: u64,
+    /// Voxels in Ω in the new manifest.
+    pub observed_voxels: u64,
+    /// Chunks kept at an older version because their newest file could not be kept, one line each.
+    pub older_versions_used: Vec<String>,
+    /// Files not kept, one line each: name and why.
+    pub not_kept: Vec<String>,
+    /// Notes about the rebuilt state (passes, grid), one line each.
+    pub notes: Vec<String>,
+    /// The map id of the new manifest.
+    pub map_id: u64,
+    /// The regularisation state of the new manifest.
+    pub passes: PassStatus,
+}
+
+/// One intact chunk file.
+#[derive(Clone, Debug)]
+struct Candidate {
+    chunk: ChunkIndex,
+    seq: u64,
+    name: String,
+    header: ChunkHeader,
+    origin: Option<ChunkOrigin>,
+    entry: ChunkEntry,
+}
+
+type GridKey = (u32, u32, u32);
+
+fn grid_key(h: &ChunkHeader) -> GridKey {
+    (
+        h.voxel_size_m.to_bits(),
+        h.truncation_m.to_bits(),
+        h.chunk_blocks,
+    )
+}
+
+/// Rebuilds `dir/manifest.dmf` from the chunk files, holding the map's writer lock. Refuses a map
+/// whose manifest is intact (`inspect --verify` checks such a map); an unreadable manifest is
+/// moved aside to `manifest.dmf.unreadable-<unix seconds>` first.
+pub fn repair(dir: &Path) -> Result<RepairReport> {
+    if let Some(holder) = super::lock::writer_holding(dir) {
+        return Err(Error::MapLocked {
+            dir: dir.to_path_buf(),
+            holder,
+        });
+    }
+    if !dir.join(CHUNKS_DIR).is_dir() {
+        return Err(Error::bad_input(
+            dir,
+            "has no chunks/ folder: not a denser map, nothing to rebuild from",
+        ));
+    }
+    let lock = WriterLock::acquire(dir)?;
+    let manifest_path = dir.join(MANIFEST_FILE);
+    let mut moved = None;
+    if manifest_path.exists() {
+        match read_manifest(dir) {
+            Ok(m) => {
+                return Err(Error::bad_input(
+                    &manifest_path,
+                    format!(
+                        "is intact (generation {}, {} chunks): nothing to repair; `denser inspect {} --verify` checks the chunk files",
+                        m.header.generation,
+                        m.chunks.len(),
+                        dir.display()
+                    ),
+                ))
+            }
+            Err(e) => {
+                let secs = std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map_or(0, |d| d.as_secs());
+                let to = dir.join(format!("{MANIFEST_FILE}.unreadable-{secs}"));
+                tracing::warn!("{e}; moving it to {}", to.display());
+                std::fs::rename(&manifest_path, &to).map_err(|e| Error::io(&manifest_path, e))?;
+                moved = Some(to);
+            }
+        }
+    }
+    let chunks_dir = dir.join(CHUNKS_DIR);
+    let mut names: Vec<String> = std::fs::read_dir(&chunks_dir)
+        .map_err(|e| Error::io(&chunks_dir, e))?
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    let mut not_kept = Vec::new();
+    let mut notes = Vec::new();
+    let mut candidates: Vec<Candidate> = Vec::new();
+    let mut max_seq = 0u64;
+    let mut newest_name: HashMap<ChunkIndex, (u64, String)> = HashMap::new();
+    let mut failed: HashMap<String, String> = HashMap::new();
+    let mut files_examined = 0;
+    for name in names {
+        let stem = name
+            .strip_suffix(".tmp")
+            .map_or(name.clone(), |s| format!("{s}.dchk"));
+        let Some((c, seq)) = parse_chunk_file_name(&stem) else {
+            not_kept.push(format!("{name}: not a chunk file name"));
+            continue;
+        };
+        max_seq = max_seq.max(seq);
+        if name.ends_with(".tmp") {
+            not_kept.push(format!("{name}: temporary file (an unfinished write)"));
+            continue;
+        }
+        files_examined += 1;
+        let newest = newest_name.entry(c).or_insert((seq, name.clone()));
+        if seq > newest.0 {
+            *newest = (seq, name.clone());
+        }
+        let path = chunks_dir.join(&name);
+        let d = match read_chunk_file(&path) {
+            Ok(d) => d,
+            Err(e) => {
+                let why = match &e {
+                    Error::BadInput { message, .. } => message.clone(),
+                    other => other.to_string(),
+                };
+                not_kept.push(format!("{name}: {why}"));
+                failed.insert(name, why);
+                continue;
+            }
+        };
+        let mut bad = None;
+        if d.header.chunk != c {
+            bad = Some(format!(
+                "its header says chunk {:?}, its name {:?}",
+                d.header.chunk.0, c.0
+            ));
+        } else if let Some(o) = d.origin.filter(|o| o.file_seq != seq) {
+            bad = Some(format!(
+                "its header says file number {}, its name {seq}",
+                o.file_seq
+            ));
+        }
+        if let Some(why) = bad {
+            not_kept.push(format!("{name}: {why}"));
+            failed.insert(name, why);
+            continue;
+        }
+        let observed: u32 = d
+            .blocks
+            .iter()
+            .map(|(_, b)| b.observed_count() as u32)
+            .sum();
+        let bytes = std::fs::metadata(&path).map_or(0, |m| m.len());
+        let reg_pass = d.origin.map_or(0, |o| o.reg_pass);
+        candidates.push(Candidate {
+            chunk: c,
+            seq,
+            name,
+            header: d.header,
+            origin: d.origin,
+            entry: ChunkEntry {
+                block_count: d.header.block_count,
+                observed_voxels: observed,
+                flags: if d.header.flags & FLAG_HAS_REGULARIZED != 0 {
+                    ENTRY_HAS_REGULARIZED
+                } else {
+                    0
+                },
+                file_seq: seq,
+                file_bytes: bytes,
+                payload_crc32: d.header.payload_crc32,
+                reg_pass,
+            },
+        });
+    }
+    if candidates.is_empty() {
+        return Err(Error::bad_input(
+            &chunks_dir,
+            format!(
+                "no intact chunk file among {files_examined}: nothing to rebuild a manifest from"
+            ),
+        ));
+    }
+    // The map's grid and identity: the majority of the intact files.
+    let mut grids: BTreeMap<GridKey, usize> = BTreeMap::new();
+    for k in &candidates {
+        *grids.entry(grid_key(&k.header)).or_default() += 1;
+    }
+    let (&grid, _) = grids
+        .iter()
+        .max_by_key(|(k, n)| (**n, **k))
+        .expect("a candidate");
+    let mut ids: BTreeMap<u64, usize> = BTreeMap::new();
+    for k in &candidates {
+        if let Some(o) = k.origin.filter(|o| o.map_id != 0) {
+            *ids.entry(o.map_id).or_default() += 1;
+        }
+    }
+    let map_id = ids.iter().max_by_key(|(k, n)| (**n, **k)).map(|(k, _)| *k);
+    if ids.len() > 1 {
+        notes.push(format!(
+            "chunk files of {} maps are mixed here; kept those of map {:016x} (the most files)",
+            ids.len(),
+            map_id.unwrap_or(0)
+        ));
+    }
+    let (voxel_size_m, truncation_m, chunk_blocks) =
+        (f32::from_bits(grid.0), f32::from_bits(grid.1), grid.2);
+    candidates.retain(|k| {
+        if grid_key(&k.header) != grid {
+            let why = format!(
+                "voxel {} m, μ {} m, chunk edge {} disagree with the map's {voxel_size_m} m, {truncation_m} m, {chunk_blocks}",
+                k.header.voxel_size_m, k.header.truncation_m, k.header.chunk_blocks
+            );
+            not_kept.push(format!("{}: {why}", k.name));
+            failed.insert(k.name.clone(), why);
+            return false;
+        }
+        if let (Some(o), Some(id)) = (k.origin, map_id) {
+            if o.map_id != 0 && o.map_id != id {
+                let why = format!("belongs to another map (id {:016x}, this map's is {id:016x})", o.map_id);
+                not_kept.push(format!("{}: {why}", k.name));
+                failed.insert(k.name.clone(), why);
+                return false;
+            }
+        }
+        true
+    });
+    // Newest intact version of each chunk; older ones stay candidates for the complete pass.
+    let mut by_chunk: BTreeMap<ChunkIndex, Vec<Candidate>> = BTreeMap::new();
+    for k in candidates {
+        by_chunk.entry(k.chunk).or_default().push(k);
+    }
+    let mut older_versions_used = Vec::new();
+    let mut chunks = BTreeMap::new();
+    for (c, v) in by_chunk.iter_mut() {
+        v.sort_by_key(|k| std::cmp::Reverse(k.seq));
+        let primary = &v[0];
+        if let Some((seq, name)) = newest_name.get(c) {
+            if *seq != primary.seq {
+                older_versions_used.push(format!(
+                    "chunk ({},{},{}): newest file {name} could not be kept ({}); kept {} (pass {})",
+                    c.0[0],
+                    c.0[1],
+                    c.0[2],
+                    failed.get(name).map_or("unreadable", String::as_str),
+                    primary.name,
+                    primary.entry.reg_pass
+                ));
+            }
+        }
+        chunks.insert(*c, primary.entry);
+    }
+    // Regularisation passes, from the kept files' origins.
+    let mut params: BTreeMap<u32, TvParams> = BTreeMap::new();
+    let mut disagreeing: BTreeMap<u32, usize> = BTreeMap::new();
+    for v in by_chunk.values() {
+        for k in v {
+            if let Some(o) = k.origin.filter(|o| o.reg_pass > 0) {
+                let p = params.entry(o.reg_pass).or_insert(o.reg_params);
+                if *p != o.reg_params {
+                    *disagreeing.entry(o.reg_pass).or_default() += 1;
+                }
+            }
+        }
+    }
+    for (pass, n) in disagreeing {
+        notes.push(format!(
+            "{n} files of pass {pass} record other parameters than {:?}; the pass keeps those",
+            params[&pass]
+        ));
+    }
+    let latest = chunks.values().map(|e| e.reg_pass).max().unwrap_or(0);
+    let mut complete = 0;
+    let mut kept = BTreeMap::new();
+    if chunks.values().all(|e| e.reg_pass == latest) {
+        complete = latest;
+    } else {
+        let older: std::collections::BTreeSet<u32> = chunks
+            .values()
+            .map(|e| e.reg_pass)
+            .filter(|p| *p != latest)
+            .collect();
+        if older.len() == 1 && *older.first().expect("one") > 0 {
+            let c_pass = *older.first().expect("one");
+            let mut missing = Vec::new();
+            for (c, v) in &by_chunk {
+                if v[0].entry.reg_pass == latest {
+                    match v.iter().find(|k| k.entry.reg_pass == c_pass) {
+                        Some(k) => {
+                            kept.insert(*c, k.entry);
+                        }
+                        None => missing.push(*c),
+                    }
+                }
+            }
+            if missing.is_empty() {
+                complete = c_pass;
+            } else {
+                kept.clear();
+                notes.push(format!(
+                    "pass {c_pass} cannot be kept readable: {} chunks rewritten by pass {latest} have no intact file of it (e.g. {:?})",
+                    missing.len(),
+                    missing[0].0
+                ));
+            }
+        } else {
+            notes.push(format!(
+                "the chunks pass {latest} did not reach stand at passes {older:?}: no complete pass to keep"
+            ));
+        }
+    }
+    let fallback = TvParams::paper(voxel_size_m);
+    let header = ManifestHeader {
+        voxel_size_m,
+        truncation_m,
+        chunk_blocks,
+        generation: 0,
+        frames_committed: FRAMES_UNKNOWN,
+        next_file_seq: max_seq + 1,
+        reg_pass: latest,
+        reg_params: params.get(&latest).copied().unwrap_or(fallback),
+        complete_pass: complete,
+        complete_params: params
+            .get(&complete)
+            .copied()
+            .unwrap_or(super::codec::NO_PARAMS),
+        map_id: map_id.unwrap_or_else(new_map_id),
+    };
+    if by_chunk
+        .values()
+        .any(|v| v[0].origin.is_none() && v[0].entry.flags & ENTRY_HAS_REGULARIZED != 0)
+    {
+        notes.push(
+            "some kept files are of chunk format 1 and carry u of an unknown pass: they count as not regularised".into(),
+        );
+    }
+    let manifest = Manifest {
+        header,
+        chunks,
+        kept,
+    };
+    let passes = manifest.pass_status();
+    let mut store = MapStore::from_repair(dir, lock, manifest);
+    store.commit()?;
+    let s = store.summary();
+    Ok(RepairReport {
+        unreadable_manifest_moved_to: moved,
+        files_examined,
+        chunks: s.chunks,
+        blocks: s.blocks,
+        observed_voxels: s.observed_voxels,
+        older_versions_used,
+        not_kept,
+        notes,
+        map_id: store.manifest().header.map_id,
+        passes,
+    })
+}
