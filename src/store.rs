@@ -193,6 +193,44 @@ pub trait BlockStore {
     fn summary(&self) -> StoreSummary;
 }
 
+/// A solver that runs its iterations in chunks of [`PROGRESS_ITERATIONS`], reporting
+/// `(iterations done, iterations)` of the current solve after each: the same result (the
+/// solver's state carries over between calls), a progress bar for a long global solve.
+struct Chunked<'a> {
+    inner: &'a mut dyn TvSolver,
+    progress: &'a mut dyn FnMut(usize, usize) -> bool,
+}
+
+/// Iterations between two progress reports of an in-memory regularisation.
+const PROGRESS_ITERATIONS: u32 = 25;
+
+impl TvSolver for Chunked<'_> {
+    fn solve(
+        &mut self,
+        problem: &mut crate::regularize::TvProblem,
+        params: &TvParams,
+    ) -> Result<()> {
+        let mut done = 0;
+        while done < params.iterations {
+            let k = PROGRESS_ITERATIONS.min(params.iterations - done);
+            self.inner.solve(
+                problem,
+                &TvParams {
+                    iterations: k,
+                    ..*params
+                },
+            )?;
+            done += k;
+            (self.progress)(done as usize, params.iterations as usize);
+        }
+        Ok(())
+    }
+
+    fn max_voxels(&self) -> Option<usize> {
+        self.inner.max_voxels()
+    }
+}
+
 /// The whole map in one RAM [`Layer`].
 #[derive(Clone, Debug)]
 pub struct MemoryStore {
@@ -257,8 +295,11 @@ impl BlockStore for MemoryStore {
         solver: &mut dyn TvSolver,
         progress: &mut dyn FnMut(usize, usize) -> bool,
     ) -> Result<RegularizeSummary> {
-        let (blocks, stats) = regularize_layer_by(&mut self.layer, params, solver)?;
-        progress(1, 1);
+        let mut chunked = Chunked {
+            inner: solver,
+            progress,
+        };
+        let (blocks, stats) = regularize_layer_by(&mut self.layer, params, &mut chunked)?;
         Ok(RegularizeSummary {
             blocks: blocks.len(),
             omega_voxels: stats.omega_voxels as u64,

@@ -187,6 +187,16 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
             a.dir.display()
         );
     }
+    match &target {
+        ExportTarget::Tiles(dir) => denser::io::atomic::check_output_dir(
+            dir.parent()
+                .filter(|p| !p.as_os_str().is_empty())
+                .unwrap_or(std::path::Path::new(".")),
+        )?,
+        ExportTarget::Mesh(p) | ExportTarget::Points(p) => {
+            denser::io::atomic::check_output_file(p)?
+        }
+    }
     let stats = export::export_with(&store, &options, &target).context("exporting")?;
     let path = match target {
         ExportTarget::Mesh(p) | ExportTarget::Points(p) | ExportTarget::Tiles(p) => p,

@@ -84,6 +84,7 @@ impl std::error::Error for Problems {}
 /// Parses the command line, runs the command, prints its outcome or its error once.
 pub fn main() -> ExitCode {
     ensure_runtime_dir();
+    install_signal_handlers();
     let cli = Cli::parse();
     // wgpu probes its GL backend too; EGL failing where only Vulkan exists is noise.
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
@@ -128,6 +129,25 @@ pub fn main() -> ExitCode {
             }
             ExitCode::from(2)
         }
+    }
+}
+
+/// SIGINT and SIGTERM remove the unfinished outputs (`io::atomic`) and exit with 130; the map,
+/// committed only by atomic renames, keeps its last commit. A file-size limit (SIGXFSZ) makes
+/// writes fail with an error (and the same cleanup) instead of killing the process mid-file.
+fn install_signal_handlers() {
+    let _ = ctrlc::set_handler(|| {
+        let removed = denser::io::atomic::remove_pending();
+        let _ = writeln!(
+            std::io::stderr(),
+            "interrupted: {removed} unfinished output file(s) removed; a map keeps its last commit"
+        );
+        std::process::exit(130);
+    });
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to SIG_IGN before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
     }
 }
 
@@ -272,9 +292,10 @@ pub(crate) struct GridArgs {
     /// Truncation μ, metres (default: the paper's, 1.0 at 10 cm and 1.6 at 20 cm, else 10 voxels).
     #[arg(long)]
     pub truncation: Option<f32>,
-    /// Ignore depths beyond this, metres.
-    #[arg(long, default_value_t = 40.0)]
-    pub max_depth: f32,
+    /// Ignore depths (and LiDAR returns) beyond this, metres [default: 40 for depth maps, 80 for
+    /// LiDAR].
+    #[arg(long)]
+    pub max_depth: Option<f32>,
 }
 
 impl GridArgs {
@@ -285,8 +306,10 @@ impl GridArgs {
             c.grid.truncation_m = t;
         }
         c.tv = tv.params(self.voxel_size);
-        c.depth_fusion.max_depth_m = self.max_depth;
-        c.lidar_fusion.max_range_m = self.max_depth.max(c.lidar_fusion.max_range_m);
+        if let Some(d) = self.max_depth {
+            c.depth_fusion.max_depth_m = d;
+            c.lidar_fusion.max_range_m = d;
+        }
         c
     }
 }

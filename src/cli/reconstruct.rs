@@ -192,6 +192,36 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     Ok(Box::new(report))
 }
 
+/// Every file a reconstruction may write into its output folder (besides `top_view_*.png`).
+const OUTPUT_FILES: &[&str] = &[
+    "mesh_raw.ply",
+    "mesh_regularized.ply",
+    "points_regularized.ply",
+    "report.json",
+    "report.md",
+    "error_histogram.png",
+    "map_report.json",
+];
+
+/// Removes the outputs of an earlier run that this run did not rewrite (a report beside meshes
+/// it no longer describes), so the folder holds one run's results.
+fn remove_stale_outputs(out_dir: &std::path::Path, written: &[PathBuf]) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(out_dir)? {
+        let path = entry?.path();
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let ours = OUTPUT_FILES.contains(&name.as_str())
+            || (name.starts_with("top_view_") && name.ends_with(".png"));
+        if ours && !written.iter().any(|w| w.file_name() == path.file_name()) {
+            tracing::info!("removing {} (an earlier run's output)", path.display());
+            std::fs::remove_file(&path)?;
+        }
+    }
+    Ok(())
+}
+
 /// Runs `job` with `backend`'s stages: fusion (resuming a map), regularisation, surfaces,
 /// evaluation.
 pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
@@ -214,9 +244,15 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     let stereo_device = stereo
         .as_ref()
         .map(|_| backend.stereo_device(job.stereo_method));
+    // Where the results go is checked before any work (a file, a read-only folder, no space).
+    denser::io::atomic::check_output_dir(&job.out_dir)
+        .with_context(|| format!("checking the output folder {}", job.out_dir.display()))?;
     let seq = open_sequence(&job.input, job.source, job.poses.as_deref(), stereo)
         .with_context(context)?;
-    let frames = job.range.indices(seq.len());
+    let frames = job
+        .range
+        .select(seq.len(), &seq.describe())
+        .with_context(context)?;
     let store: Box<dyn BlockStore> = match &job.map {
         None => Box::new(MemoryStore::new(job.config.grid)),
         Some(m) => Box::new(open_map(job, m, seq.as_ref()).with_context(context)?),
@@ -269,11 +305,17 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
         written,
         peak_rss_bytes: peak_rss_bytes(),
     };
+    let mut report = report;
     if job.map.is_some() {
         let path = job.out_dir.join("map_report.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&report.json())?)
-            .with_context(|| format!("writing {}", path.display()))?;
+        denser::io::atomic::write_file(
+            &path,
+            serde_json::to_string_pretty(&report.json())?.as_bytes(),
+        )?;
+        report.written.push(path);
     }
+    remove_stale_outputs(&job.out_dir, &report.written)
+        .with_context(|| format!("cleaning {}", job.out_dir.display()))?;
     Ok(report)
 }
 
@@ -293,7 +335,11 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
         frame_step: job.range.step.max(1) as u64,
         voxel_size_m: job.config.grid.voxel_size_m,
         truncation_m: job.config.grid.truncation_m,
-        max_depth_m: job.config.depth_fusion.max_depth_m,
+        max_depth_m: if source == "lidar" {
+            job.config.lidar_fusion.max_range_m
+        } else {
+            job.config.depth_fusion.max_depth_m
+        },
         stereo_method: if stereo {
             job.stereo_method.as_str().to_string()
         } else {

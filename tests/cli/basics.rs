@@ -147,6 +147,45 @@ fn synthetic_drive_end_to_end() {
         raw_median > 0.0 && raw_median < 0.15,
         "raw median {raw_median}"
     );
+    // Scored only where the LiDAR could have measured (issue 13): the view comes from the
+    // scans (the synthetic HDL-64E: about −24.8°…+2°), the unrestricted figure is kept beside
+    // it, and the scored points are a subset whose median is no worse.
+    let view = &report["coverage"];
+    let (lo, hi) = (
+        view["elevation_min_deg"].as_f64().expect("min"),
+        view["elevation_max_deg"].as_f64().expect("max"),
+    );
+    assert!(
+        (-26.0..-23.0).contains(&lo) && (1.0..3.0).contains(&hi),
+        "{view}"
+    );
+    for s in surfaces {
+        let (scored, all) = (&s["accuracy"], &s["accuracy_unrestricted"]);
+        let (n, n_all) = (
+            scored["count"].as_u64().expect("count"),
+            all["count"].as_u64().expect("count"),
+        );
+        assert!(n > 0 && n < n_all, "scored {n} of {n_all}");
+        assert!(
+            scored["median_m"].as_f64().expect("m") <= all["median_m"].as_f64().expect("m"),
+            "{s}"
+        );
+    }
+    let md = std::fs::read_to_string(d.join("gt/report.md")).expect("md");
+    assert!(
+        md.contains("could have measured")
+            && md.contains("all points")
+            && md.contains("](error_histogram.png)"),
+        "{md}"
+    );
+    assert!(
+        report["command_line"]
+            .as_str()
+            .expect("cmd")
+            .contains("reconstruct drive/sequences/00"),
+        "{}",
+        report["command_line"]
+    );
     for f in [
         "mesh_raw.ply",
         "mesh_regularized.ply",
