@@ -64,6 +64,10 @@ enum Command {
     Stereo(stereo::Args),
     /// Score a disparity map against ground truth (bad-1/2/3, D1, EPE, density).
     StereoEval(stereo::EvalArgs),
+    /// Print the first GPU adapter as JSON and exit (what `--device auto` asks in a child
+    /// process, so that probing costs the main process no memory).
+    #[command(hide = true)]
+    ProbeGpu,
 }
 
 /// What a command reports when it succeeds: printed once, on stdout.
@@ -107,6 +111,9 @@ pub fn main() -> ExitCode {
         Command::Repair(a) => repair::run(a),
         Command::Stereo(a) => stereo::run(a),
         Command::StereoEval(a) => stereo::run_eval(a),
+        Command::ProbeGpu => Ok(Box::new(
+            serde_json::json!(denser::gpu::GpuContext::probe()).to_string() + "\n",
+        ) as Outcome),
     };
     let printed = result.and_then(|outcome| {
         let mut out = std::io::stdout().lock();
@@ -243,21 +250,55 @@ pub(crate) struct DeviceArgs {
 }
 
 impl DeviceArgs {
-    /// The backend these flags ask for.
+    /// The backend these flags ask for. `auto` asks a child process (`denser probe-gpu`) which
+    /// adapter exists, and opens it here only when it is a hardware GPU: loading a software
+    /// driver to find out would cost this process its memory (~80 MiB of llvmpipe) for nothing.
     pub fn backend(&self) -> denser::Result<denser::backend::Backend> {
+        let options = ResidentOptions {
+            max_bytes: self.gpu_memory_budget,
+            ..Default::default()
+        };
         let choice = match self.device {
-            DeviceArg::Auto => DeviceChoice::Auto,
             DeviceArg::Cpu => DeviceChoice::Cpu,
             DeviceArg::Gpu => DeviceChoice::Gpu,
-        };
-        denser::backend::Backend::open(
-            choice,
-            ResidentOptions {
-                max_bytes: self.gpu_memory_budget,
-                ..Default::default()
+            DeviceArg::Auto => match probe_in_child() {
+                Some(Some((name, false))) => {
+                    tracing::debug!("probe: hardware adapter {name}");
+                    DeviceChoice::Auto
+                }
+                Some(Some((name, true))) => {
+                    tracing::info!(
+                        "device: only a software adapter ({name}), running on the CPU \
+                         (--device gpu uses it anyway)"
+                    );
+                    DeviceChoice::Cpu
+                }
+                Some(None) => {
+                    tracing::info!("device: no GPU adapter found, running on the CPU");
+                    DeviceChoice::Cpu
+                }
+                // The probe itself failed (no executable path, a crash in a driver): decide
+                // in this process, as without a probe.
+                None => DeviceChoice::Auto,
             },
-        )
+        };
+        denser::backend::Backend::open(choice, options)
     }
+}
+
+/// Runs `denser probe-gpu` and reads its answer: `Some(None)` no adapter, `Some(Some((name,
+/// software)))` one, `None` when the probe could not run.
+fn probe_in_child() -> Option<Option<(String, bool)>> {
+    let exe = std::env::current_exe().ok()?;
+    let out = std::process::Command::new(exe)
+        .args(["--log", "error", "probe-gpu"])
+        .stderr(std::process::Stdio::null())
+        .output()
+        .ok()?;
+    if !out.status.success() {
+        return None;
+    }
+    serde_json::from_slice(&out.stdout).ok()
 }
 
 /// The TV regulariser's parameters.
