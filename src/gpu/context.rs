@@ -202,10 +202,9 @@ impl GpuContext {
     pub fn probe() -> Option<(String, bool)> {
         let instance =
             wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
-        let adapter = pollster::block_on(
-            instance.request_adapter(&wgpu::RequestAdapterOptions::default()),
-        )
-        .ok()?;
+        let adapter =
+            pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions::default()))
+                .ok()?;
         let info = adapter.get_info();
         Some((
             format!("{}, {:?}, {:?}", info.name, info.device_type, info.backend),

@@ -431,13 +431,34 @@ fn top_view_greys_unscored_points_and_draws_the_trajectory() {
             black_rows.push(y);
         }
     }
-    assert!(!blue.is_empty() && !grey.is_empty());
-    // Scored points on the left, unscored on the right.
-    let max_blue = *blue.iter().max().unwrap();
-    let min_grey = *grey.iter().min().unwrap();
     assert!(
-        max_blue <= min_grey + 1,
-        "blue up to {max_blue}, grey from {min_grey}"
+        blue.len() > 1000 && grey.len() > 1000,
+        "{} {}",
+        blue.len(),
+        grey.len()
+    );
+    // Scored points on the left, unscored on the right (as many of each: equal halves). A few
+    // grey pixels elsewhere are the axes' anti-aliased text.
+    blue.sort_unstable();
+    grey.sort_unstable();
+    let (blue_mid, grey_mid) = (blue[blue.len() / 2], grey[grey.len() / 2]);
+    let split = *blue.last().unwrap();
+    let grey_right = grey.iter().filter(|&&x| x >= split).count();
+    assert!(
+        blue_mid < grey_mid,
+        "blue median x {blue_mid}, grey {grey_mid}"
+    );
+    assert!(
+        grey_right * 10 > grey.len() * 9,
+        "{grey_right} of {} grey pixels right of {split}",
+        grey.len()
+    );
+    let ratio = blue.len() as f64 / grey.len() as f64;
+    assert!(
+        (0.8..1.25).contains(&ratio),
+        "blue {} vs grey {}",
+        blue.len(),
+        grey.len()
     );
     // The trajectory: a horizontal black line (one row ± 1 px) across the map, more than the
     // axes' tick marks alone draw.
