@@ -231,10 +231,16 @@ impl TvSolver for Chunked<'_> {
     }
 }
 
+/// RAM the in-memory path needs per allocated block for the whole run: the block with a
+/// regularised field (8 B/voxel and its hash slot) and the regulariser's arrays over it
+/// (`tiles::regional::SOLVER_BYTES_PER_VOXEL`, 30 B/voxel), bytes.
+pub const MEMORY_RUN_BYTES_PER_BLOCK: u64 = (VOXELS_PER_BLOCK as u64) * (8 + 30) + 32;
+
 /// The whole map in one RAM [`Layer`].
 #[derive(Clone, Debug)]
 pub struct MemoryStore {
     layer: Layer,
+    limit_bytes: Option<u64>,
 }
 
 impl MemoryStore {
@@ -242,12 +248,24 @@ impl MemoryStore {
     pub fn new(grid: GridParams) -> Self {
         MemoryStore {
             layer: Layer::new(grid),
+            limit_bytes: None,
         }
     }
 
     /// A store over an existing layer.
     pub fn from_layer(layer: Layer) -> Self {
-        MemoryStore { layer }
+        MemoryStore {
+            layer,
+            limit_bytes: None,
+        }
+    }
+
+    /// Stops fusion with an error once the run would need more than `bytes` of RAM to fuse,
+    /// regularise and mesh the map ([`MEMORY_RUN_BYTES_PER_BLOCK`] per block), before the
+    /// machine runs out: the map belongs in a map directory then.
+    pub fn with_limit(mut self, bytes: u64) -> Self {
+        self.limit_bytes = Some(bytes);
+        self
     }
 
     /// The layer.
@@ -282,6 +300,18 @@ impl BlockStore for MemoryStore {
     }
 
     fn finish_frame(&mut self, _: &[BlockIndex], _: [f64; 3], _: &mut dyn UpperTier) -> Result<()> {
+        let Some(limit) = self.limit_bytes else {
+            return Ok(());
+        };
+        let blocks = self.layer.block_count() as u64;
+        let need = blocks * MEMORY_RUN_BYTES_PER_BLOCK;
+        if need > limit {
+            return Err(crate::Error::InvalidArgument(format!(
+                "the map in RAM has grown to {blocks} blocks: fusing, regularising and meshing it in memory would need about {} MiB, more than the {} MiB available; stream it through a map directory instead (--map DIR --memory-budget B)",
+                need >> 20,
+                limit >> 20
+            )));
+        }
         Ok(())
     }
 

@@ -254,7 +254,7 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
         .select(seq.len(), &seq.describe())
         .with_context(context)?;
     let store: Box<dyn BlockStore> = match &job.map {
-        None => Box::new(MemoryStore::new(job.config.grid)),
+        None => Box::new(MemoryStore::new(job.config.grid).with_limit(ram_limit_bytes())),
         Some(m) => Box::new(open_map(job, m, seq.as_ref()).with_context(context)?),
     };
     let checkpoint_every = job.map.as_ref().map_or(0, |m| m.checkpoint_every);
@@ -317,6 +317,33 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     remove_stale_outputs(&job.out_dir, &report.written)
         .with_context(|| format!("cleaning {}", job.out_dir.display()))?;
     Ok(report)
+}
+
+/// RAM an in-memory run may plan to use: `DENSER_RAM_LIMIT` (e.g. `8GiB`) when set, else 90 % of
+/// the smaller of the memory available at start and the cgroup's limit (containers).
+fn ram_limit_bytes() -> u64 {
+    if let Some(v) = std::env::var_os("DENSER_RAM_LIMIT") {
+        match super::parse_bytes(&v.to_string_lossy()) {
+            Ok(b) => return b,
+            Err(e) => tracing::warn!("DENSER_RAM_LIMIT: {e}; ignored"),
+        }
+    }
+    let meminfo = std::fs::read_to_string("/proc/meminfo").unwrap_or_default();
+    let available = meminfo
+        .lines()
+        .find(|l| l.starts_with("MemAvailable:"))
+        .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+        .map_or(u64::MAX, |kb| kb * 1024);
+    let cgroup = std::fs::read_to_string("/sys/fs/cgroup/memory.max")
+        .ok()
+        .and_then(|s| s.trim().parse::<u64>().ok())
+        .unwrap_or(u64::MAX);
+    let limit = available.min(cgroup);
+    if limit == u64::MAX {
+        u64::MAX
+    } else {
+        limit / 10 * 9
+    }
 }
 
 /// Opens (resuming) or creates the job's map, checking its job record.

@@ -244,3 +244,36 @@ fn ground_truth_elsewhere_is_an_error_and_reruns_leave_no_stale_report() {
         assert!(!d.join("o").join(stale).exists(), "{stale} stayed");
     }
 }
+
+#[test]
+fn an_in_memory_run_too_large_for_ram_stops_early_and_suggests_a_map() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    drive(d);
+    let mut args = QUICK.to_vec();
+    args.extend(["--out", "o"]);
+    // As if the machine had 8 MiB to spare: a few hundred blocks in, the run stops.
+    let o = bin()
+        .args(&args)
+        .env("DENSER_RAM_LIMIT", "8MiB")
+        .current_dir(d)
+        .output()
+        .expect("run");
+    let t = text(&o);
+    assert_eq!(o.status.code(), Some(2), "{t}");
+    assert!(
+        t.contains("--map") && t.contains("more than the 8 MiB"),
+        "{t}"
+    );
+    assert!(!d.join("o/mesh_raw.ply").exists());
+    // The same map streamed through a directory fits.
+    let mut args = QUICK.to_vec();
+    args.extend(["--out", "o", "--map", "m", "--memory-budget", "64MiB"]);
+    let o = bin()
+        .args(&args)
+        .env("DENSER_RAM_LIMIT", "8MiB")
+        .current_dir(d)
+        .output()
+        .expect("run");
+    assert!(o.status.success(), "{}", text(&o));
+}
