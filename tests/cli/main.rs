@@ -6,6 +6,7 @@ mod common;
 mod depth_support;
 
 mod basics;
+mod devices;
 mod engine;
 mod map;
 mod outputs;
