@@ -302,3 +302,35 @@ fn synthetic_drive_end_to_end() {
     assert!(o.status.success(), "{}", text(&o));
     assert!(d.join("st/report.json").is_file());
 }
+
+#[test]
+fn a_closed_stdout_ends_quietly_and_errors_exit_2() {
+    // The reader went away before denser printed its summary (`denser … | head`): exit 0, no
+    // error and no panic on stderr.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_denser"))
+        .args([
+            "synth",
+            "--out",
+            "drive",
+            "--length-m",
+            "10",
+            "--lidar-only",
+        ])
+        .current_dir(dir.path())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    drop(child.stdout.take());
+    let o = child.wait_with_output().expect("wait");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{:?}: {err}", o.status);
+    assert!(!err.contains("panicked") && !err.contains("error"), "{err}");
+    // An error is printed once, with its chain, and exits 2 (clap's usage errors too).
+    let o = denser(&["inspect", "nowhere"], dir.path());
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(text(&o).matches("error:").count(), 1, "{}", text(&o));
+    let o = denser(&["reconstruct"], dir.path());
+    assert_eq!(o.status.code(), Some(2));
+}
