@@ -4,13 +4,14 @@
 use super::{mib, Outcome, Problems};
 use anyhow::{Context, Result};
 use denser::tiles::store::MapStore;
+use denser::tiles::MapLocation;
 use std::fmt;
-use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub(crate) struct Args {
-    /// Map directory.
-    dir: PathBuf,
+    /// Map directory or s3://bucket/prefix.
+    #[arg(value_name = "MAP")]
+    dir: MapLocation,
     /// Read every chunk and check its checksums against the manifest.
     #[arg(long)]
     verify: bool,
@@ -20,7 +21,7 @@ pub(crate) struct Args {
 }
 
 struct Inspected {
-    dir: PathBuf,
+    dir: MapLocation,
     store: MapStore,
     verified: bool,
     problems: Vec<String>,
@@ -55,7 +56,7 @@ impl fmt::Display for Inspected {
             let text = serde_json::to_string_pretty(&v).map_err(|_| fmt::Error)?;
             return writeln!(f, "{text}");
         }
-        writeln!(f, "map {}", self.dir.display())?;
+        writeln!(f, "map {}", self.dir)?;
         writeln!(
             f,
             "  voxel {} m, μ {} m, chunks of {}³ blocks; generation {}, frames committed: {frames}",
@@ -91,8 +92,8 @@ impl fmt::Display for Inspected {
 }
 
 pub(crate) fn run(a: Args) -> Result<Outcome> {
-    let store = MapStore::open_read_only(&a.dir)
-        .with_context(|| format!("opening map {}", a.dir.display()))?;
+    let store =
+        MapStore::open_read_only_at(&a.dir).with_context(|| format!("opening map {}", a.dir))?;
     let problems = if a.verify { store.verify() } else { Vec::new() };
     let chunks = store.summary().chunks;
     let inspected = Inspected {

@@ -26,7 +26,7 @@
 //! frame: ECEF for a UTM or geocentric CRS ([`WorldFrame::ecef_from_local`]), the given
 //! world-from-local transform for a local one.
 
-use super::export::{chunk_bounds_m, chunks_in, frame_bounds, mesh_chunk, Bbox};
+use super::export::{chunk_bounds_m, chunks_in, frame_bounds, Bbox};
 use super::store::MapStore;
 use super::ChunkIndex;
 use crate::error::{Error, Result};
@@ -148,6 +148,7 @@ impl Clusters {
 
 struct Writer<'a> {
     store: &'a MapStore,
+    parts: Option<&'a super::parts::ExportParts>,
     field: Field,
     bbox: Option<Bbox>,
     frame: &'a WorldFrame,
@@ -172,7 +173,7 @@ impl Writer<'_> {
     fn build(&mut self, level: u32, key: [i32; 3]) -> Result<Option<(TileNode, Mesh)>> {
         let (mesh, mut lo, mut hi, children) = if level == 0 {
             let c = ChunkIndex([0, 1, 2].map(|a| key[a] + self.origin[a]));
-            let (m, _, own) = mesh_chunk(self.store, c, self.field)?;
+            let (m, _, own) = super::parts::chunk_mesh(self.store, c, self.field, self.parts)?;
             self.stats.voxels += own as u64 * 512;
             let m = self.crop(m);
             if m.triangles.is_empty() {
@@ -341,6 +342,19 @@ pub fn write_tileset(
     frame: &WorldFrame,
     dir: &Path,
 ) -> Result<TilesetStats> {
+    write_tileset_with(store, field, bbox, frame, dir, None)
+}
+
+/// [`write_tileset`] taking the full-resolution chunk meshes from `export --shard` parts where
+/// they hold them.
+pub fn write_tileset_with(
+    store: &MapStore,
+    field: Field,
+    bbox: Option<Bbox>,
+    frame: &WorldFrame,
+    dir: &Path,
+    parts: Option<&super::parts::ExportParts>,
+) -> Result<TilesetStats> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let old = dir.join("tiles");
     if old.exists() {
@@ -369,6 +383,7 @@ pub fn write_tileset(
     }
     let mut w = Writer {
         store,
+        parts,
         field,
         bbox,
         frame,

@@ -8,4 +8,5 @@ mod depth_support;
 mod basics;
 mod engine;
 mod map;
+mod scaleout;
 mod stereo;

@@ -8,3 +8,4 @@ mod engine;
 mod export_formats;
 mod format;
 mod paging;
+mod scaleout;
