@@ -141,7 +141,7 @@ fn a_second_writer_is_refused_at_once_naming_the_holder() {
                 "{holder}"
             );
             assert!(
-                holder.contains("this process") && holder.contains("tiles_engine"),
+                holder.contains("this process") && holder.contains("tiles-"),
                 "{holder}"
             );
         }
