@@ -21,6 +21,8 @@ pub(crate) struct Args {
 }
 
 struct Inspected {
+    /// Open shard plans: (pass, regions recorded, regions of the plan, key).
+    shard_plans: Vec<(u32, usize, u64, String)>,
     dir: MapLocation,
     store: MapStore,
     verified: bool,
@@ -50,6 +52,9 @@ impl fmt::Display for Inspected {
                 "regularization_pass": h.reg_pass,
                 "regularization": passes,
                 "regularization_status": passes.describe(),
+                "shard_plans": self.shard_plans.iter().map(|(p, done, total, key)| serde_json::json!({
+                    "pass": p, "regions_recorded": done, "regions": total, "key": key,
+                })).collect::<Vec<_>>(),
                 "verified": self.verified,
                 "problems": self.problems,
             });
@@ -63,6 +68,13 @@ impl fmt::Display for Inspected {
             h.voxel_size_m, h.truncation_m, h.chunk_blocks, h.generation
         )?;
         writeln!(f, "  regularisation: {}", passes.describe())?;
+        for (p, done, total, key) in &self.shard_plans {
+            writeln!(
+                f,
+                "  shards of pass {p}: {done} of {total} regions recorded (plan {key}); `denser regularize {}` with the same parameters adopts them",
+                self.dir
+            )?;
+        }
         if !passes.is_complete() {
             for line in passes.chunks_by_pass_lines(Some(12)) {
                 writeln!(f, "    {line}")?;
@@ -96,7 +108,17 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         MapStore::open_read_only_at(&a.dir).with_context(|| format!("opening map {}", a.dir))?;
     let problems = if a.verify { store.verify() } else { Vec::new() };
     let chunks = store.summary().chunks;
+    let files = store.files().clone();
+    let shard_plans = denser::tiles::shards::plans(&*files)?
+        .into_iter()
+        .map(|p| {
+            let key = u64::from_str_radix(&p.key, 16).unwrap_or(0);
+            let done = denser::tiles::shards::recorded_regions(&*files, key).map_or(0, |v| v.len());
+            (p.pass, done, p.regions, p.key)
+        })
+        .collect();
     let inspected = Inspected {
+        shard_plans,
         dir: a.dir,
         store,
         verified: a.verify,

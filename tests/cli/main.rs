@@ -8,5 +8,6 @@ mod depth_support;
 mod basics;
 mod engine;
 mod map;
+#[cfg(feature = "s3")]
 mod scaleout;
 mod stereo;
