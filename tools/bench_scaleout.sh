@@ -4,7 +4,7 @@
 # (moto on the loopback address), and of `merge`; per-chunk costs for the estimate in
 # docs/bench/scaleout.md. Usage (release binary):
 #
-#   cargo build --release && tools/bench_scaleout.sh [LENGTH_M] [ITERATIONS]
+#   cargo build --release && tools/bench_scaleout.sh [LENGTH_M] [ITERATIONS] [REGION_CHUNKS]
 #
 # Prints one line per run: where, shards, wall seconds (shards + commit), the commit's seconds.
 set -euo pipefail
@@ -12,6 +12,7 @@ cd "$(dirname "$0")/.."
 BIN="$PWD/target/release/denser"
 LEN="${1:-200}"
 IT="${2:-100}"
+RC="${3:-2}"
 WORK="$(mktemp -d)"
 PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
 moto_server -H 127.0.0.1 -p "$PORT" >/dev/null 2>&1 &
@@ -35,7 +36,7 @@ lambda=0.70
 for where in disk s3://bench/city; do
   for n in 1 2 4; do
     lambda=$(python3 -c "print(round($lambda + 0.01, 2))")
-    flags=(--lambda "$lambda" --iterations "$IT" --region-chunks 1 --memory-budget 1GiB --device cpu)
+    flags=(--lambda "$lambda" --iterations "$IT" --region-chunks "$RC" --memory-budget 1GiB --device cpu)
     t0=$(date +%s.%N)
     pids=()
     for ((i = 0; i < n; i++)); do
@@ -54,4 +55,6 @@ done
   --memory-budget 1GiB --skip-regularize --no-eval >/dev/null 2>&1
 "$BIN" reconstruct drive/sequences/00 --depth lidar --map half_b --out o --first $(( LEN / 4 )) \
   --memory-budget 1GiB --skip-regularize --no-eval >/dev/null 2>&1
+echo "one process, paper settings (100 iterations, regions of 2 chunks): $(/usr/bin/time -f '%e s wall, %U s user, %S s sys, %M KiB peak' "$BIN" regularize disk --lambda 0.9 --iterations 100 --region-chunks 2 --device cpu 2>&1 | tail -1)"
+echo "export mesh: $(/usr/bin/time -f '%e s wall, %U s user, %M KiB peak' "$BIN" export disk --mesh m.ply 2>&1 | tail -1)"
 echo "merge: $(/usr/bin/time -f '%e s wall, %M KiB peak' "$BIN" merge half_a half_b --out merged 2>&1 | tr '\n' ' ')"
