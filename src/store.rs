@@ -67,6 +67,8 @@ pub struct RegularizeSummary {
     pub peak_region_bytes: u64,
     /// Pass number written into a stored map's manifest (0 in memory).
     pub pass: u32,
+    /// Regions adopted from `regularize --shard` runs (stored maps).
+    pub regions_adopted: usize,
 }
 
 /// What writing a surface produced.

@@ -12,6 +12,7 @@ mod demo;
 mod evaluate;
 mod export;
 mod inspect;
+mod merge;
 mod reconstruct;
 mod regularize;
 mod repair;
@@ -58,6 +59,8 @@ enum Command {
     Export(export::Args),
     /// Summarise a stored map (chunks, blocks, voxels, bytes) and verify its checksums.
     Inspect(inspect::Args),
+    /// Combine maps of one grid and world frame (drives fused apart) into a new map, chunk by chunk.
+    Merge(merge::Args),
     /// Rebuild a lost or unreadable map manifest from the chunk files (newest intact versions).
     Repair(repair::Args),
     /// Disparity (and depth) of one rectified stereo pair, written as Middlebury PFM.
@@ -108,6 +111,7 @@ pub fn main() -> ExitCode {
         Command::Regularize(a) => regularize::run(a),
         Command::Export(a) => export::run(a),
         Command::Inspect(a) => inspect::run(a),
+        Command::Merge(a) => merge::run(a),
         Command::Repair(a) => repair::run(a),
         Command::Stereo(a) => stereo::run(a),
         Command::StereoEval(a) => stereo::run_eval(a),

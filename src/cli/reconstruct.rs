@@ -22,7 +22,7 @@ use denser::tiles::job::{relative_hint, JobRecord};
 use denser::tiles::manifest::FRAMES_UNKNOWN;
 use denser::tiles::pager::{OverrunPolicy, PagerConfig};
 use denser::tiles::store::{MapStore, MANIFEST_FILE};
-use denser::tiles::PagedStore;
+use denser::tiles::{MapLocation, PagedStore};
 use std::fmt;
 use std::path::PathBuf;
 
@@ -78,10 +78,10 @@ enum DepthArg {
 /// `--map` and its out-of-core settings.
 #[derive(clap::Args, Clone, Debug)]
 pub(crate) struct MapArgs {
-    /// Stream the map through this directory of compressed chunk files (created, or resumed when
-    /// it holds a map of the same job) instead of keeping it in RAM.
-    #[arg(long)]
-    map: Option<PathBuf>,
+    /// Stream the map through this directory (or s3://bucket/prefix) of compressed chunk files
+    /// (created, or resumed when it holds a map of the same job) instead of keeping it in RAM.
+    #[arg(long, value_name = "MAP")]
+    map: Option<MapLocation>,
     #[command(flatten)]
     budget: BudgetArgs,
     /// Chunk edge in blocks (a chunk is one file; 16 blocks = 12.8 m at 10 cm voxels).
@@ -119,7 +119,7 @@ pub(crate) struct Job {
 
 /// Out-of-core settings of a job.
 pub(crate) struct MapJob {
-    pub dir: PathBuf,
+    pub dir: MapLocation,
     pub budget: BudgetArgs,
     pub chunk_blocks: u32,
     pub checkpoint_every: u64,
@@ -226,11 +226,7 @@ fn remove_stale_outputs(out_dir: &std::path::Path, written: &[PathBuf]) -> std::
 /// evaluation.
 pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     let context = || match &job.map {
-        Some(m) => format!(
-            "reconstructing {} into map {}",
-            job.input.display(),
-            m.dir.display()
-        ),
+        Some(m) => format!("reconstructing {} into map {}", job.input.display(), m.dir),
         None => format!("reconstructing {}", job.input.display()),
     };
     let stereo = match job.source {
@@ -380,26 +376,35 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
         input_hint: String::new(),
         created_by: format!("denser {}", env!("CARGO_PKG_VERSION")),
     };
-    let store = if m.dir.join(MANIFEST_FILE).exists() {
+    let exists = match m.dir.as_dir() {
+        Some(d) => d.join(MANIFEST_FILE).exists(),
+        None => m.dir.open_files()?.exists(MANIFEST_FILE)?,
+    };
+    let mut store = if exists {
         // The writer lock first: the job record is checked (and a legacy one upgraded) under it.
-        let store = MapStore::open(&m.dir)?;
+        let store = MapStore::open_at(&m.dir)?;
         if store.manifest().header.frames_committed == FRAMES_UNKNOWN {
             return Err(denser::Error::bad_input(
-                &m.dir,
+                m.dir.display_path(),
                 "this map's manifest was rebuilt by `denser repair`, which cannot know how many frames were fused: fusion cannot resume it (regularize, export and inspect work); reconstruct into a new --map folder",
             ));
         }
-        record.check_or_write(&m.dir, &job.input)?;
+        record.check_or_write_at(&**store.files(), &job.input)?;
         store
     } else {
-        let s = MapStore::create(&m.dir, job.config.grid, m.chunk_blocks)?;
+        let s = MapStore::create_at(&m.dir, job.config.grid, m.chunk_blocks)?;
+        let hint = match m.dir.as_dir() {
+            Some(d) => relative_hint(d, &job.input),
+            None => job.input.display().to_string(),
+        };
         JobRecord {
-            input_hint: relative_hint(&m.dir, &job.input),
+            input_hint: hint,
             ..record
         }
-        .write(&m.dir)?;
+        .write_at(&**s.files())?;
         s
     };
+    store.set_cache_budget(m.budget.memory_budget / 4);
     Ok(PagedStore::new(
         store,
         PagerConfig {

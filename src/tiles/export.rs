@@ -101,6 +101,9 @@ pub struct ExportOptions {
     pub frame: Option<WorldFrame>,
     /// RAM for outputs that need more than a chunk at a time (the COPC octree), bytes.
     pub memory_budget_bytes: u64,
+    /// Chunk meshes made by `export --shard` runs ([`super::parts`]): taken from there instead
+    /// of meshed again.
+    pub parts: Option<std::sync::Arc<super::parts::ExportParts>>,
 }
 
 impl ExportOptions {
@@ -111,6 +114,7 @@ impl ExportOptions {
             bbox: None,
             frame: None,
             memory_budget_bytes: 1 << 30,
+            parts: None,
         }
     }
 }
@@ -246,8 +250,14 @@ pub fn export_with(
         ExportTarget::Points(p) => (p.clone(), false),
         ExportTarget::Tiles(dir) => {
             let frame = options.frame.clone().unwrap_or_else(WorldFrame::local_z_up);
-            let st =
-                super::tileset::write_tileset(store, options.field, options.bbox, &frame, dir)?;
+            let st = super::tileset::write_tileset_with(
+                store,
+                options.field,
+                options.bbox,
+                &frame,
+                dir,
+                options.parts.as_deref(),
+            )?;
             return Ok(ExportStats {
                 chunks: st.leaf_tiles,
                 vertices: st.leaf_vertices,
@@ -337,7 +347,7 @@ pub fn export_with(
     let mut next_id: u64 = 0;
     let bar = crate::progress::bar(chunks.len() as u64, "exporting");
     for &c in &chunks {
-        let (m, keys, own) = mesh_chunk(store, c, field)?;
+        let (m, keys, own) = super::parts::chunk_mesh(store, c, field, options.parts.as_deref())?;
         stats.voxels += own as u64 * 512;
         let world: Vec<[f64; 3]> = m
             .positions_m

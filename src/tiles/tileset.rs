@@ -26,7 +26,7 @@
 //! frame: ECEF for a UTM or geocentric CRS ([`WorldFrame::ecef_from_local`]), the given
 //! world-from-local transform for a local one.
 
-use super::export::{chunk_bounds_m, chunks_in, frame_bounds, mesh_chunk, Bbox};
+use super::export::{chunk_bounds_m, chunks_in, frame_bounds, Bbox};
 use super::store::MapStore;
 use super::ChunkIndex;
 use crate::error::{Error, Result};
@@ -149,6 +149,7 @@ impl Clusters {
 
 struct Writer<'a> {
     store: &'a MapStore,
+    parts: Option<&'a super::parts::ExportParts>,
     field: Field,
     bbox: Option<Bbox>,
     frame: &'a WorldFrame,
@@ -173,7 +174,7 @@ impl Writer<'_> {
     fn build(&mut self, level: u32, key: [i32; 3]) -> Result<Option<(TileNode, Mesh)>> {
         let (mesh, mut lo, mut hi, children) = if level == 0 {
             let c = ChunkIndex([0, 1, 2].map(|a| key[a] + self.origin[a]));
-            let (m, _, own) = mesh_chunk(self.store, c, self.field)?;
+            let (m, _, own) = super::parts::chunk_mesh(self.store, c, self.field, self.parts)?;
             self.stats.voxels += own as u64 * 512;
             let m = self.crop(m);
             if m.triangles.is_empty() {
@@ -343,6 +344,19 @@ pub fn write_tileset(
     frame: &WorldFrame,
     dir: &Path,
 ) -> Result<TilesetStats> {
+    write_tileset_with(store, field, bbox, frame, dir, None)
+}
+
+/// [`write_tileset`] taking the full-resolution chunk meshes from `export --shard` parts where
+/// they hold them.
+pub fn write_tileset_with(
+    store: &MapStore,
+    field: Field,
+    bbox: Option<Bbox>,
+    frame: &WorldFrame,
+    dir: &Path,
+    parts: Option<&super::parts::ExportParts>,
+) -> Result<TilesetStats> {
     // The tileset is built in a hidden sibling folder and swapped in when complete, so `dir`
     // holds a whole tileset or what it held before (io::atomic). It may only replace a tileset.
     if dir.exists() {
@@ -362,7 +376,7 @@ pub fn write_tileset(
     }
     let build = TempPath::for_target(dir);
     std::fs::create_dir_all(build.path()).map_err(|e| Error::io(dir, e))?;
-    let stats = build_tileset(store, field, bbox, frame, build.path())?;
+    let stats = build_tileset(store, field, bbox, frame, build.path(), parts)?;
     if dir.exists() {
         let previous = TempPath::for_target(&dir.with_extension("previous"));
         std::fs::rename(dir, previous.path()).map_err(|e| Error::io(dir, e))?;
@@ -381,6 +395,7 @@ fn build_tileset(
     bbox: Option<Bbox>,
     frame: &WorldFrame,
     dir: &Path,
+    parts: Option<&super::parts::ExportParts>,
 ) -> Result<TilesetStats> {
     let chunks = chunks_in(store, frame, bbox);
     // Tile keys count from the lowest chunk index, so halving always reaches one root tile
@@ -405,6 +420,7 @@ fn build_tileset(
     }
     let mut w = Writer {
         store,
+        parts,
         field,
         bbox,
         frame,

@@ -10,4 +10,6 @@ mod devices;
 mod engine;
 mod map;
 mod outputs;
+#[cfg(feature = "s3")]
+mod scaleout;
 mod stereo;
