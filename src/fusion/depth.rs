@@ -45,8 +45,8 @@ pub const BAND_TILE_PX: usize = 8;
 /// [`BAND_TILE_PX`]² pixels, the blocks that meet the tile's viewing frustum between the
 /// depths `d_min − μ` and `d_max + μ` of its usable pixels (depths split into separate ranges
 /// where two consecutive ones differ by more than 2μ, so free space between a foreground and a
-/// background surface is not listed; a tile whose range spreads over more than μ/4 is split
-/// into quadrants, down to single pixels). A superset of [`depth_frame_blocks_exact`] (every pixel's
+/// background surface is not listed; a tile whose range spreads over more than μ/2 is split
+/// into quadrants, down to 2×2 pixels). A superset of [`depth_frame_blocks_exact`] (every pixel's
 /// band segment lies in its tile's slice; `tests/core/analytic.rs` checks the superset and how
 /// many blocks it adds), at a cost per tile instead of per pixel. Each slice is cut along the
 /// view into pieces no deeper than a block; a block is listed when it lies in a piece's
@@ -111,7 +111,7 @@ pub fn depth_frame_blocks(
 }
 
 /// A tile whose depths (within one range) spread over more than this many μ is split.
-const SPLIT_SPREAD: f64 = 0.25;
+const SPLIT_SPREAD: f64 = 0.5;
 
 /// A rectangle of pixels, inclusive bounds.
 #[derive(Clone, Copy)]
@@ -134,8 +134,8 @@ struct TileLister<'a> {
 }
 
 /// Lists the blocks of one tile into `out`: its usable depths, split into ranges at gaps of
-/// more than 2μ; a tile whose depths (within one range) spread over more than μ/4 (a surface
-/// seen at a grazing angle) is split into quadrants, down to single pixels, so that the slice
+/// more than 2μ; a tile whose depths (within one range) spread over more than μ/2 (a surface
+/// seen at a grazing angle) is split into quadrants, down to 2×2 pixels, so that the slice
 /// stays close to the union of its pixels' band segments.
 fn tile_blocks(tile: Tile, l: &TileLister, depths: &mut Vec<f32>, out: &mut Vec<u64>) {
     depths.clear();
@@ -150,17 +150,27 @@ fn tile_blocks(tile: Tile, l: &TileLister, depths: &mut Vec<f32>, out: &mut Vec<
     if depths.is_empty() {
         return;
     }
-    depths.sort_unstable_by(f32::total_cmp);
+    let (lo, hi) = depths
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
+            (lo.min(d), hi.max(d))
+        });
     let mut ranges: Vec<(f64, f64)> = Vec::new();
-    let mut start = 0;
-    for i in 1..=depths.len() {
-        if i == depths.len() || (depths[i] - depths[i - 1]) as f64 > 2.0 * l.mu {
-            ranges.push((depths[start] as f64, depths[i - 1] as f64));
-            start = i;
+    if (hi - lo) as f64 <= 2.0 * l.mu {
+        // No gap of more than 2μ can fit: one range, no sort.
+        ranges.push((lo as f64, hi as f64));
+    } else {
+        depths.sort_unstable_by(f32::total_cmp);
+        let mut start = 0;
+        for i in 1..=depths.len() {
+            if i == depths.len() || (depths[i] - depths[i - 1]) as f64 > 2.0 * l.mu {
+                ranges.push((depths[start] as f64, depths[i - 1] as f64));
+                start = i;
+            }
         }
     }
-    let single = tile.u[0] == tile.u[1] && tile.v[0] == tile.v[1];
-    if !single && ranges.iter().any(|(lo, hi)| hi - lo > SPLIT_SPREAD * l.mu) {
+    let smallest = tile.u[1] - tile.u[0] < 2 && tile.v[1] - tile.v[0] < 2;
+    if !smallest && ranges.iter().any(|(lo, hi)| hi - lo > SPLIT_SPREAD * l.mu) {
         let um = (tile.u[0] + tile.u[1]) / 2;
         let vm = (tile.v[0] + tile.v[1]) / 2;
         for u in [[tile.u[0], um], [um + 1, tile.u[1]]] {
@@ -195,6 +205,9 @@ struct SliceGeometry {
     origin: Vector3<f64>,
     block_m: f64,
 }
+
+/// How many of the last listed blocks [`SliceGeometry::blocks_of_slice`] checks for repeats.
+const RECENT: usize = 24;
 
 impl SliceGeometry {
     /// Pushes (packed, unsorted, with repeats) the blocks meeting the frustum slice
@@ -251,8 +264,10 @@ impl SliceGeometry {
                                 .iter()
                                 .zip(&side_reach)
                                 .all(|(n, r)| n.dot(&centre) + r >= -MARGIN_M);
-                        if inside {
-                            out.push(BlockIndex([bx as i32, by as i32, bz as i32]).pack());
+                        let key = BlockIndex([bx as i32, by as i32, bz as i32]).pack();
+                        // Neighbouring tiles list mostly the same blocks: skip recent repeats.
+                        if inside && !out[out.len().saturating_sub(RECENT)..].contains(&key) {
+                            out.push(key);
                         }
                     }
                 }
