@@ -1,5 +1,8 @@
 //! Criterion benchmarks of the core stages on the analytic scene (a sphere above a floor, rendered
-//! at 640×480 by `tests/common`). Settings are fixed: do not modify, or results are not comparable.
+//! at 640×480 by `tests/common`), plus the TV regulariser on the problems of issue 14: a dense,
+//! all-Ω 128³ volume (the one `tools/bench_skimage_tv.py` gives scikit-image) and the sparse,
+//! Ω-masked map of a synthetic LiDAR drive. Settings are fixed: do not modify, or results are
+//! not comparable.
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -7,9 +10,11 @@ mod common;
 use common::{orbit, vga, Rng, SphereScene};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use denser::fusion::{integrate_depth, integrate_lidar, DepthFusionParams, LidarFusionParams};
+use denser::grid::{BlockIndex, VOXELS_PER_BLOCK};
 use denser::grid::{GridParams, Layer};
 use denser::mesh::{extract_mesh, Field};
 use denser::regularize::{TvParams, TvProblem};
+use denser::synth::{City, CityConfig, LidarConfig};
 
 fn scene_frames() -> Vec<denser::frame::DepthFrame> {
     let scene = SphereScene {
@@ -110,5 +115,152 @@ fn regularize_and_mesh(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, fusion, lidar, regularize_and_mesh);
+/// splitmix64, as `tools/bench_skimage_tv.py`.
+fn splitmix64(x: u64) -> u64 {
+    let mut z = x.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// The dense 128³ problem of `tools/bench_skimage_tv.py` (same formula; computed in f64, stored
+/// as f32): a sphere of radius 40 voxels, f = clamp((r − 40)/10, −1, 1) + uniform noise in
+/// [−0.1, 0.1), every voxel in Ω with w = 1, as 16³ blocks.
+fn dense_tv_volume() -> TvProblem {
+    const SIDE: usize = 128;
+    let blocks_per_side = (SIDE / 8) as i32;
+    let mut blocks = Vec::new();
+    for x in 0..blocks_per_side {
+        for y in 0..blocks_per_side {
+            for z in 0..blocks_per_side {
+                blocks.push(BlockIndex([x, y, z]));
+            }
+        }
+    }
+    blocks.sort_unstable();
+    let n = blocks.len() * VOXELS_PER_BLOCK;
+    let mut f = vec![0.0f32; n];
+    let c = (SIDE as f64 - 1.0) / 2.0;
+    for (k, b) in blocks.iter().enumerate() {
+        for i in 0..VOXELS_PER_BLOCK {
+            let l = denser::grid::local_coords(i);
+            let [x, y, z] = [0, 1, 2].map(|a| b.0[a] as usize * 8 + l[a]);
+            let r =
+                ((x as f64 - c).powi(2) + (y as f64 - c).powi(2) + (z as f64 - c).powi(2)).sqrt();
+            let index = (x + SIDE * (y + SIDE * z)) as u64;
+            let noise = (splitmix64(index) >> 40) as f64 / (1u64 << 24) as f64;
+            f[k * VOXELS_PER_BLOCK + i] =
+                (((r - 40.0) / 10.0).clamp(-1.0, 1.0) + 0.2 * (noise - 0.5)) as f32;
+        }
+    }
+    TvProblem::from_arrays(blocks, f, vec![1.0; n], vec![true; n])
+}
+
+/// The dense problem against scikit-image (λ = 0.8 ⇔ its weight 1.25; 50 iterations).
+fn tv_dense(c: &mut Criterion) {
+    let problem = dense_tv_volume();
+    let params = TvParams {
+        iterations: 50,
+        ..TvParams::paper(0.1)
+    };
+    let mut solved = problem.clone();
+    solved.solve(&params);
+    eprintln!(
+        "tv_dense_128: {} voxels, energy {:.1} -> {:.1} after {} iterations (λ = {})",
+        problem.omega_count(),
+        problem.energy(params.lambda),
+        solved.energy(params.lambda),
+        params.iterations,
+        params.lambda
+    );
+    let mut g = c.benchmark_group("tv_dense_128");
+    g.throughput(Throughput::Elements(
+        problem.omega_count() as u64 * params.iterations as u64,
+    ));
+    g.sample_size(10);
+    g.bench_function("50_iterations_voxel_iterations", |b| {
+        b.iter_batched(
+            || problem.clone(),
+            |mut p| p.solve(&params),
+            criterion::BatchSize::LargeInput,
+        )
+    });
+    // The voxel-by-voxel solver before issue 14 (same bits), side by side.
+    g.bench_function("reference_50_iterations_voxel_iterations", |b| {
+        b.iter_batched(
+            || problem.clone(),
+            |mut p| {
+                for _ in 0..params.iterations {
+                    p.iterate_reference(&params)
+                }
+            },
+            criterion::BatchSize::LargeInput,
+        )
+    });
+    g.finish();
+}
+
+/// The sparse, Ω-masked map of a synthetic LiDAR drive: 30 scans of a 260 m city (seed 9) at
+/// 10 cm, μ = 1 m; throughput in Ω voxel-iterations, as `denser` reports it.
+fn tv_drive(c: &mut Criterion) {
+    let city = City::generate(&CityConfig {
+        seed: 9,
+        length_m: 260.0,
+        ..Default::default()
+    })
+    .expect("city");
+    let cfg = LidarConfig::default();
+    let mut layer = Layer::new(GridParams::paper(0.1));
+    let params = LidarFusionParams::default();
+    for (k, pose) in city.frame_poses().iter().enumerate().take(30) {
+        let scan = city.scan_lidar(pose, &cfg, k as u64);
+        integrate_lidar(&mut layer, &scan, &params);
+    }
+    let blocks = layer.indices_sorted();
+    let problem = TvProblem::gather(&layer, &blocks);
+    let tv = TvParams {
+        iterations: 10,
+        ..TvParams::paper(0.1)
+    };
+    eprintln!(
+        "tv_drive: {} blocks, {} voxels in Ω ({:.0} % of the blocks' voxels)",
+        blocks.len(),
+        problem.omega_count(),
+        100.0 * problem.omega_count() as f64 / (blocks.len() * VOXELS_PER_BLOCK) as f64
+    );
+    let mut g = c.benchmark_group("tv_drive_lidar_10cm");
+    g.throughput(Throughput::Elements(
+        problem.omega_count() as u64 * tv.iterations as u64,
+    ));
+    g.sample_size(10);
+    g.bench_function("10_iterations_omega_voxel_iterations", |b| {
+        b.iter_batched(
+            || problem.clone(),
+            |mut p| p.solve(&tv),
+            criterion::BatchSize::LargeInput,
+        )
+    });
+    // The voxel-by-voxel solver before issue 14 (same bits), side by side.
+    g.bench_function("reference_10_iterations_omega_voxel_iterations", |b| {
+        b.iter_batched(
+            || problem.clone(),
+            |mut p| {
+                for _ in 0..tv.iterations {
+                    p.iterate_reference(&tv)
+                }
+            },
+            criterion::BatchSize::LargeInput,
+        )
+    });
+    g.finish();
+}
+
+criterion_group!(
+    benches,
+    fusion,
+    lidar,
+    regularize_and_mesh,
+    tv_dense,
+    tv_drive
+);
 criterion_main!(benches);

@@ -24,13 +24,14 @@ fn main(
             }
         }
     }
+    let n = params.voxel_count;
     let q = vec3<f32>(
-        p[3u * g] + params.sigma * grad.x,
-        p[3u * g + 1u] + params.sigma * grad.y,
-        p[3u * g + 2u] + params.sigma * grad.z,
+        p[g] + params.sigma * grad.x,
+        p[n + g] + params.sigma * grad.y,
+        p[2u * n + g] + params.sigma * grad.z,
     );
     let scale = 1.0 / max(sqrt(q.x * q.x + q.y * q.y + q.z * q.z), 1.0);
-    p[3u * g] = q.x * scale;
-    p[3u * g + 1u] = q.y * scale;
-    p[3u * g + 2u] = q.z * scale;
+    p[g] = q.x * scale;
+    p[n + g] = q.y * scale;
+    p[2u * n + g] = q.z * scale;
 }

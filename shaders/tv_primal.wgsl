@@ -16,15 +16,16 @@ fn main(
     if ((m & OMEGA) == 0u) {
         return;
     }
+    let n = params.voxel_count;
     var div = 0.0;
     for (var d = 0u; d < 3u; d = d + 1u) {
         if ((m & (1u << d)) != 0u) {
-            div = div + p[3u * g + d];
+            div = div + p[d * n + g];
         }
         if ((m & (1u << (3u + d))) != 0u) {
             let h = backward(g, d);
             if (h != NONE) {
-                div = div - p[3u * h + d];
+                div = div - p[d * n + h];
             }
         }
     }

@@ -31,6 +31,23 @@ pub enum Error {
         /// Who holds the lock (pid, host, command line, for how long), as its lock file says.
         holder: String,
     },
+    /// An object store refused or failed a request on `path` (`s3://bucket/prefix/…`).
+    #[error("{path}: object store: {message}")]
+    Storage {
+        /// The object (or map) involved, as a URL.
+        path: PathBuf,
+        /// The store's error, in its words.
+        message: String,
+    },
+    /// Another writer committed the map's manifest after this writer read it: this writer's
+    /// commit was refused (compare-and-swap) and nothing it wrote is named by the manifest.
+    #[error("{map}: the map was committed by another writer since this one read it (generation {read_generation}); this writer's commit was refused and nothing it wrote was committed: reopen the map and run again")]
+    CommitConflict {
+        /// The map.
+        map: PathBuf,
+        /// The generation this writer had read.
+        read_generation: u64,
+    },
     /// A parameter or argument is out of its valid range.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),

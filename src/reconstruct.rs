@@ -121,6 +121,8 @@ pub struct Reconstructor {
     /// Frames in the map: those committed before this run plus those fused since.
     frames_total: u64,
     checkpoint_every: u64,
+    /// Sensor position of every frame fused in this run, world frame, metres.
+    trajectory_m: Vec<[f64; 3]>,
 }
 
 impl std::fmt::Debug for Reconstructor {
@@ -171,6 +173,7 @@ impl Reconstructor {
             timings: StageTimings::default(),
             frames_total,
             checkpoint_every,
+            trajectory_m: Vec::new(),
         })
     }
 
@@ -207,6 +210,11 @@ impl Reconstructor {
     /// Frames the store held when this run began (where a resumed run continues).
     pub fn frames_committed(&self) -> u64 {
         self.store.frames_committed()
+    }
+
+    /// The sensor's position at every frame fused in this run, in order, world frame, metres.
+    pub fn trajectory_m(&self) -> &[[f64; 3]] {
+        &self.trajectory_m
     }
 
     /// Frames in the map (committed before this run plus fused since).
@@ -282,6 +290,15 @@ impl Reconstructor {
         let t = Instant::now();
         let plan = LidarPlan::new(&self.config.grid, scan, &self.config.lidar_fusion);
         let planned_s = t.elapsed().as_secs_f64();
+        if plan.ray_count() == 0 && !scan.points_sensor_m.is_empty() {
+            let p = &self.config.lidar_fusion;
+            tracing::warn!(
+                "a LiDAR scan of {} points has no return between {} and {} m: nothing fused",
+                scan.points_sensor_m.len(),
+                p.min_range_m,
+                p.max_range_m
+            );
+        }
         let t = Instant::now();
         self.store.prepare_blocks(&plan.blocks())?;
         self.timings.paging_s += t.elapsed().as_secs_f64();
@@ -300,6 +317,7 @@ impl Reconstructor {
     ) -> crate::Result<()> {
         self.timings.frames_fused += 1;
         self.timings.voxel_updates += stats.voxel_updates;
+        self.trajectory_m.push(camera_m);
         self.frames_total += 1;
         let t = Instant::now();
         self.store

@@ -67,6 +67,8 @@ pub struct RegularizeSummary {
     pub peak_region_bytes: u64,
     /// Pass number written into a stored map's manifest (0 in memory).
     pub pass: u32,
+    /// Regions adopted from `regularize --shard` runs (stored maps).
+    pub regions_adopted: usize,
 }
 
 /// What writing a surface produced.
@@ -193,10 +195,54 @@ pub trait BlockStore {
     fn summary(&self) -> StoreSummary;
 }
 
+/// A solver that runs its iterations in chunks of [`PROGRESS_ITERATIONS`], reporting
+/// `(iterations done, iterations)` of the current solve after each: the same result (the
+/// solver's state carries over between calls), a progress bar for a long global solve.
+struct Chunked<'a> {
+    inner: &'a mut dyn TvSolver,
+    progress: &'a mut dyn FnMut(usize, usize) -> bool,
+}
+
+/// Iterations between two progress reports of an in-memory regularisation.
+const PROGRESS_ITERATIONS: u32 = 25;
+
+impl TvSolver for Chunked<'_> {
+    fn solve(
+        &mut self,
+        problem: &mut crate::regularize::TvProblem,
+        params: &TvParams,
+    ) -> Result<()> {
+        let mut done = 0;
+        while done < params.iterations {
+            let k = PROGRESS_ITERATIONS.min(params.iterations - done);
+            self.inner.solve(
+                problem,
+                &TvParams {
+                    iterations: k,
+                    ..*params
+                },
+            )?;
+            done += k;
+            (self.progress)(done as usize, params.iterations as usize);
+        }
+        Ok(())
+    }
+
+    fn max_voxels(&self) -> Option<usize> {
+        self.inner.max_voxels()
+    }
+}
+
+/// RAM the in-memory path needs per allocated block for the whole run: the block with a
+/// regularised field (8 B/voxel and its hash slot) and the regulariser's arrays over it
+/// (`tiles::regional::SOLVER_BYTES_PER_VOXEL`, 30 B/voxel), bytes.
+pub const MEMORY_RUN_BYTES_PER_BLOCK: u64 = (VOXELS_PER_BLOCK as u64) * (8 + 30) + 32;
+
 /// The whole map in one RAM [`Layer`].
 #[derive(Clone, Debug)]
 pub struct MemoryStore {
     layer: Layer,
+    limit_bytes: Option<u64>,
 }
 
 impl MemoryStore {
@@ -204,12 +250,24 @@ impl MemoryStore {
     pub fn new(grid: GridParams) -> Self {
         MemoryStore {
             layer: Layer::new(grid),
+            limit_bytes: None,
         }
     }
 
     /// A store over an existing layer.
     pub fn from_layer(layer: Layer) -> Self {
-        MemoryStore { layer }
+        MemoryStore {
+            layer,
+            limit_bytes: None,
+        }
+    }
+
+    /// Stops fusion with an error once the run would need more than `bytes` of RAM to fuse,
+    /// regularise and mesh the map ([`MEMORY_RUN_BYTES_PER_BLOCK`] per block), before the
+    /// machine runs out: the map belongs in a map directory then.
+    pub fn with_limit(mut self, bytes: u64) -> Self {
+        self.limit_bytes = Some(bytes);
+        self
     }
 
     /// The layer.
@@ -244,6 +302,18 @@ impl BlockStore for MemoryStore {
     }
 
     fn finish_frame(&mut self, _: &[BlockIndex], _: [f64; 3], _: &mut dyn UpperTier) -> Result<()> {
+        let Some(limit) = self.limit_bytes else {
+            return Ok(());
+        };
+        let blocks = self.layer.block_count() as u64;
+        let need = blocks * MEMORY_RUN_BYTES_PER_BLOCK;
+        if need > limit {
+            return Err(crate::Error::InvalidArgument(format!(
+                "the map in RAM has grown to {blocks} blocks: fusing, regularising and meshing it in memory would need about {} MiB, more than the {} MiB available; stream it through a map directory instead (--map DIR --memory-budget B)",
+                need >> 20,
+                limit >> 20
+            )));
+        }
         Ok(())
     }
 
@@ -257,8 +327,11 @@ impl BlockStore for MemoryStore {
         solver: &mut dyn TvSolver,
         progress: &mut dyn FnMut(usize, usize) -> bool,
     ) -> Result<RegularizeSummary> {
-        let (blocks, stats) = regularize_layer_by(&mut self.layer, params, solver)?;
-        progress(1, 1);
+        let mut chunked = Chunked {
+            inner: solver,
+            progress,
+        };
+        let (blocks, stats) = regularize_layer_by(&mut self.layer, params, &mut chunked)?;
         Ok(RegularizeSummary {
             blocks: blocks.len(),
             omega_voxels: stats.omega_voxels as u64,

@@ -26,6 +26,13 @@ if command -v python3 >/dev/null 2>&1; then
     || python3 -m pip install -q "laspy==2.7.0" "lazrs==0.8.2" "pyproj==3.7.2" >/dev/null 2>&1 \
     || echo "setup: could not install laspy/lazrs/pyproj (the tests that need them will skip)"
 fi
+# A real S3-compatible server for the object-storage tests (tests/tiles/scaleout.rs,
+# tests/cli/scaleout.rs start `moto_server -H 127.0.0.1 -p PORT` themselves).
+if command -v python3 >/dev/null 2>&1; then
+  command -v moto_server >/dev/null 2>&1 \
+    || python3 -m pip install -q "moto[server]==5.2.5" >/dev/null 2>&1 \
+    || echo "setup: could not install moto[server] (the S3 tests will skip)"
+fi
 # The glTF validator and the three.js 3D Tiles viewer (tools/web/package.json, locked).
 if command -v npm >/dev/null 2>&1 && [ ! -d tools/web/node_modules/3d-tiles-renderer ]; then
   (cd tools/web && npm ci --no-audit --no-fund >/dev/null 2>&1) \

@@ -31,7 +31,8 @@ const OMEGA: u32 = 64u;
 @group(0) @binding(4) var<storage, read> w: array<f32>;
 @group(0) @binding(5) var<storage, read_write> u: array<f32>;
 @group(0) @binding(6) var<storage, read_write> ubar: array<f32>;
-// Dual variable, three floats per voxel (x, y, z).
+// Dual variable as three planes (TvProblem::state): p_x of every voxel, then p_y, then p_z;
+// component d of voxel g at d·voxel_count + g.
 @group(0) @binding(7) var<storage, read_write> p: array<f32>;
 
 fn stride(d: u32) -> u32 {

@@ -1,6 +1,7 @@
-//! `denser bench`: fusion, regularisation and marching-cubes throughput on real RGB-D frames, at
-//! 10 cm and 5 cm voxels with μ = 8 voxels (Open3D's default, so `tools/bench_open3d.py` runs
-//! the same settings). Frames are loaded once; each pass re-fuses all of them.
+//! `denser bench`: fusion, regularisation and marching-cubes throughput on real RGB-D frames (or
+//! any depth sequence `--rgbd` names, e.g. a synthetic drive's ground-truth depth), at 10 cm and
+//! 5 cm voxels with μ = 8 voxels (Open3D's default, so `tools/bench_open3d.py` runs the same
+//! settings). Frames are loaded once; each pass re-fuses all of them.
 
 use super::Outcome;
 use anyhow::{Context, Result};
@@ -12,25 +13,29 @@ use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
 pub(crate) struct Args {
-    /// Numbered RGB-D folder (default: ../shared/data/rgbd_5frames_slambook2).
+    /// Numbered RGB-D folder (default: ../shared/data/rgbd_5frames_slambook2), or any depth
+    /// sequence (a `denser synth` drive's `sequences/00` fuses its ground-truth depth).
     #[arg(long)]
     rgbd: Option<PathBuf>,
     /// Passes over the frames per voxel size.
     #[arg(long, default_value_t = 10)]
     passes: usize,
+    /// Depths beyond this are not fused, metres (`tools/bench_open3d.py --depth-max`).
+    #[arg(long, default_value_t = 10.0)]
+    max_depth_m: f32,
 }
 
 pub(crate) fn run(a: Args) -> Result<Outcome> {
     let dir = a.rgbd.unwrap_or_else(|| {
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/rgbd_5frames_slambook2")
     });
-    let table =
-        bench_rgbd(&dir, a.passes).with_context(|| format!("benchmarking on {}", dir.display()))?;
+    let table = bench_rgbd(&dir, a.passes, a.max_depth_m)
+        .with_context(|| format!("benchmarking on {}", dir.display()))?;
     Ok(Box::new(table))
 }
 
 /// The Markdown table of the benchmark (one row per voxel size).
-fn bench_rgbd(dir: &Path, passes: usize) -> denser::Result<String> {
+fn bench_rgbd(dir: &Path, passes: usize, max_depth_m: f32) -> denser::Result<String> {
     let seq = open_sequence(dir, RangeSource::GroundTruthDepth, None, None)?;
     let frames: Vec<_> = (0..seq.len())
         .map(|i| match seq.read(i)? {
@@ -44,7 +49,7 @@ fn bench_rgbd(dir: &Path, passes: usize) -> denser::Result<String> {
     for voxel in [0.10f32, 0.05] {
         let mut config = ReconstructionConfig::paper(voxel);
         config.grid.truncation_m = 8.0 * voxel;
-        config.depth_fusion.max_depth_m = 10.0;
+        config.depth_fusion.max_depth_m = max_depth_m;
         config.tv.iterations = 20;
         let mut rec = Reconstructor::in_memory(config, Backend::cpu())?;
         let mut times = Vec::new();

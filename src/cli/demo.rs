@@ -45,6 +45,8 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     let started = std::time::Instant::now();
     // The device first: `--device gpu` without an adapter fails before any work.
     let backend = a.device.backend()?;
+    denser::io::atomic::check_output_dir(&a.out)
+        .with_context(|| format!("checking the output folder {}", a.out.display()))?;
     let drive_dir = a.out.join("drive");
     let mut drive = denser::synth::DriveConfig::default();
     drive.city.seed = a.seed;

@@ -43,9 +43,10 @@ impl fmt::Display for Evaluated {
 }
 
 pub(crate) fn run(a: Args) -> Result<Outcome> {
+    denser::io::atomic::check_output_dir(&a.out)?;
     let gt = GroundTruth::from_path(a.gt.clone(), a.poses.clone(), a.range.range());
-    let cloud = gt
-        .load()
+    let (cloud, coverage) = gt
+        .load_with_coverage()
         .with_context(|| format!("loading ground truth {}", a.gt.display()))?;
     let mut meshes = Vec::new();
     for spec in &a.meshes {
@@ -74,7 +75,19 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         ),
         cloud.len() as u64,
     );
-    let written =
-        evaluate_meshes(&refs, &cloud, &mut report, None, &a.out).context("evaluating")?;
+    let trajectory = coverage
+        .as_ref()
+        .map(|c| c.trajectory_m())
+        .unwrap_or_default();
+    let written = evaluate_meshes(
+        &refs,
+        &cloud,
+        coverage.as_ref(),
+        &trajectory,
+        &mut report,
+        None,
+        &a.out,
+    )
+    .context("evaluating")?;
     Ok(Box::new(Evaluated { report, written }))
 }

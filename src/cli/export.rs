@@ -8,13 +8,15 @@ use denser::geo::WorldFrame;
 use denser::mesh::Field;
 use denser::tiles::export::{self, Bbox, ExportOptions, ExportStats, ExportTarget};
 use denser::tiles::store::MapStore;
+use denser::tiles::MapLocation;
 use std::fmt;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub(crate) struct Args {
-    /// Map directory.
-    dir: PathBuf,
+    /// Map directory or s3://bucket/prefix.
+    #[arg(value_name = "MAP")]
+    dir: MapLocation,
     /// Write a mesh (binary PLY).
     #[arg(long, conflicts_with_all = ["points", "tiles"])]
     mesh: Option<PathBuf>,
@@ -53,6 +55,32 @@ pub(crate) struct Args {
     /// newer pass is incomplete (its files are kept until the newer pass completes).
     #[arg(long, conflicts_with_all = ["raw", "allow_incomplete_pass"])]
     pass: Option<u32>,
+    /// Mesh only this share of the chunks, as task I of an array job of N (or auto/N), and store
+    /// the meshes as a part in the map's store; the same command without --shard afterwards
+    /// writes the output from the parts (meshing what is missing) and removes them.
+    #[arg(long, value_name = "I/N")]
+    shard: Option<String>,
+}
+
+struct PartWritten {
+    map: MapLocation,
+    shard: denser::tiles::shards::Shard,
+    stats: denser::tiles::parts::PartStats,
+}
+
+impl fmt::Display for PartWritten {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let s = &self.stats;
+        writeln!(
+            f,
+            "export shard {} of {}: meshed {} chunks ({} vertices, {} triangles) into {} ({} bytes) in {:.2} s",
+            self.shard, self.map, s.chunks, s.vertices, s.triangles, s.object, s.bytes, s.seconds
+        )?;
+        writeln!(
+            f,
+            "run the same export without --shard once every shard has finished: it writes the output from the parts"
+        )
+    }
 }
 
 struct Exported {
@@ -111,8 +139,9 @@ impl fmt::Display for Exported {
 }
 
 pub(crate) fn run(a: Args) -> Result<Outcome> {
-    let store = MapStore::open_read_only(&a.dir)
-        .with_context(|| format!("opening map {}", a.dir.display()))?;
+    let mut store =
+        MapStore::open_read_only_at(&a.dir).with_context(|| format!("opening map {}", a.dir))?;
+    store.set_cache_budget(a.memory_budget / 4);
     let field = if a.raw {
         Field::Raw
     } else {
@@ -137,7 +166,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         }
         Some(p) => bail!(
             "{}: pass {p} cannot be exported whole; {}",
-            a.dir.display(),
+            a.dir,
             status.describe()
         ),
         None if field == Field::Regularized && !status.is_complete() => {
@@ -152,9 +181,9 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
                 };
                 bail!(
                     "{}: regularisation {}. Finish it with `denser regularize {} --lambda {} --iterations {}`{previous}, or mix the passes with --allow-incomplete-pass",
-                    a.dir.display(),
+                    a.dir,
                     status.describe(),
-                    a.dir.display(),
+                    a.dir,
                     status.params.lambda,
                     status.params.iterations
                 );
@@ -184,10 +213,54 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     if field == Field::Regularized && store.summary().regularized_chunks == 0 {
         tracing::warn!(
             "{} has no regularised chunks: exporting f (run `denser regularize` first)",
-            a.dir.display()
+            a.dir
         );
     }
+    if let Some(spec) = &a.shard {
+        let shard = denser::tiles::shards::Shard::parse(spec)?;
+        let frame = match (&options.frame, &target) {
+            (Some(f), _) => f.clone(),
+            (None, ExportTarget::Mesh(p) | ExportTarget::Points(p))
+                if p.extension().is_some_and(|e| e.eq_ignore_ascii_case("ply")) =>
+            {
+                WorldFrame::map()
+            }
+            (None, _) => WorldFrame::local_z_up(),
+        };
+        let chunks = export::chunks_in(&store, &frame, options.bbox);
+        let stats = denser::tiles::parts::write_part(&store, field, &chunks, shard)
+            .with_context(|| format!("export shard {shard} of {}", a.dir))?;
+        return Ok(Box::new(PartWritten {
+            map: a.dir,
+            shard,
+            stats,
+        }));
+    }
+    match &target {
+        ExportTarget::Tiles(dir) => denser::io::atomic::check_output_dir(
+            dir.parent()
+                .filter(|p| !p.as_os_str().is_empty())
+                .unwrap_or(std::path::Path::new(".")),
+        )?,
+        ExportTarget::Mesh(p) | ExportTarget::Points(p) => {
+            denser::io::atomic::check_output_file(p)?
+        }
+    }
+    let parts = denser::tiles::parts::ExportParts::load(&store, field)
+        .context("reading the export shards' parts")?
+        .map(std::sync::Arc::new);
+    if let Some(p) = &parts {
+        notes.push(format!(
+            "{} chunk meshes taken from {} export shard parts",
+            p.chunks(),
+            p.parts
+        ));
+    }
+    options.parts = parts.clone();
     let stats = export::export_with(&store, &options, &target).context("exporting")?;
+    if let Some(p) = &parts {
+        p.remove_all().context("removing the export parts")?;
+    }
     let path = match target {
         ExportTarget::Mesh(p) | ExportTarget::Points(p) | ExportTarget::Tiles(p) => p,
     };

@@ -4,13 +4,14 @@
 use super::{mib, Outcome, Problems};
 use anyhow::{Context, Result};
 use denser::tiles::store::MapStore;
+use denser::tiles::MapLocation;
 use std::fmt;
-use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub(crate) struct Args {
-    /// Map directory.
-    dir: PathBuf,
+    /// Map directory or s3://bucket/prefix.
+    #[arg(value_name = "MAP")]
+    dir: MapLocation,
     /// Read every chunk and check its checksums against the manifest.
     #[arg(long)]
     verify: bool,
@@ -20,7 +21,9 @@ pub(crate) struct Args {
 }
 
 struct Inspected {
-    dir: PathBuf,
+    /// Open shard plans: (pass, regions recorded, regions of the plan, key).
+    shard_plans: Vec<(u32, usize, u64, String)>,
+    dir: MapLocation,
     store: MapStore,
     verified: bool,
     problems: Vec<String>,
@@ -49,19 +52,29 @@ impl fmt::Display for Inspected {
                 "regularization_pass": h.reg_pass,
                 "regularization": passes,
                 "regularization_status": passes.describe(),
+                "shard_plans": self.shard_plans.iter().map(|(p, done, total, key)| serde_json::json!({
+                    "pass": p, "regions_recorded": done, "regions": total, "key": key,
+                })).collect::<Vec<_>>(),
                 "verified": self.verified,
                 "problems": self.problems,
             });
             let text = serde_json::to_string_pretty(&v).map_err(|_| fmt::Error)?;
             return writeln!(f, "{text}");
         }
-        writeln!(f, "map {}", self.dir.display())?;
+        writeln!(f, "map {}", self.dir)?;
         writeln!(
             f,
             "  voxel {} m, μ {} m, chunks of {}³ blocks; generation {}, frames committed: {frames}",
             h.voxel_size_m, h.truncation_m, h.chunk_blocks, h.generation
         )?;
         writeln!(f, "  regularisation: {}", passes.describe())?;
+        for (p, done, total, key) in &self.shard_plans {
+            writeln!(
+                f,
+                "  shards of pass {p}: {done} of {total} regions recorded (plan {key}); `denser regularize {}` with the same parameters adopts them",
+                self.dir
+            )?;
+        }
         if !passes.is_complete() {
             for line in passes.chunks_by_pass_lines(Some(12)) {
                 writeln!(f, "    {line}")?;
@@ -91,11 +104,21 @@ impl fmt::Display for Inspected {
 }
 
 pub(crate) fn run(a: Args) -> Result<Outcome> {
-    let store = MapStore::open_read_only(&a.dir)
-        .with_context(|| format!("opening map {}", a.dir.display()))?;
+    let store =
+        MapStore::open_read_only_at(&a.dir).with_context(|| format!("opening map {}", a.dir))?;
     let problems = if a.verify { store.verify() } else { Vec::new() };
     let chunks = store.summary().chunks;
+    let files = store.files().clone();
+    let shard_plans = denser::tiles::shards::plans(&*files)?
+        .into_iter()
+        .map(|p| {
+            let key = u64::from_str_radix(&p.key, 16).unwrap_or(0);
+            let done = denser::tiles::shards::recorded_regions(&*files, key).map_or(0, |v| v.len());
+            (p.pass, done, p.regions, p.key)
+        })
+        .collect();
     let inspected = Inspected {
+        shard_plans,
         dir: a.dir,
         store,
         verified: a.verify,

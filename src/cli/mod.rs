@@ -12,6 +12,7 @@ mod demo;
 mod evaluate;
 mod export;
 mod inspect;
+mod merge;
 mod reconstruct;
 mod regularize;
 mod repair;
@@ -58,12 +59,18 @@ enum Command {
     Export(export::Args),
     /// Summarise a stored map (chunks, blocks, voxels, bytes) and verify its checksums.
     Inspect(inspect::Args),
+    /// Combine maps of one grid and world frame (drives fused apart) into a new map, chunk by chunk.
+    Merge(merge::Args),
     /// Rebuild a lost or unreadable map manifest from the chunk files (newest intact versions).
     Repair(repair::Args),
     /// Disparity (and depth) of one rectified stereo pair, written as Middlebury PFM.
     Stereo(stereo::Args),
     /// Score a disparity map against ground truth (bad-1/2/3, D1, EPE, density).
     StereoEval(stereo::EvalArgs),
+    /// Print the first GPU adapter as JSON and exit (what `--device auto` asks in a child
+    /// process, so that probing costs the main process no memory).
+    #[command(hide = true)]
+    ProbeGpu,
 }
 
 /// What a command reports when it succeeds: printed once, on stdout.
@@ -84,6 +91,7 @@ impl std::error::Error for Problems {}
 /// Parses the command line, runs the command, prints its outcome or its error once.
 pub fn main() -> ExitCode {
     ensure_runtime_dir();
+    install_signal_handlers();
     let cli = Cli::parse();
     // wgpu probes its GL backend too; EGL failing where only Vulkan exists is noise.
     let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| {
@@ -103,9 +111,13 @@ pub fn main() -> ExitCode {
         Command::Regularize(a) => regularize::run(a),
         Command::Export(a) => export::run(a),
         Command::Inspect(a) => inspect::run(a),
+        Command::Merge(a) => merge::run(a),
         Command::Repair(a) => repair::run(a),
         Command::Stereo(a) => stereo::run(a),
         Command::StereoEval(a) => stereo::run_eval(a),
+        Command::ProbeGpu => Ok(Box::new(
+            serde_json::json!(denser::gpu::GpuContext::probe()).to_string() + "\n",
+        ) as Outcome),
     };
     let printed = result.and_then(|outcome| {
         let mut out = std::io::stdout().lock();
@@ -128,6 +140,25 @@ pub fn main() -> ExitCode {
             }
             ExitCode::from(2)
         }
+    }
+}
+
+/// SIGINT and SIGTERM remove the unfinished outputs (`io::atomic`) and exit with 130; the map,
+/// committed only by atomic renames, keeps its last commit. A file-size limit (SIGXFSZ) makes
+/// writes fail with an error (and the same cleanup) instead of killing the process mid-file.
+fn install_signal_handlers() {
+    let _ = ctrlc::set_handler(|| {
+        let removed = denser::io::atomic::remove_pending();
+        let _ = writeln!(
+            std::io::stderr(),
+            "interrupted: {removed} unfinished output file(s) removed; a map keeps its last commit"
+        );
+        std::process::exit(130);
+    });
+    #[cfg(unix)]
+    // SAFETY: setting a signal's disposition to SIG_IGN before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
     }
 }
 
@@ -223,21 +254,55 @@ pub(crate) struct DeviceArgs {
 }
 
 impl DeviceArgs {
-    /// The backend these flags ask for.
+    /// The backend these flags ask for. `auto` asks a child process (`denser probe-gpu`) which
+    /// adapter exists, and opens it here only when it is a hardware GPU: loading a software
+    /// driver to find out would cost this process its memory (~80 MiB of llvmpipe) for nothing.
     pub fn backend(&self) -> denser::Result<denser::backend::Backend> {
+        let options = ResidentOptions {
+            max_bytes: self.gpu_memory_budget,
+            ..Default::default()
+        };
         let choice = match self.device {
-            DeviceArg::Auto => DeviceChoice::Auto,
             DeviceArg::Cpu => DeviceChoice::Cpu,
             DeviceArg::Gpu => DeviceChoice::Gpu,
-        };
-        denser::backend::Backend::open(
-            choice,
-            ResidentOptions {
-                max_bytes: self.gpu_memory_budget,
-                ..Default::default()
+            DeviceArg::Auto => match probe_in_child() {
+                Some(Some((name, false))) => {
+                    tracing::debug!("probe: hardware adapter {name}");
+                    DeviceChoice::Auto
+                }
+                Some(Some((name, true))) => {
+                    tracing::info!(
+                        "device: only a software adapter ({name}), running on the CPU \
+                         (--device gpu uses it anyway)"
+                    );
+                    DeviceChoice::Cpu
+                }
+                Some(None) => {
+                    tracing::info!("device: no GPU adapter found, running on the CPU");
+                    DeviceChoice::Cpu
+                }
+                // The probe itself failed (no executable path, a crash in a driver): decide
+                // in this process, as without a probe.
+                None => DeviceChoice::Auto,
             },
-        )
+        };
+        denser::backend::Backend::open(choice, options)
     }
+}
+
+/// Runs `denser probe-gpu` and reads its answer: `Some(None)` no adapter, `Some(Some((name,
+/// software)))` one, `None` when the probe could not run.
+fn probe_in_child() -> Option<Option<(String, bool)>> {
+    let exe = std::env::current_exe().ok()?;
+    let out = std::process::Command::new(exe)
+        .args(["--log", "error", "probe-gpu"])
+        .stderr(std::process::Stdio::null())
+        .output()
+        .ok()?;
+    if !out.status.success() {
+        return None;
+    }
+    serde_json::from_slice(&out.stdout).ok()
 }
 
 /// The TV regulariser's parameters.
@@ -272,9 +337,10 @@ pub(crate) struct GridArgs {
     /// Truncation μ, metres (default: the paper's, 1.0 at 10 cm and 1.6 at 20 cm, else 10 voxels).
     #[arg(long)]
     pub truncation: Option<f32>,
-    /// Ignore depths beyond this, metres.
-    #[arg(long, default_value_t = 40.0)]
-    pub max_depth: f32,
+    /// Ignore depths (and LiDAR returns) beyond this, metres [default: 40 for depth maps, 80 for
+    /// LiDAR].
+    #[arg(long)]
+    pub max_depth: Option<f32>,
 }
 
 impl GridArgs {
@@ -285,8 +351,10 @@ impl GridArgs {
             c.grid.truncation_m = t;
         }
         c.tv = tv.params(self.voxel_size);
-        c.depth_fusion.max_depth_m = self.max_depth;
-        c.lidar_fusion.max_range_m = self.max_depth.max(c.lidar_fusion.max_range_m);
+        if let Some(d) = self.max_depth {
+            c.depth_fusion.max_depth_m = d;
+            c.lidar_fusion.max_range_m = d;
+        }
         c
     }
 }

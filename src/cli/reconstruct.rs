@@ -22,7 +22,7 @@ use denser::tiles::job::{relative_hint, JobRecord};
 use denser::tiles::manifest::FRAMES_UNKNOWN;
 use denser::tiles::pager::{OverrunPolicy, PagerConfig};
 use denser::tiles::store::{MapStore, MANIFEST_FILE};
-use denser::tiles::PagedStore;
+use denser::tiles::{MapLocation, PagedStore};
 use std::fmt;
 use std::path::PathBuf;
 
@@ -78,10 +78,10 @@ enum DepthArg {
 /// `--map` and its out-of-core settings.
 #[derive(clap::Args, Clone, Debug)]
 pub(crate) struct MapArgs {
-    /// Stream the map through this directory of compressed chunk files (created, or resumed when
-    /// it holds a map of the same job) instead of keeping it in RAM.
-    #[arg(long)]
-    map: Option<PathBuf>,
+    /// Stream the map through this directory (or s3://bucket/prefix) of compressed chunk files
+    /// (created, or resumed when it holds a map of the same job) instead of keeping it in RAM.
+    #[arg(long, value_name = "MAP")]
+    map: Option<MapLocation>,
     #[command(flatten)]
     budget: BudgetArgs,
     /// Chunk edge in blocks (a chunk is one file; 16 blocks = 12.8 m at 10 cm voxels).
@@ -119,7 +119,7 @@ pub(crate) struct Job {
 
 /// Out-of-core settings of a job.
 pub(crate) struct MapJob {
-    pub dir: PathBuf,
+    pub dir: MapLocation,
     pub budget: BudgetArgs,
     pub chunk_blocks: u32,
     pub checkpoint_every: u64,
@@ -192,15 +192,41 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     Ok(Box::new(report))
 }
 
+/// Every file a reconstruction may write into its output folder (besides `top_view_*.png`).
+const OUTPUT_FILES: &[&str] = &[
+    "mesh_raw.ply",
+    "mesh_regularized.ply",
+    "points_regularized.ply",
+    "report.json",
+    "report.md",
+    "error_histogram.png",
+    "map_report.json",
+];
+
+/// Removes the outputs of an earlier run that this run did not rewrite (a report beside meshes
+/// it no longer describes), so the folder holds one run's results.
+fn remove_stale_outputs(out_dir: &std::path::Path, written: &[PathBuf]) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(out_dir)? {
+        let path = entry?.path();
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let ours = OUTPUT_FILES.contains(&name.as_str())
+            || (name.starts_with("top_view_") && name.ends_with(".png"));
+        if ours && !written.iter().any(|w| w.file_name() == path.file_name()) {
+            tracing::info!("removing {} (an earlier run's output)", path.display());
+            std::fs::remove_file(&path)?;
+        }
+    }
+    Ok(())
+}
+
 /// Runs `job` with `backend`'s stages: fusion (resuming a map), regularisation, surfaces,
 /// evaluation.
 pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     let context = || match &job.map {
-        Some(m) => format!(
-            "reconstructing {} into map {}",
-            job.input.display(),
-            m.dir.display()
-        ),
+        Some(m) => format!("reconstructing {} into map {}", job.input.display(), m.dir),
         None => format!("reconstructing {}", job.input.display()),
     };
     let stereo = match job.source {
@@ -214,11 +240,17 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     let stereo_device = stereo
         .as_ref()
         .map(|_| backend.stereo_device(job.stereo_method));
+    // Where the results go is checked before any work (a file, a read-only folder, no space).
+    denser::io::atomic::check_output_dir(&job.out_dir)
+        .with_context(|| format!("checking the output folder {}", job.out_dir.display()))?;
     let seq = open_sequence(&job.input, job.source, job.poses.as_deref(), stereo)
         .with_context(context)?;
-    let frames = job.range.indices(seq.len());
+    let frames = job
+        .range
+        .select(seq.len(), &seq.describe())
+        .with_context(context)?;
     let store: Box<dyn BlockStore> = match &job.map {
-        None => Box::new(MemoryStore::new(job.config.grid)),
+        None => Box::new(MemoryStore::new(job.config.grid).with_limit(ram_limit_bytes())),
         Some(m) => Box::new(open_map(job, m, seq.as_ref()).with_context(context)?),
     };
     let checkpoint_every = job.map.as_ref().map_or(0, |m| m.checkpoint_every);
@@ -269,12 +301,45 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
         written,
         peak_rss_bytes: peak_rss_bytes(),
     };
+    let mut report = report;
     if job.map.is_some() {
         let path = job.out_dir.join("map_report.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&report.json())?)
-            .with_context(|| format!("writing {}", path.display()))?;
+        denser::io::atomic::write_file(
+            &path,
+            serde_json::to_string_pretty(&report.json())?.as_bytes(),
+        )?;
+        report.written.push(path);
     }
+    remove_stale_outputs(&job.out_dir, &report.written)
+        .with_context(|| format!("cleaning {}", job.out_dir.display()))?;
     Ok(report)
+}
+
+/// RAM an in-memory run may plan to use: `DENSER_RAM_LIMIT` (e.g. `8GiB`) when set, else 90 % of
+/// the smaller of the memory available at start and the cgroup's limit (containers).
+fn ram_limit_bytes() -> u64 {
+    if let Some(v) = std::env::var_os("DENSER_RAM_LIMIT") {
+        match super::parse_bytes(&v.to_string_lossy()) {
+            Ok(b) => return b,
+            Err(e) => tracing::warn!("DENSER_RAM_LIMIT: {e}; ignored"),
+        }
+    }
+    let meminfo = std::fs::read_to_string("/proc/meminfo").unwrap_or_default();
+    let available = meminfo
+        .lines()
+        .find(|l| l.starts_with("MemAvailable:"))
+        .and_then(|l| l.split_whitespace().nth(1)?.parse::<u64>().ok())
+        .map_or(u64::MAX, |kb| kb * 1024);
+    let cgroup = std::fs::read_to_string("/sys/fs/cgroup/memory.max")
+        .ok()
+        .and_then(|s| s.trim().parse::<u64>().ok())
+        .unwrap_or(u64::MAX);
+    let limit = available.min(cgroup);
+    if limit == u64::MAX {
+        u64::MAX
+    } else {
+        limit / 10 * 9
+    }
 }
 
 /// Opens (resuming) or creates the job's map, checking its job record.
@@ -293,7 +358,11 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
         frame_step: job.range.step.max(1) as u64,
         voxel_size_m: job.config.grid.voxel_size_m,
         truncation_m: job.config.grid.truncation_m,
-        max_depth_m: job.config.depth_fusion.max_depth_m,
+        max_depth_m: if source == "lidar" {
+            job.config.lidar_fusion.max_range_m
+        } else {
+            job.config.depth_fusion.max_depth_m
+        },
         stereo_method: if stereo {
             job.stereo_method.as_str().to_string()
         } else {
@@ -307,26 +376,35 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
         input_hint: String::new(),
         created_by: format!("denser {}", env!("CARGO_PKG_VERSION")),
     };
-    let store = if m.dir.join(MANIFEST_FILE).exists() {
+    let exists = match m.dir.as_dir() {
+        Some(d) => d.join(MANIFEST_FILE).exists(),
+        None => m.dir.open_files()?.exists(MANIFEST_FILE)?,
+    };
+    let mut store = if exists {
         // The writer lock first: the job record is checked (and a legacy one upgraded) under it.
-        let store = MapStore::open(&m.dir)?;
+        let store = MapStore::open_at(&m.dir)?;
         if store.manifest().header.frames_committed == FRAMES_UNKNOWN {
             return Err(denser::Error::bad_input(
-                &m.dir,
+                m.dir.display_path(),
                 "this map's manifest was rebuilt by `denser repair`, which cannot know how many frames were fused: fusion cannot resume it (regularize, export and inspect work); reconstruct into a new --map folder",
             ));
         }
-        record.check_or_write(&m.dir, &job.input)?;
+        record.check_or_write_at(&**store.files(), &job.input)?;
         store
     } else {
-        let s = MapStore::create(&m.dir, job.config.grid, m.chunk_blocks)?;
+        let s = MapStore::create_at(&m.dir, job.config.grid, m.chunk_blocks)?;
+        let hint = match m.dir.as_dir() {
+            Some(d) => relative_hint(d, &job.input),
+            None => job.input.display().to_string(),
+        };
         JobRecord {
-            input_hint: relative_hint(&m.dir, &job.input),
+            input_hint: hint,
             ..record
         }
-        .write(&m.dir)?;
+        .write_at(&**s.files())?;
         s
     };
+    store.set_cache_budget(m.budget.memory_budget / 4);
     Ok(PagedStore::new(
         store,
         PagerConfig {

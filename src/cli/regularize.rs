@@ -1,19 +1,29 @@
 //! `denser regularize`: re-regularise a stored map region by region within a memory budget
-//! (seam-free, resumable), on the device `--device` chooses.
+//! (seam-free, resumable), on the device `--device` chooses; with `--shard I/N` only this
+//! process's share of the regions, recorded for the next plain run to adopt (array jobs).
 
 use super::reconstruct::RegularizeLine;
 use super::{mib, BudgetArgs, DeviceArgs, Outcome, TvArgs};
 use anyhow::{Context, Result};
 use denser::reconstruct::{ReconstructionConfig, Reconstructor, RegularizeOutcome};
+use denser::regularize::TvSolver;
+use denser::tiles::regional::{regularize_shard, MapRegularizeStats};
+use denser::tiles::shards::Shard;
 use denser::tiles::store::MapStore;
-use denser::tiles::PagedStore;
+use denser::tiles::{MapLocation, PagedStore};
 use std::fmt;
-use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub(crate) struct Args {
-    /// Map directory.
-    dir: PathBuf,
+    /// Map directory or s3://bucket/prefix.
+    #[arg(value_name = "MAP")]
+    dir: MapLocation,
+    /// Solve only this share of the regions, as task I of an array job of N (or auto/N: the
+    /// index from JOB_COMPLETION_INDEX, SLURM_ARRAY_TASK_ID or AWS_BATCH_JOB_ARRAY_INDEX). Shards
+    /// take no lock and commit nothing; a plain `denser regularize MAP` afterwards adopts their
+    /// results, solves what is missing and commits the pass.
+    #[arg(long, value_name = "I/N")]
+    shard: Option<String>,
     #[command(flatten)]
     tv: TvArgs,
     #[command(flatten)]
@@ -35,13 +45,14 @@ impl fmt::Display for Regularized {
         let s = &self.outcome.summary;
         writeln!(
             f,
-            "regularisation pass {} (λ {}, {} iterations, halo {} blocks): {} regions solved, {} already done; {} blocks written, {} solved with halos ({:.2}×)",
+            "regularisation pass {} (λ {}, {} iterations, halo {} blocks): {} regions solved, {} adopted from shards, {} already done; {} blocks written, {} solved with halos ({:.2}×)",
             s.pass,
             self.lambda,
             s.iterations,
             s.halo_blocks,
             s.regions,
-            s.regions_skipped,
+            s.regions_adopted,
+            s.regions_skipped.saturating_sub(s.regions_adopted),
             s.blocks,
             s.solved_blocks,
             s.solved_blocks as f64 / s.blocks.max(1) as f64
@@ -61,10 +72,75 @@ impl fmt::Display for Regularized {
     }
 }
 
+struct ShardDone {
+    map: MapLocation,
+    shard: Shard,
+    stats: MapRegularizeStats,
+    lambda: f32,
+    iterations: u32,
+}
+
+impl fmt::Display for ShardDone {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let s = &self.stats;
+        writeln!(
+            f,
+            "shard {} of {} (pass {}, λ {}, {} iterations, halo {} blocks): {} regions solved, {} recorded or committed before, {} left to other shards; {} blocks written ({} Ω voxels), {} solved with halos, in {:.1} s",
+            self.shard,
+            self.map,
+            s.pass,
+            self.lambda,
+            self.iterations,
+            s.halo_blocks,
+            s.regions,
+            s.regions_skipped,
+            s.regions_other_shards,
+            s.core_blocks,
+            s.core_omega_voxels,
+            s.solved_blocks,
+            s.seconds
+        )?;
+        writeln!(
+            f,
+            "nothing committed: run `denser regularize {}` (same parameters) once every shard has finished",
+            self.map
+        )
+    }
+}
+
 pub(crate) fn run(a: Args) -> Result<Outcome> {
-    let backend = a.device.backend()?;
-    let store =
-        MapStore::open(&a.dir).with_context(|| format!("opening map {}", a.dir.display()))?;
+    let mut backend = a.device.backend()?;
+    if let Some(spec) = &a.shard {
+        let shard = Shard::parse(spec)?;
+        let mut store = MapStore::open_read_only_at(&a.dir)
+            .with_context(|| format!("opening map {}", a.dir))?;
+        store.set_cache_budget(a.budget.memory_budget / 4);
+        let tv = a.tv.params(store.grid().voxel_size_m);
+        let bar = denser::progress::bar(0, "regularising");
+        let stats = regularize_shard(
+            &mut store,
+            &tv,
+            &a.budget.regional(),
+            shard,
+            |done, total| {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+                true
+            },
+            |p| backend.solve(p, &tv),
+        )
+        .with_context(|| format!("regularising shard {shard} of {}", a.dir))?;
+        bar.finish_and_clear();
+        return Ok(Box::new(ShardDone {
+            map: a.dir,
+            shard,
+            stats,
+            lambda: tv.lambda,
+            iterations: tv.iterations,
+        }));
+    }
+    let mut store = MapStore::open_at(&a.dir).with_context(|| format!("opening map {}", a.dir))?;
+    store.set_cache_budget(a.budget.memory_budget / 4);
     let grid = store.grid();
     let mut config = ReconstructionConfig::paper(grid.voxel_size_m);
     config.grid = grid;
@@ -83,7 +159,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
             bar.set_position(done as u64);
             true
         })
-        .with_context(|| format!("regularising {}", a.dir.display()))?;
+        .with_context(|| format!("regularising {}", a.dir))?;
     bar.finish_and_clear();
     Ok(Box::new(Regularized {
         outcome,

@@ -103,6 +103,9 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         bail!("--dense applies to the variational methods (tv, tgv, tgv-tensor), not sgm");
     }
     let backend = a.device.backend()?;
+    for out in std::iter::once(&a.out).chain(&a.depth_out) {
+        denser::io::atomic::check_output_file(out)?;
+    }
     let left = denser::io::image::read_grey(&a.left).with_context(context)?;
     let right = denser::io::image::read_grey(&a.right).with_context(context)?;
     if left.width != right.width || left.height != right.height {
@@ -193,7 +196,7 @@ pub(crate) fn run_eval(a: EvalArgs) -> Result<Outcome> {
         .with_context(|| format!("scoring {} against {}", a.pred.display(), a.gt.display()))?;
     if let Some(path) = &a.json {
         let text = serde_json::to_string_pretty(&metrics).context("serialising the scores")?;
-        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+        denser::io::atomic::write_file(path, text.as_bytes())?;
     }
     Ok(Box::new(Scores {
         metrics,

@@ -61,6 +61,8 @@ impl fmt::Display for Synthesised {
 }
 
 pub(crate) fn run(a: Args) -> Result<Outcome> {
+    denser::io::atomic::check_output_dir(&a.out)
+        .with_context(|| format!("checking the output folder {}", a.out.display()))?;
     let mut config = denser::synth::DriveConfig::default();
     config.city.seed = a.seed;
     config.city.length_m = a.length_m;

@@ -107,6 +107,7 @@ pub fn evaluate_mesh_detailed(
         bytes_per_voxel: None,
         accuracy,
         completeness,
+        accuracy_unrestricted: None,
     };
     Ok(MeshEvaluation {
         report,

@@ -1,6 +1,7 @@
 //! Where ground truth comes from: the LiDAR scans of a KITTI-layout sequence merged in the world
 //! frame (the paper's), or a point-cloud file (LAS/LAZ converted to metres, PLY).
 
+use super::coverage::{CoverageBuilder, SensorCoverage};
 use crate::frame::PointCloud;
 use crate::io::kitti::KittiSequence;
 use crate::io::sequence::FrameRange;
@@ -40,6 +41,12 @@ impl GroundTruth {
 
     /// Loads the ground-truth points (world frame, metres).
     pub fn load(&self) -> Result<PointCloud> {
+        Ok(self.load_with_coverage()?.0)
+    }
+
+    /// Loads the ground-truth points and, for LiDAR scans, where they could have measured
+    /// ([`SensorCoverage`]; `None` for point-cloud files, which carry no sensor poses).
+    pub fn load_with_coverage(&self) -> Result<(PointCloud, Option<SensorCoverage>)> {
         match self {
             GroundTruth::KittiLidar {
                 sequence,
@@ -47,7 +54,9 @@ impl GroundTruth {
                 frames,
             } => {
                 let seq = KittiSequence::open(sequence, poses.as_deref())?;
-                merged_lidar(&seq, &frames.indices(seq.len()))
+                let mut coverage = CoverageBuilder::default();
+                let cloud = merge_scans(&seq, &frames.indices(seq.len()), Some(&mut coverage))?;
+                Ok((cloud, coverage.build()))
             }
             GroundTruth::File(path) => {
                 let ext = path
@@ -55,14 +64,17 @@ impl GroundTruth {
                     .and_then(|e| e.to_str())
                     .unwrap_or("")
                     .to_ascii_lowercase();
-                match ext.as_str() {
-                    "las" | "laz" => crate::io::las::read_point_cloud_metres(path),
-                    "ply" => Ok(crate::io::ply::read_ply(path)?.0),
-                    _ => Err(Error::bad_input(
-                        path,
-                        "ground truth must be .las, .laz or .ply",
-                    )),
-                }
+                let cloud = match ext.as_str() {
+                    "las" | "laz" => crate::io::las::read_point_cloud_metres(path)?,
+                    "ply" => crate::io::ply::read_ply(path)?.0,
+                    _ => {
+                        return Err(Error::bad_input(
+                            path,
+                            "ground truth must be .las, .laz or .ply",
+                        ))
+                    }
+                };
+                Ok((cloud, None))
             }
         }
     }
@@ -80,12 +92,24 @@ impl GroundTruth {
 
 /// All Velodyne scans of the given frames in the world frame: the paper's ground truth.
 pub fn merged_lidar(seq: &KittiSequence, frames: &[usize]) -> Result<PointCloud> {
+    merge_scans(seq, frames, None)
+}
+
+/// [`merged_lidar`], adding each scan to `coverage` when given.
+fn merge_scans(
+    seq: &KittiSequence,
+    frames: &[usize],
+    mut coverage: Option<&mut CoverageBuilder>,
+) -> Result<PointCloud> {
     let mut cloud = PointCloud::default();
     for &i in frames {
         if !seq.has_velodyne(i) {
             continue;
         }
         let scan = seq.velodyne(i)?;
+        if let Some(c) = coverage.as_mut() {
+            c.add(&scan);
+        }
         let t = scan.world_from_sensor;
         cloud.points_m.extend(scan.points_sensor_m.iter().map(|p| {
             let w = t * nalgebra::Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);

@@ -34,6 +34,7 @@
 //! This module does not run the reconstruction: the caller hands it meshes (or a finished
 //! [`crate::reconstruct::Reconstructor`] and the surfaces it wrote).
 
+mod coverage;
 mod evaluate;
 mod ground_truth;
 mod nn;
@@ -42,11 +43,13 @@ mod report;
 pub mod run;
 mod stats;
 
+pub use coverage::{CoverageBuilder, SensorCoverage, SensorView};
 pub use evaluate::{evaluate_mesh, evaluate_mesh_detailed, EvalOptions, MeshEvaluation};
 pub use ground_truth::{merged_lidar, GroundTruth};
 pub use nn::{sample_mesh_surface, surface_points, CompletenessRegion, GroundTruthIndex};
 pub use plot::{
     error_colour, plot_error_histograms_png, plot_top_view_png, UpAxis, SERIES_COLOURS,
+    UNSCORED_GREY,
 };
 pub use report::{EvaluationReport, SurfaceReport};
 pub use run::{evaluate_meshes, evaluate_reconstruction, peak_rss_bytes};

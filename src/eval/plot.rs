@@ -116,25 +116,22 @@ fn draw_error<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> Error + '_ {
     }
 }
 
-/// Encodes an RGB buffer as PNG at `path`.
+/// Encodes an RGB buffer as PNG at `path` (complete or absent: `io::atomic`).
 fn save_png(path: &Path, rgb: &[u8], (w, h): (u32, u32)) -> Result<()> {
-    image::save_buffer_with_format(
-        path,
-        rgb,
-        w,
-        h,
-        image::ExtendedColorType::Rgb8,
-        image::ImageFormat::Png,
-    )
-    .map_err(|e| match e {
-        image::ImageError::IoError(io) => Error::io(path, io),
-        other => Error::io(path, std::io::Error::other(other.to_string())),
-    })
+    let buf: image::RgbImage = image::ImageBuffer::from_raw(w, h, rgb.to_vec())
+        .ok_or_else(|| Error::InvalidArgument(format!("{}: image buffer size", path.display())))?;
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    buf.write_to(&mut bytes, image::ImageFormat::Png)
+        .map_err(|e| Error::io(path, std::io::Error::other(e)))?;
+    crate::io::atomic::write_file(path, bytes.get_ref())
 }
 
 fn rgb(c: [u8; 3]) -> RGBColor {
     RGBColor(c[0], c[1], c[2])
 }
+
+/// Colour of points that were not scored (outside the LiDAR's view) in the top view.
+pub const UNSCORED_GREY: [u8; 3] = [190, 190, 190];
 
 /// Overlaid error histograms (paper Fig. 4): x = error in metres from 0 to `max_m`, y = fraction
 /// of each surface's scored points per bin; one filled, outlined series per `(label, stats)` in
@@ -357,15 +354,27 @@ const BAR_PANEL_PX: u32 = 140;
 /// (the map area is kept between 1:4 and 4:1). Errors when the slices differ in length, are
 /// empty, hold a non-finite value or negative error, `max_error_m` is not positive, or the file
 /// cannot be written.
+#[allow(clippy::too_many_arguments)]
 pub fn plot_top_view_png(
     path: impl AsRef<Path>,
     points_m: &[[f64; 3]],
     errors_m: &[f32],
+    scored: Option<&[bool]>,
+    trajectory_m: &[[f64; 3]],
     up_axis: UpAxis,
     max_error_m: f64,
     size_px: u32,
 ) -> Result<()> {
     let path = path.as_ref();
+    if let Some(s) = scored {
+        if s.len() != points_m.len() {
+            return Err(Error::InvalidArgument(format!(
+                "top view needs one scored flag per point: {} points, {} flags",
+                points_m.len(),
+                s.len()
+            )));
+        }
+    }
     if points_m.len() != errors_m.len() {
         return Err(Error::InvalidArgument(format!(
             "top view needs one error per point: {} points, {} errors",
@@ -440,6 +449,9 @@ pub fn plot_top_view_png(
     // Per-pixel sum of errors and count, over the whole image (backend coordinates).
     let mut sum = vec![0.0f64; (w as usize) * (h as usize)];
     let mut count = vec![0u32; (w as usize) * (h as usize)];
+    // Points not scored (outside the LiDAR's view) per pixel: drawn grey.
+    let mut unscored = vec![0u32; (w as usize) * (h as usize)];
+    let mut path_px: Vec<(i32, i32)> = Vec::with_capacity(trajectory_m.len());
     let (px_range, py_range);
     {
         let err = draw_error(path);
@@ -510,14 +522,23 @@ pub fn plot_top_view_png(
             .draw()
             .map_err(&err)?;
         (px_range, py_range) = chart.plotting_area().get_pixel_range();
-        for (&(x, y), &e) in plane.iter().zip(errors_m) {
+        for (i, (&(x, y), &e)) in plane.iter().zip(errors_m).enumerate() {
             let (bx, by) = chart.backend_coord(&(x, y));
             if px_range.contains(&bx) && py_range.contains(&by) {
                 let k = by as usize * w as usize + bx as usize;
-                sum[k] += e as f64;
-                count[k] += 1;
+                if scored.is_none_or(|s| s[i]) {
+                    sum[k] += e as f64;
+                    count[k] += 1;
+                } else {
+                    unscored[k] += 1;
+                }
             }
         }
+        path_px.extend(
+            trajectory_m
+                .iter()
+                .map(|p| chart.backend_coord(&(rs * p[ri] - offset_x, us * p[ui] - offset_y))),
+        );
 
         draw_colour_bar(&root, w - BAR_PANEL_PX + 20, &py_range, max_error_m).map_err(&err)?;
         root.present().map_err(&err)?;
@@ -533,21 +554,46 @@ pub fn plot_top_view_png(
         .collect();
     offsets.sort_by_key(|&(dx, dy)| (dx * dx + dy * dy, dy, dx));
     let max_e = max_error_m as f32;
-    let mean_at = |k: usize| (count[k] > 0).then(|| sum[k] / count[k] as f64);
+    // A pixel's colour: its scored points' mean error, else grey when it holds only unscored
+    // points; empty pixels take their nearest non-empty neighbour's.
+    let colour_at = |k: usize| {
+        if count[k] > 0 {
+            Some(error_colour((sum[k] / count[k] as f64) as f32 / max_e))
+        } else if unscored[k] > 0 {
+            Some(UNSCORED_GREY)
+        } else {
+            None
+        }
+    };
     for py in py_range.clone() {
         for px in px_range.clone() {
             let k = py as usize * w as usize + px as usize;
-            let mean = mean_at(k).or_else(|| {
+            let c = colour_at(k).or_else(|| {
                 offsets.iter().find_map(|&(dx, dy)| {
                     let (qx, qy) = (px + dx, py + dy);
                     (px_range.contains(&qx) && py_range.contains(&qy))
-                        .then(|| mean_at(qy as usize * w as usize + qx as usize))
+                        .then(|| colour_at(qy as usize * w as usize + qx as usize))
                         .flatten()
                 })
             });
-            if let Some(mean) = mean {
-                let c = error_colour(mean as f32 / max_e);
+            if let Some(c) = c {
                 buf[3 * k..3 * k + 3].copy_from_slice(&c);
+            }
+        }
+    }
+    // The sensor's path: a black line 3 px wide.
+    for seg in path_px.windows(2) {
+        let ((x0, y0), (x1, y1)) = (seg[0], seg[1]);
+        let steps = (x1 - x0).abs().max((y1 - y0).abs()).max(1);
+        for s in 0..=steps {
+            let x = x0 + (x1 - x0) * s / steps;
+            let y = y0 + (y1 - y0) * s / steps;
+            for (dx, dy) in [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)] {
+                let (qx, qy) = (x + dx, y + dy);
+                if px_range.contains(&qx) && py_range.contains(&qy) {
+                    let k = qy as usize * w as usize + qx as usize;
+                    buf[3 * k..3 * k + 3].copy_from_slice(&[0, 0, 0]);
+                }
             }
         }
     }

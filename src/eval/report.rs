@@ -28,6 +28,10 @@ pub struct SurfaceReport {
     /// Completeness: distance from each selected ground-truth point to the nearest reconstructed
     /// point, metres; `None` when not computed.
     pub completeness: Option<ErrorStats>,
+    /// When `accuracy` is restricted to where the LiDAR could have measured
+    /// ([`EvaluationReport::coverage`]): the accuracy over every point, for comparison.
+    #[serde(default)]
+    pub accuracy_unrestricted: Option<ErrorStats>,
 }
 
 impl SurfaceReport {
@@ -60,6 +64,19 @@ pub struct EvaluationReport {
     pub memory_bytes: Vec<(String, u64)>,
     /// Free-form run parameters (voxel size, λ, iterations, …).
     pub parameters: serde_json::Value,
+    /// When accuracy is scored only where the LiDAR could have measured: its view, as measured
+    /// from the scans (`None`: every point is scored).
+    #[serde(default)]
+    pub coverage: Option<crate::eval::SensorView>,
+    /// The `denser` version that wrote the report.
+    #[serde(default)]
+    pub denser_version: String,
+    /// The command line that produced it (so the run can be reproduced).
+    #[serde(default)]
+    pub command_line: String,
+    /// The pictures written beside the report (file names).
+    #[serde(default)]
+    pub pictures: Vec<String>,
 }
 
 impl EvaluationReport {
@@ -72,6 +89,13 @@ impl EvaluationReport {
             timings_s: Vec::new(),
             memory_bytes: Vec::new(),
             parameters: serde_json::Value::Null,
+            coverage: None,
+            denser_version: env!("CARGO_PKG_VERSION").to_string(),
+            command_line: std::env::args()
+                .map(|a| shell_quote(&a))
+                .collect::<Vec<_>>()
+                .join(" "),
+            pictures: Vec::new(),
         }
     }
 
@@ -81,7 +105,7 @@ impl EvaluationReport {
         let text = serde_json::to_string_pretty(self).map_err(|e| {
             Error::InvalidArgument(format!("cannot encode report for {}: {e}", path.display()))
         })?;
-        std::fs::write(path, text).map_err(|e| Error::io(path, e))
+        crate::io::atomic::write_file(path, text.as_bytes())
     }
 
     /// Reads a report written by [`Self::write_json`].
@@ -95,7 +119,7 @@ impl EvaluationReport {
     /// Writes [`Self::to_markdown`] to `path`.
     pub fn write_markdown(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
-        std::fs::write(path, self.to_markdown()).map_err(|e| Error::io(path, e))
+        crate::io::atomic::write_file(path, self.to_markdown().as_bytes())
     }
 
     /// The report as Markdown: a table with one column per surface and, for every surface after
@@ -111,8 +135,26 @@ impl EvaluationReport {
              point (in the evaluated region) to the nearest reconstructed point.\n",
             self.ground_truth_points
         );
+        if let Some(v) = &self.coverage {
+            let _ = writeln!(
+                md,
+                "Accuracy is scored only where the LiDAR could have measured: points within \
+                 {:.1} m of some scan and between {:.1}° and {:+.1}° of elevation in its frame (the \
+                 range and vertical field of view of the scans' own returns; occlusion is not \
+                 modelled). Surfaces above or beyond that have no LiDAR point near them, so their \
+                 distance would measure the gap in the ground truth. The unrestricted figures \
+                 (every point) are the \"all points\" rows.\n",
+                v.range_max_m, v.elevation_min_deg, v.elevation_max_deg
+            );
+        }
         if !self.surfaces.is_empty() {
             md.push_str(&self.surface_table());
+        }
+        if !self.pictures.is_empty() {
+            md.push_str("\n## Pictures\n\n");
+            for p in &self.pictures {
+                let _ = writeln!(md, "![{}]({})\n", escape(p), p);
+            }
         }
         if !self.timings_s.is_empty() {
             md.push_str("\n## Timings\n\n| stage | seconds |\n|---|---:|\n");
@@ -131,6 +173,13 @@ impl EvaluationReport {
         if !self.parameters.is_null() {
             let json = serde_json::to_string_pretty(&self.parameters).unwrap_or_default();
             let _ = writeln!(md, "\n## Parameters\n\n```json\n{json}\n```");
+        }
+        if !self.command_line.is_empty() {
+            let _ = writeln!(
+                md,
+                "\n## Reproduce\n\ndenser {}:\n\n```sh\n{}\n```",
+                self.denser_version, self.command_line
+            );
         }
         md
     }
@@ -165,6 +214,18 @@ impl EvaluationReport {
 }
 
 const MIB: f64 = 1024.0 * 1024.0;
+
+/// `s` as a POSIX shell word (quoted when it holds anything but safe characters).
+fn shell_quote(s: &str) -> String {
+    let safe = !s.is_empty()
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_./=:,@%+".contains(c));
+    if safe {
+        s.to_string()
+    } else {
+        format!("'{}'", s.replace('\'', "'\\''"))
+    }
+}
 
 /// One row of the surface table.
 struct Row {
@@ -211,6 +272,21 @@ const ROWS: &[Row] = &[
         name: "accuracy RMSE (m)",
         decimals: 3,
         value: |s| Some(s.accuracy.rmse_m),
+    },
+    Row {
+        name: "accuracy median, all points (m)",
+        decimals: 3,
+        value: |s| s.accuracy_unrestricted.as_ref().map(|a| a.median_m),
+    },
+    Row {
+        name: "accuracy p75, all points (m)",
+        decimals: 3,
+        value: |s| s.accuracy_unrestricted.as_ref().map(|a| a.p75_m),
+    },
+    Row {
+        name: "points, all (scored: the first row)",
+        decimals: 0,
+        value: |s| s.accuracy_unrestricted.as_ref().map(|a| a.count as f64),
     },
     Row {
         name: "completeness median (m)",

@@ -4,7 +4,7 @@
 
 use super::{
     evaluate_mesh_detailed, plot_error_histograms_png, plot_top_view_png, EvalOptions,
-    EvaluationReport, GroundTruth, GroundTruthIndex, UpAxis,
+    EvaluationReport, GroundTruth, GroundTruthIndex, SensorCoverage, UpAxis,
 };
 use crate::frame::PointCloud;
 use crate::mesh::{Field, Mesh};
@@ -21,39 +21,121 @@ pub fn peak_rss_bytes() -> Option<u64> {
     Some(kb * 1024)
 }
 
+/// The axis-aligned bounds of `points`, `None` when empty.
+fn bounds<'a>(points: impl Iterator<Item = [f64; 3]> + 'a) -> Option<([f64; 3], [f64; 3])> {
+    points.fold(None, |acc, p| {
+        let (mut lo, mut hi) = acc.unwrap_or((p, p));
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+        Some((lo, hi))
+    })
+}
+
+/// Fails when a non-empty surface lies entirely away from the ground truth (their bounding boxes,
+/// the surface's grown by 1 m, do not meet): scoring it would report the distance between two
+/// unrelated places (a wrong file, a wrong frame) as an error statistic.
+fn check_overlap(meshes: &[(&str, &Mesh)], ground_truth: &PointCloud) -> Result<()> {
+    let Some((glo, ghi)) = bounds(ground_truth.points_m.iter().copied()) else {
+        return Err(Error::InvalidArgument(
+            "the ground truth holds no point".into(),
+        ));
+    };
+    for (label, mesh) in meshes {
+        let pts = mesh
+            .positions_m
+            .iter()
+            .map(|p| [p[0] as f64, p[1] as f64, p[2] as f64]);
+        let Some((lo, hi)) = bounds(pts) else {
+            continue;
+        };
+        let meets = (0..3).all(|a| lo[a] - 1.0 <= ghi[a] && hi[a] + 1.0 >= glo[a]);
+        if !meets {
+            return Err(Error::InvalidArgument(format!(
+                "the ground truth does not overlap the surface `{label}`: the surface spans {lo:.1?}–{hi:.1?} m, the ground truth {glo:.1?}–{ghi:.1?} m (another place, or another frame?)"
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Scores labelled meshes against `ground_truth` and writes `report.json`, `report.md`,
 /// `error_histogram.png` and `top_view_<label>.png` into `out_dir`. The first mesh is the
 /// baseline of the relative changes. `voxels` gives (voxel count, bytes per voxel) for surfaces
 /// made from a map.
+///
+/// With `coverage` (LiDAR ground truth), accuracy is scored only over the points some scan could
+/// have measured ([`SensorCoverage`]) and the unrestricted figure is kept beside it; the top view
+/// draws the unscored points grey and `trajectory_m` (the sensor's path) as a line.
 pub fn evaluate_meshes(
     meshes: &[(&str, &Mesh)],
     ground_truth: &PointCloud,
+    coverage: Option<&SensorCoverage>,
+    trajectory_m: &[[f64; 3]],
     report: &mut EvaluationReport,
     voxels: Option<(u64, f64)>,
     out_dir: &Path,
 ) -> Result<Vec<PathBuf>> {
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
+    check_overlap(meshes, ground_truth)?;
     let t = std::time::Instant::now();
     let index = GroundTruthIndex::new(ground_truth)?;
     let options = EvalOptions::default();
     let mut written = Vec::new();
     let mut evaluations = Vec::new();
+    let bar = crate::progress::bar(meshes.len() as u64, "evaluating");
     for (label, mesh) in meshes {
         let mut e = evaluate_mesh_detailed(label, mesh, &index, &options)?;
         if let Some((count, bpv)) = voxels {
             e.report = e.report.with_voxels(count, bpv);
         }
-        let top = out_dir.join(format!("top_view_{label}.png"));
-        plot_top_view_png(&top, &e.points_m, &e.accuracy_m, UpAxis::NegY, 0.5, 1600)?;
+        let mask = coverage.map(|c| c.mask(&e.points_m));
+        if let Some(mask) = &mask {
+            let scored: Vec<f32> = e
+                .accuracy_m
+                .iter()
+                .zip(mask)
+                .filter_map(|(d, &m)| m.then_some(*d))
+                .collect();
+            if scored.is_empty() {
+                tracing::warn!(
+                    "surface `{label}`: no point lies where the LiDAR could have measured; scoring every point"
+                );
+            } else {
+                let all = std::mem::replace(
+                    &mut e.report.accuracy,
+                    super::ErrorStats::from_distances(&scored, &options.histogram)?,
+                );
+                e.report.accuracy_unrestricted = Some(all);
+            }
+        }
+        let name = format!("top_view_{label}.png");
+        let top = out_dir.join(&name);
+        plot_top_view_png(
+            &top,
+            &e.points_m,
+            &e.accuracy_m,
+            mask.as_deref(),
+            trajectory_m,
+            UpAxis::NegY,
+            0.5,
+            1600,
+        )?;
+        report.pictures.push(name);
         written.push(top);
         evaluations.push(e);
+        bar.inc(1);
     }
+    bar.finish_and_clear();
+    report.coverage = coverage.map(|c| c.view());
     let series: Vec<(&str, &super::ErrorStats)> = evaluations
         .iter()
         .map(|e| (e.report.label.as_str(), &e.report.accuracy))
         .collect();
     let hist = out_dir.join("error_histogram.png");
     plot_error_histograms_png(&hist, &series, 0.5)?;
+    report.pictures.insert(0, "error_histogram.png".into());
     written.push(hist);
     report
         .surfaces
@@ -88,7 +170,7 @@ pub fn evaluate_reconstruction(
     out_dir: &Path,
 ) -> Result<(EvaluationReport, Vec<PathBuf>)> {
     let t = std::time::Instant::now();
-    let gt = ground_truth.load()?;
+    let (gt, coverage) = ground_truth.load_with_coverage()?;
     let load_s = t.elapsed().as_secs_f64();
     let mut report = EvaluationReport::new(
         format!("{source}; ground truth: {}", ground_truth.describe()),
@@ -158,9 +240,15 @@ pub fn evaluate_reconstruction(
         .iter()
         .map(|(l, m)| (l.as_str(), m.as_ref()))
         .collect();
+    let trajectory = match &coverage {
+        Some(c) => c.trajectory_m(),
+        None => rec.trajectory_m().to_vec(),
+    };
     let written = evaluate_meshes(
         &refs,
         &gt,
+        coverage.as_ref(),
+        &trajectory,
         &mut report,
         Some((summary.voxels(), bytes_per_voxel)),
         out_dir,

@@ -4,7 +4,7 @@ use super::traverse::traverse_cells;
 use super::FusionStats;
 use crate::frame::DepthFrame;
 use crate::grid::{
-    round_i64, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
+    BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
 };
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
@@ -38,8 +38,248 @@ pub(crate) fn usable(d: f32, p: &DepthFusionParams) -> bool {
     d.is_finite() && d >= p.min_depth_m && d <= p.max_depth_m
 }
 
-/// The blocks crossed by the truncation band of every usable pixel, sorted. Reads no layer.
+/// Edge of the image tiles [`depth_frame_blocks`] lists blocks for, pixels.
+pub const BAND_TILE_PX: usize = 8;
+
+/// The blocks a depth frame's truncation band reaches, sorted: for every tile of
+/// [`BAND_TILE_PX`]² pixels, the blocks that meet the tile's viewing frustum between the
+/// depths `d_min − μ` and `d_max + μ` of its usable pixels (depths split into separate ranges
+/// where two consecutive ones differ by more than 2μ, so free space between a foreground and a
+/// background surface is not listed; a tile whose range spreads over more than μ/2 is split
+/// into quadrants, down to 2×2 pixels). A superset of [`depth_frame_blocks_exact`] (every pixel's
+/// band segment lies in its tile's slice; `tests/core/analytic.rs` checks the superset and how
+/// many blocks it adds), at a cost per tile instead of per pixel. Each slice is cut along the
+/// view into pieces no deeper than a block; a block is listed when it lies in a piece's
+/// bounding box and on the inner side of the piece's six planes (a box–plane test with a 1 µm
+/// margin). Reads no layer.
 pub fn depth_frame_blocks(
+    grid: &GridParams,
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+) -> TouchedBlocks {
+    let k = &frame.intrinsics;
+    let (w, h) = (frame.depth_m.width as usize, frame.depth_m.height as usize);
+    let mu = grid.truncation_m as f64;
+    let block = grid.block_size_m();
+    let slices = SliceGeometry {
+        rot: frame
+            .world_from_camera
+            .rotation
+            .to_rotation_matrix()
+            .into_inner(),
+        origin: frame.world_from_camera.translation.vector,
+        block_m: block,
+    };
+    let tiles = TileLister {
+        data: &frame.depth_m.data,
+        width: w,
+        fx: k.fx,
+        fy: k.fy,
+        cx: k.cx,
+        cy: k.cy,
+        mu,
+        params,
+        slices,
+    };
+    let tiles_x = w.div_ceil(BAND_TILE_PX);
+    let mut keys: Vec<u64> = (0..h.div_ceil(BAND_TILE_PX))
+        .into_par_iter()
+        .fold(Vec::new, |mut out, ty| {
+            let mut depths: Vec<f32> = Vec::with_capacity(BAND_TILE_PX * BAND_TILE_PX);
+            let v0 = ty * BAND_TILE_PX;
+            let v1 = (v0 + BAND_TILE_PX).min(h) - 1;
+            for tx in 0..tiles_x {
+                let u0 = tx * BAND_TILE_PX;
+                let u1 = (u0 + BAND_TILE_PX).min(w) - 1;
+                let tile = Tile {
+                    u: [u0, u1],
+                    v: [v0, v1],
+                };
+                tile_blocks(tile, &tiles, &mut depths, &mut out);
+            }
+            out
+        })
+        .reduce(Vec::new, |mut x, mut y| {
+            x.append(&mut y);
+            x
+        });
+    keys.par_sort_unstable();
+    keys.dedup();
+    let mut all: Vec<BlockIndex> = keys.into_iter().map(BlockIndex::unpack).collect();
+    all.par_sort_unstable();
+    all
+}
+
+/// A tile whose depths (within one range) spread over more than this many μ is split.
+const SPLIT_SPREAD: f64 = 0.5;
+
+/// A rectangle of pixels, inclusive bounds.
+#[derive(Clone, Copy)]
+struct Tile {
+    u: [usize; 2],
+    v: [usize; 2],
+}
+
+/// What [`tile_blocks`] reads.
+struct TileLister<'a> {
+    data: &'a [f32],
+    width: usize,
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+    mu: f64,
+    params: &'a DepthFusionParams,
+    slices: SliceGeometry,
+}
+
+/// Lists the blocks of one tile into `out`: its usable depths, split into ranges at gaps of
+/// more than 2μ; a tile whose depths (within one range) spread over more than μ/2 (a surface
+/// seen at a grazing angle) is split into quadrants, down to 2×2 pixels, so that the slice
+/// stays close to the union of its pixels' band segments.
+fn tile_blocks(tile: Tile, l: &TileLister, depths: &mut Vec<f32>, out: &mut Vec<u64>) {
+    depths.clear();
+    for v in tile.v[0]..=tile.v[1] {
+        let row = &l.data[v * l.width..];
+        depths.extend(
+            row[tile.u[0]..=tile.u[1]]
+                .iter()
+                .filter(|&&d| usable(d, l.params)),
+        );
+    }
+    if depths.is_empty() {
+        return;
+    }
+    let (lo, hi) = depths
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
+            (lo.min(d), hi.max(d))
+        });
+    let mut ranges: Vec<(f64, f64)> = Vec::new();
+    if (hi - lo) as f64 <= 2.0 * l.mu {
+        // No gap of more than 2μ can fit: one range, no sort.
+        ranges.push((lo as f64, hi as f64));
+    } else {
+        depths.sort_unstable_by(f32::total_cmp);
+        let mut start = 0;
+        for i in 1..=depths.len() {
+            if i == depths.len() || (depths[i] - depths[i - 1]) as f64 > 2.0 * l.mu {
+                ranges.push((depths[start] as f64, depths[i - 1] as f64));
+                start = i;
+            }
+        }
+    }
+    let smallest = tile.u[1] - tile.u[0] < 2 && tile.v[1] - tile.v[0] < 2;
+    if !smallest && ranges.iter().any(|(lo, hi)| hi - lo > SPLIT_SPREAD * l.mu) {
+        let um = (tile.u[0] + tile.u[1]) / 2;
+        let vm = (tile.v[0] + tile.v[1]) / 2;
+        for u in [[tile.u[0], um], [um + 1, tile.u[1]]] {
+            for v in [[tile.v[0], vm], [vm + 1, tile.v[1]]] {
+                if u[0] <= u[1] && v[0] <= v[1] {
+                    tile_blocks(Tile { u, v }, l, depths, out);
+                }
+            }
+        }
+        return;
+    }
+    // Lateral bounds: the rays through the tile's pixel centres (z = 1).
+    let a = [
+        (tile.u[0] as f64 - l.cx) / l.fx,
+        (tile.u[1] as f64 - l.cx) / l.fx,
+    ];
+    let b = [
+        (tile.v[0] as f64 - l.cy) / l.fy,
+        (tile.v[1] as f64 - l.cy) / l.fy,
+    ];
+    for (lo, hi) in ranges {
+        l.slices
+            .blocks_of_slice(a, b, (lo - l.mu).max(0.0), hi + l.mu, out);
+    }
+}
+
+/// A frame's pose as [`depth_frame_blocks`] uses it.
+struct SliceGeometry {
+    /// World from camera rotation.
+    rot: nalgebra::Matrix3<f64>,
+    /// Camera centre, world frame, metres.
+    origin: Vector3<f64>,
+    block_m: f64,
+}
+
+/// How many of the last listed blocks [`SliceGeometry::blocks_of_slice`] checks for repeats.
+const RECENT: usize = 24;
+
+impl SliceGeometry {
+    /// Pushes (packed, unsorted, with repeats) the blocks meeting the frustum slice
+    /// `{x/z ∈ [a0, a1], y/z ∈ [b0, b1], z ∈ [z0, z1]}` (camera frame).
+    fn blocks_of_slice(&self, a: [f64; 2], b: [f64; 2], z0: f64, z1: f64, out: &mut Vec<u64>) {
+        const MARGIN_M: f64 = 1e-6;
+        let r = &self.rot;
+        let to_world = |c: Vector3<f64>| r * c;
+        // Side planes through the camera centre, inward normals (camera: x − a0·z ≥ 0, …).
+        let sides = [
+            Vector3::new(1.0, 0.0, -a[0]),
+            Vector3::new(-1.0, 0.0, a[1]),
+            Vector3::new(0.0, 1.0, -b[0]),
+            Vector3::new(0.0, -1.0, b[1]),
+        ]
+        .map(to_world);
+        let view = to_world(Vector3::z());
+        let half = 0.5 * self.block_m;
+        let reach = |n: &Vector3<f64>| half * (n.x.abs() + n.y.abs() + n.z.abs());
+        let side_reach = sides.map(|n| reach(&n));
+        let view_reach = reach(&view);
+        let pieces = ((z1 - z0) / self.block_m).ceil().max(1.0) as usize;
+        let dz = (z1 - z0) / pieces as f64;
+        for p in 0..pieces {
+            let za = z0 + dz * p as f64;
+            let zb = if p + 1 == pieces { z1 } else { za + dz };
+            let mut lo = [f64::INFINITY; 3];
+            let mut hi = [f64::NEG_INFINITY; 3];
+            for z in [za, zb] {
+                for x in a {
+                    for y in b {
+                        let c = to_world(Vector3::new(x * z, y * z, z)) + self.origin;
+                        for k in 0..3 {
+                            lo[k] = lo[k].min(c[k]);
+                            hi[k] = hi[k].max(c[k]);
+                        }
+                    }
+                }
+            }
+            let first = lo.map(|v| crate::grid::floor_i64((v - MARGIN_M) / self.block_m));
+            let last = hi.map(|v| crate::grid::floor_i64((v + MARGIN_M) / self.block_m));
+            for bx in first[0]..=last[0] {
+                for by in first[1]..=last[1] {
+                    for bz in first[2]..=last[2] {
+                        let centre = Vector3::new(
+                            (bx as f64 + 0.5) * self.block_m,
+                            (by as f64 + 0.5) * self.block_m,
+                            (bz as f64 + 0.5) * self.block_m,
+                        ) - self.origin;
+                        let depth = view.dot(&centre);
+                        let inside = depth + view_reach >= za - MARGIN_M
+                            && depth - view_reach <= zb + MARGIN_M
+                            && sides
+                                .iter()
+                                .zip(&side_reach)
+                                .all(|(n, r)| n.dot(&centre) + r >= -MARGIN_M);
+                        let key = BlockIndex([bx as i32, by as i32, bz as i32]).pack();
+                        // Neighbouring tiles list mostly the same blocks: skip recent repeats.
+                        if inside && !out[out.len().saturating_sub(RECENT)..].contains(&key) {
+                            out.push(key);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The blocks crossed by the truncation band `[max(d − μ, 0), d + μ]` of every usable pixel,
+/// exactly (one block-level ray walk per pixel), sorted: the definition before issue 14,
+/// [`depth_frame_blocks`]'s lower bound (kept for the tests that measure the difference).
+pub fn depth_frame_blocks_exact(
     grid: &GridParams,
     frame: &DepthFrame,
     params: &DepthFusionParams,
@@ -275,6 +515,79 @@ impl DepthPlan {
     }
 }
 
+/// A voxel that projects outside the image or lies behind the camera.
+const OUTSIDE: u32 = u32::MAX;
+
+/// The f32 projection quantities of [`DepthGeometry`] as [`project_block`] reads them.
+#[derive(Clone, Copy)]
+struct ProjectionView {
+    axis: [[f32; 3]; 3],
+    fx: f32,
+    fy: f32,
+    cx: f32,
+    cy: f32,
+    width: u32,
+    height: u32,
+}
+
+impl ProjectionView {
+    fn new(g: &DepthGeometry) -> Self {
+        ProjectionView {
+            axis: g.axis_m.map(|a| [a.x, a.y, a.z]),
+            fx: g.fx,
+            fy: g.fy,
+            cx: g.cx,
+            cy: g.cy,
+            width: g.width,
+            height: g.height,
+        }
+    }
+}
+
+/// `⌊x + ½⌋` exactly, as the f64 `round_i64(x as f64)` the loop used before and the kernels'
+/// `round_half_up` (`shaders/shared/rounding.wgsl`): `x − ⌊x⌋` is exact in f32, `x + 0.5` is not.
+#[inline(always)]
+fn round_half_up(x: f32) -> f32 {
+    let fl = x.floor();
+    fl + if x - fl >= 0.5 { 1.0 } else { 0.0 }
+}
+
+/// Projects the 512 voxel centres of a block (camera-frame centre of voxel (0, 0, 0) at
+/// `base`) into the image: `pix[i]` the pixel of voxel `i` or [`OUTSIDE`], `z_m[i]` its depth.
+/// One straight loop that vectorises (the f32 operations of the GPU twin in
+/// `shaders/shared/fuse_common.wgsl`, in the same order).
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512vl+avx2+avx+sse4.1",
+    "x86_64+avx2+avx+sse4.1",
+    "x86_64+sse4.1"
+))]
+fn project_block(
+    view: &ProjectionView,
+    base: [f32; 3],
+    pix: &mut [u32; VOXELS_PER_BLOCK],
+    z_m: &mut [f32; VOXELS_PER_BLOCK],
+) {
+    let [ax, ay, az] = view.axis;
+    let (w, h) = (view.width as f32, view.height as f32);
+    for i in 0..VOXELS_PER_BLOCK {
+        let x = (i % VOXELS_PER_SIDE) as f32;
+        let y = ((i / VOXELS_PER_SIDE) % VOXELS_PER_SIDE) as f32;
+        let z = (i / (VOXELS_PER_SIDE * VOXELS_PER_SIDE)) as f32;
+        // row = base + a_y·y + a_z·z, p = row + a_x·x (per component, this order).
+        let p = [0, 1, 2].map(|k| base[k] + ay[k] * y + az[k] * z + ax[k] * x);
+        let inv_z = 1.0 / p[2];
+        let u = round_half_up(view.fx * p[0] * inv_z + view.cx);
+        let v = round_half_up(view.fy * p[1] * inv_z + view.cy);
+        let inside = p[2] > 0.0 && u >= 0.0 && v >= 0.0 && u < w && v < h;
+        pix[i] = if inside {
+            v as u32 * view.width + u as u32
+        } else {
+            OUTSIDE
+        };
+        z_m[i] = p[2];
+    }
+}
+
 /// Fuses one depth frame into `layer`: the blocks crossed by this frame's truncation band plus the
 /// allocated blocks in view. Returns the touched blocks (sorted) and work counters.
 pub fn integrate_depth(
@@ -299,52 +612,36 @@ pub fn integrate_depth_plan(
     let g = &plan.geometry;
     let mu = g.truncation_m;
     let inv_mu = 1.0 / mu;
-    let (wid, hei) = (g.width as i64, g.height as i64);
-    let (fx, fy, cx, cy) = (g.fx, g.fy, g.cx, g.cy);
     let depth = &frame.depth_m.data;
     let color = if params.use_color {
         frame.color.as_ref()
     } else {
         None
     };
-    let [ax, ay, az] = g.axis_m;
+    let view = ProjectionView::new(g);
     let updates: usize = taken
         .par_iter_mut()
         .map(|(index, block)| {
             let base = g.block_base(&grid, *index);
+            let mut pix = [0u32; VOXELS_PER_BLOCK];
+            let mut z_m = [0f32; VOXELS_PER_BLOCK];
+            project_block(&view, [base.x, base.y, base.z], &mut pix, &mut z_m);
             let mut n = 0usize;
-            let mut i = 0usize;
-            for z in 0..VOXELS_PER_SIDE {
-                for y in 0..VOXELS_PER_SIDE {
-                    let row = base + ay * y as f32 + az * z as f32;
-                    for x in 0..VOXELS_PER_SIDE {
-                        let p = row + ax * x as f32;
-                        let vi = i;
-                        i += 1;
-                        if p.z <= 0.0 {
-                            continue;
-                        }
-                        let inv_z = 1.0 / p.z;
-                        let u = round_i64((fx * p.x * inv_z + cx) as f64);
-                        let v = round_i64((fy * p.y * inv_z + cy) as f64);
-                        if u < 0 || v < 0 || u >= wid || v >= hei {
-                            continue;
-                        }
-                        let pix = (v * wid + u) as usize;
-                        let d = depth[pix];
-                        if !usable(d, params) {
-                            continue;
-                        }
-                        let sdf = d - p.z;
-                        if sdf < -mu {
-                            continue;
-                        }
-                        block.fuse(vi, sdf.min(mu) * inv_mu, color.map(|c| c.data[pix]));
-                        n += 1;
-                    }
+            for (vi, (&p, &z)) in pix.iter().zip(&z_m).enumerate() {
+                if p == OUTSIDE {
+                    continue;
                 }
+                let d = depth[p as usize];
+                if !usable(d, params) {
+                    continue;
+                }
+                let sdf = d - z;
+                if sdf < -mu {
+                    continue;
+                }
+                block.fuse(vi, sdf.min(mu) * inv_mu, color.map(|c| c.data[p as usize]));
+                n += 1;
             }
-            debug_assert_eq!(i, VOXELS_PER_BLOCK);
             n
         })
         .sum();

@@ -1,5 +1,6 @@
 //! Ray-wise fusion of LiDAR scans: only voxels that a ray traverses inside its truncation band.
 
+use super::lidar_gpu::{block_local_ray, walk_block_ray};
 use super::traverse::traverse_cells;
 use super::FusionStats;
 use crate::frame::LidarScan;
@@ -68,24 +69,37 @@ fn rays(scan: &LidarScan, params: &LidarFusionParams) -> Vec<Ray> {
 fn block_ray_pairs(grid: &GridParams, origin: [f64; 3], rays: &[Ray]) -> Vec<(BlockIndex, u32)> {
     let mu = grid.truncation_m as f64;
     let block = grid.block_size_m();
-    let mut pairs: Vec<(BlockIndex, u32)> = rays
+    // One u128 per pair, ordered as (BlockIndex, ray): each coordinate offset by 2²⁰ into 21
+    // bits (the range `BlockIndex::pack` supports), then the ray in the low 32 bits; one integer
+    // comparison per step of the sort, no allocation per ray.
+    const OFFSET: i64 = 1 << 20;
+    let mut keys: Vec<u128> = rays
         .par_iter()
         .enumerate()
-        .flat_map_iter(|(k, r)| {
-            let mut out = Vec::with_capacity(6);
+        .fold(Vec::new, |mut out, (k, r)| {
             let (t0, t1) = band_m(r.range_m, mu);
             traverse_cells(origin, r.dir, t0, t1, block, |c| {
-                out.push((
-                    BlockIndex([c[0] as i32, c[1] as i32, c[2] as i32]),
-                    k as u32,
-                ));
+                let b = ((c[0] + OFFSET) as u128) << 42
+                    | ((c[1] + OFFSET) as u128) << 21
+                    | (c[2] + OFFSET) as u128;
+                out.push(b << 32 | k as u128);
                 true
             });
             out
         })
-        .collect();
-    pairs.par_sort_unstable();
-    pairs
+        .reduce(Vec::new, |mut a, mut b| {
+            a.append(&mut b);
+            a
+        });
+    keys.par_sort_unstable();
+    const MASK: u128 = (1 << 21) - 1;
+    keys.par_iter()
+        .map(|&key| {
+            let b = key >> 32;
+            let coord = |shift: u32| (((b >> shift) & MASK) as i64 - OFFSET) as i32;
+            (BlockIndex([coord(42), coord(21), coord(0)]), key as u32)
+        })
+        .collect()
 }
 
 /// The blocks crossed by the truncation band of every usable return, sorted. Reads no layer.
@@ -183,8 +197,54 @@ impl LidarPlan {
     }
 }
 
-/// Applies a [`LidarPlan`] to `layer` (see [`integrate_lidar`]).
+/// Applies a [`LidarPlan`] to `layer` (see [`integrate_lidar`]) with the single LiDAR walk of
+/// both devices: each (block, ray) pair is walked in f32 in the block's own voxel coordinates
+/// ([`block_local_ray`], start cell and step count decided in f64; [`walk_block_ray`], the CPU
+/// twin of `shaders/fuse_lidar.wgsl`), so the GPU kernel equals this function bit for bit on
+/// lavapipe. Against the f64 world-frame walk ([`integrate_lidar_reference`]) it differs only at
+/// exact cell-boundary ties and in the last quantisation step (`tests/gpu/lidar.rs` states the
+/// tolerance). Rays are applied per block in scan order, so the result does not depend on
+/// threading or on which blocks are resident.
 pub fn integrate_lidar_plan(layer: &mut Layer, plan: &LidarPlan) -> (TouchedBlocks, FusionStats) {
+    let grid = layer.params();
+    let origin = plan.origin;
+    let rays = &plan.rays;
+    let pairs = &plan.pairs;
+    let groups = plan.groups();
+    let indices: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
+    let mut taken = layer.take_blocks(&indices);
+    let (mu, vs) = (grid.truncation_m, grid.voxel_size_m);
+    let updates: usize = taken
+        .par_iter_mut()
+        .zip(groups.par_iter())
+        .map(|((index, block), (_, range))| {
+            let mut n = 0usize;
+            for &(_, k) in &pairs[range.clone()] {
+                let r = &rays[k as usize];
+                let ray = block_local_ray(&grid, origin, r.dir, r.range_m, r.gray, *index);
+                let gray = Some([r.gray; 3]);
+                n += walk_block_ray(&ray, mu, vs, |i, t| block.fuse(i, t, gray)) as usize;
+            }
+            n
+        })
+        .sum();
+    let touched = layer.put_blocks_observed(taken);
+    let stats = FusionStats {
+        blocks: touched.len(),
+        voxel_updates: updates,
+        measurements: rays.len(),
+    };
+    (touched, stats)
+}
+
+/// The f64 reference of [`integrate_lidar_plan`]: every (block, ray) pair walks the ray's whole
+/// band in world coordinates (Amanatides–Woo in f64) and updates the voxels inside the block.
+/// Slower (each pair walks the whole band) and not what any device runs: kept as the oracle the
+/// single f32 walk is measured against (`tests/gpu/lidar.rs`).
+pub fn integrate_lidar_reference(
+    layer: &mut Layer,
+    plan: &LidarPlan,
+) -> (TouchedBlocks, FusionStats) {
     let grid = layer.params();
     let origin = plan.origin;
     let rays = &plan.rays;

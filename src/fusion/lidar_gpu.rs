@@ -18,13 +18,13 @@
 //! enters the block (or at the band's start) and ends one voxel after it leaves (or at the band's
 //! end), and the signed distance is carried from the start point. The kernel then walks in f32
 //! with values below ~10 voxels. [`walk_block_ray`] is its CPU twin (same f32 operations in the
-//! same order, used with `Block::fuse` by [`integrate_lidar_f32`]); on lavapipe the GPU equals it
-//! bit for bit (`tests/gpu_lidar.rs`).
+//! same order) and the CPU's own LiDAR walk ([`crate::fusion::integrate_lidar_plan`]); on
+//! lavapipe the GPU equals it bit for bit (`tests/gpu/lidar.rs`).
 //!
-//! Against the f64 reference the f32 walk differs only where f64 and f32 round differently: a
+//! Against the f64 reference ([`crate::fusion::integrate_lidar_reference`]) the f32 walk differs only where f64 and f32 round differently: a
 //! ray passing within ~1e-6 voxel of a voxel edge or corner (the walk may step through the other
 //! neighbour), a band end or a start point that close to a voxel face, and the last
-//! quantisation step of the TSDF (sdf differs by ~1e-7 m). `tests/gpu_lidar.rs` measures it and
+//! quantisation step of the TSDF (sdf differs by ~1e-7 m). `tests/gpu/lidar.rs` measures it and
 //! states the tolerance.
 
 use crate::fusion::{band_m, FusionStats, LidarPlan};
@@ -182,39 +182,6 @@ fn block_local_rays(grid: &GridParams, plan: &LidarPlan) -> Vec<GpuLidarRay> {
             block_local_ray(grid, origin, r.dir, r.range_m, r.gray, block)
         })
         .collect()
-}
-
-/// Applies a [`LidarPlan`] to `layer` with the kernel's f32 block-local walk
-/// ([`walk_block_ray`]) and `Block::fuse` on the CPU: the oracle the GPU is tested against,
-/// and itself within the tolerance of `tests/gpu_lidar.rs` of the f64 reference
-/// [`crate::fusion::integrate_lidar_plan`]. Same contract as that function: returns the
-/// touched blocks (sorted) and work counters; independent of threading.
-pub fn integrate_lidar_f32(layer: &mut Layer, plan: &LidarPlan) -> (TouchedBlocks, FusionStats) {
-    let grid = layer.params();
-    let groups = plan.groups();
-    let rays = block_local_rays(&grid, plan);
-    let indices: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
-    let mut taken = layer.take_blocks(&indices);
-    let (mu, vs) = (grid.truncation_m, grid.voxel_size_m);
-    let updates: usize = taken
-        .par_iter_mut()
-        .zip(groups.par_iter())
-        .map(|((_, block), (_, range))| {
-            let mut n = 0usize;
-            for ray in &rays[range.clone()] {
-                let gray = ray.gray as u8;
-                n += walk_block_ray(ray, mu, vs, |i, t| block.fuse(i, t, Some([gray; 3]))) as usize;
-            }
-            n
-        })
-        .sum();
-    let touched = layer.put_blocks_observed(taken);
-    let stats = FusionStats {
-        blocks: touched.len(),
-        voxel_updates: updates,
-        measurements: plan.ray_count(),
-    };
-    (touched, stats)
 }
 
 /// Fuses the LiDAR scan planned in `plan` into `layer` on the GPU, like

@@ -25,15 +25,17 @@ mod lidar_gpu;
 pub mod traverse;
 
 pub use depth::{
-    depth_frame_blocks, integrate_depth, integrate_depth_plan, visible_blocks, visible_blocks_in,
-    DepthFusionParams, DepthGeometry, DepthPlan, ViewFrustum,
+    depth_frame_blocks, depth_frame_blocks_exact, integrate_depth, integrate_depth_plan,
+    visible_blocks, visible_blocks_in, DepthFusionParams, DepthGeometry, DepthPlan, ViewFrustum,
+    BAND_TILE_PX,
 };
 pub use depth_gpu::{integrate_depth_gpu, integrate_depth_resident};
 pub(crate) use lidar::band_m;
 pub use lidar::{
-    integrate_lidar, integrate_lidar_plan, lidar_scan_blocks, LidarFusionParams, LidarPlan,
+    integrate_lidar, integrate_lidar_plan, integrate_lidar_reference, lidar_scan_blocks,
+    LidarFusionParams, LidarPlan,
 };
-pub use lidar_gpu::{block_local_ray, integrate_lidar_f32, integrate_lidar_gpu, walk_block_ray};
+pub use lidar_gpu::{block_local_ray, integrate_lidar_gpu, walk_block_ray};
 
 /// Work counters of one integration call.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -195,6 +195,23 @@ impl GpuContext {
         format!("{} ({:?})", self.info.name, self.info.backend)
     }
 
+    /// The first adapter wgpu finds, described without opening a device: `(name and backend,
+    /// whether it is a software adapter)`, or `None` when none exists. Loading the drivers costs
+    /// memory that stays mapped for the process's life (llvmpipe's LLVM, ~80 MiB): a caller that
+    /// may end up on the CPU probes in a child process (`denser probe-gpu`).
+    pub fn probe() -> Option<(String, bool)> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter =
+            pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions::default()))
+                .ok()?;
+        let info = adapter.get_info();
+        Some((
+            format!("{}, {:?}, {:?}", info.name, info.device_type, info.backend),
+            info.device_type == wgpu::DeviceType::Cpu,
+        ))
+    }
+
     /// Adapter name, type and backend, in words.
     pub fn describe(&self) -> String {
         format!(

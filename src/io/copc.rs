@@ -28,6 +28,7 @@
 //! appending to an existing file.
 
 use crate::error::{Error, Result};
+use crate::io::atomic::TempPath;
 use crate::io::las::{generating_software, SYSTEM_IDENTIFIER, WRITE_SCALE_M};
 use laz::{LasZipCompressor, LazVlr, LazVlrBuilder};
 use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
@@ -118,7 +119,7 @@ impl Cube {
 /// Writes a COPC file from points given one at a time (see the module doc).
 pub struct CopcWriter {
     path: PathBuf,
-    tmp_dir: PathBuf,
+    tmp_dir: TempPath,
     spill: BufWriter<std::fs::File>,
     spill_path: PathBuf,
     count: u64,
@@ -133,14 +134,12 @@ fn io_err(path: &Path) -> impl Fn(std::io::Error) -> Error + '_ {
 
 impl CopcWriter {
     /// Starts a COPC file at `path` (written as `path` only when [`finish`](Self::finish)
-    /// succeeds); spill files go to a sibling folder `<path>.tmp/`.
+    /// succeeds); spill files go to a hidden sibling folder, removed when the writer finishes
+    /// or is dropped (`io::atomic`).
     pub fn create(path: &Path, options: CopcOptions) -> Result<Self> {
-        let tmp_dir = PathBuf::from(format!("{}.tmp", path.display()));
-        if tmp_dir.exists() {
-            std::fs::remove_dir_all(&tmp_dir).map_err(io_err(&tmp_dir))?;
-        }
-        std::fs::create_dir_all(&tmp_dir).map_err(io_err(&tmp_dir))?;
-        let spill_path = tmp_dir.join("input.pts");
+        let tmp_dir = TempPath::for_target(&path.with_extension("spill"));
+        std::fs::create_dir_all(tmp_dir.path()).map_err(io_err(tmp_dir.path()))?;
+        let spill_path = tmp_dir.path().join("input.pts");
         let spill =
             BufWriter::new(std::fs::File::create(&spill_path).map_err(io_err(&spill_path))?);
         Ok(CopcWriter {
@@ -192,10 +191,18 @@ impl CopcWriter {
         spill
             .into_inner()
             .map_err(|e| Error::io(&spill_path, e.into_error()))?;
-        let partial = PathBuf::from(format!("{}.partial", path.display()));
-        let stats = write_file(&partial, &tmp_dir, &spill_path, count, lo, hi, &options)?;
-        std::fs::remove_dir_all(&tmp_dir).map_err(io_err(&tmp_dir))?;
-        std::fs::rename(&partial, &path).map_err(io_err(&path))?;
+        let partial = TempPath::for_target(&path);
+        let stats = write_file(
+            partial.path(),
+            tmp_dir.path(),
+            &spill_path,
+            count,
+            lo,
+            hi,
+            &options,
+        )?;
+        drop(tmp_dir);
+        partial.persist(&path)?;
         Ok(stats)
     }
 }

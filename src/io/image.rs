@@ -289,7 +289,7 @@ pub fn encode_pgm_u16(img: &Image<u16>) -> Vec<u8> {
 pub fn write_pgm_u16(path: impl AsRef<Path>, img: &Image<u16>) -> Result<()> {
     let path = path.as_ref();
     check_size(img)?;
-    std::fs::write(path, encode_pgm_u16(img)).map_err(|e| Error::io(path, e))
+    crate::io::atomic::write_file(path, &encode_pgm_u16(img))
 }
 
 /// Converts metres to integer samples `round(d · units_per_m)`; NaN / non-positive → 0. Fails
@@ -349,6 +349,19 @@ fn save_err(path: &Path, e: image::ImageError) -> Error {
     }
 }
 
+/// Encodes `buf` as PNG in memory and writes it through `io::atomic` (complete or absent).
+fn save_png<P, C>(path: &Path, buf: &ImageBuffer<P, C>) -> Result<()>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+    C: std::ops::Deref<Target = [P::Subpixel]>,
+{
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    buf.write_to(&mut bytes, image::ImageFormat::Png)
+        .map_err(|e| save_err(path, e))?;
+    crate::io::atomic::write_file(path, bytes.get_ref())
+}
+
 /// Writes a 16-bit grey PNG of raw samples.
 pub fn write_png_u16(path: impl AsRef<Path>, img: &Image<u16>) -> Result<()> {
     let path = path.as_ref();
@@ -356,8 +369,7 @@ pub fn write_png_u16(path: impl AsRef<Path>, img: &Image<u16>) -> Result<()> {
     let buf: ImageBuffer<Luma<u16>, Vec<u16>> =
         ImageBuffer::from_raw(img.width, img.height, img.data.clone())
             .ok_or_else(|| Error::InvalidArgument("image buffer size mismatch".into()))?;
-    buf.save_with_format(path, image::ImageFormat::Png)
-        .map_err(|e| save_err(path, e))
+    save_png(path, &buf)
 }
 
 /// Writes a depth map as a 16-bit PNG with `units_per_m` integer units per metre (NaN → 0).
@@ -378,8 +390,7 @@ pub fn write_grey_png(path: impl AsRef<Path>, img: &GreyImage) -> Result<()> {
     let buf: ImageBuffer<Luma<u8>, Vec<u8>> =
         ImageBuffer::from_raw(img.width, img.height, img.data.clone())
             .ok_or_else(|| Error::InvalidArgument("image buffer size mismatch".into()))?;
-    buf.save_with_format(path, image::ImageFormat::Png)
-        .map_err(|e| save_err(path, e))
+    save_png(path, &buf)
 }
 
 /// Writes an 8-bit RGB PNG.
@@ -389,8 +400,7 @@ pub fn write_rgb_png(path: impl AsRef<Path>, img: &RgbImage) -> Result<()> {
     let raw: Vec<u8> = img.data.iter().flatten().copied().collect();
     let buf: ImageBuffer<Rgb<u8>, Vec<u8>> = ImageBuffer::from_raw(img.width, img.height, raw)
         .ok_or_else(|| Error::InvalidArgument("image buffer size mismatch".into()))?;
-    buf.save_with_format(path, image::ImageFormat::Png)
-        .map_err(|e| save_err(path, e))
+    save_png(path, &buf)
 }
 
 /// Width and height of an image file, read from its header only.

@@ -46,7 +46,6 @@ use crate::error::{Error, Result};
 use crate::frame::{GreyImage, LidarScan, RgbImage};
 use nalgebra::{Isometry3, Matrix3, Matrix3x4, Rotation3, Translation3, UnitQuaternion, Vector3};
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Calibration of a KITTI odometry sequence (`calib.txt`).
@@ -241,8 +240,7 @@ pub fn read_times(path: impl AsRef<Path>) -> Result<Vec<f64>> {
 }
 
 fn write_text(path: &Path, text: &str) -> Result<()> {
-    let mut f = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
-    f.write_all(text.as_bytes()).map_err(|e| Error::io(path, e))
+    crate::io::atomic::write_file(path, text.as_bytes())
 }
 
 fn row_major_3x4(m: &Matrix3x4<f64>, digits: usize) -> String {
@@ -316,7 +314,7 @@ pub fn write_velodyne_bin(
             bytes.extend_from_slice(&v.to_le_bytes());
         }
     }
-    std::fs::write(path, bytes).map_err(|e| Error::io(path, e))
+    crate::io::atomic::write_file(path, &bytes)
 }
 
 /// Reads a Velodyne `.bin` scan into a [`LidarScan`] whose `world_from_sensor` is the

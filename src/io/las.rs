@@ -270,6 +270,8 @@ fn today() -> Option<chrono::NaiveDate> {
 /// ends in `.laz`. Header bounds and counts are filled in by [`LasPointWriter::close`].
 pub struct LasPointWriter {
     path: std::path::PathBuf,
+    /// Where the file is written until [`LasPointWriter::close`] renames it into place.
+    temp: Option<crate::io::atomic::TempPath>,
     writer: Option<Writer<std::io::BufWriter<std::fs::File>>>,
     offset_m: [f64; 3],
     points: u64,
@@ -309,11 +311,13 @@ impl LasPointWriter {
             bytes.push(0);
             header.set_wkt_crs(bytes).map_err(|e| las_err(path, e))?;
         }
-        let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+        let temp = crate::io::atomic::TempPath::for_target(path);
+        let file = std::fs::File::create(temp.path()).map_err(|e| Error::io(path, e))?;
         let writer =
             Writer::new(std::io::BufWriter::new(file), header).map_err(|e| las_err(path, e))?;
         Ok(LasPointWriter {
             path: path.to_path_buf(),
+            temp: Some(temp),
             writer: Some(writer),
             offset_m,
             points: 0,
@@ -360,7 +364,9 @@ impl LasPointWriter {
             return Err(las_err(&self.path, e));
         }
         drop(w);
-        patch_header(&self.path, self.points == 0)
+        let temp = self.temp.take().expect("open until closed");
+        patch_header(temp.path(), self.points == 0)?;
+        temp.persist(&self.path)
     }
 }
 

@@ -10,6 +10,7 @@
 //! What it does not do: resampling, undistortion, interpolation of poses, or any processing of
 //! the data beyond unit conversion and the frame conventions documented per format.
 
+pub mod atomic;
 pub mod calib;
 pub mod copc;
 pub mod glb;

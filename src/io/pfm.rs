@@ -164,5 +164,5 @@ pub fn write_pfm(path: impl AsRef<Path>, image: &Image<f32>) -> Result<()> {
     let path = path.as_ref();
     let mut bytes = Vec::new();
     encode_pfm(image, &mut bytes);
-    std::fs::write(path, bytes).map_err(|e| Error::io(path, e))
+    crate::io::atomic::write_file(path, &bytes)
 }

@@ -39,7 +39,6 @@
 use crate::error::{Error, Result};
 use crate::frame::PointCloud;
 use crate::mesh::Mesh;
-use std::io::Write;
 use std::path::Path;
 
 /// How the body of a PLY file is encoded.
@@ -439,8 +438,7 @@ fn vertex_header(out: &mut String, n: usize, coord: &str, color: bool) {
 }
 
 fn write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
-    let mut f = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
-    f.write_all(bytes).map_err(|e| Error::io(path, e))
+    crate::io::atomic::write_file(path, bytes)
 }
 
 /// Encodes a mesh as binary little-endian PLY (layout in the module doc). Vertex colours are

@@ -111,7 +111,7 @@ pub fn write_tum_trajectory(
             tr.x, tr.y, tr.z, q.i, q.j, q.k, q.w
         ));
     }
-    std::fs::write(path, s).map_err(|e| Error::io(path, e))
+    crate::io::atomic::write_file(path, s.as_bytes())
 }
 
 /// Index of the element of sorted `times` nearest to `t`, if within `max_dt`.

@@ -117,12 +117,39 @@ impl FrameRange {
         step: 1,
     };
 
-    /// The frame indices of a sequence of `len` frames, in order.
+    /// The frame indices of a sequence of `len` frames, in order (clamped to the sequence).
     pub fn indices(&self, len: usize) -> Vec<usize> {
         let end = self.last.unwrap_or(len).min(len);
         (self.first.min(len)..end)
             .step_by(self.step.max(1))
             .collect()
+    }
+
+    /// [`FrameRange::indices`] for a job: an error when the range is malformed (step 0, an
+    /// empty `first..last`) or selects no frame of the `len` frames of `what`.
+    pub fn select(&self, len: usize, what: &str) -> Result<Vec<usize>> {
+        if self.step == 0 {
+            return Err(Error::InvalidArgument(
+                "--step 0: the frame step must be at least 1".into(),
+            ));
+        }
+        if let Some(last) = self.last {
+            if last <= self.first {
+                return Err(Error::InvalidArgument(format!(
+                    "--first {} --last {last}: the range is empty (--last is one past the last frame)",
+                    self.first
+                )));
+            }
+        }
+        let frames = self.indices(len);
+        if frames.is_empty() {
+            return Err(Error::InvalidArgument(format!(
+                "frames from {} to {} select none of the {len} frames of {what}",
+                self.first,
+                self.last.map_or("the end".to_string(), |l| l.to_string())
+            )));
+        }
+        Ok(frames)
     }
 }
 
@@ -249,7 +276,14 @@ impl Sequence for KittiLidar {
         self.0.len()
     }
     fn read(&self, i: usize) -> Result<RangeInput> {
-        Ok(RangeInput::Lidar(self.0.velodyne(i)?))
+        let scan = self.0.velodyne(i)?;
+        if scan.points_sensor_m.is_empty() {
+            tracing::warn!(
+                "{}: the scan of frame {i} holds no point; nothing to fuse",
+                self.0.velodyne_path(i).unwrap_or(self.0.dir()).display()
+            );
+        }
+        Ok(RangeInput::Lidar(scan))
     }
     fn describe(&self) -> String {
         format!("KITTI sequence {} (LiDAR)", self.0.dir().display())

@@ -90,7 +90,7 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
     // Staging bytes carry no alignment guarantee: copy into typed vectors.
     u.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&out[0]));
     ubar.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&out[1]));
-    p.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&out[2]));
+    p.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&out[2]));
     Ok(())
 }
 

@@ -74,6 +74,8 @@ impl TvParams {
 }
 
 const NONE: u32 = u32::MAX;
+/// Blocks per rayon task of [`TvProblem::iterate`] (a block's step takes ~1 µs).
+const BLOCKS_PER_TASK: usize = 16;
 const STRIDE: [usize; 3] = [1, VOXELS_PER_SIDE, VOXELS_PER_SIDE * VOXELS_PER_SIDE];
 const OMEGA: u8 = 1 << 6;
 /// Mask bit: the forward link along axis `d` (x and x + e_d both in Ω).
@@ -100,7 +102,8 @@ pub struct TvProblem {
     /// Primal variable u.
     pub u: Vec<f32>,
     ubar: Vec<f32>,
-    p: Vec<[f32; 3]>,
+    /// Dual variable, structure of arrays: `p_x` of every voxel, then `p_y`, then `p_z`.
+    p: Vec<f32>,
 }
 
 impl TvProblem {
@@ -173,7 +176,7 @@ impl TvProblem {
             f,
             w,
             mask: vec![0; n],
-            p: vec![[0.0; 3]; n],
+            p: vec![0.0; 3 * n],
         };
         let mask: Vec<u8> = (0..n)
             .into_par_iter()
@@ -214,13 +217,14 @@ impl TvProblem {
         &self.mask
     }
 
-    /// The solver state `(u, ū, p)`, `p` as (x, y, z) per voxel.
-    pub fn state(&self) -> (&[f32], &[f32], &[[f32; 3]]) {
+    /// The solver state `(u, ū, p)`; `p` as three planes (`p_x` of every voxel, then `p_y`,
+    /// then `p_z`: `p[d·n + g]` for `n` voxels).
+    pub fn state(&self) -> (&[f32], &[f32], &[f32]) {
         (&self.u, &self.ubar, &self.p)
     }
 
     /// The solver state, mutably (a GPU twin writes its result back here).
-    pub fn state_mut(&mut self) -> (&mut [f32], &mut [f32], &mut [[f32; 3]]) {
+    pub fn state_mut(&mut self) -> (&mut [f32], &mut [f32], &mut [f32]) {
         (&mut self.u, &mut self.ubar, &mut self.p)
     }
 
@@ -277,18 +281,20 @@ impl TvProblem {
         out
     }
 
-    /// The divergence `−∇ᵀ p` at voxel `g`.
+    /// The divergence `−∇ᵀ p` at voxel `g`, `p` as three planes (`p[d·n + g]`, as
+    /// [`TvProblem::state`]).
     #[inline]
-    pub fn divergence_at(&self, p: &[[f32; 3]], g: usize) -> f32 {
+    pub fn divergence_at(&self, p: &[f32], g: usize) -> f32 {
+        let n = self.mask.len();
         let m = self.mask[g];
         let mut div = 0.0;
         for d in 0..3 {
             if m & fwd(d) != 0 {
-                div += p[g][d];
+                div += p[d * n + g];
             }
             if m & bwd(d) != 0 {
                 if let Some(h) = self.backward(g, d) {
-                    div -= p[h][d];
+                    div -= p[d * n + h];
                 }
             }
         }
@@ -303,41 +309,107 @@ impl TvProblem {
     }
 
     /// One primal–dual iteration (dual step, primal step, relaxation), parallel over blocks.
+    /// Per voxel the arithmetic of [`TvProblem::iterate_reference`], bit for bit; the loops are
+    /// those of `sweep.rs` (block-sized arrays, selects instead of branches, vectorised).
     pub fn iterate(&mut self, params: &TvParams) {
+        let n = self.u.len();
+        if n == 0 {
+            return;
+        }
+        let vb = VOXELS_PER_BLOCK;
+        let (mask, neighbors) = (&self.mask, &self.neighbors);
+        // Dual step: reads ū everywhere, writes p of its own block.
+        let ubar = &self.ubar;
+        let (px, rest) = self.p.split_at_mut(n);
+        let (py, pz) = rest.split_at_mut(n);
+        px.par_chunks_mut(vb)
+            .zip(py.par_chunks_mut(vb))
+            .zip(pz.par_chunks_mut(vb))
+            .with_min_len(BLOCKS_PER_TASK)
+            .enumerate()
+            .for_each(|(b, ((x, y), z))| {
+                sweep::dual_block(
+                    ubar,
+                    b,
+                    &neighbors[b],
+                    &mask[b * vb..(b + 1) * vb],
+                    [x, y, z],
+                    params.sigma,
+                )
+            });
+        // Primal step and relaxation: reads p everywhere, writes u and ū of its own block.
+        let p = [&self.p[..n], &self.p[n..2 * n], &self.p[2 * n..]];
+        let (f, w) = (&self.f, &self.w);
+        let k = sweep::PrimalConstants {
+            tau: params.tau,
+            lambda: params.lambda,
+            theta: params.theta,
+        };
+        self.u
+            .par_chunks_mut(vb)
+            .zip(self.ubar.par_chunks_mut(vb))
+            .with_min_len(BLOCKS_PER_TASK)
+            .enumerate()
+            .for_each(|(b, (u, ubar))| {
+                let r = b * vb..(b + 1) * vb;
+                sweep::primal_block(
+                    p,
+                    b,
+                    &neighbors[b],
+                    &mask[r.clone()],
+                    &f[r.clone()],
+                    &w[r],
+                    u,
+                    ubar,
+                    k,
+                )
+            });
+    }
+
+    /// One iteration written voxel by voxel with [`TvProblem::gradient_at`] and
+    /// [`TvProblem::divergence_at`] (the solver before issue 14, parallel over blocks): the
+    /// reference [`TvProblem::iterate`] is tested against bit for bit, the form the GPU kernels
+    /// follow, and the "before" of `cargo bench --bench core -- tv_`.
+    pub fn iterate_reference(&mut self, params: &TvParams) {
+        let n = self.u.len();
+        let vb = VOXELS_PER_BLOCK;
         let sigma = params.sigma;
         let (tau, lambda, theta) = (params.tau, params.lambda, params.theta);
-        // Dual step: reads ū everywhere, writes p of its own block.
         let mut p = std::mem::take(&mut self.p);
-        p.par_chunks_mut(VOXELS_PER_BLOCK)
-            .enumerate()
-            .for_each(|(b, pb)| {
-                let base = b * VOXELS_PER_BLOCK;
-                for (i, pv) in pb.iter_mut().enumerate() {
-                    let g = base + i;
-                    if self.mask[g] & OMEGA == 0 {
-                        continue;
+        {
+            let (px, rest) = p.split_at_mut(n);
+            let (py, pz) = rest.split_at_mut(n);
+            let this = &*self;
+            px.par_chunks_mut(vb)
+                .zip(py.par_chunks_mut(vb))
+                .zip(pz.par_chunks_mut(vb))
+                .enumerate()
+                .for_each(|(b, ((x, y), z))| {
+                    for i in 0..vb {
+                        let g = b * vb + i;
+                        if this.mask[g] & OMEGA == 0 {
+                            continue;
+                        }
+                        let grad = this.gradient_at(&this.ubar, g);
+                        let q = [
+                            x[i] + sigma * grad[0],
+                            y[i] + sigma * grad[1],
+                            z[i] + sigma * grad[2],
+                        ];
+                        let scale = 1.0 / (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt().max(1.0);
+                        (x[i], y[i], z[i]) = (q[0] * scale, q[1] * scale, q[2] * scale);
                     }
-                    let grad = self.gradient_at(&self.ubar, g);
-                    let q = [
-                        pv[0] + sigma * grad[0],
-                        pv[1] + sigma * grad[1],
-                        pv[2] + sigma * grad[2],
-                    ];
-                    let scale = 1.0 / (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt().max(1.0);
-                    *pv = [q[0] * scale, q[1] * scale, q[2] * scale];
-                }
-            });
+                });
+        }
         self.p = p;
-        // Primal step and relaxation: reads p everywhere, writes u and ū of its own block.
         let mut u = std::mem::take(&mut self.u);
         let mut ubar = std::mem::take(&mut self.ubar);
-        u.par_chunks_mut(VOXELS_PER_BLOCK)
-            .zip(ubar.par_chunks_mut(VOXELS_PER_BLOCK))
+        u.par_chunks_mut(vb)
+            .zip(ubar.par_chunks_mut(vb))
             .enumerate()
             .for_each(|(b, (ub, ubarb))| {
-                let base = b * VOXELS_PER_BLOCK;
-                for i in 0..VOXELS_PER_BLOCK {
-                    let g = base + i;
+                for i in 0..vb {
+                    let g = b * vb + i;
                     if self.mask[g] & OMEGA == 0 {
                         continue;
                     }
@@ -650,6 +722,7 @@ pub fn regularize_regions_with(
 }
 
 mod gpu;
+mod sweep;
 #[cfg(test)]
 mod tests;
 

@@ -19,8 +19,11 @@
 
 mod bvh;
 mod city;
+mod furniture;
 mod geometry;
+mod ground;
 mod lidar;
+mod placement;
 mod render;
 mod rng;
 mod route;
@@ -28,9 +31,10 @@ mod streets;
 mod texture;
 mod writer;
 
-pub use city::{City, CityConfig, Footprint, Hit, Material, Primitive, SurfaceSampling};
+pub use city::{City, CityConfig, Hit, Material, Primitive, SurfaceSampling};
 pub use geometry::{Aabb, Ray, Shape};
 pub use lidar::{kitti_cam0_from_velo, LidarConfig, KITTI_00_TR_VELO_TO_CAM};
+pub use placement::Footprint;
 pub use render::{albedo_to_srgb, luma, RenderOptions, StereoFrame, StereoRig};
 pub use texture::{FacadeParams, Rgb, WallStyle};
 pub use writer::{

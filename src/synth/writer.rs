@@ -147,12 +147,11 @@ fn write_png(
     bytes: &[u8],
     color: ExtendedColorType,
 ) -> Result<()> {
-    let f = File::create(path).map_err(io_err(path))?;
-    let mut w = BufWriter::new(f);
+    let mut w = crate::io::atomic::PendingFile::create(path)?;
     PngEncoder::new_with_quality(&mut w, CompressionType::Fast, FilterType::Adaptive)
         .write_image(bytes, width, height, color)
         .map_err(|e| Error::io(path, std::io::Error::other(e)))?;
-    w.flush().map_err(io_err(path))
+    w.commit()
 }
 
 /// Depth in metres to KITTI's 16-bit encoding: `round(depth·256)`, 0 for invalid or beyond 255.99 m.
@@ -184,7 +183,7 @@ fn write_frame(
                 bytes.extend_from_slice(&v.to_le_bytes());
             }
         }
-        std::fs::write(&path, bytes).map_err(io_err(&path))?;
+        crate::io::atomic::write_file(&path, &bytes)?;
     }
     Ok(())
 }

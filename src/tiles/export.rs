@@ -7,7 +7,7 @@
 //! only when its edge lies on a chunk face, so only those keys are remembered across chunks, and
 //! the stitched mesh has neither cracks nor duplicate vertices at chunk borders (tested against a
 //! whole-map extraction). Vertices and faces stream to temporary files that are joined under the
-//! PLY header at the end; the output appears under its name only when complete.
+//! PLY header at the end; the output appears under its name only when complete (`io::atomic`).
 //!
 //! # Frames
 //! Coordinates leave in the output's [`WorldFrame`] (`formats/georef.md`): PLY keeps the map frame
@@ -20,11 +20,12 @@ use super::ChunkIndex;
 use crate::error::{Error, Result};
 use crate::geo::WorldFrame;
 use crate::grid::{BlockIndex, Layer, VOXELS_PER_SIDE};
+use crate::io::atomic::{PendingFile, TempPath};
 use crate::io::copc::{CopcOptions, CopcStats, CopcWriter};
 use crate::io::las::LasPointWriter;
 use crate::mesh::{extract_mesh_keyed, EdgeKey, Field, Mesh};
 use std::collections::HashMap;
-use std::io::{BufWriter, Read, Write};
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 /// An axis-aligned box in world coordinates, metres.
@@ -100,6 +101,9 @@ pub struct ExportOptions {
     pub frame: Option<WorldFrame>,
     /// RAM for outputs that need more than a chunk at a time (the COPC octree), bytes.
     pub memory_budget_bytes: u64,
+    /// Chunk meshes made by `export --shard` runs ([`super::parts`]): taken from there instead
+    /// of meshed again.
+    pub parts: Option<std::sync::Arc<super::parts::ExportParts>>,
 }
 
 impl ExportOptions {
@@ -110,6 +114,7 @@ impl ExportOptions {
             bbox: None,
             frame: None,
             memory_budget_bytes: 1 << 30,
+            parts: None,
         }
     }
 }
@@ -212,8 +217,8 @@ enum Sink {
     Ply {
         vertices: BufWriter<std::fs::File>,
         faces: BufWriter<std::fs::File>,
-        tmp_v: PathBuf,
-        tmp_f: PathBuf,
+        tmp_v: TempPath,
+        tmp_f: TempPath,
     },
     Las(LasPointWriter),
     Copc(CopcWriter),
@@ -245,8 +250,14 @@ pub fn export_with(
         ExportTarget::Points(p) => (p.clone(), false),
         ExportTarget::Tiles(dir) => {
             let frame = options.frame.clone().unwrap_or_else(WorldFrame::local_z_up);
-            let st =
-                super::tileset::write_tileset(store, options.field, options.bbox, &frame, dir)?;
+            let st = super::tileset::write_tileset_with(
+                store,
+                options.field,
+                options.bbox,
+                &frame,
+                dir,
+                options.parts.as_deref(),
+            )?;
             return Ok(ExportStats {
                 chunks: st.leaf_tiles,
                 vertices: st.leaf_vertices,
@@ -286,18 +297,18 @@ pub fn export_with(
     let bbox = options.bbox;
     let field = options.field;
     let chunks = chunks_in(store, &frame, bbox);
-    let partial = path.with_extension(format!("partial.{ext}"));
     let mut sink = if ext == "ply" {
-        let tmp_v = path.with_extension("vertices.tmp");
-        let tmp_f = path.with_extension("faces.tmp");
+        // Vertices and faces stream to temporaries joined under the header at the end.
+        let tmp_v = TempPath::for_target(&path.with_extension("vertices"));
+        let tmp_f = TempPath::for_target(&path.with_extension("faces"));
         let open = |p: &Path| -> Result<BufWriter<std::fs::File>> {
             Ok(BufWriter::new(
                 std::fs::File::create(p).map_err(|e| Error::io(p, e))?,
             ))
         };
         Sink::Ply {
-            vertices: open(&tmp_v)?,
-            faces: open(&tmp_f)?,
+            vertices: open(tmp_v.path())?,
+            faces: open(tmp_f.path())?,
             tmp_v,
             tmp_f,
         }
@@ -327,7 +338,7 @@ pub fn export_with(
             [0, 1, 2].map(|a| (0.5 * (lo[a] + hi[a])).round())
         };
         let wkt = frame.crs.as_ref().map(|c| c.wkt.as_str());
-        Sink::Las(LasPointWriter::create(&partial, offset, true, wkt)?)
+        Sink::Las(LasPointWriter::create(&path, offset, true, wkt)?)
     };
     let cb = store.chunk_blocks();
     let chunk_voxels = cb as i64 * VOXELS_PER_SIDE as i64;
@@ -336,7 +347,7 @@ pub fn export_with(
     let mut next_id: u64 = 0;
     let bar = crate::progress::bar(chunks.len() as u64, "exporting");
     for &c in &chunks {
-        let (m, keys, own) = mesh_chunk(store, c, field)?;
+        let (m, keys, own) = super::parts::chunk_mesh(store, c, field, options.parts.as_deref())?;
         stats.voxels += own as u64 * 512;
         let world: Vec<[f64; 3]> = m
             .positions_m
@@ -414,7 +425,7 @@ pub fn export_with(
                         rec[12..15].copy_from_slice(&color);
                         vertices.write_all(&rec)
                     };
-                    written.map_err(|e| Error::io(&*tmp_v, e))?;
+                    written.map_err(|e| Error::io(tmp_v.path(), e))?;
                 }
                 Sink::Las(w) => w.write(pw, Some(color))?,
                 Sink::Copc(w) => w.write(pw, color)?,
@@ -431,7 +442,9 @@ pub fn export_with(
                         rec[1 + 4 * j..5 + 4 * j]
                             .copy_from_slice(&(ids[t[j] as usize] as i32).to_le_bytes());
                     }
-                    faces.write_all(&rec).map_err(|e| Error::io(&*tmp_f, e))?;
+                    faces
+                        .write_all(&rec)
+                        .map_err(|e| Error::io(tmp_f.path(), e))?;
                     stats.triangles += 1;
                     stats.area_m2 +=
                         crate::mesh::triangle_area_m2(t.map(|i| m.positions_m[i as usize]));
@@ -464,11 +477,9 @@ pub fn export_with(
                     .sync_all()
                     .map_err(|e| Error::io(p, e))
             };
-            flush(vertices, &tmp_v)?;
-            flush(faces, &tmp_f)?;
-            let mut out = BufWriter::new(
-                std::fs::File::create(&partial).map_err(|e| Error::io(&partial, e))?,
-            );
+            flush(vertices, tmp_v.path())?;
+            flush(faces, tmp_f.path())?;
+            let mut out = PendingFile::create(&path)?;
             let coord = if ply_f64 { "double" } else { "float" };
             let mut header = format!(
                 "ply\nformat binary_little_endian 1.0\ncomment written by denser export\nelement vertex {}\nproperty {coord} x\nproperty {coord} y\nproperty {coord} z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n",
@@ -488,32 +499,17 @@ pub fn export_with(
             }
             header.push_str("end_header\n");
             out.write_all(header.as_bytes())
-                .map_err(|e| Error::io(&partial, e))?;
+                .map_err(|e| Error::io(&path, e))?;
             for p in [&tmp_v, &tmp_f] {
-                if p == &tmp_f && !mesh {
+                if std::ptr::eq(p, &tmp_f) && !mesh {
                     continue;
                 }
-                let mut f = std::fs::File::open(p).map_err(|e| Error::io(p, e))?;
-                let mut buf = vec![0u8; 1 << 20];
-                loop {
-                    let n = f.read(&mut buf).map_err(|e| Error::io(p, e))?;
-                    if n == 0 {
-                        break;
-                    }
-                    out.write_all(&buf[..n])
-                        .map_err(|e| Error::io(&partial, e))?;
-                }
+                let mut f = std::fs::File::open(p.path()).map_err(|e| Error::io(p.path(), e))?;
+                std::io::copy(&mut f, &mut out).map_err(|e| Error::io(&path, e))?;
             }
-            out.into_inner()
-                .map_err(|e| Error::io(&partial, e.into_error()))?
-                .sync_all()
-                .map_err(|e| Error::io(&partial, e))?;
-            for p in [&tmp_v, &tmp_f] {
-                std::fs::remove_file(p).map_err(|e| Error::io(p, e))?;
-            }
+            out.commit()?;
         }
     }
-    std::fs::rename(&partial, &path).map_err(|e| Error::io(&path, e))?;
     stats.seconds = t0.elapsed().as_secs_f64();
     Ok(stats)
 }

@@ -196,6 +196,45 @@ impl JobRecord {
         }
     }
 
+    /// Writes the record into the map at any location (atomically).
+    pub fn write_at(&self, files: &dyn super::files::MapFiles) -> Result<()> {
+        match files.location().as_dir() {
+            Some(dir) => self.write(dir),
+            None => files.write(JOB_FILE, &self.encode()),
+        }
+    }
+
+    /// [`JobRecord::check_or_write`] for a map at any location (object stores have no legacy
+    /// `job.json`).
+    pub fn check_or_write_at(
+        &self,
+        files: &dyn super::files::MapFiles,
+        input: &Path,
+    ) -> Result<()> {
+        if let Some(dir) = files.location().as_dir() {
+            return self.check_or_write(dir, input);
+        }
+        let path = files.path(JOB_FILE);
+        match files.read_versioned(JOB_FILE)? {
+            None => self.write_at(files),
+            Some((b, _)) => {
+                let stored = Self::decode(&path, &b)?;
+                let diff = stored.differences(self);
+                if diff.is_empty() {
+                    Ok(())
+                } else {
+                    Err(Error::bad_input(
+                        path,
+                        format!(
+                            "this map was made by another job; use a new --map, or rerun with the map's settings. Differences (map → this run): {}",
+                            diff.join("; ")
+                        ),
+                    ))
+                }
+            }
+        }
+    }
+
     /// Checks a resumed run against the record of `map_dir` (written when absent): an error
     /// naming every field that differs, so the user can fix the command or use a new map.
     pub fn check_or_write(&self, map_dir: &Path, input: &Path) -> Result<()> {

@@ -2,8 +2,12 @@
 //!
 //! - [`codec`]: pure chunk encoder/decoder (`formats/chunk.md`).
 //! - [`manifest`]: the map's manifest, the commit point of every write (`formats/manifest.md`).
-//! - [`store`]: the map directory: crash-safe chunk writes (new file, fsync, rename), memory-mapped
-//!   reads checked against the manifest entry, checkpoints that commit a manifest, verification.
+//! - [`store`]: the map: crash-safe chunk writes (new file, fsync, rename), reads checked against
+//!   the manifest entry, checkpoints that commit a manifest, verification.
+//! - [`files`]: the storage seam under the store: a local directory ([`files::LocalFiles`]) or an
+//!   object-store prefix (`s3`: `s3://bucket/prefix`, conditional writes, a lease, a chunk cache).
+//! - [`shards`]: regions and exports as array jobs (plans, region records, adoption).
+//! - [`merge`]: several maps of one world frame combined chunk by chunk (weighted TSDF average).
 //! - [`lock`]: one writer per map (an advisory lock naming its holder), readers that never lose
 //!   the files their manifest names.
 //! - [`repair`]: rebuilds a lost manifest from the chunk files' self-describing headers.
@@ -18,15 +22,23 @@
 
 pub mod codec;
 pub mod export;
+pub mod files;
 pub mod job;
 pub mod lock;
 pub mod manifest;
+pub mod merge;
 mod paged;
 pub mod pager;
+pub mod parts;
 pub mod regional;
 pub mod repair;
+#[cfg(feature = "s3")]
+pub mod s3;
+pub mod shards;
 pub mod store;
 pub mod tileset;
+
+pub use files::MapLocation;
 
 pub use paged::PagedStore;
 

@@ -243,6 +243,7 @@ impl BlockStore for PagedStore {
             halo_blocks: s.halo_blocks,
             peak_region_bytes: s.peak_region_bytes,
             pass: s.pass,
+            regions_adopted: s.regions_adopted,
         })
     }
 

@@ -12,8 +12,15 @@
 //! with the first region not committed; a run with other parameters starts a new pass. Until a
 //! new pass reaches every chunk, the files of the last complete pass stay on disk and in the
 //! manifest ([`crate::tiles::manifest::Manifest::kept`]), so that pass remains readable whole.
+//!
+//! Sharding ([`regularize_shard`], `formats/shards.md`) is a thin layer over the same loop: which
+//! regions this process solves (its share, `k mod N`), and how a region's result is recorded —
+//! committed to the manifest by the one writer, or, by a shard, written as create-only chunk files
+//! with reserved numbers and a region record that the writer's next run adopts
+//! ([`super::shards::adopt`]) before it solves what no shard recorded.
 
 use super::pager::BLOCK_RESIDENT_BYTES;
+use super::shards::{self, Shard, ShardPlan};
 use super::store::MapStore;
 use super::ChunkIndex;
 use crate::error::{Error, Result};
@@ -48,6 +55,10 @@ pub struct MapRegularizeStats {
     pub seconds: f64,
     /// The caller stopped the run early (progress returned false); what was done is committed.
     pub interrupted: bool,
+    /// Regions adopted from shards' records (a committing run after `--shard` runs).
+    pub regions_adopted: usize,
+    /// Regions left to other shards (a `--shard` run).
+    pub regions_other_shards: usize,
 }
 
 /// How [`regularize_map`] tiles and bounds its work.
@@ -108,7 +119,36 @@ pub fn regularize_map_with(
     } else {
         (store.begin_pass(params), true)
     };
-    let result = regularize_pass(store, params, options, pass, new_pass, progress, solve);
+    let halo = options
+        .halo_blocks
+        .unwrap_or_else(|| RegionPlan::exact_halo_blocks(params.iterations))
+        .max(0);
+    let key = shards::plan_key(store.manifest(), pass, params, options.region_chunks, halo);
+    let r = options.region_chunks.max(1) as i32;
+    let adopted = shards::adopt(store, key, |c| region_of(c, r))?;
+    if adopted.regions > 0 {
+        tracing::info!(
+            "{}: adopted {} regions ({} chunk files) solved by shards",
+            store.dir().display(),
+            adopted.regions,
+            adopted.chunks
+        );
+        store.commit()?;
+    }
+    let mut mode = Mode::Commit;
+    let result = regularize_pass(
+        store, params, options, pass, new_pass, progress, solve, &mut mode,
+    )
+    .and_then(|mut stats| {
+        stats.regions_adopted = adopted.regions;
+        if store.manifest().latest_pass_complete() {
+            let removed = shards::close_plans(store)?;
+            if removed > 0 {
+                tracing::info!("removed {removed} shard files no manifest names");
+            }
+        }
+        Ok(stats)
+    });
     if result.is_err() && new_pass && store.manifest().header.reg_pass == pass {
         // Nothing of the new pass may have been committed: forget it unless a region was.
         let committed = store.manifest().chunks.values().any(|e| e.reg_pass == pass);
@@ -124,7 +164,91 @@ pub fn regularize_map_with(
     })
 }
 
+/// How solved regions are recorded: committed by the map's writer, or written by a shard.
+enum Mode {
+    /// Write the region's chunks and commit the manifest (the map's one writer).
+    Commit,
+    /// A shard: solve only its share, write create-only files with the plan's numbers and a
+    /// region record; never commit.
+    Shard {
+        shard: Shard,
+        plan: ShardPlan,
+        key: u64,
+        seqs: BTreeMap<ChunkIndex, u64>,
+        recorded: std::collections::HashSet<[i32; 3]>,
+    },
+}
+
+/// Regularises this process's share of the regions of `store` (opened read-only: no lock, no
+/// commit) as shard `shard` of an array job: each region is written as create-only chunk files
+/// with the numbers the pass's plan reserves, then a region record (`formats/shards.md`). Regions
+/// already committed at the pass, or recorded by any shard, are skipped, so a killed shard is
+/// simply run again. A plain [`regularize_map`] afterwards adopts every record, solves what is
+/// missing and commits the pass.
+pub fn regularize_shard(
+    store: &mut MapStore,
+    params: &TvParams,
+    options: &RegionalOptions,
+    shard: Shard,
+    progress: impl FnMut(usize, usize) -> bool,
+    solve: impl FnMut(&mut TvProblem) -> Result<()>,
+) -> Result<MapRegularizeStats> {
+    params.validate()?;
+    if options.region_chunks == 0 {
+        return Err(Error::InvalidArgument(
+            "--region-chunks must be at least 1".into(),
+        ));
+    }
+    let t0 = std::time::Instant::now();
+    let h = store.manifest().header;
+    let (pass, new_pass) = if h.reg_pass > 0 && h.reg_params == *params {
+        (h.reg_pass, false)
+    } else {
+        // In memory only: shards never commit; the pass is recorded by the committing run.
+        (store.begin_pass(params), true)
+    };
+    let halo = options
+        .halo_blocks
+        .unwrap_or_else(|| RegionPlan::exact_halo_blocks(params.iterations))
+        .max(0);
+    let r = options.region_chunks as i32;
+    let key = shards::plan_key(store.manifest(), pass, params, options.region_chunks, halo);
+    let regions: std::collections::BTreeSet<[i32; 3]> = store
+        .chunk_indices()
+        .into_iter()
+        .map(|c| region_of(c, r))
+        .collect();
+    let want = shards::plan_for(
+        store.manifest(),
+        key,
+        pass,
+        params,
+        options.region_chunks,
+        halo,
+        regions.len(),
+    );
+    let files = store.files().clone();
+    let plan = shards::ensure_plan(&*files, &want, key)?;
+    let seqs = shards::reserved_seqs(store.manifest(), &plan);
+    let recorded = shards::recorded_regions(&*files, key)?
+        .into_iter()
+        .collect();
+    let mut mode = Mode::Shard {
+        shard,
+        plan,
+        key,
+        seqs,
+        recorded,
+    };
+    let mut stats = regularize_pass(
+        store, params, options, pass, new_pass, progress, solve, &mut mode,
+    )?;
+    stats.seconds = t0.elapsed().as_secs_f64();
+    Ok(stats)
+}
+
 /// The regions of pass `pass` (begun by the caller; `new_pass` when not yet committed).
+#[allow(clippy::too_many_arguments)]
 fn regularize_pass(
     store: &mut MapStore,
     params: &TvParams,
@@ -133,6 +257,7 @@ fn regularize_pass(
     new_pass: bool,
     mut progress: impl FnMut(usize, usize) -> bool,
     mut solve: impl FnMut(&mut TvProblem) -> Result<()>,
+    mode: &mut Mode,
 ) -> Result<MapRegularizeStats> {
     let cb = store.chunk_blocks() as i32;
     let r = options.region_chunks as i32;
@@ -147,7 +272,9 @@ fn regularize_pass(
         ..Default::default()
     };
     if all_done(store) {
-        if new_pass || store.manifest().header.complete_pass != pass {
+        if matches!(mode, Mode::Commit)
+            && (new_pass || store.manifest().header.complete_pass != pass)
+        {
             store.commit()?;
         }
         return Ok(stats);
@@ -159,6 +286,21 @@ fn regularize_pass(
     let total = regions.len();
     let reach = (halo + cb - 1) / cb; // chunks of halo around a region
     for (k, (key, core)) in regions.iter().enumerate() {
+        if let Mode::Shard {
+            shard, recorded, ..
+        } = mode
+        {
+            // Not this shard's, or recorded by a shard already: counted, not solved.
+            if !shard.owns(k) {
+                stats.regions_other_shards += 1;
+                continue;
+            }
+            if recorded.contains(key) {
+                stats.regions_skipped += 1;
+                continue;
+            }
+        }
+        let region_t0 = std::time::Instant::now();
         if core
             .iter()
             .all(|c| store.manifest().chunks[c].reg_pass == pass)
@@ -214,7 +356,64 @@ fn regularize_pass(
         let core_list: Vec<BlockIndex> = core_blocks.values().flatten().copied().collect();
         problem.scatter(&mut layer, &core_list);
         stats.solved_blocks += problem.blocks().len();
+        let region_solved = problem.blocks().len() as u64;
         drop(problem);
+        if let Mode::Shard {
+            shard,
+            plan,
+            key: plan_key,
+            seqs,
+            ..
+        } = mode
+        {
+            let writer = store.writer();
+            let mut files = Vec::new();
+            let mut omega = 0u64;
+            for (c, blocks) in &core_blocks {
+                let refs: Vec<(BlockIndex, &Block)> = blocks
+                    .iter()
+                    .map(|b| (*b, layer.get(b).expect("gathered block")))
+                    .collect();
+                let w = writer.write_once(*c, seqs[c], &refs, pass)?;
+                omega += w.entry.observed_voxels as u64;
+                stats.core_blocks += refs.len();
+                files.push(shards::RecordedFile {
+                    chunk: c.0,
+                    file_seq: w.entry.file_seq,
+                    file_bytes: w.entry.file_bytes,
+                    block_count: w.entry.block_count,
+                    observed_voxels: w.entry.observed_voxels,
+                    flags: w.entry.flags,
+                    payload_crc32: w.entry.payload_crc32,
+                });
+            }
+            stats.core_omega_voxels += omega;
+            let holder = super::lock::LockHolder::current();
+            shards::write_record(
+                &**store.files(),
+                *plan_key,
+                &shards::RegionRecord {
+                    format: shards::RECORD_FORMAT.into(),
+                    version: 1,
+                    key: plan.key.clone(),
+                    region: *key,
+                    pass,
+                    files,
+                    solved_blocks: region_solved,
+                    omega_voxels: omega,
+                    seconds: region_t0.elapsed().as_secs_f64(),
+                    shard: shard.to_string(),
+                    host: holder.host,
+                    pid: holder.pid,
+                },
+            )?;
+            stats.regions += 1;
+            if !progress(k + 1, total) {
+                stats.interrupted = k + 1 < total;
+                break;
+            }
+            continue;
+        }
         for (c, blocks) in &core_blocks {
             let refs: Vec<(BlockIndex, &Block)> = blocks
                 .iter()

@@ -17,7 +17,7 @@
 //! regularize, export and inspect work. Format-1 files carry no pass: they count as unregularised.
 
 use super::codec::{ChunkHeader, ChunkOrigin, FLAG_HAS_REGULARIZED};
-use super::lock::WriterLock;
+use super::files::{LocalFiles, MapFiles};
 use super::manifest::{
     parse_chunk_file_name, ChunkEntry, Manifest, ManifestHeader, PassStatus, ENTRY_HAS_REGULARIZED,
     FRAMES_UNKNOWN,
@@ -93,7 +93,8 @@ pub fn repair(dir: &Path) -> Result<RepairReport> {
             "has no chunks/ folder: not a denser map, nothing to rebuild from",
         ));
     }
-    let lock = WriterLock::acquire(dir)?;
+    let files: std::sync::Arc<dyn MapFiles> = std::sync::Arc::new(LocalFiles::new(dir));
+    let lock = files.lock_writer()?;
     let manifest_path = dir.join(MANIFEST_FILE);
     let mut moved = None;
     if manifest_path.exists() {
@@ -378,7 +379,7 @@ pub fn repair(dir: &Path) -> Result<RepairReport> {
         kept,
     };
     let passes = manifest.pass_status();
-    let mut store = MapStore::from_repair(dir, lock, manifest);
+    let mut store = MapStore::from_repair(files, lock, manifest);
     store.commit()?;
     let s = store.summary();
     Ok(RepairReport {

@@ -1,4 +1,6 @@
-//! The map directory on disk: `manifest.dmf` plus `chunks/*.dchk` (layout in `formats/`).
+//! The map store: `manifest.dmf` plus `chunks/*.dchk` (layout in `formats/`), in a local
+//! directory or under an object-store prefix (`s3://bucket/prefix`) through the storage seam
+//! [`super::files::MapFiles`]; every line here is the same for both.
 //!
 //! Writes are crash-safe by construction: a chunk file is written under a temporary name, fsynced
 //! and renamed to a name that has never been used (its sequence number); it becomes part of the
@@ -20,7 +22,9 @@ use super::codec::{
     decode_chunk, decode_header_with_origin, encode_chunk_with, ChunkHeader, ChunkOrigin,
     DecodedChunk, CHUNK_HEADER_V2_BYTES, DEFAULT_ZSTD_LEVEL, FLAG_HAS_REGULARIZED, NO_PARAMS,
 };
-use super::lock::{readers_exclusive, ReaderGuard, WriterLock};
+use super::files::{
+    Conditional, MapFiles, MapLocation, ObjectBytes, ObjectVersion, ReaderHold, WriterHold,
+};
 use super::manifest::{
     chunk_file_name, decode_manifest, encode_manifest, parse_chunk_file_name, ChunkEntry, Manifest,
     ManifestHeader, ENTRY_HAS_REGULARIZED,
@@ -29,37 +33,113 @@ use super::ChunkIndex;
 use crate::error::{Error, Result};
 use crate::grid::{Block, BlockIndex, GridParams, VOXELS_PER_BLOCK};
 use crate::regularize::TvParams;
-use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex};
+
+pub use super::files::write_atomically;
 
 /// Name of the manifest inside a map directory.
 pub const MANIFEST_FILE: &str = "manifest.dmf";
 /// Folder of chunk files inside a map directory.
 pub const CHUNKS_DIR: &str = "chunks";
 
+/// Name of the temporary manifest a local commit renames (only writers make it).
+const MANIFEST_TMP: &str = "manifest.tmp";
+
 /// How a [`MapStore`] was opened.
 #[derive(Debug)]
 enum Access {
-    /// Holds the map's writer lock (released when dropped): may commit and delete.
-    Writer(#[allow(dead_code)] WriterLock),
-    /// A reader (or a view): never commits, never deletes; its shared lock (released when
-    /// dropped) keeps the files its manifest names on disk.
-    Reader(#[allow(dead_code)] ReaderGuard),
+    /// Holds the map's writer lock or lease (released when dropped): may commit and delete.
+    Writer(Box<dyn WriterHold>),
+    /// A reader (or a view): never commits, never deletes; its hold (released when dropped)
+    /// keeps the files its manifest names.
+    Reader(#[allow(dead_code)] Box<dyn ReaderHold>),
 }
 
-/// A map directory opened for writing ([`MapStore::create`], [`MapStore::open`]: one writer per
-/// map, see [`super::lock`]) or for reading ([`MapStore::open_read_only`]).
+/// Chunk files read from an object store, kept in RAM up to a byte budget (least recently used
+/// first out). A chunk file never changes under its name, so a cached copy is never stale.
+#[derive(Debug, Default)]
+struct ChunkCache {
+    budget_bytes: u64,
+    state: Mutex<CacheState>,
+}
+
+#[derive(Debug, Default)]
+struct CacheState {
+    files: std::collections::HashMap<String, (Arc<Vec<u8>>, u64)>,
+    bytes: u64,
+    tick: u64,
+    hits: u64,
+    misses: u64,
+}
+
+impl ChunkCache {
+    fn get(&self, name: &str) -> Option<Arc<Vec<u8>>> {
+        let mut s = self.state.lock().ok()?;
+        s.tick += 1;
+        let tick = s.tick;
+        let hit = s.files.get_mut(name).map(|e| {
+            e.1 = tick;
+            e.0.clone()
+        });
+        if hit.is_some() {
+            s.hits += 1;
+        } else {
+            s.misses += 1;
+        }
+        hit
+    }
+
+    fn put(&self, name: &str, bytes: Arc<Vec<u8>>) {
+        let len = bytes.len() as u64;
+        if len > self.budget_bytes {
+            return;
+        }
+        let Ok(mut s) = self.state.lock() else { return };
+        while s.bytes + len > self.budget_bytes {
+            let Some(oldest) = s
+                .files
+                .iter()
+                .min_by_key(|(_, (_, t))| *t)
+                .map(|(k, _)| k.clone())
+            else {
+                break;
+            };
+            if let Some((b, _)) = s.files.remove(&oldest) {
+                s.bytes -= b.len() as u64;
+            }
+        }
+        s.tick += 1;
+        let tick = s.tick;
+        if s.files.insert(name.to_string(), (bytes, tick)).is_none() {
+            s.bytes += len;
+        }
+    }
+}
+
+/// Default RAM for chunk files read from an object store (see [`MapStore::set_cache_budget`]).
+pub const DEFAULT_OBJECT_CACHE_BYTES: u64 = 256 << 20;
+
+/// A map opened for writing ([`MapStore::create`], [`MapStore::open`]: one writer per map, see
+/// [`super::lock`] and [`super::s3`]) or for reading ([`MapStore::open_read_only`]), in a local
+/// directory or on an object store ([`MapStore::open_at`] and friends take a [`MapLocation`]).
 #[derive(Debug)]
 pub struct MapStore {
+    files: Arc<dyn MapFiles>,
+    /// The map's location as a path (an `s3://` URL for object stores), for messages.
     dir: PathBuf,
     /// The manifest as it will be committed next (committed entries plus recorded writes).
     manifest: Manifest,
+    /// The committed manifest's version (compare-and-swap on object stores); `None` before the
+    /// first commit.
+    manifest_version: Option<ObjectVersion>,
     /// Files superseded since the last commit: deletable once the next commit lands.
-    superseded: Vec<PathBuf>,
-    /// Files no committed manifest names any more, waiting for readers to close.
-    deferred: Vec<PathBuf>,
+    superseded: Vec<String>,
+    /// Files no committed manifest names any more, waiting for readers.
+    deferred: Vec<String>,
     zstd_level: i32,
     access: Access,
+    cache: Option<Arc<ChunkCache>>,
 }
 
 /// A chunk file written but not yet committed: what [`MapStore::record`] needs.
@@ -111,27 +191,8 @@ pub struct OpenCleanup {
     pub waiting_for_readers: usize,
     /// Files left alone because nothing proves they are this map's leftovers: name and why.
     pub left_alone: Vec<String>,
-}
-
-fn fsync_dir(dir: &Path) -> Result<()> {
-    // Directory fsync makes renames durable on Linux; other systems may refuse: ignore that.
-    if let Ok(f) = std::fs::File::open(dir) {
-        let _ = f.sync_all();
-    }
-    Ok(())
-}
-
-/// Writes `bytes` to `path` atomically: temporary file in the same folder, fsync, rename, fsync
-/// of the folder.
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = path.with_extension("tmp");
-    {
-        let mut f = std::fs::File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
-        f.write_all(bytes).map_err(|e| Error::io(&tmp, e))?;
-        f.sync_all().map_err(|e| Error::io(&tmp, e))?;
-    }
-    std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))?;
-    fsync_dir(path.parent().unwrap_or(Path::new(".")))
+    /// Files of regularisation shards kept for adoption (their plan is open, `formats/shards.md`).
+    pub shard_files_kept: usize,
 }
 
 /// A fresh random map identity (never 0).
@@ -149,73 +210,77 @@ pub fn new_map_id() -> u64 {
 
 /// Chunk files (`*.dchk`) in `dir/chunks`, by name (0 when the folder is missing).
 pub fn count_chunk_files(dir: &Path) -> usize {
-    std::fs::read_dir(dir.join(CHUNKS_DIR)).map_or(0, |rd| {
-        rd.filter_map(|e| e.ok())
-            .filter(|e| e.file_name().to_string_lossy().ends_with(".dchk"))
-            .count()
+    count_chunk_objects(&super::files::LocalFiles::new(dir))
+}
+
+/// Chunk files (`*.dchk`) under the map's `chunks/` (0 when there are none, or on an error).
+pub fn count_chunk_objects(files: &dyn MapFiles) -> usize {
+    files.list(CHUNKS_DIR).map_or(0, |v| {
+        v.iter().filter(|o| o.name.ends_with(".dchk")).count()
     })
 }
 
-/// Refuses a directory without a manifest: a lost manifest (chunk files present) names the
-/// repair command; an empty one is "not a map".
-fn require_manifest(dir: &Path) -> Result<()> {
-    let path = dir.join(MANIFEST_FILE);
-    if path.exists() {
+fn chunk_object(c: ChunkIndex, seq: u64) -> String {
+    format!("{CHUNKS_DIR}/{}", chunk_file_name(c, seq))
+}
+
+/// Refuses a map without a manifest: a lost manifest (chunk files present) names the repair
+/// command; an empty location is "not a map".
+fn require_manifest(files: &dyn MapFiles) -> Result<()> {
+    if files.exists(MANIFEST_FILE)? {
         return Ok(());
     }
-    if let Some(holder) = super::lock::writer_holding(dir) {
+    if let Some(holder) = files.writer_holding() {
         // A writer is creating the map (it commits its first manifest in a moment).
         return Err(Error::MapLocked {
-            dir: dir.to_path_buf(),
+            dir: files.location().display_path(),
             holder,
         });
     }
-    let n = count_chunk_files(dir);
-    if n > 0 {
-        return Err(lost_manifest(dir, n));
-    }
-    Err(Error::bad_input(
-        &path,
-        "no manifest here: not a denser map directory (or never committed)",
-    ))
+    Err(missing_manifest(files))
 }
 
-fn lost_manifest(dir: &Path, n: usize) -> Error {
+fn missing_manifest(files: &dyn MapFiles) -> Error {
+    match count_chunk_objects(files) {
+        0 => Error::bad_input(
+            files.path(MANIFEST_FILE),
+            "no manifest here: not a denser map directory (or never committed)",
+        ),
+        n => lost_manifest(files, n),
+    }
+}
+
+fn lost_manifest(files: &dyn MapFiles, n: usize) -> Error {
+    let loc = files.location();
     Error::bad_input(
-        dir.join(MANIFEST_FILE),
+        files.path(MANIFEST_FILE),
         format!(
-            "missing, but {} holds {n} chunk files: the map's manifest is lost. Nothing was changed; run `denser repair {}` to rebuild it from the chunk files",
-            dir.join(CHUNKS_DIR).display(),
-            dir.display()
+            "missing, but {} holds {n} chunk files: the map's manifest is lost. Nothing was changed; run `denser repair {loc}` to rebuild it from the chunk files",
+            files.path(CHUNKS_DIR).display(),
         ),
     )
 }
 
 /// Reads and decodes `dir/manifest.dmf`; errors name the file.
 pub fn read_manifest(dir: &Path) -> Result<Manifest> {
-    let path = dir.join(MANIFEST_FILE);
-    let bytes = std::fs::read(&path).map_err(|e| {
-        if e.kind() == std::io::ErrorKind::NotFound {
-            match count_chunk_files(dir) {
-                0 => Error::bad_input(
-                    &path,
-                    "no manifest here: not a denser map directory (or never committed)",
-                ),
-                n => lost_manifest(dir, n),
-            }
-        } else {
-            Error::io(&path, e)
-        }
-    })?;
-    decode_manifest(&bytes).map_err(|e| {
+    read_manifest_at(&super::files::LocalFiles::new(dir)).map(|(m, _)| m)
+}
+
+/// Reads and decodes the map's manifest with its version; errors name the object.
+pub fn read_manifest_at(files: &dyn MapFiles) -> Result<(Manifest, ObjectVersion)> {
+    let Some((bytes, version)) = files.read_versioned(MANIFEST_FILE)? else {
+        return Err(missing_manifest(files));
+    };
+    let m = decode_manifest(&bytes).map_err(|e| {
         Error::bad_input(
-            &path,
+            files.path(MANIFEST_FILE),
             format!(
                 "{e}; run `denser repair {}` to rebuild it from the chunk files",
-                dir.display()
+                files.location()
             ),
         )
-    })
+    })?;
+    Ok((m, version))
 }
 
 impl MapStore {
@@ -223,29 +288,49 @@ impl MapStore {
     /// directory that holds a map already, or chunk files without a manifest (a lost manifest:
     /// `denser repair` rebuilds it).
     pub fn create(dir: &Path, grid: GridParams, chunk_blocks: u32) -> Result<Self> {
+        Self::create_at(&MapLocation::Dir(dir.to_path_buf()), grid, chunk_blocks)
+    }
+
+    /// [`MapStore::create`] at any location (a directory or `s3://bucket/prefix`).
+    pub fn create_at(loc: &MapLocation, grid: GridParams, chunk_blocks: u32) -> Result<Self> {
+        if let Some(dir) = loc.as_dir() {
+            grid.validate()?;
+            std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        }
+        Self::create_files(loc.open_files()?, grid, chunk_blocks)
+    }
+
+    /// [`MapStore::create`] over given objects (an object store configured by the caller).
+    pub fn create_files(
+        files: Arc<dyn MapFiles>,
+        grid: GridParams,
+        chunk_blocks: u32,
+    ) -> Result<Self> {
+        let loc = files.location().clone();
         grid.validate()?;
         if !(1..=256).contains(&chunk_blocks) {
             return Err(Error::InvalidArgument(format!(
                 "chunk edge {chunk_blocks} blocks is outside 1..=256"
             )));
         }
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-        let lock = WriterLock::acquire(dir)?;
-        if dir.join(MANIFEST_FILE).exists() {
+        let lock = files.lock_writer()?;
+        if files.exists(MANIFEST_FILE)? {
             return Err(Error::bad_input(
-                dir,
+                loc.display_path(),
                 "already holds a map (manifest.dmf exists); open it instead",
             ));
         }
-        let n = count_chunk_files(dir);
+        let n = count_chunk_objects(&*files);
         if n > 0 {
-            return Err(lost_manifest(dir, n));
+            return Err(lost_manifest(&*files, n));
         }
-        let chunks = dir.join(CHUNKS_DIR);
-        std::fs::create_dir_all(&chunks).map_err(|e| Error::io(&chunks, e))?;
-        let mut store = MapStore {
-            dir: dir.to_path_buf(),
-            manifest: Manifest {
+        if let Some(dir) = loc.as_dir() {
+            let chunks = dir.join(CHUNKS_DIR);
+            std::fs::create_dir_all(&chunks).map_err(|e| Error::io(&chunks, e))?;
+        }
+        let mut store = MapStore::with_files(
+            files,
+            Manifest {
                 header: ManifestHeader {
                     voxel_size_m: grid.voxel_size_m,
                     truncation_m: grid.truncation_m,
@@ -262,13 +347,36 @@ impl MapStore {
                 chunks: Default::default(),
                 kept: Default::default(),
             },
+            None,
+            Access::Writer(lock),
+        );
+        store.commit()?;
+        Ok(store)
+    }
+
+    fn with_files(
+        files: Arc<dyn MapFiles>,
+        manifest: Manifest,
+        manifest_version: Option<ObjectVersion>,
+        access: Access,
+    ) -> Self {
+        let cache = files.deletes_after_s().map(|_| {
+            Arc::new(ChunkCache {
+                budget_bytes: DEFAULT_OBJECT_CACHE_BYTES,
+                ..Default::default()
+            })
+        });
+        MapStore {
+            dir: files.location().display_path(),
+            files,
+            manifest,
+            manifest_version,
             superseded: Vec::new(),
             deferred: Vec::new(),
             zstd_level: DEFAULT_ZSTD_LEVEL,
-            access: Access::Writer(lock),
-        };
-        store.commit()?;
-        Ok(store)
+            access,
+            cache,
+        }
     }
 
     /// Opens an existing map for reading and writing: takes the writer lock (refused at once with
@@ -279,26 +387,43 @@ impl MapStore {
         Ok(Self::open_with_cleanup(dir)?.0)
     }
 
+    /// [`MapStore::open`] at any location (a directory or `s3://bucket/prefix`).
+    pub fn open_at(loc: &MapLocation) -> Result<Self> {
+        Ok(Self::open_at_with_cleanup(loc)?.0)
+    }
+
     /// [`MapStore::open`], also returning what the cleanup did.
     pub fn open_with_cleanup(dir: &Path) -> Result<(Self, OpenCleanup)> {
-        require_manifest(dir)?;
-        let lock = WriterLock::acquire(dir)?;
-        if let Some(h) = &lock.stale {
+        Self::open_at_with_cleanup(&MapLocation::Dir(dir.to_path_buf()))
+    }
+
+    /// [`MapStore::open_at`], also returning what the cleanup did. On an object store the writer
+    /// first commits once (fencing: a writer whose lease expired can no longer commit) and only
+    /// then removes anything.
+    pub fn open_at_with_cleanup(loc: &MapLocation) -> Result<(Self, OpenCleanup)> {
+        Self::open_files_with_cleanup(loc.open_files()?)
+    }
+
+    /// [`MapStore::open_at`] over given objects (an object store configured by the caller).
+    pub fn open_files(files: Arc<dyn MapFiles>) -> Result<Self> {
+        Ok(Self::open_files_with_cleanup(files)?.0)
+    }
+
+    /// [`MapStore::open_at_with_cleanup`] over given objects.
+    pub fn open_files_with_cleanup(files: Arc<dyn MapFiles>) -> Result<(Self, OpenCleanup)> {
+        let loc = files.location().clone();
+        require_manifest(&*files)?;
+        let lock = files.lock_writer()?;
+        if let Some(h) = lock.stale_holder() {
             tracing::warn!(
-                "{}: recovered the writer lock of {} which ended without releasing it (killed?)",
-                dir.display(),
-                h.describe()
+                "{loc}: recovered the writer lock of {h} which ended without releasing it (killed?)"
             );
         }
-        let manifest = read_manifest(dir)?;
-        let mut store = MapStore {
-            dir: dir.to_path_buf(),
-            manifest,
-            superseded: Vec::new(),
-            deferred: Vec::new(),
-            zstd_level: DEFAULT_ZSTD_LEVEL,
-            access: Access::Writer(lock),
-        };
+        let (manifest, version) = read_manifest_at(&*files)?;
+        let mut store = MapStore::with_files(files, manifest, Some(version), Access::Writer(lock));
+        if store.files.needs_fencing() {
+            store.commit()?;
+        }
         let cleanup = store.remove_leftovers()?;
         if store.manifest.header.map_id == 0 {
             // A format-1 map: it gets an identity with its next commit.
@@ -310,29 +435,67 @@ impl MapStore {
     /// Opens an existing map for reading. Takes no writer lock, writes and deletes nothing; the
     /// files its manifest names stay on disk while it is open (see [`super::lock`]).
     pub fn open_read_only(dir: &Path) -> Result<Self> {
-        require_manifest(dir)?;
-        let guard = ReaderGuard::acquire(dir);
-        let manifest = read_manifest(dir)?;
-        Ok(MapStore {
-            dir: dir.to_path_buf(),
-            manifest,
-            superseded: Vec::new(),
-            deferred: Vec::new(),
-            zstd_level: DEFAULT_ZSTD_LEVEL,
-            access: Access::Reader(guard),
-        })
+        Self::open_read_only_at(&MapLocation::Dir(dir.to_path_buf()))
     }
 
-    /// A writer over a manifest rebuilt by [`super::repair`] (committed by the caller).
-    pub(crate) fn from_repair(dir: &Path, lock: WriterLock, manifest: Manifest) -> Self {
-        MapStore {
-            dir: dir.to_path_buf(),
+    /// [`MapStore::open_read_only`] at any location. On an object store the files of the
+    /// manifest read stay for the retention period after a newer commit supersedes them.
+    pub fn open_read_only_at(loc: &MapLocation) -> Result<Self> {
+        Self::open_read_only_files(loc.open_files()?)
+    }
+
+    /// [`MapStore::open_read_only_at`] over given objects (an object store configured by the
+    /// caller).
+    pub fn open_read_only_files(files: Arc<dyn MapFiles>) -> Result<Self> {
+        require_manifest(&*files)?;
+        let guard = files.hold_readers();
+        let (manifest, version) = read_manifest_at(&*files)?;
+        Ok(MapStore::with_files(
+            files,
             manifest,
-            superseded: Vec::new(),
-            deferred: Vec::new(),
-            zstd_level: DEFAULT_ZSTD_LEVEL,
-            access: Access::Writer(lock),
+            Some(version),
+            Access::Reader(guard),
+        ))
+    }
+
+    /// A writer over a manifest rebuilt by [`super::repair`] (committed by the caller, create-only).
+    pub(crate) fn from_repair(
+        files: Arc<dyn MapFiles>,
+        lock: Box<dyn WriterHold>,
+        manifest: Manifest,
+    ) -> Self {
+        MapStore::with_files(files, manifest, None, Access::Writer(lock))
+    }
+
+    /// The map's objects (the storage seam).
+    pub fn files(&self) -> &Arc<dyn MapFiles> {
+        &self.files
+    }
+
+    /// Where the map lives.
+    pub fn location(&self) -> &MapLocation {
+        self.files.location()
+    }
+
+    /// RAM for chunk files read from an object store (least recently used out first; 0 turns
+    /// the cache off). Local maps have no cache: the kernel's page cache serves them.
+    pub fn set_cache_budget(&mut self, bytes: u64) {
+        if self.files.deletes_after_s().is_some() {
+            self.cache = (bytes > 0).then(|| {
+                Arc::new(ChunkCache {
+                    budget_bytes: bytes,
+                    ..Default::default()
+                })
+            });
         }
+    }
+
+    /// Chunk-cache hits and misses so far (object stores).
+    pub fn cache_stats(&self) -> (u64, u64) {
+        self.cache
+            .as_ref()
+            .and_then(|c| c.state.lock().ok().map(|s| (s.hits, s.misses)))
+            .unwrap_or((0, 0))
     }
 
     /// Whether this store holds the writer lock.
@@ -341,25 +504,16 @@ impl MapStore {
     }
 
     fn file_path(&self, c: ChunkIndex, seq: u64) -> PathBuf {
-        self.dir.join(CHUNKS_DIR).join(chunk_file_name(c, seq))
+        self.files.path(&chunk_object(c, seq))
     }
 
-    /// Whether the header of chunk file `path` says it is file `seq` of chunk `c` of this map
-    /// (format 1 files carry no origin: their name is all there is).
-    fn header_is_ours(&self, path: &Path, c: ChunkIndex, seq: u64) -> bool {
-        let mut head = [0u8; CHUNK_HEADER_V2_BYTES];
-        let Ok(mut f) = std::fs::File::open(path) else {
+    /// Whether the header of chunk file `name` says it is file `seq` of chunk `c` of this map
+    /// (format 1 files carry no origin: their name is all there is). Reads the header only.
+    pub(crate) fn header_is_ours(&self, name: &str, c: ChunkIndex, seq: u64) -> bool {
+        let Ok(head) = self.files.read_range(name, 0..CHUNK_HEADER_V2_BYTES as u64) else {
             return false;
         };
-        let mut n = 0;
-        while n < head.len() {
-            match f.read(&mut head[n..]) {
-                Ok(0) => break,
-                Ok(k) => n += k,
-                Err(_) => return false,
-            }
-        }
-        let Ok((h, origin)) = decode_header_with_origin(&head[..n]) else {
+        let Ok((h, origin)) = decode_header_with_origin(&head) else {
             return false;
         };
         // A map without an identity (format 1) cannot tell its files from others by id.
@@ -369,28 +523,30 @@ impl MapStore {
 
     /// The writer's cleanup at open: `*.tmp` chunk files and `manifest.tmp` (only writers make
     /// them), chunk files numbered at or after the committed next sequence number (allocated after
-    /// the last commit by a writer that died), and older versions of chunks the manifest names
-    /// (superseded; only while no reader is open). Everything else is reported and left alone.
+    /// the last commit by a writer that died) unless a shard plan still open reserves their
+    /// numbers, and older versions of chunks the manifest names (superseded; only while no reader
+    /// can need them). Everything else is reported and left alone.
     fn remove_leftovers(&mut self) -> Result<OpenCleanup> {
         let mut out = OpenCleanup::default();
-        let chunks = self.dir.join(CHUNKS_DIR);
-        let rd = std::fs::read_dir(&chunks).map_err(|e| Error::io(&chunks, e))?;
+        let listed = self.files.list(CHUNKS_DIR)?;
         let next = self.manifest.header.next_file_seq;
+        let reserved = super::shards::reserved_ranges(&*self.files)?;
         let mut superseded = Vec::new();
-        let mut names: Vec<String> = Vec::new();
-        for entry in rd {
-            let entry = entry.map_err(|e| Error::io(&chunks, e))?;
-            names.push(entry.file_name().to_string_lossy().into_owned());
-        }
-        names.sort();
-        for name in names {
-            let p = chunks.join(&name);
+        for obj in listed {
+            let name = obj.name;
+            let p = format!("{CHUNKS_DIR}/{name}");
             let (stem, tmp) = if let Some(s) = name.strip_suffix(".tmp") {
                 (format!("{s}.dchk"), true)
             } else {
                 (name.clone(), false)
             };
             let Some((c, seq)) = parse_chunk_file_name(&stem) else {
+                if name.starts_with('.') && name.ends_with(".new") {
+                    // A create-only write that died before its link (LocalFiles::write_new).
+                    self.files.delete(&p)?;
+                    out.removed_uncommitted.push(name);
+                    continue;
+                }
                 out.left_alone
                     .push(format!("{name}: not a chunk file name"));
                 continue;
@@ -407,14 +563,19 @@ impl MapStore {
             }
             if tmp {
                 // Only a writer makes these, and no other writer is alive.
-                remove(&p)?;
+                self.files.delete(&p)?;
                 out.removed_uncommitted.push(name);
+                continue;
+            }
+            if reserved.iter().any(|r| r.contains(&seq)) {
+                // A regularisation shard's result, waiting for the committing run to adopt it.
+                out.shard_files_kept += 1;
                 continue;
             }
             let current = self.manifest.chunks.get(&c).map(|e| e.file_seq);
             if seq >= next {
                 if self.header_is_ours(&p, c, seq) {
-                    remove(&p)?;
+                    self.files.delete(&p)?;
                     out.removed_uncommitted.push(name);
                 } else {
                     out.left_alone.push(format!(
@@ -438,20 +599,20 @@ impl MapStore {
             }
         }
         if !superseded.is_empty() {
-            if let Some(_readers) = readers_exclusive(&self.dir) {
-                for name in superseded {
-                    remove(&chunks.join(&name))?;
-                    out.removed_superseded.push(name);
-                }
+            let names: Vec<String> = superseded
+                .iter()
+                .map(|n| format!("{CHUNKS_DIR}/{n}"))
+                .collect();
+            let h = self.manifest.header;
+            if self.files.retire(&names, h.generation, h.map_id)? {
+                out.removed_superseded = superseded;
             } else {
                 out.waiting_for_readers = superseded.len();
-                self.deferred
-                    .extend(superseded.iter().map(|n| chunks.join(n)));
+                self.deferred.extend(names);
             }
         }
-        let tmp = self.dir.join(MANIFEST_FILE).with_extension("tmp");
-        if tmp.exists() {
-            remove(&tmp)?;
+        if self.location().as_dir().is_some() {
+            self.files.delete(MANIFEST_TMP)?;
         }
         if !out.removed_uncommitted.is_empty() {
             tracing::info!(
@@ -461,12 +622,13 @@ impl MapStore {
             );
         }
         for l in &out.left_alone {
-            tracing::warn!("{}: left alone: {l}", chunks.display());
+            tracing::warn!("{}: left alone: {l}", self.files.path(CHUNKS_DIR).display());
         }
         Ok(out)
     }
 
-    /// The map's directory.
+    /// The map's directory (for an object store, its `s3://bucket/prefix` URL as a path: use
+    /// [`MapStore::files`] to reach its objects).
     pub fn dir(&self) -> &Path {
         &self.dir
     }
@@ -505,7 +667,7 @@ impl MapStore {
         self.manifest.chunks.keys().copied().collect()
     }
 
-    /// Path of the file holding chunk `c` (if any).
+    /// Path (or URL) of the file holding chunk `c` (if any).
     pub fn chunk_path(&self, c: ChunkIndex) -> Option<PathBuf> {
         self.manifest
             .chunks
@@ -524,7 +686,7 @@ impl MapStore {
     pub fn writer(&self) -> ChunkWriter {
         let h = &self.manifest.header;
         ChunkWriter {
-            chunks_dir: self.dir.join(CHUNKS_DIR),
+            files: self.files.clone(),
             grid: self.grid(),
             chunk_blocks: self.chunk_blocks(),
             zstd_level: self.zstd_level,
@@ -550,7 +712,7 @@ impl MapStore {
     /// of another map) is never read as if it were the committed one.
     pub fn read_entry(&self, c: ChunkIndex, e: &ChunkEntry) -> Result<DecodedChunk> {
         let path = self.file_path(c, e.file_seq);
-        let (d, len) = read_chunk_file_len(&path)?;
+        let (d, len) = self.read_object(&chunk_object(c, e.file_seq))?;
         let h = &d.header;
         let m = &self.manifest.header;
         let mut diff: Vec<String> = Vec::new();
@@ -659,7 +821,7 @@ impl MapStore {
         if keep {
             self.manifest.kept.insert(w.chunk, old);
         } else {
-            self.superseded.push(self.file_path(w.chunk, old.file_seq));
+            self.superseded.push(chunk_object(w.chunk, old.file_seq));
         }
     }
 
@@ -698,32 +860,48 @@ impl MapStore {
             hm.complete_params = h.reg_params;
             let kept = std::mem::take(&mut self.manifest.kept);
             for (c, e) in kept {
-                self.superseded.push(self.file_path(c, e.file_seq));
+                self.superseded.push(chunk_object(c, e.file_seq));
             }
         }
+        if let Access::Writer(w) = &self.access {
+            w.check()?;
+        }
+        let read_generation = self.manifest.header.generation;
         self.manifest.header.generation += 1;
-        let path = self.dir.join(MANIFEST_FILE);
-        write_atomically(&path, &encode_manifest(&self.manifest))?;
+        let bytes = encode_manifest(&self.manifest);
+        match self
+            .files
+            .write_if(MANIFEST_FILE, &bytes, self.manifest_version.as_ref())?
+        {
+            Conditional::Written(v) => self.manifest_version = Some(v),
+            Conditional::Conflict => {
+                self.manifest.header.generation = read_generation;
+                return Err(Error::CommitConflict {
+                    map: self.dir.clone(),
+                    read_generation,
+                });
+            }
+        }
         self.deferred.append(&mut self.superseded);
         self.delete_deferred()
     }
 
-    /// Deletes files no committed manifest names, if no reader has the map open.
+    /// Deletes files no committed manifest names, once no reader can need them (local: no reader
+    /// has the map open; object stores: after the retention period, through `gc/` records).
     fn delete_deferred(&mut self) -> Result<()> {
         if self.deferred.is_empty() {
             return Ok(());
         }
-        let Some(_readers) = readers_exclusive(&self.dir) else {
+        let h = self.manifest.header;
+        if !self.files.retire(&self.deferred, h.generation, h.map_id)? {
             tracing::debug!(
                 "{}: {} superseded chunk files wait for readers to close the map",
                 self.dir.display(),
                 self.deferred.len()
             );
             return Ok(());
-        };
-        for p in std::mem::take(&mut self.deferred) {
-            remove(&p)?;
         }
+        self.deferred.clear();
         Ok(())
     }
 
@@ -763,14 +941,14 @@ impl MapStore {
         }
         m.header.reg_pass = h.complete_pass;
         m.header.reg_params = h.complete_params;
-        Ok(MapStore {
-            dir: self.dir.clone(),
-            manifest: m,
-            superseded: Vec::new(),
-            deferred: Vec::new(),
-            zstd_level: self.zstd_level,
-            access: Access::Reader(ReaderGuard::acquire(&self.dir)),
-        })
+        let mut view = MapStore::with_files(
+            self.files.clone(),
+            m,
+            None,
+            Access::Reader(self.files.hold_readers()),
+        );
+        view.cache = self.cache.clone();
+        Ok(view)
     }
 
     /// Reads every file the manifest names (current and kept) and checks it as
@@ -803,14 +981,6 @@ impl Drop for MapStore {
     }
 }
 
-fn remove(p: &Path) -> Result<()> {
-    match std::fs::remove_file(p) {
-        Ok(()) => Ok(()),
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
-        Err(e) => Err(Error::io(p, e)),
-    }
-}
-
 fn count_observed<'a>(blocks: impl Iterator<Item = &'a Block>) -> u32 {
     blocks.map(|b| b.observed_count() as u32).sum()
 }
@@ -822,32 +992,60 @@ pub fn read_chunk_file(path: &Path) -> Result<DecodedChunk> {
 }
 
 fn read_chunk_file_len(path: &Path) -> Result<(DecodedChunk, u64)> {
-    let f = std::fs::File::open(path).map_err(|e| {
-        if e.kind() == std::io::ErrorKind::NotFound {
-            Error::bad_input(
-                path,
-                "chunk file named by the manifest is missing (deleted by hand?); `inspect --verify` lists every problem",
-            )
-        } else {
-            Error::io(path, e)
-        }
-    })?;
-    let len = f.metadata().map_err(|e| Error::io(path, e))?.len();
-    if len == 0 {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map_or(String::new(), |n| n.to_string_lossy().into_owned());
+    let files = super::files::LocalFiles::new(dir);
+    decode_object(&files, &name, files.read(&name)?)
+}
+
+/// Decodes a chunk object read from `files`; errors name it.
+fn decode_object(
+    files: &dyn MapFiles,
+    name: &str,
+    bytes: Option<ObjectBytes>,
+) -> Result<(DecodedChunk, u64)> {
+    let path = files.path(name);
+    let Some(bytes) = bytes else {
+        return Err(Error::bad_input(
+            path,
+            "chunk file named by the manifest is missing (deleted by hand?); `inspect --verify` lists every problem",
+        ));
+    };
+    if bytes.is_empty() {
         return Err(Error::bad_input(path, "empty chunk file"));
     }
-    // SAFETY: chunk files are never modified in place (new versions get new names), so the
-    // mapping cannot change under us while this process or another denser writes the map.
-    let map = unsafe { memmap2::Mmap::map(&f) }.map_err(|e| Error::io(path, e))?;
-    let d =
-        decode_chunk(&map).map_err(|e| Error::bad_input(path, format!("corrupted chunk: {e}")))?;
-    Ok((d, len))
+    let d = decode_chunk(&bytes)
+        .map_err(|e| Error::bad_input(&path, format!("corrupted chunk: {e}")))?;
+    Ok((d, bytes.len() as u64))
+}
+
+impl MapStore {
+    /// Reads and decodes chunk object `name` (through the object-store cache where there is
+    /// one); errors name it.
+    fn read_object(&self, name: &str) -> Result<(DecodedChunk, u64)> {
+        if let Some(cache) = &self.cache {
+            let bytes = match cache.get(name) {
+                Some(b) => Some(ObjectBytes::Owned(b)),
+                None => match self.files.read(name)? {
+                    Some(ObjectBytes::Owned(b)) => {
+                        cache.put(name, b.clone());
+                        Some(ObjectBytes::Owned(b))
+                    }
+                    other => other,
+                },
+            };
+            return decode_object(&*self.files, name, bytes);
+        }
+        decode_object(&*self.files, name, self.files.read(name)?)
+    }
 }
 
 /// Encodes and writes chunk files; cheap to clone and `Send`, so background workers can own one.
 #[derive(Clone, Debug)]
 pub struct ChunkWriter {
-    chunks_dir: PathBuf,
+    files: Arc<dyn MapFiles>,
     grid: GridParams,
     chunk_blocks: u32,
     zstd_level: i32,
@@ -857,16 +1055,13 @@ pub struct ChunkWriter {
 }
 
 impl ChunkWriter {
-    /// Encodes `blocks` of chunk `c` and writes them crash-safely as file number `seq` (from
-    /// [`MapStore::allocate_seq`]), in chunk format 2 with its origin (this map, `seq`,
-    /// `reg_pass` and that pass's parameters). The result must be given to [`MapStore::record`].
-    pub fn write(
+    fn encode(
         &self,
         c: ChunkIndex,
         seq: u64,
         blocks: &[(BlockIndex, &Block)],
         reg_pass: u32,
-    ) -> Result<WrittenChunk> {
+    ) -> (Vec<u8>, WrittenChunk) {
         let header = ChunkHeader {
             voxel_size_m: self.grid.voxel_size_m,
             truncation_m: self.grid.truncation_m,
@@ -889,10 +1084,8 @@ impl ChunkWriter {
             },
         };
         let bytes = encode_chunk_with(&header, Some(&origin), blocks, self.zstd_level);
-        let path = self.chunks_dir.join(chunk_file_name(c, seq));
-        write_atomically(&path, &bytes)?;
         let has_reg = blocks.iter().any(|(_, b)| b.regularized.is_some());
-        Ok(WrittenChunk {
+        let w = WrittenChunk {
             chunk: c,
             entry: ChunkEntry {
                 block_count: blocks.len() as u32,
@@ -901,6 +1094,70 @@ impl ChunkWriter {
                 file_seq: seq,
                 file_bytes: bytes.len() as u64,
                 payload_crc32: u32::from_le_bytes(bytes[52..56].try_into().expect("header")),
+                reg_pass,
+            },
+        };
+        (bytes, w)
+    }
+
+    /// Encodes `blocks` of chunk `c` and writes them crash-safely as file number `seq` (from
+    /// [`MapStore::allocate_seq`]), in chunk format 2 with its origin (this map, `seq`,
+    /// `reg_pass` and that pass's parameters). The result must be given to [`MapStore::record`].
+    pub fn write(
+        &self,
+        c: ChunkIndex,
+        seq: u64,
+        blocks: &[(BlockIndex, &Block)],
+        reg_pass: u32,
+    ) -> Result<WrittenChunk> {
+        let (bytes, w) = self.encode(c, seq, blocks, reg_pass);
+        self.files.write_chunk(&chunk_object(c, seq), &bytes)?;
+        Ok(w)
+    }
+
+    /// [`ChunkWriter::write`] for a regularisation shard, create-only: when file `seq` of chunk
+    /// `c` exists already (a shard run again after it was killed, or two runs of one shard), the
+    /// existing file is kept and its entry returned, once its origin says it is this map's file
+    /// `seq` of `c` at `reg_pass`.
+    pub fn write_once(
+        &self,
+        c: ChunkIndex,
+        seq: u64,
+        blocks: &[(BlockIndex, &Block)],
+        reg_pass: u32,
+    ) -> Result<WrittenChunk> {
+        let name = chunk_object(c, seq);
+        let (bytes, w) = self.encode(c, seq, blocks, reg_pass);
+        if self.files.write_new(&name, &bytes)? {
+            return Ok(w);
+        }
+        let (d, len) = decode_object(&*self.files, &name, self.files.read(&name)?)?;
+        let ours = d.header.chunk == c
+            && d.origin.is_some_and(|o| {
+                o.file_seq == seq && o.map_id == self.map_id && o.reg_pass == reg_pass
+            });
+        if !ours {
+            return Err(Error::bad_input(
+                self.files.path(&name),
+                format!(
+                    "exists and is not this map's file {seq} of chunk {:?} at pass {reg_pass}; not replaced",
+                    c.0
+                ),
+            ));
+        }
+        Ok(WrittenChunk {
+            chunk: c,
+            entry: ChunkEntry {
+                block_count: d.header.block_count,
+                observed_voxels: count_observed(d.blocks.iter().map(|(_, b)| &**b)),
+                flags: if d.header.flags & FLAG_HAS_REGULARIZED != 0 {
+                    ENTRY_HAS_REGULARIZED
+                } else {
+                    0
+                },
+                file_seq: seq,
+                file_bytes: len,
+                payload_crc32: d.header.payload_crc32,
                 reg_pass,
             },
         })

@@ -26,11 +26,12 @@
 //! frame: ECEF for a UTM or geocentric CRS ([`WorldFrame::ecef_from_local`]), the given
 //! world-from-local transform for a local one.
 
-use super::export::{chunk_bounds_m, chunks_in, frame_bounds, mesh_chunk, Bbox};
+use super::export::{chunk_bounds_m, chunks_in, frame_bounds, Bbox};
 use super::store::MapStore;
 use super::ChunkIndex;
 use crate::error::{Error, Result};
 use crate::geo::WorldFrame;
+use crate::io::atomic::TempPath;
 use crate::io::glb::encode_glb;
 use crate::mesh::{Field, Mesh};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
@@ -148,6 +149,7 @@ impl Clusters {
 
 struct Writer<'a> {
     store: &'a MapStore,
+    parts: Option<&'a super::parts::ExportParts>,
     field: Field,
     bbox: Option<Bbox>,
     frame: &'a WorldFrame,
@@ -172,7 +174,7 @@ impl Writer<'_> {
     fn build(&mut self, level: u32, key: [i32; 3]) -> Result<Option<(TileNode, Mesh)>> {
         let (mesh, mut lo, mut hi, children) = if level == 0 {
             let c = ChunkIndex([0, 1, 2].map(|a| key[a] + self.origin[a]));
-            let (m, _, own) = mesh_chunk(self.store, c, self.field)?;
+            let (m, _, own) = super::parts::chunk_mesh(self.store, c, self.field, self.parts)?;
             self.stats.voxels += own as u64 * 512;
             let m = self.crop(m);
             if m.triangles.is_empty() {
@@ -222,6 +224,7 @@ impl Writer<'_> {
             let path = self.dir.join(&name);
             std::fs::create_dir_all(path.parent().expect("tiles/level"))
                 .map_err(|e| Error::io(&path, e))?;
+            // Inside the folder being built: it appears whole (write_tileset).
             std::fs::write(&path, &glb).map_err(|e| Error::io(&path, e))?;
             self.stats.tiles += 1;
             self.stats.glb_bytes += glb.len() as u64;
@@ -341,11 +344,59 @@ pub fn write_tileset(
     frame: &WorldFrame,
     dir: &Path,
 ) -> Result<TilesetStats> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let old = dir.join("tiles");
-    if old.exists() {
-        std::fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))?;
+    write_tileset_with(store, field, bbox, frame, dir, None)
+}
+
+/// [`write_tileset`] taking the full-resolution chunk meshes from `export --shard` parts where
+/// they hold them.
+pub fn write_tileset_with(
+    store: &MapStore,
+    field: Field,
+    bbox: Option<Bbox>,
+    frame: &WorldFrame,
+    dir: &Path,
+    parts: Option<&super::parts::ExportParts>,
+) -> Result<TilesetStats> {
+    // The tileset is built in a hidden sibling folder and swapped in when complete, so `dir`
+    // holds a whole tileset or what it held before (io::atomic). It may only replace a tileset.
+    if dir.exists() {
+        if !dir.is_dir() {
+            return Err(Error::bad_input(dir, "exists and is not a folder"));
+        }
+        let empty = std::fs::read_dir(dir)
+            .map_err(|e| Error::io(dir, e))?
+            .next()
+            .is_none();
+        if !empty && !dir.join("tileset.json").is_file() {
+            return Err(Error::bad_input(
+                dir,
+                "is not empty and holds no tileset.json: refusing to replace it with a tileset",
+            ));
+        }
     }
+    let build = TempPath::for_target(dir);
+    std::fs::create_dir_all(build.path()).map_err(|e| Error::io(dir, e))?;
+    let stats = build_tileset(store, field, bbox, frame, build.path(), parts)?;
+    if dir.exists() {
+        let previous = TempPath::for_target(&dir.with_extension("previous"));
+        std::fs::rename(dir, previous.path()).map_err(|e| Error::io(dir, e))?;
+        build.persist(dir)?;
+        drop(previous);
+    } else {
+        build.persist(dir)?;
+    }
+    Ok(stats)
+}
+
+/// [`write_tileset`] into the empty folder `dir`.
+fn build_tileset(
+    store: &MapStore,
+    field: Field,
+    bbox: Option<Bbox>,
+    frame: &WorldFrame,
+    dir: &Path,
+    parts: Option<&super::parts::ExportParts>,
+) -> Result<TilesetStats> {
     let chunks = chunks_in(store, frame, bbox);
     // Tile keys count from the lowest chunk index, so halving always reaches one root tile
     // (arithmetic shifts of −1 and 0 would never meet).
@@ -369,6 +420,7 @@ pub fn write_tileset(
     }
     let mut w = Writer {
         store,
+        parts,
         field,
         bbox,
         frame,
@@ -438,6 +490,6 @@ pub fn write_tileset(
     let path = dir.join("tileset.json");
     let text = serde_json::to_vec_pretty(&tileset)
         .map_err(|e| Error::InvalidArgument(format!("tileset.json: {e}")))?;
-    super::store::write_atomically(&path, &text)?;
+    std::fs::write(&path, &text).map_err(|e| Error::io(&path, e))?;
     Ok(stats)
 }

@@ -147,6 +147,45 @@ fn synthetic_drive_end_to_end() {
         raw_median > 0.0 && raw_median < 0.15,
         "raw median {raw_median}"
     );
+    // Scored only where the LiDAR could have measured (issue 13): the view comes from the
+    // scans (the synthetic HDL-64E: about −24.8°…+2°), the unrestricted figure is kept beside
+    // it, and the scored points are a subset whose median is no worse.
+    let view = &report["coverage"];
+    let (lo, hi) = (
+        view["elevation_min_deg"].as_f64().expect("min"),
+        view["elevation_max_deg"].as_f64().expect("max"),
+    );
+    assert!(
+        (-26.0..-23.0).contains(&lo) && (1.0..3.0).contains(&hi),
+        "{view}"
+    );
+    for s in surfaces {
+        let (scored, all) = (&s["accuracy"], &s["accuracy_unrestricted"]);
+        let (n, n_all) = (
+            scored["count"].as_u64().expect("count"),
+            all["count"].as_u64().expect("count"),
+        );
+        assert!(n > 0 && n < n_all, "scored {n} of {n_all}");
+        assert!(
+            scored["median_m"].as_f64().expect("m") <= all["median_m"].as_f64().expect("m"),
+            "{s}"
+        );
+    }
+    let md = std::fs::read_to_string(d.join("gt/report.md")).expect("md");
+    assert!(
+        md.contains("could have measured")
+            && md.contains("all points")
+            && md.contains("](error_histogram.png)"),
+        "{md}"
+    );
+    assert!(
+        report["command_line"]
+            .as_str()
+            .expect("cmd")
+            .contains("reconstruct drive/sequences/00"),
+        "{}",
+        report["command_line"]
+    );
     for f in [
         "mesh_raw.ply",
         "mesh_regularized.ply",
@@ -262,4 +301,36 @@ fn synthetic_drive_end_to_end() {
     );
     assert!(o.status.success(), "{}", text(&o));
     assert!(d.join("st/report.json").is_file());
+}
+
+#[test]
+fn a_closed_stdout_ends_quietly_and_errors_exit_2() {
+    // The reader went away before denser printed its summary (`denser … | head`): exit 0, no
+    // error and no panic on stderr.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_denser"))
+        .args([
+            "synth",
+            "--out",
+            "drive",
+            "--length-m",
+            "10",
+            "--lidar-only",
+        ])
+        .current_dir(dir.path())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    drop(child.stdout.take());
+    let o = child.wait_with_output().expect("wait");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{:?}: {err}", o.status);
+    assert!(!err.contains("panicked") && !err.contains("error"), "{err}");
+    // An error is printed once, with its chain, and exits 2 (clap's usage errors too).
+    let o = denser(&["inspect", "nowhere"], dir.path());
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(text(&o).matches("error:").count(), 1, "{}", text(&o));
+    let o = denser(&["reconstruct"], dir.path());
+    assert_eq!(o.status.code(), Some(2));
 }

@@ -6,6 +6,10 @@ mod common;
 mod depth_support;
 
 mod basics;
+mod devices;
 mod engine;
 mod map;
+mod outputs;
+#[cfg(feature = "s3")]
+mod scaleout;
 mod stereo;

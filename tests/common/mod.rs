@@ -290,3 +290,114 @@ pub fn reconstructor_over(
     )
     .expect("reconstructor")
 }
+
+/// An S3-compatible server (moto's server mode, installed by `tools/setup.sh`) on a free port of
+/// the loopback address, for one test; killed when dropped, a panicking test included.
+pub struct Moto {
+    child: std::process::Child,
+    /// Its port.
+    pub port: u16,
+}
+
+impl Moto {
+    /// Starts `moto_server -H 127.0.0.1 -p PORT` and waits until it answers; `None` (with a
+    /// counted [`skip`]) when moto is not installed or does not start.
+    pub fn start() -> Option<Moto> {
+        use std::io::Read;
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .ok()?;
+        let child = std::process::Command::new("moto_server")
+            .args(["-H", "127.0.0.1", "-p", &port.to_string()])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn();
+        let mut child = match child {
+            Ok(c) => c,
+            Err(e) => {
+                skip(&format!(
+                    "moto_server cannot start ({e}): `pip install 'moto[server]'` (tools/setup.sh)"
+                ));
+                return None;
+            }
+        };
+        let t0 = std::time::Instant::now();
+        loop {
+            if let Ok(Some(status)) = child.try_wait() {
+                let mut err = String::new();
+                if let Some(mut e) = child.stderr.take() {
+                    let _ = e.read_to_string(&mut err);
+                }
+                skip(&format!("moto_server exited ({status}): {err}"));
+                return None;
+            }
+            if std::net::TcpStream::connect(("127.0.0.1", port)).is_ok() {
+                break;
+            }
+            if t0.elapsed() > std::time::Duration::from_secs(60) {
+                let _ = child.kill();
+                let _ = child.wait();
+                skip("moto_server did not answer within 60 s");
+                return None;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
+        // Its log goes nowhere: a full pipe must not block it.
+        drop(child.stderr.take());
+        Some(Moto { child, port })
+    }
+
+    /// `http://127.0.0.1:PORT`.
+    pub fn endpoint(&self) -> String {
+        format!("http://127.0.0.1:{}", self.port)
+    }
+
+    /// Creates a bucket (moto accepts an unsigned `PUT /bucket`).
+    pub fn create_bucket(&self, name: &str) {
+        use std::io::{Read, Write};
+        let mut s = std::net::TcpStream::connect(("127.0.0.1", self.port)).expect("connect moto");
+        write!(
+            s,
+            "PUT /{name} HTTP/1.1\r\nHost: 127.0.0.1:{}\r\nContent-Length: 0\r\nConnection: close\r\n\r\n",
+            self.port
+        )
+        .expect("send");
+        let mut reply = String::new();
+        let _ = s.read_to_string(&mut reply);
+        assert!(
+            reply.starts_with("HTTP/1.1 200") || reply.starts_with("HTTP/1.0 200"),
+            "creating bucket {name}: {reply}"
+        );
+    }
+
+    /// The `AWS_*` environment of a `denser` child process using this server.
+    pub fn env(&self) -> Vec<(&'static str, String)> {
+        vec![
+            ("AWS_ENDPOINT_URL", self.endpoint()),
+            ("AWS_ACCESS_KEY_ID", "testing".into()),
+            ("AWS_SECRET_ACCESS_KEY", "testing".into()),
+            ("AWS_REGION", "us-east-1".into()),
+            ("AWS_ALLOW_HTTP", "true".into()),
+        ]
+    }
+
+    /// The same settings as `object_store` configuration keys, for the library in this process
+    /// (`S3Files::with_options`) without touching the test process's environment.
+    pub fn options(&self) -> Vec<(&'static str, String)> {
+        vec![
+            ("aws_endpoint", self.endpoint()),
+            ("aws_access_key_id", "testing".into()),
+            ("aws_secret_access_key", "testing".into()),
+            ("aws_region", "us-east-1".into()),
+            ("aws_allow_http", "true".into()),
+        ]
+    }
+}
+
+impl Drop for Moto {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}

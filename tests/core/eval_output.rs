@@ -36,6 +36,7 @@ fn surface(label: &str, d: &[f32], area: f64, voxels: u64) -> SurfaceReport {
         bytes_per_voxel: None,
         accuracy: stats(d),
         completeness: Some(stats(&spread(100, 0.2, 0.1))),
+        accuracy_unrestricted: None,
     }
     .with_voxels(voxels, 12.0)
 }
@@ -225,7 +226,7 @@ fn top_view_png_colours_and_orientation() {
     }
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("top.png");
-    plot_top_view_png(&path, &points, &errors, UpAxis::NegY, 0.5, 900).unwrap();
+    plot_top_view_png(&path, &points, &errors, None, &[], UpAxis::NegY, 0.5, 900).unwrap();
     keep(&path);
     let img = image::open(&path).unwrap().to_rgb8();
     let (w, h) = img.dimensions();
@@ -298,11 +299,21 @@ fn plots_reject_bad_arguments() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("x.png");
     let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 1.0]];
-    assert!(plot_top_view_png(&path, &p, &[0.1], UpAxis::NegY, 0.5, 800).is_err());
-    assert!(plot_top_view_png(&path, &p, &[0.1, f32::NAN], UpAxis::NegY, 0.5, 800).is_err());
-    assert!(plot_top_view_png(&path, &p, &[0.1, 0.2], UpAxis::NegY, 0.0, 800).is_err());
-    assert!(plot_top_view_png(&path, &p, &[0.1, 0.2], UpAxis::NegY, 0.5, 10).is_err());
-    assert!(plot_top_view_png(&path, &[], &[], UpAxis::NegY, 0.5, 800).is_err());
+    assert!(plot_top_view_png(&path, &p, &[0.1], None, &[], UpAxis::NegY, 0.5, 800).is_err());
+    assert!(plot_top_view_png(
+        &path,
+        &p,
+        &[0.1, f32::NAN],
+        None,
+        &[],
+        UpAxis::NegY,
+        0.5,
+        800
+    )
+    .is_err());
+    assert!(plot_top_view_png(&path, &p, &[0.1, 0.2], None, &[], UpAxis::NegY, 0.0, 800).is_err());
+    assert!(plot_top_view_png(&path, &p, &[0.1, 0.2], None, &[], UpAxis::NegY, 0.5, 10).is_err());
+    assert!(plot_top_view_png(&path, &[], &[], None, &[], UpAxis::NegY, 0.5, 800).is_err());
     assert!(plot_error_histograms_png(&path, &[], 0.5).is_err());
     assert!(!path.exists());
 }
@@ -362,7 +373,7 @@ fn pictures_of_real_aerial_lidar() {
     plot_error_histograms_png(&hist, &[("raw", &raw), ("regularized", &reg)], 2.0).unwrap();
     keep(&hist);
     let top = out.path().join("autzen_top.png");
-    plot_top_view_png(&top, &raw_pts, &raw_d, UpAxis::PosZ, 1.5, 1000).unwrap();
+    plot_top_view_png(&top, &raw_pts, &raw_d, None, &[], UpAxis::PosZ, 1.5, 1000).unwrap();
     keep(&top);
     let img = image::open(&top).unwrap().to_rgb8();
     assert_eq!(img.width(), 1000);
@@ -375,4 +386,84 @@ fn pictures_of_real_aerial_lidar() {
         coloured as f64 > 0.3 * (img.width() * img.height()) as f64,
         "{coloured}"
     );
+}
+
+#[test]
+fn top_view_greys_unscored_points_and_draws_the_trajectory() {
+    // A 10 m × 5 m patch: the left half scored (error 0), the right half not; the sensor drove
+    // along x at z = 2.5 m across the whole patch.
+    let mut points = Vec::new();
+    let mut scored = Vec::new();
+    for i in 0..200 {
+        for k in 0..100 {
+            let (x, z) = (i as f64 * 0.05, k as f64 * 0.05);
+            points.push([x, 1.7, z]);
+            scored.push(x < 5.0);
+        }
+    }
+    let errors = vec![0.0f32; points.len()];
+    let trajectory: Vec<[f64; 3]> = (0..=10).map(|i| [i as f64, 0.0, 2.5]).collect();
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("top.png");
+    plot_top_view_png(
+        &path,
+        &points,
+        &errors,
+        Some(&scored),
+        &trajectory,
+        UpAxis::NegY,
+        0.5,
+        900,
+    )
+    .unwrap();
+    let img = image::open(&path).unwrap().to_rgb8();
+    let map_w = img.width() - 140;
+    let (mut blue, mut grey, mut black_rows) = (Vec::new(), Vec::new(), Vec::new());
+    for (x, y, p) in img.enumerate_pixels() {
+        if x >= map_w {
+            continue;
+        }
+        if p.0 == error_colour(0.0) {
+            blue.push(x);
+        } else if p.0 == denser::eval::UNSCORED_GREY {
+            grey.push(x);
+        } else if p.0 == [0, 0, 0] {
+            black_rows.push(y);
+        }
+    }
+    assert!(
+        blue.len() > 1000 && grey.len() > 1000,
+        "{} {}",
+        blue.len(),
+        grey.len()
+    );
+    // Scored points on the left, unscored on the right (as many of each: equal halves). A few
+    // grey pixels elsewhere are the axes' anti-aliased text.
+    blue.sort_unstable();
+    grey.sort_unstable();
+    let (blue_mid, grey_mid) = (blue[blue.len() / 2], grey[grey.len() / 2]);
+    let split = *blue.last().unwrap();
+    let grey_right = grey.iter().filter(|&&x| x >= split).count();
+    assert!(
+        blue_mid < grey_mid,
+        "blue median x {blue_mid}, grey {grey_mid}"
+    );
+    assert!(
+        grey_right * 10 > grey.len() * 9,
+        "{grey_right} of {} grey pixels right of {split}",
+        grey.len()
+    );
+    let ratio = blue.len() as f64 / grey.len() as f64;
+    assert!(
+        (0.8..1.25).contains(&ratio),
+        "blue {} vs grey {}",
+        blue.len(),
+        grey.len()
+    );
+    // The trajectory: a horizontal black line (one row ± 1 px) across the map, more than the
+    // axes' tick marks alone draw.
+    black_rows.sort_unstable();
+    let mid = black_rows[black_rows.len() / 2];
+    let on_line = black_rows.iter().filter(|&&y| y.abs_diff(mid) <= 1).count();
+    assert!(on_line > 400, "{on_line} black pixels on row {mid}");
 }

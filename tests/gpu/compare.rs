@@ -74,7 +74,7 @@ fn tv_gpu_matches_cpu_on_a_random_problem() {
     let (u_gpu, ubar_gpu, p_gpu) = gpu.state();
     let du = max_abs_diff(u_cpu, u_gpu);
     let dubar = max_abs_diff(ubar_cpu, ubar_gpu);
-    let dp = max_abs_diff(p_cpu.as_flattened(), p_gpu.as_flattened());
+    let dp = max_abs_diff(p_cpu, p_gpu);
     eprintln!("max |Δu| = {du:e}, |Δū| = {dubar:e}, |Δp| = {dp:e}");
     assert!(
         du <= 1e-4 && dubar <= 2e-4 && dp <= 1e-4,

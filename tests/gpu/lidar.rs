@@ -1,6 +1,6 @@
 //! LiDAR fusion on the GPU (`shaders/fuse_lidar.wgsl`) against its CPU twins: the f32
-//! block-local walk `integrate_lidar_f32` (the oracle the kernel mirrors operation for
-//! operation) and the f64 reference `integrate_lidar_plan`. Scenes: simulated scans of the
+//! block-local walk `integrate_lidar_plan` (the CPU's LiDAR fusion, which the kernel mirrors
+//! operation for operation) and the f64 reference `integrate_lidar_reference`. Scenes: simulated scans of the
 //! analytic sphere-above-a-floor, at the origin and translated by kilometres (where a
 //! world-frame f32 walk would be centimetres off), and an HDL-64-like scan of the synthetic
 //! city. Every GPU test skips with a message where no GPU adapter exists (install lavapipe with
@@ -30,7 +30,7 @@ use common::gpu;
 use common::{Rng, SphereScene};
 use denser::backend::Backend;
 use denser::frame::LidarScan;
-use denser::fusion::{integrate_lidar_f32, integrate_lidar_gpu};
+use denser::fusion::{integrate_lidar_gpu, integrate_lidar_reference};
 use denser::fusion::{integrate_lidar_plan, LidarFusionParams, LidarPlan};
 use denser::gpu::{GpuContext, ResidentOptions};
 use denser::grid::{Block, GridParams, Layer, MAX_WEIGHT, VOXELS_PER_BLOCK};
@@ -105,8 +105,8 @@ fn fuse_all(
         let plan = LidarPlan::new(&grid, scan, &PARAMS);
         let (touched, stats) = match (ctx, way) {
             (Some(ctx), _) => integrate_lidar_gpu(ctx, &mut layer, &plan).expect("GPU fusion"),
-            (None, Way::F64) => integrate_lidar_plan(&mut layer, &plan),
-            (None, Way::F32Twin) => integrate_lidar_f32(&mut layer, &plan),
+            (None, Way::F64) => integrate_lidar_reference(&mut layer, &plan),
+            (None, Way::F32Twin) => integrate_lidar_plan(&mut layer, &plan),
         };
         assert_eq!(touched.len(), stats.blocks);
         sums[0] += stats.blocks;
@@ -391,7 +391,7 @@ fn gpu_keeps_the_regularised_field_in_step() {
     let mut on_gpu = twin.clone();
     let before = twin.clone();
     let plan = LidarPlan::new(&grid, &scans[1], &PARAMS);
-    integrate_lidar_f32(&mut twin, &plan);
+    integrate_lidar_plan(&mut twin, &plan);
     integrate_lidar_gpu(&ctx, &mut on_gpu, &plan).expect("GPU");
     let reset = before
         .indices_sorted()
@@ -466,7 +466,8 @@ fn reconstructor_fuses_lidar_on_the_gpu_when_one_is_set() {
         Way::F32Twin,
         on_gpu.backend().gpu_context().map(|c| &**c),
     );
-    let (cpu_direct, _) = fuse_all(grid, &scans, Way::F64, None);
+    // The CPU backend runs the single f32 walk (issue 14), the GPU kernel's twin.
+    let (cpu_direct, _) = fuse_all(grid, &scans, Way::F32Twin, None);
     assert_layers_identical("reconstructor on the GPU", &gpu_direct, on_gpu.layer());
     assert_layers_identical("reconstructor on the CPU", &cpu_direct, on_cpu.layer());
     assert_close_to_reference(

@@ -140,8 +140,11 @@ fn a_second_writer_is_refused_at_once_naming_the_holder() {
                 holder.contains(&denser::tiles::lock::host_name()),
                 "{holder}"
             );
+            // The command is this test binary's (`tiles-<hash>`).
+            let exe = std::env::current_exe().expect("exe");
+            let name = exe.file_name().expect("name").to_string_lossy();
             assert!(
-                holder.contains("this process") && holder.contains("tiles_engine"),
+                holder.contains("this process") && holder.contains(name.as_ref()),
                 "{holder}"
             );
         }

@@ -8,3 +8,5 @@ mod engine;
 mod export_formats;
 mod format;
 mod paging;
+#[cfg(feature = "s3")]
+mod scaleout;

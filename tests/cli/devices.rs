@@ -1,0 +1,174 @@
+//! One backend, chosen once (issue 11): with `--device gpu`, every stage that has a kernel runs on
+//! the GPU in every command — stereo, fusion and regularisation in `reconstruct` (in RAM and with
+//! `--map`) and in `regularize` — and each summary line names the device it ran on. On lavapipe
+//! (Mesa's Vulkan on the CPU, installed by tools/setup.sh) the kernels equal their CPU twins bit
+//! for bit, so the meshes equal the CPU run's byte for byte. Skipped, counted, without an adapter.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn run(args: &[&str], cwd: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_denser"))
+        .args(args)
+        .current_dir(cwd)
+        .output()
+        .expect("run denser")
+}
+
+fn text(o: &Output) -> String {
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+fn ok(args: &[&str], cwd: &Path) -> String {
+    let o = run(args, cwd);
+    assert!(o.status.success(), "denser {args:?} failed:\n{}", text(&o));
+    text(&o)
+}
+
+/// The adapter's name as the summaries print it, or `None` (counted skip) without one.
+fn gpu_name() -> Option<String> {
+    match denser::gpu::GpuContext::new() {
+        Ok(Some(ctx)) => Some(ctx.name()),
+        _ => {
+            crate::common::skip("no GPU adapter (tools/setup.sh installs lavapipe)");
+            None
+        }
+    }
+}
+
+/// The line of `out` that starts with `prefix`.
+fn line<'a>(out: &'a str, prefix: &str) -> &'a str {
+    out.lines()
+        .find(|l| l.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no line starting {prefix:?} in:\n{out}"))
+}
+
+#[test]
+fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
+    let Some(gpu) = gpu_name() else { return };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    ok(
+        &[
+            "synth",
+            "--out",
+            "drive",
+            "--length-m",
+            "16",
+            "--frame-spacing-m",
+            "4",
+        ],
+        d,
+    );
+    let seq = "drive/sequences/00";
+    let common = [
+        "--voxel-size",
+        "0.2",
+        "--iterations",
+        "10",
+        "--no-eval",
+        "--max-depth",
+        "20",
+    ];
+    // Ground-truth depth through a map directory: fusion and the regional regularisation on the
+    // GPU (depth fusion and TV equal their CPU twins bit for bit on lavapipe; LiDAR differs from
+    // its f64 reference within the tolerance of tests/gpu/lidar.rs).
+    let mut args = vec![
+        "reconstruct",
+        seq,
+        "--depth",
+        "gt",
+        "--map",
+        "m_gpu",
+        "--out",
+        "o_gpu",
+    ];
+    args.extend(common);
+    args.extend(["--device", "gpu", "--memory-budget", "64MiB"]);
+    let out = ok(&args, d);
+    assert!(
+        line(&out, "fused").contains(&format!(" on {gpu}:")),
+        "{out}"
+    );
+    assert!(
+        line(&out, "regularised on").starts_with(&format!("regularised on {gpu}:")),
+        "{out}"
+    );
+    let mut args = vec![
+        "reconstruct",
+        seq,
+        "--depth",
+        "gt",
+        "--map",
+        "m_cpu",
+        "--out",
+        "o_cpu",
+    ];
+    args.extend(common);
+    args.extend(["--device", "cpu", "--memory-budget", "64MiB"]);
+    let out = ok(&args, d);
+    assert!(line(&out, "fused").contains(" on CPU:"), "{out}");
+    assert!(
+        line(&out, "regularised on").starts_with("regularised on CPU:"),
+        "{out}"
+    );
+    for mesh in ["mesh_raw.ply", "mesh_regularized.ply"] {
+        let (g, c) = (
+            std::fs::read(d.join("o_gpu").join(mesh)).expect("gpu mesh"),
+            std::fs::read(d.join("o_cpu").join(mesh)).expect("cpu mesh"),
+        );
+        assert!(g == c, "{mesh}: the GPU map differs from the CPU map");
+    }
+    // Offline re-regularisation of the stored map on the GPU.
+    let out = ok(
+        &[
+            "regularize",
+            "m_gpu",
+            "--lambda",
+            "0.5",
+            "--iterations",
+            "6",
+            "--device",
+            "gpu",
+        ],
+        d,
+    );
+    assert!(
+        line(&out, "regularised on").starts_with(&format!("regularised on {gpu}:")),
+        "{out}"
+    );
+    // Stereo in RAM: the variational matcher, fusion and regularisation on the GPU.
+    let mut args = vec![
+        "reconstruct",
+        seq,
+        "--depth",
+        "stereo",
+        "--out",
+        "st_gpu",
+        "--last",
+        "2",
+    ];
+    args.extend(common);
+    args.extend(["--device", "gpu"]);
+    let out = ok(&args, d);
+    assert!(
+        line(&out, "stereo on").starts_with(&format!("stereo on {gpu}:")),
+        "{out}"
+    );
+    assert!(
+        line(&out, "fused").contains(&format!(" on {gpu}:")),
+        "{out}"
+    );
+    assert!(
+        line(&out, "regularised on").starts_with(&format!("regularised on {gpu}:")),
+        "{out}"
+    );
+    assert!(
+        out.contains("GPU tier:"),
+        "depth blocks stayed resident: {out}"
+    );
+}
