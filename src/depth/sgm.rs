@@ -661,7 +661,7 @@ mod tests {
         let cost = [3u8, 0, 7, 2];
         let mut out = [BIG; 6];
         let mut acc = [100u16; 4];
-        let m = path_step::<false>(&cost, &prev, 1, 2, 6, &mut out, &mut acc);
+        let m = path_step::<false, u16>(&cost, &prev, 1, 2, 6, &mut out, &mut acc);
         // d0: 3 + min(5, 1+2, 1+6) − 1 = 5; d1: 0 + min(1, ..) − 1 = 0;
         // d2: 7 + min(9, 1+2, 20+2, 7) − 1 = 9; d3: 2 + min(20, 9+2, 7) − 1 = 8.
         assert_eq!(&out[1..5], &[5, 0, 9, 8]);

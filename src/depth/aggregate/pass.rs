@@ -265,7 +265,7 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                 let mut pmin = [0u16; N];
                 p2[0] = pen.p2_for(img[x], img[xn]);
                 pmin[0] = hmin;
-                let mut prevs: [&[T]; N] = [&hprev[..]; N];
+                let mut prevs: [&[T]; N] = [hprev; N];
                 for r in 0..NR {
                     let xp = xps[r] as usize;
                     p2[r + 1] = pen.p2_for(img[x], img_prev[xp]);
@@ -336,7 +336,7 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                 }
                 slot_min[x * NR..(x + 1) * NR].copy_from_slice(&m);
             }
-            if !first && !(inside && N == 4 && job.finish == Finish::Select) {
+            if !(first || inside && N == 4 && job.finish == Finish::Select) {
                 let theirs = &mut stored[x * nd..(x + 1) * nd];
                 match job.finish {
                     Finish::Sum => {

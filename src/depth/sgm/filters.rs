@@ -125,10 +125,10 @@ pub(super) fn median_lanes(rows: [&[f32]; 3], row_ok: [bool; 3], x0: usize, out:
         }
     }
     for (a, b) in SORT9_PAIRS {
+        let (ka, kb) = (keys[a], keys[b]);
         for l in 0..L {
-            let (p, q) = (keys[a][l], keys[b][l]);
-            keys[a][l] = p.min(q);
-            keys[b][l] = p.max(q);
+            keys[a][l] = ka[l].min(kb[l]);
+            keys[b][l] = ka[l].max(kb[l]);
         }
     }
     let centre = &rows[1][x0..x0 + L];

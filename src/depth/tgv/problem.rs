@@ -121,9 +121,9 @@ impl TgvProblem {
                 self.x_bar[c][i] = primal_bar[i][c];
             }
         }
-        for c in 0..5 {
-            for i in 0..n {
-                self.y[c][i] = dual[i][c];
+        for (c, y) in self.y.iter_mut().enumerate() {
+            for (yi, d) in y.iter_mut().zip(dual) {
+                *yi = d[c];
             }
         }
         Ok(())
