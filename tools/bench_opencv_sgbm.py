@@ -12,14 +12,14 @@ Pairs (both from ../shared/data, or --data DIR):
 
 OpenCV's modes: MODE_SGBM_3WAY (5 directions in 2 passes: left-to-right, top-left, top,
 top-right going down, then right-to-left; rows split into stripes run in parallel) and
-MODE_SGBM (5 directions; MODE_HH would be 8). Parameters: blockSize 5 (grey, so P1 = 8*5^2 and
+MODE_SGBM (5 directions in one pass; MODE_HH would be 8). --block sets blockSize. Parameters: blockSize 5 (grey, so P1 = 8*5^2 and
 P2 = 32*5^2, OpenCV's documented recommendation), uniquenessRatio 10, speckleWindowSize 100,
 speckleRange 2, disp12MaxDiff 1, preFilterCap 63. Disparities below minDisparity (invalid)
 count as missing.
 
 Timing: `compute()` only (images decoded and in memory), median of --runs after one warm-up
-(wall, and process CPU time: user + system of all threads),
-with cv2.setNumThreads(--threads) (-1, the default: not called, so all cores; 0: sequential). Scores (same definitions as
+(wall, and process CPU time: user + system of all threads), with cv2.setNumThreads(--threads)
+(-1, the default: not called, so all cores; 0: sequential). Scores (same definitions as
 `denser stereo-eval`, src/depth/metrics.rs): bad-1/2/3 over all ground-truth pixels with a
 missing prediction counting as bad, D1 (> 3 px and > 5 %), EPE over pixels with a prediction,
 density. With --write DIR the disparities (and KITTI's LiDAR ground truth) are written as PFM
