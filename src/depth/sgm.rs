@@ -293,9 +293,10 @@ fn cost_row_impl(
         if k0 >= k1 {
             continue;
         }
-        // Right pixel of slice k is xr0 − k, at rev index base + k.
-        let base = (w as i64 - 1 - (x as i64 - dmin as i64)) as usize;
-        let rs = &rev[(base + k0) * words..(base + k1) * words];
+        // Right pixel of slice k is xr0 − k, at rev index (w − 1 − xr0) + k, which is ≥ 0 for
+        // k ≥ k0 (w − 1 − xr0 itself is negative when dmin < 0 puts xr0 past the right edge).
+        let start = (w as i64 - 1 - (x as i64 - dmin as i64) + k0 as i64) as usize;
+        let rs = &rev[start * words..(start + k1 - k0) * words];
         if words == 1 {
             let a = l[x];
             for (c, &b) in o[k0..k1].iter_mut().zip(rs) {

@@ -262,7 +262,8 @@ pub(super) fn winner(
         // The right winners are kept in reversed order (index w − 1 − xr), so that slice k of
         // this pixel lands at index w − 1 − xr0 + k: consecutive slices, consecutive entries.
         let n = k1 - k0;
-        let at = (w as i64 - 1 - xr0) as usize + k0;
+        // (w − 1 − xr0 is negative when dmin < 0 puts xr0 past the right edge; k0 makes up for it.)
+        let at = (w as i64 - 1 - xr0 + k0 as i64) as usize;
         let (cost, slice) = (&mut right_cost[at..at + n], &mut right_k[at..at + n]);
         let src = &total[k0..k1];
         for j in 0..n {
