@@ -172,34 +172,16 @@ pub fn census_transform(image: &GreyImage, params: &CensusParams) -> Result<Cens
                     p
                 })
                 .collect();
-            // One pass over the row per neighbour offset, so the comparisons vectorise.
             let rxu = rx as usize;
             let centre = &padded[ry as usize][rxu..rxu + w];
-            let mut sig = vec![[0u64; 2]; w];
-            for (i, &(dx, dy)) in offsets.iter().enumerate() {
-                let start = (dx + rx) as usize;
-                let nb = &padded[(dy + ry) as usize][start..start + w];
-                match kind {
-                    CensusKind::Binary => {
-                        let (word, shift) = (i >> 6, i & 63);
-                        for ((s, &n), &c) in sig.iter_mut().zip(nb).zip(centre) {
-                            s[word] |= ((n < c) as u64) << shift;
-                        }
-                    }
-                    CensusKind::Ternary { threshold } => {
-                        // Bits 2i and 2i + 1 always share a word.
-                        let (word, shift) = ((2 * i) >> 6, (2 * i) & 63);
-                        let t = threshold as i16;
-                        for ((s, &n), &c) in sig.iter_mut().zip(nb).zip(centre) {
-                            let diff = n as i16 - c as i16;
-                            s[word] |= (((diff > t) as u64) | (((diff < -t) as u64) << 1)) << shift;
-                        }
-                    }
-                }
-            }
-            for (u, s) in sig.iter().enumerate() {
-                out_row[u * words..(u + 1) * words].copy_from_slice(&s[..words]);
-            }
+            let neighbours: Vec<&[u8]> = offsets
+                .iter()
+                .map(|&(dx, dy)| {
+                    let start = (dx + rx) as usize;
+                    &padded[(dy + ry) as usize][start..start + w]
+                })
+                .collect();
+            census_row(&neighbours, centre, kind, words, out_row);
         });
     Ok(CensusImage {
         width: image.width,
@@ -208,6 +190,91 @@ pub fn census_transform(image: &GreyImage, params: &CensusParams) -> Result<Cens
         bits,
         data,
     })
+}
+
+/// Signatures of one row from its neighbour rows (one per offset, in signature order, each
+/// aligned with `centre`), into `out` (`words` per pixel). Dispatched to a copy compiled for
+/// AVX-512BW or AVX2 where the CPU has it.
+fn census_row(
+    neighbours: &[&[u8]],
+    centre: &[u8],
+    kind: CensusKind,
+    words: usize,
+    out: &mut [u64],
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx2")]
+        fn avx512(nb: &[&[u8]], c: &[u8], kind: CensusKind, words: usize, out: &mut [u64]) {
+            census_row_impl(nb, c, kind, words, out)
+        }
+        #[target_feature(enable = "avx2")]
+        fn avx2(nb: &[&[u8]], c: &[u8], kind: CensusKind, words: usize, out: &mut [u64]) {
+            census_row_impl(nb, c, kind, words, out)
+        }
+        if std::is_x86_feature_detected!("avx512bw") && std::is_x86_feature_detected!("avx512vl") {
+            // SAFETY: the CPU supports the features the copy was compiled for (checked above).
+            unsafe { avx512(neighbours, centre, kind, words, out) };
+            return;
+        }
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: as above.
+            unsafe { avx2(neighbours, centre, kind, words, out) };
+            return;
+        }
+    }
+    census_row_impl(neighbours, centre, kind, words, out)
+}
+
+/// [`census_row`]: the comparisons of up to 8 bits of every pixel are gathered in one byte per
+/// pixel (`u8` lanes, so they vectorise 64 wide), and each byte is then placed in its word.
+/// Bit `i` of a binary signature (bits `2i`, `2i + 1` of a ternary one) is neighbour `i`.
+#[inline(always)]
+fn census_row_impl(
+    neighbours: &[&[u8]],
+    centre: &[u8],
+    kind: CensusKind,
+    words: usize,
+    out: &mut [u64],
+) {
+    let w = centre.len();
+    let per_byte = match kind {
+        CensusKind::Binary => 8,
+        CensusKind::Ternary { .. } => 4,
+    };
+    let mut sig = [vec![0u64; w], vec![0u64; if words > 1 { w } else { 0 }]];
+    let mut byte = vec![0u8; w];
+    for (g, group) in neighbours.chunks(per_byte).enumerate() {
+        byte.fill(0);
+        for (j, nb) in group.iter().enumerate() {
+            match kind {
+                CensusKind::Binary => {
+                    for ((b, &n), &c) in byte.iter_mut().zip(nb.iter()).zip(centre) {
+                        *b |= ((n < c) as u8) << j;
+                    }
+                }
+                CensusKind::Ternary { threshold } => {
+                    let t = threshold as i16;
+                    for ((b, &n), &c) in byte.iter_mut().zip(nb.iter()).zip(centre) {
+                        let diff = n as i16 - c as i16;
+                        *b |= (((diff > t) as u8) | (((diff < -t) as u8) << 1)) << (2 * j);
+                    }
+                }
+            }
+        }
+        let (word, shift) = (g / 8, 8 * (g % 8));
+        for (s, &b) in sig[word].iter_mut().zip(&byte) {
+            *s |= (b as u64) << shift;
+        }
+    }
+    if words == 1 {
+        out.copy_from_slice(&sig[0]);
+    } else {
+        for (u, o) in out.chunks_exact_mut(2).enumerate() {
+            o[0] = sig[0][u];
+            o[1] = sig[1][u];
+        }
+    }
 }
 
 #[cfg(test)]

@@ -87,14 +87,11 @@ impl<'c> TgvProblemGpu<'c> {
             alpha2: problem.alpha2,
             tau,
             sigma,
-            tensors: ctx.storage(
-                "tgv_tensors",
-                bytemuck::cast_slice(problem.tensors.as_slice()),
-            ),
+            tensors: ctx.storage("tgv_tensors", bytemuck::cast_slice(problem.tensors())),
             target: ctx.storage("tgv_target", &vec![0u8; n as usize * 4]),
-            primal: ctx.storage("tgv_primal", bytemuck::cast_slice(primal)),
-            primal_bar: ctx.storage("tgv_primal_bar", bytemuck::cast_slice(primal_bar)),
-            dual: ctx.storage("tgv_dual", bytemuck::cast_slice(dual)),
+            primal: ctx.storage("tgv_primal", bytemuck::cast_slice(&primal)),
+            primal_bar: ctx.storage("tgv_primal_bar", bytemuck::cast_slice(&primal_bar)),
+            dual: ctx.storage("tgv_dual", bytemuck::cast_slice(&dual)),
         };
         scope.pop("uploading the TGV problem")?;
         Ok(gpu)
@@ -218,11 +215,11 @@ impl<'c> TgvProblemGpu<'c> {
             (&self.primal_bar, n * 12),
             (&self.dual, n * 20),
         ])?;
-        let (primal, primal_bar, dual) = problem.state_mut();
-        primal.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&out[0]));
-        primal_bar.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&out[1]));
-        dual.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, [f32; 5]>(&out[2]));
-        Ok(())
+        problem.set_state(
+            &bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&out[0]),
+            &bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&out[1]),
+            &bytemuck::pod_collect_to_vec::<u8, [f32; 5]>(&out[2]),
+        )
     }
 }
 

@@ -13,6 +13,7 @@
 //!
 //! Does not rectify images, estimate calibration, or fill invalid pixels.
 
+mod aggregate;
 pub mod census;
 pub mod disparity_io;
 mod gpu;
@@ -34,6 +35,43 @@ use crate::error::{Error, Result};
 use crate::frame::{DepthImage, GreyImage, Image};
 use std::fmt;
 use std::str::FromStr;
+
+/// Buffers a matcher keeps between pairs (cost volumes, aggregation rows, TGV state), so that a
+/// sequence of frames does not map hundreds of megabytes in and out again for every pair. Clones
+/// start empty; concurrent estimates each take their own set.
+pub(crate) struct ScratchPool<T>(std::sync::Mutex<Vec<T>>);
+
+impl<T: Default> ScratchPool<T> {
+    /// A set of buffers: a kept one, or a new (empty) one.
+    pub(crate) fn take(&self) -> T {
+        let mut kept = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        kept.pop().unwrap_or_default()
+    }
+
+    /// Keeps `scratch` for the next estimate.
+    pub(crate) fn put(&self, scratch: T) {
+        let mut kept = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        kept.push(scratch);
+    }
+}
+
+impl<T> Default for ScratchPool<T> {
+    fn default() -> Self {
+        ScratchPool(std::sync::Mutex::new(Vec::new()))
+    }
+}
+
+impl<T> Clone for ScratchPool<T> {
+    fn clone(&self) -> Self {
+        ScratchPool::default()
+    }
+}
+
+impl<T> fmt::Debug for ScratchPool<T> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str("ScratchPool")
+    }
+}
 
 /// A disparity map for the left image of a rectified pair.
 #[derive(Clone, Debug, PartialEq)]

@@ -11,30 +11,35 @@
 //!    `L_r(p, d) = C(p, d) + min(L_r(p−r, d), L_r(p−r, d±1) + P1, min_k L_r(p−r, k) + P2)
 //!    − min_k L_r(p−r, k)`, summed into `S(p, d)` (`u16`). P2 may adapt to the intensity step
 //!    along the path, `P2' = max(P1 + 1, P2·s / (s + |I(p) − I(p−r)|))` (after the paper's
-//!    `P2/|ΔI|`). Horizontal paths run rayon-parallel over rows; vertical and diagonal paths
-//!    sweep rows and run parallel over columns within a row.
+//!    `P2/|ΔI|`). The directions run as two passes on two threads, forward (top to bottom) and
+//!    backward, which meet row by row; `S` is never stored whole ([`crate::depth::aggregate`]).
 //! 3. Winner-take-all with a uniqueness ratio, sub-pixel refinement (parabola, eq. 12 area, or
 //!    equiangular fit), left–right consistency with a right disparity map taken from the same
-//!    `S` (`D_r(x_r) = argmin_d S(x_r + d, d)`), optional 3×3 median, speckle removal.
+//!    `S` (`D_r(x_r) = argmin_d S(x_r + d, d)`), streamed with the aggregation; then an optional
+//!    3×3 median and speckle removal.
 //!
 //! Invalid pixels (occluded, ambiguous, inconsistent, speckles, matched outside the right
 //! image) are NaN and stay NaN: nothing is interpolated or filled.
 //!
-//! Hot loops are compiled twice on x86-64 (baseline and AVX2/POPCNT) and picked at run time.
+//! Hot loops are compiled three times on x86-64 (baseline, AVX2, AVX-512 with vector popcount)
+//! and picked at run time. A matcher keeps its large buffers (cost volume, aggregation rows)
+//! between pairs.
 
+use super::aggregate;
 use super::census::{census_transform, CensusImage, CensusParams};
-use super::{DisparityEstimator, DisparityMap};
+use super::{DisparityEstimator, DisparityMap, ScratchPool};
 use crate::error::{Error, Result};
 use crate::frame::{GreyImage, Image};
 use rayon::prelude::*;
 
-/// Sentinel for "no such disparity" in padded path buffers; larger than any path cost plus P2,
-/// small enough that adding P1 cannot overflow `u16`.
-const BIG: u16 = 16_384;
+mod filters;
+
+#[allow(unused_imports)]
+use filters::*;
+pub use filters::{median_filter_3x3, remove_speckles};
+
 /// Largest P2 accepted, so that 8 summed paths fit `u16`: 8·(128 + 2000) < 65 535.
 const MAX_P2: u16 = 2000;
-/// Pixels per parallel task in the row sweeps of vertical and diagonal paths.
-const COLUMN_CHUNK: usize = 64;
 
 /// Which aggregation directions to use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -192,6 +197,18 @@ impl CostVolume {
         min_disparity_px: i32,
         num_disparities: usize,
     ) -> Result<CostVolume> {
+        Self::from_census_in(left, right, min_disparity_px, num_disparities, Vec::new())
+    }
+
+    /// [`CostVolume::from_census`] into `buffer` (resized; its old contents are overwritten),
+    /// so that a matcher can reuse the allocation from frame to frame.
+    pub(crate) fn from_census_in(
+        left: &CensusImage,
+        right: &CensusImage,
+        min_disparity_px: i32,
+        num_disparities: usize,
+        buffer: Vec<u8>,
+    ) -> Result<CostVolume> {
         if left.width != right.width
             || left.height != right.height
             || left.words_per_pixel != right.words_per_pixel
@@ -214,7 +231,11 @@ impl CostVolume {
                 left.bits
             ))
         })?;
-        let mut cost = vec![0u8; w * h * num_disparities];
+        let mut cost = buffer;
+        let n = w * h * num_disparities;
+        if cost.len() != n {
+            cost = vec![0u8; n];
+        }
         if w > 0 {
             cost.par_chunks_mut(w * num_disparities)
                 .enumerate()
@@ -244,6 +265,8 @@ impl CostVolume {
     }
 }
 
+/// Hamming costs of one row: `out[x·nd + k]` for left signature `l[x]` and right signature
+/// `r[x − dmin − k]`, `max_cost` where that pixel is outside the image.
 #[inline(always)]
 fn cost_row_impl(
     l: &[u64],
@@ -256,6 +279,12 @@ fn cost_row_impl(
 ) {
     let w = l.len() / words;
     out.fill(max_cost);
+    // The right row reversed, so that the slices of a pixel read it forwards:
+    // r[xr0 − k] = rev[w − 1 − xr0 + k] (one word per pixel; two-word signatures interleave).
+    let mut rev = vec![0u64; w * words];
+    for (j, o) in rev.chunks_exact_mut(words).enumerate() {
+        o.copy_from_slice(&r[(w - 1 - j) * words..(w - j) * words]);
+    }
     for x in 0..w {
         let o = &mut out[x * nd..(x + 1) * nd];
         // Slices k ∈ [k0, k1) have their right pixel x − dmin − k inside [0, w).
@@ -264,37 +293,26 @@ fn cost_row_impl(
         if k0 >= k1 {
             continue;
         }
-        // Right pixel of slice k is xr0 − k.
-        let xr0 = (x as i64 - dmin as i64) as usize;
+        // Right pixel of slice k is xr0 − k, at rev index (w − 1 − xr0) + k, which is ≥ 0 for
+        // k ≥ k0 (w − 1 − xr0 itself is negative when dmin < 0 puts xr0 past the right edge).
+        let start = (w as i64 - 1 - (x as i64 - dmin as i64) + k0 as i64) as usize;
+        let rs = &rev[start * words..(start + k1 - k0) * words];
         if words == 1 {
             let a = l[x];
-            for (k, c) in o[k0..k1].iter_mut().enumerate() {
-                *c = (a ^ r[xr0 - (k0 + k)]).count_ones() as u8;
+            for (c, &b) in o[k0..k1].iter_mut().zip(rs) {
+                *c = (a ^ b).count_ones() as u8;
             }
         } else {
             let (a0, a1) = (l[2 * x], l[2 * x + 1]);
-            for (k, c) in o[k0..k1].iter_mut().enumerate() {
-                let xr = xr0 - (k0 + k);
-                *c = ((a0 ^ r[2 * xr]).count_ones() + (a1 ^ r[2 * xr + 1]).count_ones()) as u8;
+            for (c, b) in o[k0..k1].iter_mut().zip(rs.chunks_exact(2)) {
+                *c = ((a0 ^ b[0]).count_ones() + (a1 ^ b[1]).count_ones()) as u8;
             }
         }
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,popcnt")]
-fn cost_row_avx2(
-    l: &[u64],
-    r: &[u64],
-    words: usize,
-    dmin: i32,
-    nd: usize,
-    max_cost: u8,
-    out: &mut [u8],
-) {
-    cost_row_impl(l, r, words, dmin, nd, max_cost, out)
-}
-
+/// [`cost_row_impl`], dispatched at run time to a copy compiled for AVX-512 (vector popcount),
+/// AVX2 or the baseline.
 fn cost_row(
     l: &[u64],
     r: &[u64],
@@ -305,406 +323,91 @@ fn cost_row(
     out: &mut [u8],
 ) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("popcnt") {
-        // SAFETY: the CPU supports the features the function was compiled for (checked above).
-        unsafe { cost_row_avx2(l, r, words, dmin, nd, max_cost, out) };
-        return;
+    {
+        #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx512vpopcntdq,avx2,popcnt")]
+        fn avx512(
+            l: &[u64],
+            r: &[u64],
+            words: usize,
+            dmin: i32,
+            nd: usize,
+            mc: u8,
+            out: &mut [u8],
+        ) {
+            cost_row_impl(l, r, words, dmin, nd, mc, out)
+        }
+        #[target_feature(enable = "avx2,popcnt")]
+        fn avx2(l: &[u64], r: &[u64], words: usize, dmin: i32, nd: usize, mc: u8, out: &mut [u8]) {
+            cost_row_impl(l, r, words, dmin, nd, mc, out)
+        }
+        if std::is_x86_feature_detected!("avx512vpopcntdq")
+            && std::is_x86_feature_detected!("avx512bw")
+            && std::is_x86_feature_detected!("avx512vl")
+        {
+            // SAFETY: the CPU supports the features the copy was compiled for (checked above).
+            unsafe { avx512(l, r, words, dmin, nd, max_cost, out) };
+            return;
+        }
+        if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("popcnt") {
+            // SAFETY: as above.
+            unsafe { avx2(l, r, words, dmin, nd, max_cost, out) };
+            return;
+        }
     }
     cost_row_impl(l, r, words, dmin, nd, max_cost, out)
 }
 
-/// One step of eq. 13 along a path: `out[1..=D]` ← L_r(p, ·) from `prev[1..=D]` (= L_r(p−r, ·),
-/// padded with [`BIG`] at 0 and D+1), and `acc` gets it added (or assigned when `ASSIGN`).
-/// Returns `min_d L_r(p, d)`.
-#[inline(always)]
-fn path_step<const ASSIGN: bool>(
-    cost: &[u8],
-    prev: &[u16],
-    prev_min: u16,
-    p1: u16,
-    p2: u16,
-    out: &mut [u16],
-    acc: &mut [u16],
-) -> u16 {
-    let d = cost.len();
-    let (lo, mid, hi) = (&prev[0..d], &prev[1..d + 1], &prev[2..d + 2]);
-    let out = &mut out[1..d + 1];
-    let acc = &mut acc[..d];
-    let jump = prev_min + p2;
-    let mut m = u16::MAX;
-    for k in 0..d {
-        let best = mid[k].min(lo[k] + p1).min(hi[k] + p1).min(jump);
-        let v = cost[k] as u16 + best - prev_min;
-        out[k] = v;
-        if ASSIGN {
-            acc[k] = v;
-        } else {
-            acc[k] += v;
-        }
-        m = m.min(v);
-    }
-    m
-}
-
-/// First pixel of a path: `L_r = C`.
-#[inline(always)]
-fn path_start<const ASSIGN: bool>(cost: &[u8], out: &mut [u16], acc: &mut [u16]) -> u16 {
-    let d = cost.len();
-    let out = &mut out[1..d + 1];
-    let acc = &mut acc[..d];
-    let mut m = u16::MAX;
-    for k in 0..d {
-        let v = cost[k] as u16;
-        out[k] = v;
-        if ASSIGN {
-            acc[k] = v;
-        } else {
-            acc[k] += v;
-        }
-        m = m.min(v);
-    }
-    m
-}
-
-/// P1, P2 and the optional intensity adaptation, as integers for the inner loops.
-#[derive(Clone, Copy)]
-struct Penalties {
-    p1: u16,
-    p2: u16,
-    scale: Option<u32>,
-}
-
-impl Penalties {
-    #[inline(always)]
-    fn p2_for(&self, a: u8, b: u8) -> u16 {
-        match self.scale {
-            None => self.p2,
-            Some(s) => {
-                let delta = (a as i32 - b as i32).unsigned_abs();
-                let p = (self.p2 as u32 * s / (s + delta)) as u16;
-                p.max(self.p1 + 1)
-            }
-        }
-    }
-}
-
-/// Left-to-right and right-to-left paths of one row; assigns `S` for the row.
-#[inline(always)]
-fn horizontal_row_impl(cost: &[u8], img: &[u8], nd: usize, pen: Penalties, sum: &mut [u16]) {
-    let w = img.len();
-    let stride = nd + 2;
-    let mut a = vec![BIG; stride];
-    let mut b = vec![BIG; stride];
-    let mut m = 0u16;
-    for x in 0..w {
-        let c = &cost[x * nd..(x + 1) * nd];
-        let s = &mut sum[x * nd..(x + 1) * nd];
-        m = if x == 0 {
-            path_start::<true>(c, &mut b, s)
-        } else {
-            path_step::<true>(c, &a, m, pen.p1, pen.p2_for(img[x], img[x - 1]), &mut b, s)
-        };
-        std::mem::swap(&mut a, &mut b);
-    }
-    for x in (0..w).rev() {
-        let c = &cost[x * nd..(x + 1) * nd];
-        let s = &mut sum[x * nd..(x + 1) * nd];
-        m = if x == w - 1 {
-            path_start::<false>(c, &mut b, s)
-        } else {
-            path_step::<false>(c, &a, m, pen.p1, pen.p2_for(img[x], img[x + 1]), &mut b, s)
-        };
-        std::mem::swap(&mut a, &mut b);
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn horizontal_row_avx2(cost: &[u8], img: &[u8], nd: usize, pen: Penalties, sum: &mut [u16]) {
-    horizontal_row_impl(cost, img, nd, pen, sum)
-}
-
-fn horizontal_row(cost: &[u8], img: &[u8], nd: usize, pen: Penalties, sum: &mut [u16]) {
-    #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked above).
-        unsafe { horizontal_row_avx2(cost, img, nd, pen, sum) };
-        return;
-    }
-    horizontal_row_impl(cost, img, nd, pen, sum)
-}
-
-/// Inputs of one row of a vertical/diagonal sweep.
-struct SweepRow<'a> {
-    /// Costs of the row being computed.
-    cost: &'a [u8],
-    /// Intensities of this row and of the previous row of the sweep.
-    img: &'a [u8],
-    img_prev: &'a [u8],
-    /// Path buffers of the previous row: `[x][dir][D+2]`, and their minima `[x][dir]`.
-    prev: &'a [u16],
-    prev_min: &'a [u16],
-    /// False on the first row of the sweep (every path starts).
-    has_prev: bool,
-    /// Column offsets of the predecessor, one per direction (0 vertical, ±1 diagonal).
-    dxs: &'a [isize],
-    nd: usize,
-    pen: Penalties,
-}
-
-/// One chunk of columns `[x0, x0 + n)` of a sweep row; adds into `sum`.
-#[inline(always)]
-fn sweep_chunk_impl(
-    row: &SweepRow,
-    x0: usize,
-    cur: &mut [u16],
-    cur_min: &mut [u16],
-    sum: &mut [u16],
-) {
-    let nd = row.nd;
-    let stride = nd + 2;
-    let nr = row.dxs.len();
-    let w = row.img.len();
-    let n = sum.len() / nd;
-    for i in 0..n {
-        let x = x0 + i;
-        let c = &row.cost[x * nd..(x + 1) * nd];
-        let s = &mut sum[i * nd..(i + 1) * nd];
-        for (r, &dx) in row.dxs.iter().enumerate() {
-            let out = &mut cur[(i * nr + r) * stride..(i * nr + r + 1) * stride];
-            let xp = x as isize + dx;
-            cur_min[i * nr + r] = if !row.has_prev || xp < 0 || xp >= w as isize {
-                path_start::<false>(c, out, s)
-            } else {
-                let xp = xp as usize;
-                let prev = &row.prev[(xp * nr + r) * stride..(xp * nr + r + 1) * stride];
-                let p2 = row.pen.p2_for(row.img[x], row.img_prev[xp]);
-                path_step::<false>(c, prev, row.prev_min[xp * nr + r], row.pen.p1, p2, out, s)
-            };
-        }
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn sweep_chunk_avx2(
-    row: &SweepRow,
-    x0: usize,
-    cur: &mut [u16],
-    cur_min: &mut [u16],
-    sum: &mut [u16],
-) {
-    sweep_chunk_impl(row, x0, cur, cur_min, sum)
-}
-
-fn sweep_chunk(row: &SweepRow, x0: usize, cur: &mut [u16], cur_min: &mut [u16], sum: &mut [u16]) {
-    #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked above).
-        unsafe { sweep_chunk_avx2(row, x0, cur, cur_min, sum) };
-        return;
-    }
-    sweep_chunk_impl(row, x0, cur, cur_min, sum)
-}
-
 /// Sums the path costs `S(p, d)` over the configured directions (`u16`, layout as the cost
-/// volume). `image` is the left image (for the adaptive P2).
+/// volume). `image` is the left image (for the adaptive P2). The matcher never stores `S`
+/// whole ([`crate::depth::aggregate`] streams it into the selection); this keeps it, for
+/// inspection and benchmarks.
 pub fn aggregate_paths(
     volume: &CostVolume,
     image: &GreyImage,
     params: &SgmParams,
 ) -> Result<Vec<u16>> {
     params.validate()?;
+    check_volume(volume, image, params)?;
+    if volume.width == 0 || volume.height == 0 {
+        return Ok(Vec::new());
+    }
+    Ok(aggregate::aggregate_all(
+        volume,
+        &image.data,
+        params,
+        &mut aggregate::AggregateScratch::default(),
+    ))
+}
+
+/// Checks that `image` and `volume` agree in size and `params` in disparity range.
+fn check_volume(volume: &CostVolume, image: &GreyImage, params: &SgmParams) -> Result<()> {
     if image.width != volume.width || image.height != volume.height {
+        return Err(Error::InvalidArgument(format!(
+            "image ({}×{}) and cost volume ({}×{}) sizes differ",
+            image.width, image.height, volume.width, volume.height
+        )));
+    }
+    if image.data.len() != image.width as usize * image.height as usize {
         return Err(Error::InvalidArgument(
-            "image and cost volume sizes differ".into(),
+            "image buffer length does not match its size".into(),
         ));
     }
-    let w = volume.width as usize;
-    let h = volume.height as usize;
-    let nd = volume.num_disparities;
-    let pen = Penalties {
-        p1: params.p1,
-        p2: params.p2,
-        scale: params.p2_intensity_scale.map(u32::from),
-    };
-    let mut sum = vec![0u16; w * h * nd];
-    if w == 0 || h == 0 {
-        return Ok(sum);
+    let n = volume.width as usize * volume.height as usize * volume.num_disparities;
+    if volume.num_disparities != params.num_disparities
+        || volume.min_disparity_px != params.min_disparity_px
+        || volume.cost.len() != n
+    {
+        return Err(Error::InvalidArgument(format!(
+            "cost volume of {} slices from {} px ({} costs) does not match the parameters' {} \
+             slices from {} px",
+            volume.num_disparities,
+            volume.min_disparity_px,
+            volume.cost.len(),
+            params.num_disparities,
+            params.min_disparity_px
+        )));
     }
-    sum.par_chunks_mut(w * nd).enumerate().for_each(|(y, s)| {
-        horizontal_row(
-            &volume.cost[y * w * nd..(y + 1) * w * nd],
-            &image.data[y * w..(y + 1) * w],
-            nd,
-            pen,
-            s,
-        );
-    });
-    let dxs: &[isize] = match params.paths {
-        SgmPaths::Four => &[0],
-        SgmPaths::Eight => &[0, -1, 1],
-    };
-    let nr = dxs.len();
-    let stride = nd + 2;
-    let mut prev = vec![BIG; w * nr * stride];
-    let mut cur = vec![BIG; w * nr * stride];
-    let mut prev_min = vec![0u16; w * nr];
-    let mut cur_min = vec![0u16; w * nr];
-    for downwards in [true, false] {
-        for step in 0..h {
-            let y = if downwards { step } else { h - 1 - step };
-            let y_prev = if downwards {
-                y.saturating_sub(1)
-            } else {
-                (y + 1).min(h - 1)
-            };
-            let row = SweepRow {
-                cost: &volume.cost[y * w * nd..(y + 1) * w * nd],
-                img: &image.data[y * w..(y + 1) * w],
-                img_prev: &image.data[y_prev * w..(y_prev + 1) * w],
-                prev: &prev,
-                prev_min: &prev_min,
-                has_prev: step > 0,
-                dxs,
-                nd,
-                pen,
-            };
-            sum[y * w * nd..(y + 1) * w * nd]
-                .par_chunks_mut(COLUMN_CHUNK * nd)
-                .zip(cur.par_chunks_mut(COLUMN_CHUNK * nr * stride))
-                .zip(cur_min.par_chunks_mut(COLUMN_CHUNK * nr))
-                .enumerate()
-                .for_each(|(ci, ((s, c), cm))| sweep_chunk(&row, ci * COLUMN_CHUNK, c, cm, s));
-            std::mem::swap(&mut prev, &mut cur);
-            std::mem::swap(&mut prev_min, &mut cur_min);
-        }
-    }
-    Ok(sum)
-}
-
-/// Result of winner-take-all on one row.
-struct WtaRow {
-    disparity: Vec<f32>,
-    confidence: Vec<f32>,
-}
-
-/// Winner-take-all, uniqueness, sub-pixel fit and left–right check for row `y`.
-fn select_row(
-    sum_row: &[u16],
-    y: usize,
-    raw: Option<&CostVolume>,
-    w: usize,
-    nd: usize,
-    dmin: i32,
-    params: &SgmParams,
-) -> WtaRow {
-    let h = raw.map_or(0, |v| v.height as usize);
-    let radius = (params.subpixel_cost_window / 2) as usize;
-    let mut disparity = vec![f32::NAN; w];
-    let mut confidence = vec![0.0f32; w];
-    let mut best_k = vec![usize::MAX; w];
-    // Right-image winners: for right pixel xr, argmin_d S(xr + d, d).
-    let mut right_cost = vec![u16::MAX; w];
-    let mut right_k = vec![usize::MAX; w];
-    let uniq = params.uniqueness_ratio;
-    for x in 0..w {
-        let s = &sum_row[x * nd..(x + 1) * nd];
-        let mut bk = 0;
-        let mut bv = u16::MAX;
-        for (k, &v) in s.iter().enumerate() {
-            if v < bv {
-                bv = v;
-                bk = k;
-            }
-            let xr = x as i64 - dmin as i64 - k as i64;
-            if xr >= 0 && (xr as usize) < w && v < right_cost[xr as usize] {
-                right_cost[xr as usize] = v;
-                right_k[xr as usize] = k;
-            }
-        }
-        let second = s
-            .iter()
-            .enumerate()
-            .filter(|&(k, _)| k + 1 < bk || k > bk + 1)
-            .map(|(_, &v)| v)
-            .min()
-            .unwrap_or(u16::MAX);
-        let xr = x as i64 - dmin as i64 - bk as i64;
-        if xr < 0 || xr >= w as i64 {
-            continue;
-        }
-        if uniq > 0.0 && (second as f32) * (1.0 - uniq) < bv as f32 {
-            continue;
-        }
-        let mut d = (dmin as i64 + bk as i64) as f32;
-        if bk > 0 && bk + 1 < nd {
-            let (a, b, c) = match raw {
-                // Raw costs summed over a window: free of the P1 plateau of S around the winner.
-                Some(vol) if radius > 0 => {
-                    let mut abc = [0u32; 3];
-                    for yy in y.saturating_sub(radius)..(y + radius + 1).min(h) {
-                        for xx in x.saturating_sub(radius)..(x + radius + 1).min(w) {
-                            let c = &vol.cost[(yy * w + xx) * nd + bk - 1..][..3];
-                            abc[0] += c[0] as u32;
-                            abc[1] += c[1] as u32;
-                            abc[2] += c[2] as u32;
-                        }
-                    }
-                    (abc[0] as f32, abc[1] as f32, abc[2] as f32)
-                }
-                _ => (s[bk - 1] as f32, bv as f32, s[bk + 1] as f32),
-            };
-            let offset = match params.subpixel {
-                SubpixelFit::None => 0.0,
-                SubpixelFit::Parabola => {
-                    let den = a - 2.0 * b + c;
-                    if den > 0.0 {
-                        (a - c) / (2.0 * den)
-                    } else {
-                        0.0
-                    }
-                }
-                SubpixelFit::Equiangular => {
-                    let den = a.max(c) - b;
-                    if den > 0.0 {
-                        (a - c) / (2.0 * den)
-                    } else {
-                        0.0
-                    }
-                }
-            };
-            d += offset.clamp(-0.5, 0.5);
-        }
-        disparity[x] = d;
-        best_k[x] = bk;
-        confidence[x] = if second == u16::MAX || second == 0 {
-            0.0
-        } else {
-            (second.saturating_sub(bv)) as f32 / second as f32
-        };
-    }
-    if let Some(max_diff) = params.lr_max_diff_px {
-        for x in 0..w {
-            if best_k[x] == usize::MAX {
-                continue;
-            }
-            let xr = (x as i64 - dmin as i64 - best_k[x] as i64) as usize;
-            let rk = right_k[xr];
-            if rk == usize::MAX || rk.abs_diff(best_k[x]) > max_diff as usize {
-                disparity[x] = f32::NAN;
-            }
-        }
-    }
-    for x in 0..w {
-        if disparity[x].is_nan() {
-            confidence[x] = 0.0;
-        }
-    }
-    WtaRow {
-        disparity,
-        confidence,
-    }
+    Ok(())
 }
 
 /// Winner-take-all over aggregated costs `sum` (layout of the cost volume) with uniqueness,
@@ -727,120 +430,15 @@ pub fn select_disparities(
             sum.len()
         )));
     }
-    let mut disp = Image::filled(width, height, f32::NAN);
-    let mut conf = Image::filled(width, height, 0.0f32);
-    if w == 0 || h == 0 {
-        return Ok((disp, conf));
-    }
-    disp.data
-        .par_chunks_mut(w)
-        .zip(conf.data.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(y, (drow, crow))| {
-            let r = select_row(
-                &sum[y * w * nd..(y + 1) * w * nd],
-                y,
-                raw,
-                w,
-                nd,
-                params.min_disparity_px,
-                params,
-            );
-            drow.copy_from_slice(&r.disparity);
-            crow.copy_from_slice(&r.confidence);
-        });
-    Ok((disp, conf))
-}
-
-/// 3×3 median over the valid (finite) neighbours of every valid pixel; invalid pixels stay NaN.
-pub fn median_filter_3x3(disparity: &Image<f32>) -> Image<f32> {
-    let w = disparity.width as usize;
-    let h = disparity.height as usize;
-    let mut out = disparity.clone();
-    if w == 0 {
-        return out;
-    }
-    out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let mut window = [0.0f32; 9];
-        for (x, o) in row.iter_mut().enumerate() {
-            if disparity.data[y * w + x].is_nan() {
-                continue;
-            }
-            let mut n = 0;
-            for yy in y.saturating_sub(1)..(y + 2).min(h) {
-                for xx in x.saturating_sub(1)..(x + 2).min(w) {
-                    let v = disparity.data[yy * w + xx];
-                    if !v.is_nan() {
-                        window[n] = v;
-                        n += 1;
-                    }
-                }
-            }
-            let vals = &mut window[..n];
-            vals.sort_unstable_by(|a, b| a.total_cmp(b));
-            *o = if n % 2 == 1 {
-                vals[n / 2]
-            } else {
-                0.5 * (vals[n / 2 - 1] + vals[n / 2])
-            };
+    if let Some(v) = raw {
+        if (v.width, v.height, v.num_disparities) != (width, height, nd) {
+            return Err(Error::InvalidArgument(format!(
+                "raw cost volume {}×{}×{} differs from the aggregated costs {w}×{h}×{nd}",
+                v.width, v.height, v.num_disparities
+            )));
         }
-    });
-    out
-}
-
-/// Removes speckles: 4-connected regions (neighbours differing by at most `max_diff_px`) of at
-/// most `max_size_px` valid pixels become NaN. Returns how many pixels were removed.
-pub fn remove_speckles(disparity: &mut Image<f32>, max_size_px: usize, max_diff_px: f32) -> usize {
-    let w = disparity.width as usize;
-    let h = disparity.height as usize;
-    if max_size_px == 0 || w == 0 || h == 0 {
-        return 0;
     }
-    let mut label = vec![0u32; w * h];
-    let mut stack: Vec<usize> = Vec::new();
-    let mut region: Vec<usize> = Vec::new();
-    let mut next = 1u32;
-    let mut removed = 0;
-    for start in 0..w * h {
-        if label[start] != 0 || disparity.data[start].is_nan() {
-            continue;
-        }
-        label[start] = next;
-        stack.push(start);
-        region.clear();
-        while let Some(i) = stack.pop() {
-            region.push(i);
-            let d = disparity.data[i];
-            let (x, y) = (i % w, i / w);
-            let mut visit = |j: usize| {
-                let dj = disparity.data[j];
-                if label[j] == 0 && !dj.is_nan() && (dj - d).abs() <= max_diff_px {
-                    label[j] = next;
-                    stack.push(j);
-                }
-            };
-            if x > 0 {
-                visit(i - 1);
-            }
-            if x + 1 < w {
-                visit(i + 1);
-            }
-            if y > 0 {
-                visit(i - w);
-            }
-            if y + 1 < h {
-                visit(i + w);
-            }
-        }
-        if region.len() <= max_size_px {
-            for &i in &region {
-                disparity.data[i] = f32::NAN;
-            }
-            removed += region.len();
-        }
-        next += 1;
-    }
-    removed
+    Ok(aggregate::select_all(sum, raw, width, height, params))
 }
 
 /// Census + semi-global matching, the baseline disparity estimator (and the initialisation of
@@ -849,28 +447,62 @@ pub fn remove_speckles(disparity: &mut Image<f32>, max_size_px: usize, max_diff_
 pub struct SgmMatcher {
     /// Matching parameters.
     pub params: SgmParams,
+    /// Buffers kept between pairs (cost volume, aggregation rows).
+    scratch: ScratchPool<SgmScratch>,
+}
+
+/// What an [`SgmMatcher`] keeps between pairs.
+#[derive(Default, Debug)]
+pub(crate) struct SgmScratch {
+    /// The cost volume's allocation.
+    pub(crate) cost: Vec<u8>,
+    pub(crate) aggregate: aggregate::AggregateScratch,
 }
 
 impl SgmMatcher {
     /// A matcher with `params` (validated).
     pub fn new(params: SgmParams) -> Result<Self> {
         params.validate()?;
-        Ok(SgmMatcher { params })
+        Ok(SgmMatcher {
+            params,
+            scratch: ScratchPool::default(),
+        })
     }
 
     /// Census cost volume of a rectified pair (left image is the reference).
     pub fn cost_volume(&self, left: &GreyImage, right: &GreyImage) -> Result<CostVolume> {
+        self.cost_volume_in(left, right, Vec::new())
+    }
+
+    /// [`SgmMatcher::cost_volume`] into a reused allocation.
+    pub(crate) fn cost_volume_in(
+        &self,
+        left: &GreyImage,
+        right: &GreyImage,
+        buffer: Vec<u8>,
+    ) -> Result<CostVolume> {
         check_pair(left, right)?;
         let (cl, cr) = rayon::join(
             || census_transform(left, &self.params.census),
             || census_transform(right, &self.params.census),
         );
-        CostVolume::from_census(
+        CostVolume::from_census_in(
             &cl?,
             &cr?,
             self.params.min_disparity_px,
             self.params.num_disparities,
+            buffer,
         )
+    }
+
+    /// The buffers of one estimate (taken from the pool, or new).
+    pub(crate) fn take_scratch(&self) -> SgmScratch {
+        self.scratch.take()
+    }
+
+    /// Returns buffers taken with [`SgmMatcher::take_scratch`].
+    pub(crate) fn put_scratch(&self, scratch: SgmScratch) {
+        self.scratch.put(scratch)
     }
 }
 
@@ -902,8 +534,12 @@ impl DisparityEstimator for SgmMatcher {
 
     fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap> {
         self.params.validate()?;
-        let volume = self.cost_volume(left, right)?;
-        self.estimate_from_volume(left, &volume)
+        let mut scratch = self.take_scratch();
+        let volume = self.cost_volume_in(left, right, std::mem::take(&mut scratch.cost))?;
+        let map = self.estimate_with(left, &volume, &mut scratch.aggregate);
+        scratch.cost = volume.cost;
+        self.put_scratch(scratch);
+        map
     }
 }
 
@@ -915,12 +551,24 @@ impl SgmMatcher {
         left: &GreyImage,
         volume: &CostVolume,
     ) -> Result<DisparityMap> {
+        let mut scratch = self.take_scratch();
+        let map = self.estimate_with(left, volume, &mut scratch.aggregate);
+        self.put_scratch(scratch);
+        map
+    }
+
+    /// [`SgmMatcher::estimate_from_volume`] with the aggregation's buffers given.
+    pub(crate) fn estimate_with(
+        &self,
+        left: &GreyImage,
+        volume: &CostVolume,
+        scratch: &mut aggregate::AggregateScratch,
+    ) -> Result<DisparityMap> {
         let p = &self.params;
         p.validate()?;
-        let sum = aggregate_paths(volume, left, p)?;
+        check_volume(volume, left, p)?;
         let (mut disparity, mut confidence) =
-            select_disparities(&sum, Some(volume), left.width, left.height, p)?;
-        drop(sum);
+            aggregate::aggregate_and_select(volume, &left.data, p, scratch);
         if p.median_filter {
             disparity = median_filter_3x3(&disparity);
         }
@@ -939,6 +587,7 @@ impl SgmMatcher {
 
 #[cfg(test)]
 mod tests {
+    use super::aggregate::{path_step, BIG};
     use super::*;
 
     #[test]
@@ -983,13 +632,37 @@ mod tests {
     }
 
     #[test]
+    fn sort9_sorts_every_binary_input_and_total_order_keys_round_trip() {
+        // 0/1 principle: a comparator network sorting all 2⁹ binary inputs sorts everything.
+        for bits in 0u32..512 {
+            let mut v: [i32; 9] = std::array::from_fn(|i| ((bits >> i) & 1) as i32);
+            sort9(&mut v);
+            assert!(v.windows(2).all(|p| p[0] <= p[1]), "{bits:09b} → {v:?}");
+        }
+        let values = [-3.5f32, -0.0, 0.0, 1e-30, 2.25, -1e30, 7.0];
+        for a in values {
+            assert_eq!(
+                from_total_order_key(total_order_key(a)).to_bits(),
+                a.to_bits()
+            );
+            for b in values {
+                assert_eq!(
+                    total_order_key(a).cmp(&total_order_key(b)),
+                    a.total_cmp(&b),
+                    "{a} vs {b}"
+                );
+            }
+        }
+    }
+
+    #[test]
     fn path_step_matches_the_recurrence() {
         // D = 4, prev L = [5, 1, 9, 20] (padded), C = [3, 0, 7, 2], P1 = 2, P2 = 6.
         let prev = [BIG, 5, 1, 9, 20, BIG];
         let cost = [3u8, 0, 7, 2];
         let mut out = [BIG; 6];
         let mut acc = [100u16; 4];
-        let m = path_step::<false>(&cost, &prev, 1, 2, 6, &mut out, &mut acc);
+        let m = path_step::<false, u16>(&cost, &prev, 1, 2, 6, &mut out, &mut acc);
         // d0: 3 + min(5, 1+2, 1+6) − 1 = 5; d1: 0 + min(1, ..) − 1 = 0;
         // d2: 7 + min(9, 1+2, 20+2, 7) − 1 = 9; d3: 2 + min(20, 9+2, 7) − 1 = 8.
         assert_eq!(&out[1..5], &[5, 0, 9, 8]);

@@ -216,3 +216,196 @@ fn middlebury_motorcycle_bad2() {
     );
     assert!(all.epe_px < 1.0 && all.density_pct > 85.0, "{all:?}");
 }
+
+/// Eq. 13 of Hirschmüller (2008) written out directly: every direction walked on its own, from
+/// the image border, summed into `S`. The reference for the streamed two-pass aggregation.
+fn reference_aggregation(
+    volume: &denser::depth::sgm::CostVolume,
+    image: &GreyImage,
+    p: &SgmParams,
+) -> Vec<u16> {
+    let (w, h, nd) = (
+        volume.width as i64,
+        volume.height as i64,
+        volume.num_disparities,
+    );
+    let p2_for = |a: u8, b: u8| -> u32 {
+        match p.p2_intensity_scale {
+            None => p.p2 as u32,
+            Some(s) => {
+                let s = s as u32;
+                let d = (a as i32 - b as i32).unsigned_abs();
+                (p.p2 as u32 * s / (s + d)).max(p.p1 as u32 + 1)
+            }
+        }
+    };
+    let dirs: &[(i64, i64)] = match p.paths {
+        denser::depth::sgm::SgmPaths::Four => &[(1, 0), (-1, 0), (0, 1), (0, -1)],
+        denser::depth::sgm::SgmPaths::Eight => &[
+            (1, 0),
+            (-1, 0),
+            (0, 1),
+            (0, -1),
+            (1, 1),
+            (-1, 1),
+            (1, -1),
+            (-1, -1),
+        ],
+    };
+    let mut sum = vec![0u32; (w * h) as usize * nd];
+    let mut l = vec![0u32; (w * h) as usize * nd];
+    for &(dx, dy) in dirs {
+        // Visit pixels in an order where each predecessor (x − dx, y − dy) comes first.
+        let ys: Vec<i64> = if dy >= 0 {
+            (0..h).collect()
+        } else {
+            (0..h).rev().collect()
+        };
+        let xs: Vec<i64> = if dx >= 0 {
+            (0..w).collect()
+        } else {
+            (0..w).rev().collect()
+        };
+        for &y in &ys {
+            for &x in &xs {
+                let i = (y * w + x) as usize;
+                let c = volume.pixel_costs(x as u32, y as u32);
+                let (xp, yp) = (x - dx, y - dy);
+                let inside = xp >= 0 && xp < w && yp >= 0 && yp < h;
+                for k in 0..nd {
+                    let v = if !inside {
+                        c[k] as u32
+                    } else {
+                        let j = (yp * w + xp) as usize;
+                        let prev = &l[j * nd..(j + 1) * nd];
+                        let m = *prev.iter().min().unwrap();
+                        let p2 = p2_for(image.data[i], image.data[j]);
+                        let mut best = prev[k].min(m + p2);
+                        if k > 0 {
+                            best = best.min(prev[k - 1] + p.p1 as u32);
+                        }
+                        if k + 1 < nd {
+                            best = best.min(prev[k + 1] + p.p1 as u32);
+                        }
+                        c[k] as u32 + best - m
+                    };
+                    l[i * nd + k] = v;
+                }
+            }
+        }
+        for (s, &v) in sum.iter_mut().zip(&l) {
+            *s += v;
+        }
+    }
+    sum.into_iter().map(|v| u16::try_from(v).unwrap()).collect()
+}
+
+/// The streamed two-pass aggregation (both passes, in any interleaving) equals eq. 13 summed
+/// direction by direction, bit for bit, and the matcher's fused selection equals selecting on
+/// that sum; for 8 and 4 paths, u8 and u16 path storage (P2 ≤ 192 and P2 = 1500), and a
+/// disparity range starting below zero.
+#[test]
+fn streamed_aggregation_equals_direct_eq13() {
+    use denser::depth::sgm::{aggregate_paths, select_disparities, SgmPaths};
+    let (w, h) = (53, 37);
+    let (left, right, _) = planar_pair(w, h, 6.0, 0.05, 0.02, 11);
+    for (paths, p2, dmin, nd) in [
+        (SgmPaths::Eight, 110, 0, 24),
+        (SgmPaths::Four, 110, 0, 24),
+        (SgmPaths::Eight, 1500, -3, 21),
+        (SgmPaths::Four, 1500, 2, 17),
+    ] {
+        let params = SgmParams {
+            num_disparities: nd,
+            min_disparity_px: dmin,
+            paths,
+            p2,
+            ..SgmParams::default()
+        };
+        let m = SgmMatcher::new(params).unwrap();
+        let volume = m.cost_volume(&left, &right).unwrap();
+        let direct = reference_aggregation(&volume, &left, &params);
+        let streamed = aggregate_paths(&volume, &left, &params).unwrap();
+        assert_eq!(streamed, direct, "{paths:?}, P2 {p2}");
+        // Selection streamed with the aggregation = selection on the whole S (before the
+        // median and speckle filters, which both paths share).
+        let unfiltered = SgmMatcher::new(SgmParams {
+            median_filter: false,
+            speckle_max_size_px: 0,
+            ..params
+        })
+        .unwrap();
+        let fused = unfiltered.estimate(&left, &right).unwrap();
+        let (d, c) = select_disparities(&direct, Some(&volume), w, h, &params).unwrap();
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&fused.disparity_px.data), bits(&d.data), "{paths:?}");
+        assert_eq!(
+            bits(&fused.confidence.unwrap().data),
+            bits(&c.data),
+            "{paths:?}"
+        );
+        assert!(
+            fused
+                .disparity_px
+                .data
+                .iter()
+                .filter(|v| v.is_finite())
+                .count()
+                > (w * h / 2) as usize
+        );
+    }
+}
+
+/// The vectorised 3×3 median equals sorting each window's valid values (`total_cmp`) and
+/// taking the middle one (or the mean of the two middle ones), NaN holes included.
+#[test]
+fn median_filter_equals_sorting_each_window() {
+    use denser::depth::sgm::median_filter_3x3;
+    let (w, h) = (45, 7);
+    let mut rng = common::Rng(5);
+    let data: Vec<f32> = (0..w * h)
+        .map(|_| {
+            let u = rng.uniform();
+            if u < 0.2 {
+                f32::NAN
+            } else if u < 0.25 {
+                -0.0
+            } else {
+                (rng.uniform() * 40.0) as f32
+            }
+        })
+        .collect();
+    let img = Image {
+        width: w as u32,
+        height: h as u32,
+        data,
+    };
+    let out = median_filter_3x3(&img);
+    for y in 0..h {
+        for x in 0..w {
+            let c = img.data[y * w + x];
+            let got = out.data[y * w + x];
+            if c.is_nan() {
+                assert!(got.is_nan());
+                continue;
+            }
+            let mut vals = Vec::new();
+            for yy in y.saturating_sub(1)..(y + 2).min(h) {
+                for xx in x.saturating_sub(1)..(x + 2).min(w) {
+                    let v = img.data[yy * w + xx];
+                    if !v.is_nan() {
+                        vals.push(v);
+                    }
+                }
+            }
+            vals.sort_by(|a, b| a.total_cmp(b));
+            let n = vals.len();
+            let want = if n % 2 == 1 {
+                vals[n / 2]
+            } else {
+                0.5 * (vals[n / 2 - 1] + vals[n / 2])
+            };
+            assert_eq!(got.to_bits(), want.to_bits(), "({x}, {y})");
+        }
+    }
+}

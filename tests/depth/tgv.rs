@@ -174,7 +174,7 @@ fn primal_dual_decreases_the_convex_energy() {
             "{reg:?}: {energies:?}"
         );
         // And the result beats the noisy target itself (u = a, v = 0).
-        let at_a = TgvProblem::new(&a, w, h, reg, 1.0, 5.0, pb.tensors.clone()).unwrap();
+        let at_a = TgvProblem::new(&a, w, h, reg, 1.0, 5.0, pb.tensors().to_vec()).unwrap();
         assert!(energies[5] < at_a.energy(&a, theta).unwrap(), "{reg:?}");
     }
 }

@@ -1,0 +1,508 @@
+//! Semi-global path aggregation and winner selection, streamed row by row: the hot part of
+//! [`crate::depth::sgm`] (its module docs give the recurrence, eq. 13 of Hirschmüller 2008).
+//!
+//! The 8 (or 4) directions are split into two passes that run at the same time on two threads:
+//! a forward pass over the rows from top to bottom (left→right, and the three paths entering
+//! from the row above: ↓, ↘, ↙) and a backward pass from bottom to top (right→left, ↑, ↗, ↖).
+//! Each pass keeps one row of path costs per direction, updated in place pixel by pixel, never
+//! a whole `L_r`. For every row, the pass that reaches it first stores its four-path sum in a
+//! shared buffer (claiming the row with an atomic compare-and-swap, so it never waits while
+//! holding a claim); the second adds its own sum pixel by pixel and selects the winner at once
+//! (winner-take-all, uniqueness, the right image's winners), then finishes the row (sub-pixel
+//! fit, left–right check, confidence). `S` is thus never stored whole: each row is written once
+//! and read once, by whichever pass comes second, and two passes of 4 directions replace three
+//! sweeps over an 8-direction sum in memory.
+//!
+//! Sums of integers do not depend on the order of addition, so the result is bit-identical to
+//! summing the paths one after the other (`tests/depth/sgm.rs` checks it against a direct
+//! implementation of eq. 13). When the two closures of `rayon::join` run one after the other (no
+//! idle worker), the first pass claims every row and the second selects every row: same result,
+//! no waiting.
+//!
+//! The inner loops run over the disparities of one pixel (contiguous in the cost volume) and are
+//! compiled three times on x86-64 (AVX-512BW, AVX2, baseline), picked at run time.
+
+use super::sgm::{CostVolume, SgmParams, SgmPaths, SubpixelFit};
+use crate::frame::Image;
+use std::sync::atomic::{AtomicU8, Ordering};
+
+/// Sentinel for "no such disparity" in padded path buffers; larger than any path cost plus P2,
+/// small enough that adding P1 cannot overflow `u16`.
+pub(crate) const BIG: u16 = 16_384;
+
+/// Row claim states.
+const FREE: u8 = 0;
+const CLAIMED: u8 = 1;
+const STORED: u8 = 2;
+
+/// P1, P2 and the optional intensity adaptation, as integers for the inner loops.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Penalties {
+    pub(crate) p1: u16,
+    pub(crate) p2: u16,
+    /// P2 for every intensity step |ΔI| (0–255): `max(P1 + 1, P2·s / (s + |ΔI|))` with the
+    /// adaptation's scale `s`, or P2 throughout without it.
+    table: [u16; 256],
+}
+
+impl Penalties {
+    pub(crate) fn of(params: &SgmParams) -> Self {
+        let (p1, p2) = (params.p1, params.p2);
+        let table = std::array::from_fn(|delta| match params.p2_intensity_scale {
+            None => p2,
+            Some(s) => {
+                let s = s as u32;
+                let p = (p2 as u32 * s / (s + delta as u32)) as u16;
+                p.max(p1 + 1)
+            }
+        });
+        Penalties { p1, p2, table }
+    }
+
+    /// P2 between consecutive path pixels of intensities `a` and `b`.
+    #[inline(always)]
+    pub(crate) fn p2_for(&self, a: u8, b: u8) -> u16 {
+        self.table[a.abs_diff(b) as usize]
+    }
+}
+
+/// How path costs `L_r` are stored between pixels: `u8` when every `L_r` fits (the census's
+/// largest cost plus P2 at most 254: `L_r ≤ C + P2`), else `u16`, so that a pass's row of path
+/// costs stays in the core's cache. The arithmetic is `u16` either way.
+pub(crate) trait Cell: Copy + Default + Send + Sync + std::fmt::Debug + 'static {
+    /// Padding before the first and after the last slice: never the best predecessor (it is at
+    /// least the largest cost plus P2, so `PAD + P1` loses to the jump `min + P2`).
+    const PAD: Self;
+    /// The value, for the arithmetic.
+    fn widen(self) -> u16;
+    /// A value computed in `u16` (fits by the choice of the type).
+    fn narrow(v: u16) -> Self;
+}
+
+impl Cell for u8 {
+    const PAD: u8 = u8::MAX;
+    #[inline(always)]
+    fn widen(self) -> u16 {
+        self as u16
+    }
+    #[inline(always)]
+    fn narrow(v: u16) -> u8 {
+        v as u8
+    }
+}
+
+impl Cell for u16 {
+    const PAD: u16 = BIG;
+    #[inline(always)]
+    fn widen(self) -> u16 {
+        self
+    }
+    #[inline(always)]
+    fn narrow(v: u16) -> u16 {
+        v
+    }
+}
+
+/// One step of eq. 13 along a path: `out[1..=D]` ← L_r(p, ·) from `prev[1..=D]` (= L_r(p−r, ·),
+/// padded with [`Cell::PAD`] at 0 and D+1), and `acc` gets it added (or assigned when
+/// `ASSIGN`). Returns `min_d L_r(p, d)`.
+#[inline(always)]
+pub(crate) fn path_step<const ASSIGN: bool, T: Cell>(
+    cost: &[u8],
+    prev: &[T],
+    prev_min: u16,
+    p1: u16,
+    p2: u16,
+    out: &mut [T],
+    acc: &mut [u16],
+) -> u16 {
+    let d = cost.len();
+    let (lo, mid, hi) = (&prev[0..d], &prev[1..d + 1], &prev[2..d + 2]);
+    let out = &mut out[1..d + 1];
+    let acc = &mut acc[..d];
+    let jump = prev_min + p2;
+    let mut m = u16::MAX;
+    for k in 0..d {
+        let best = mid[k]
+            .widen()
+            .min(lo[k].widen() + p1)
+            .min(hi[k].widen() + p1)
+            .min(jump);
+        let v = cost[k] as u16 + best - prev_min;
+        out[k] = T::narrow(v);
+        if ASSIGN {
+            acc[k] = v;
+        } else {
+            acc[k] += v;
+        }
+        m = m.min(v);
+    }
+    m
+}
+
+/// First pixel of a path: `L_r = C`.
+#[inline(always)]
+pub(crate) fn path_start<const ASSIGN: bool, T: Cell>(
+    cost: &[u8],
+    out: &mut [T],
+    acc: &mut [u16],
+) -> u16 {
+    let d = cost.len();
+    let out = &mut out[1..d + 1];
+    let acc = &mut acc[..d];
+    let mut m = u16::MAX;
+    for k in 0..d {
+        let v = cost[k] as u16;
+        out[k] = T::narrow(v);
+        if ASSIGN {
+            acc[k] = v;
+        } else {
+            acc[k] += v;
+        }
+        m = m.min(v);
+    }
+    m
+}
+
+/// [`path_step`] for the 4 directions of a pass at once (all continuing a path): one pass
+/// over the disparities computes every direction's `L_r` and their sum, which `acc` receives
+/// (assigned). Returns the directions' minima. Separate slice arguments (not arrays of slices)
+/// let the compiler know that outputs and inputs do not overlap, so the loop vectorises without
+/// run-time overlap checks.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn path_steps4<T: Cell>(
+    cost: &[u8],
+    (pa, pb, pc, pd): (&[T], &[T], &[T], &[T]),
+    prev_min: [u16; 4],
+    p1: u16,
+    p2: [u16; 4],
+    oa: &mut [T],
+    ob: &mut [T],
+    oc: &mut [T],
+    od: &mut [T],
+    acc: &mut [u16],
+) -> [u16; 4] {
+    let d = cost.len();
+    let acc = &mut acc[..d];
+    let (pa, pb, pc, pd) = (&pa[..d + 2], &pb[..d + 2], &pc[..d + 2], &pd[..d + 2]);
+    let (oa, ob, oc, od) = (
+        &mut oa[1..d + 1],
+        &mut ob[1..d + 1],
+        &mut oc[1..d + 1],
+        &mut od[1..d + 1],
+    );
+    let [ja, jb, jc, jd] = [0, 1, 2, 3].map(|r| prev_min[r] + p2[r]);
+    let [pma, pmb, pmc, pmd] = prev_min;
+    // Separate scalar minima (not an array): recognised as reductions, so the loop vectorises.
+    let (mut ma, mut mb, mut mc, mut md) = (u16::MAX, u16::MAX, u16::MAX, u16::MAX);
+    for k in 0..d {
+        let c = cost[k] as u16;
+        let ba = pa[k + 1]
+            .widen()
+            .min(pa[k].widen() + p1)
+            .min(pa[k + 2].widen() + p1)
+            .min(ja);
+        let bb = pb[k + 1]
+            .widen()
+            .min(pb[k].widen() + p1)
+            .min(pb[k + 2].widen() + p1)
+            .min(jb);
+        let bc = pc[k + 1]
+            .widen()
+            .min(pc[k].widen() + p1)
+            .min(pc[k + 2].widen() + p1)
+            .min(jc);
+        let bd = pd[k + 1]
+            .widen()
+            .min(pd[k].widen() + p1)
+            .min(pd[k + 2].widen() + p1)
+            .min(jd);
+        let (va, vb, vc, vd) = (c + ba - pma, c + bb - pmb, c + bc - pmc, c + bd - pmd);
+        oa[k] = T::narrow(va);
+        ob[k] = T::narrow(vb);
+        oc[k] = T::narrow(vc);
+        od[k] = T::narrow(vd);
+        acc[k] = va + vb + vc + vd;
+        ma = ma.min(va);
+        mb = mb.min(vb);
+        mc = mc.min(vc);
+        md = md.min(vd);
+    }
+    [ma, mb, mc, md]
+}
+
+/// [`path_steps4`] for the pass that comes second to a row: the 4-path sum plus the other
+/// pass's (`theirs`) gives `S` of the pixel, written to `total`; returns the directions' minima
+/// and `min_d S`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn path_steps4_total<T: Cell>(
+    cost: &[u8],
+    (pa, pb, pc, pd): (&[T], &[T], &[T], &[T]),
+    prev_min: [u16; 4],
+    p1: u16,
+    p2: [u16; 4],
+    oa: &mut [T],
+    ob: &mut [T],
+    oc: &mut [T],
+    od: &mut [T],
+    theirs: &[u16],
+    total: &mut [u16],
+) -> ([u16; 4], u16) {
+    let d = cost.len();
+    let (theirs, total) = (&theirs[..d], &mut total[..d]);
+    let (pa, pb, pc, pd) = (&pa[..d + 2], &pb[..d + 2], &pc[..d + 2], &pd[..d + 2]);
+    let (oa, ob, oc, od) = (
+        &mut oa[1..d + 1],
+        &mut ob[1..d + 1],
+        &mut oc[1..d + 1],
+        &mut od[1..d + 1],
+    );
+    let [ja, jb, jc, jd] = [0, 1, 2, 3].map(|r| prev_min[r] + p2[r]);
+    let [pma, pmb, pmc, pmd] = prev_min;
+    let (mut ma, mut mb, mut mc, mut md) = (u16::MAX, u16::MAX, u16::MAX, u16::MAX);
+    let mut mt = u16::MAX;
+    for k in 0..d {
+        let c = cost[k] as u16;
+        let best = |p: &[T], j: u16| {
+            p[k + 1]
+                .widen()
+                .min(p[k].widen() + p1)
+                .min(p[k + 2].widen() + p1)
+                .min(j)
+        };
+        let (ba, bb, bc, bd) = (best(pa, ja), best(pb, jb), best(pc, jc), best(pd, jd));
+        let (va, vb, vc, vd) = (c + ba - pma, c + bb - pmb, c + bc - pmc, c + bd - pmd);
+        oa[k] = T::narrow(va);
+        ob[k] = T::narrow(vb);
+        oc[k] = T::narrow(vc);
+        od[k] = T::narrow(vd);
+        let t = va + vb + vc + vd + theirs[k];
+        total[k] = t;
+        ma = ma.min(va);
+        mb = mb.min(vb);
+        mc = mc.min(vc);
+        md = md.min(vd);
+        mt = mt.min(t);
+    }
+    ([ma, mb, mc, md], mt)
+}
+
+/// [`path_steps4`] for the 2 directions of a 4-path pass.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn path_steps2<T: Cell>(
+    cost: &[u8],
+    (pa, pb): (&[T], &[T]),
+    prev_min: [u16; 2],
+    p1: u16,
+    p2: [u16; 2],
+    oa: &mut [T],
+    ob: &mut [T],
+    acc: &mut [u16],
+) -> [u16; 2] {
+    let d = cost.len();
+    let acc = &mut acc[..d];
+    let (pa, pb) = (&pa[..d + 2], &pb[..d + 2]);
+    let (oa, ob) = (&mut oa[1..d + 1], &mut ob[1..d + 1]);
+    let (ja, jb) = (prev_min[0] + p2[0], prev_min[1] + p2[1]);
+    let (pma, pmb) = (prev_min[0], prev_min[1]);
+    let (mut ma, mut mb) = (u16::MAX, u16::MAX);
+    for k in 0..d {
+        let c = cost[k] as u16;
+        let ba = pa[k + 1]
+            .widen()
+            .min(pa[k].widen() + p1)
+            .min(pa[k + 2].widen() + p1)
+            .min(ja);
+        let bb = pb[k + 1]
+            .widen()
+            .min(pb[k].widen() + p1)
+            .min(pb[k + 2].widen() + p1)
+            .min(jb);
+        let (va, vb) = (c + ba - pma, c + bb - pmb);
+        oa[k] = T::narrow(va);
+        ob[k] = T::narrow(vb);
+        acc[k] = va + vb;
+        ma = ma.min(va);
+        mb = mb.min(vb);
+    }
+    [ma, mb]
+}
+
+/// The arguments of [`path_steps4`] after the cost: predecessors, their minima, P1, P2s,
+/// outputs, sum.
+type Steps4Args<'a, T> = (
+    (&'a [T], &'a [T], &'a [T], &'a [T]),
+    [u16; 4],
+    u16,
+    [u16; 4],
+    [&'a mut [T]; 4],
+    &'a mut [u16],
+);
+
+/// The pixel kernels compiled for one instruction set. They stay out of line: as separate
+/// functions their slice arguments are known not to overlap, so the loops vectorise (inlined
+/// into the pass, with the slices taken from shared buffers, they did not).
+trait Isa {
+    /// [`winner`].
+    fn winner(
+        total: &[u16],
+        best: u16,
+        right: (&mut [u16], &mut [u16]),
+        x: usize,
+        w: usize,
+        dmin: i32,
+    ) -> (usize, u16);
+    fn steps4<T: Cell>(cost: &[u8], a: Steps4Args<'_, T>) -> [u16; 4];
+    fn steps4_total<T: Cell>(cost: &[u8], a: Steps4Args<'_, T>, theirs: &[u16]) -> ([u16; 4], u16);
+    #[allow(clippy::too_many_arguments)]
+    fn steps2<T: Cell>(
+        cost: &[u8],
+        prev: (&[T], &[T]),
+        prev_min: [u16; 2],
+        p1: u16,
+        p2: [u16; 2],
+        oa: &mut [T],
+        ob: &mut [T],
+        acc: &mut [u16],
+    ) -> [u16; 2];
+}
+
+macro_rules! isa {
+    ($name:ident, $win:ident, $s4:ident, $s4t:ident, $s2:ident, $($feature:literal)?) => {
+        struct $name;
+        $(#[target_feature(enable = $feature)])?
+        #[inline(never)]
+        fn $win(
+            total: &[u16],
+            best: u16,
+            (right_cost, right_k): (&mut [u16], &mut [u16]),
+            x: usize,
+            w: usize,
+            dmin: i32,
+        ) -> (usize, u16) {
+            winner(total, best, right_cost, right_k, x, w, dmin)
+        }
+        $(#[target_feature(enable = $feature)])?
+        #[inline(never)]
+        fn $s4<T: Cell>(cost: &[u8], a: Steps4Args<'_, T>) -> [u16; 4] {
+            let (prev, pmin, p1, p2, [oa, ob, oc, od], acc) = a;
+            path_steps4(cost, prev, pmin, p1, p2, oa, ob, oc, od, acc)
+        }
+        $(#[target_feature(enable = $feature)])?
+        #[inline(never)]
+        fn $s4t<T: Cell>(
+            cost: &[u8],
+            a: Steps4Args<'_, T>,
+            theirs: &[u16],
+        ) -> ([u16; 4], u16) {
+            let (prev, pmin, p1, p2, [oa, ob, oc, od], total) = a;
+            path_steps4_total(cost, prev, pmin, p1, p2, oa, ob, oc, od, theirs, total)
+        }
+        $(#[target_feature(enable = $feature)])?
+        #[inline(never)]
+        #[allow(clippy::too_many_arguments)]
+        fn $s2<T: Cell>(
+            cost: &[u8],
+            prev: (&[T], &[T]),
+            prev_min: [u16; 2],
+            p1: u16,
+            p2: [u16; 2],
+            oa: &mut [T],
+            ob: &mut [T],
+            acc: &mut [u16],
+        ) -> [u16; 2] {
+            path_steps2(cost, prev, prev_min, p1, p2, oa, ob, acc)
+        }
+        impl Isa for $name {
+            #[inline(always)]
+            fn winner(
+                total: &[u16],
+                best: u16,
+                right: (&mut [u16], &mut [u16]),
+                x: usize,
+                w: usize,
+                dmin: i32,
+            ) -> (usize, u16) {
+                // SAFETY: `run_pass` and `select_row` instantiate this instruction set only
+                // where the CPU has it.
+                #[allow(unused_unsafe)]
+                unsafe {
+                    $win(total, best, right, x, w, dmin)
+                }
+            }
+            #[inline(always)]
+            fn steps4<T: Cell>(cost: &[u8], a: Steps4Args<'_, T>) -> [u16; 4] {
+                // SAFETY: `run_pass` instantiates this instruction set only where the CPU has
+                // it.
+                #[allow(unused_unsafe)]
+                unsafe {
+                    $s4(cost, a)
+                }
+            }
+            #[inline(always)]
+            fn steps4_total<T: Cell>(
+                cost: &[u8],
+                a: Steps4Args<'_, T>,
+                theirs: &[u16],
+            ) -> ([u16; 4], u16) {
+                // SAFETY: as above.
+                #[allow(unused_unsafe)]
+                unsafe {
+                    $s4t(cost, a, theirs)
+                }
+            }
+            #[inline(always)]
+            fn steps2<T: Cell>(
+                cost: &[u8],
+                prev: (&[T], &[T]),
+                prev_min: [u16; 2],
+                p1: u16,
+                p2: [u16; 2],
+                oa: &mut [T],
+                ob: &mut [T],
+                acc: &mut [u16],
+            ) -> [u16; 2] {
+                // SAFETY: as above.
+                #[allow(unused_unsafe)]
+                unsafe {
+                    $s2(cost, prev, prev_min, p1, p2, oa, ob, acc)
+                }
+            }
+        }
+    };
+}
+
+isa!(
+    Baseline,
+    winner_baseline,
+    steps4_baseline,
+    steps4t_baseline,
+    steps2_baseline,
+);
+#[cfg(target_arch = "x86_64")]
+isa!(
+    Avx2,
+    winner_avx2,
+    steps4_avx2,
+    steps4t_avx2,
+    steps2_avx2,
+    "avx2"
+);
+#[cfg(target_arch = "x86_64")]
+isa!(
+    Avx512,
+    winner_avx512,
+    steps4_avx512,
+    steps4t_avx512,
+    steps2_avx512,
+    "avx512f,avx512bw,avx512vl,avx2"
+);
+
+mod pass;
+mod select;
+
+pub(crate) use pass::*;
+pub(crate) use select::*;

@@ -1,0 +1,494 @@
+//! The two passes of the streamed aggregation (see [`super`]): their buffers, the row claims
+//! they share, and the loop over rows and pixels of one pass.
+
+#[allow(unused_imports)]
+use super::*;
+
+/// Rows of a buffer that two threads share, each row used by one thread at a time (the claim
+/// protocol of the module docs decides which).
+pub(super) struct SharedRows<T> {
+    pub(super) ptr: *mut T,
+    pub(super) row_len: usize,
+    pub(super) rows: usize,
+}
+
+// SAFETY: the buffer outlives the passes (it is borrowed for the whole `rayon::join`), and the
+// claim protocol gives every row to one thread at a time; `row` documents the rule.
+unsafe impl<T: Send> Send for SharedRows<T> {}
+unsafe impl<T: Send> Sync for SharedRows<T> {}
+
+impl<T> SharedRows<T> {
+    pub(super) fn new(buf: &mut [T], row_len: usize, rows: usize) -> Self {
+        assert!(
+            buf.len() >= row_len * rows,
+            "shared rows need {rows}×{row_len} values"
+        );
+        SharedRows {
+            ptr: buf.as_mut_ptr(),
+            row_len,
+            rows,
+        }
+    }
+
+    /// Row `y`.
+    ///
+    /// # Safety
+    /// No other reference to row `y` may be alive: a row is written by the pass that claimed it
+    /// until it publishes `STORED` (release), and afterwards used by the other pass only (after
+    /// an acquire load of `STORED`).
+    #[allow(clippy::mut_from_ref)]
+    unsafe fn row(&self, y: usize) -> &mut [T] {
+        assert!(y < self.rows);
+        // SAFETY: in bounds (asserted above and in `new`); exclusive by the caller's contract.
+        unsafe { std::slice::from_raw_parts_mut(self.ptr.add(y * self.row_len), self.row_len) }
+    }
+}
+
+/// Buffers of one pass.
+#[derive(Default, Debug)]
+pub(super) struct PassScratch {
+    /// Path costs in `u8` or `u16` ([`Cell`]).
+    pub(super) narrow: PathRows<u8>,
+    pub(super) wide: PathRows<u16>,
+    /// The pass's path sum at one pixel (when it comes second to the row).
+    pub(super) acc: Vec<u16>,
+    pub(super) select: RowSelect,
+}
+
+/// A pass's rows of path costs, updated in place pixel by pixel.
+#[derive(Default, Debug)]
+pub(super) struct PathRows<T> {
+    /// `L_r` of the row, `[x][dir][D + 2]`, padded with [`Cell::PAD`]: pixels already visited
+    /// in this row hold the current row's values, the others the previous row's.
+    pub(super) slots: Vec<T>,
+    /// Their minima, `[x][dir]`.
+    pub(super) slot_min: Vec<u16>,
+    /// The previous row's values of the last two pixels visited: `[2][dir][D + 2]`.
+    pub(super) save: Vec<T>,
+    pub(super) save_min: Vec<u16>,
+    /// The horizontal path at the previous and current pixel: `[2][D + 2]`.
+    pub(super) horiz: Vec<T>,
+}
+
+impl<T: Cell> PathRows<T> {
+    pub(super) fn prepare(&mut self, w: usize, nd: usize, nr: usize) {
+        let stride = nd + 2;
+        fn fill<V: Copy>(v: &mut Vec<V>, n: usize, value: V) {
+            v.clear();
+            v.resize(n, value);
+        }
+        fill(&mut self.slots, w * nr * stride, T::PAD);
+        fill(&mut self.slot_min, w * nr, 0);
+        fill(&mut self.save, 2 * nr * stride, T::PAD);
+        fill(&mut self.save_min, 2 * nr, 0);
+        fill(&mut self.horiz, 2 * stride, T::PAD);
+    }
+}
+
+/// Reusable buffers of the aggregation (kept by the matchers between pairs, so that the large
+/// ones are not mapped in again for every frame).
+#[derive(Default, Debug)]
+pub(crate) struct AggregateScratch {
+    /// The first pass's four-path sums, row by row (`w·h·D`, each row written by one pass).
+    partial: Vec<u16>,
+    passes: [PassScratch; 2],
+}
+
+/// Inputs of both passes.
+pub(super) struct Job<'a> {
+    pub(super) volume: &'a CostVolume,
+    pub(super) image: &'a [u8],
+    pub(super) params: &'a SgmParams,
+    pub(super) pen: Penalties,
+    /// Column offsets of the previous-row predecessors (0 vertical, ±1 diagonal).
+    pub(super) dxs: &'a [isize],
+    pub(super) finish: Finish,
+    pub(super) claims: &'a [AtomicU8],
+    pub(super) partial: SharedRows<u16>,
+    pub(super) disparity: SharedRows<f32>,
+    pub(super) confidence: SharedRows<f32>,
+}
+
+pub(super) fn wait_stored(claim: &AtomicU8) {
+    let mut spins = 0u32;
+    while claim.load(Ordering::Acquire) != STORED {
+        if spins < 256 {
+            std::hint::spin_loop();
+            spins += 1;
+        } else {
+            std::thread::yield_now();
+        }
+    }
+}
+
+/// One pass over every row (module docs).
+#[inline(always)]
+pub(super) fn run_pass_impl<I: Isa>(job: &Job, forward: bool, ps: &mut PassScratch) {
+    let narrow = job.volume.max_cost as u16 + job.pen.p2 <= 254;
+    match (job.dxs.len(), narrow) {
+        (3, true) => run_pass_n::<3, 4, u8, I>(job, forward, ps),
+        (3, false) => run_pass_n::<3, 4, u16, I>(job, forward, ps),
+        (_, true) => run_pass_n::<1, 2, u8, I>(job, forward, ps),
+        (_, false) => run_pass_n::<1, 2, u16, I>(job, forward, ps),
+    }
+}
+
+/// The path rows of type `T` in `ps`.
+pub(super) trait RowsOf<T> {
+    fn rows_and_rest(&mut self) -> (&mut PathRows<T>, &mut Vec<u16>, &mut RowSelect);
+}
+
+impl RowsOf<u8> for PassScratch {
+    fn rows_and_rest(&mut self) -> (&mut PathRows<u8>, &mut Vec<u16>, &mut RowSelect) {
+        (&mut self.narrow, &mut self.acc, &mut self.select)
+    }
+}
+
+impl RowsOf<u16> for PassScratch {
+    fn rows_and_rest(&mut self) -> (&mut PathRows<u16>, &mut Vec<u16>, &mut RowSelect) {
+        (&mut self.wide, &mut self.acc, &mut self.select)
+    }
+}
+
+/// [`run_pass_impl`] with `NR` previous-row directions (`N = NR + 1` with the horizontal one)
+/// and path costs stored as `T`.
+#[inline(always)]
+pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
+    job: &Job,
+    forward: bool,
+    ps: &mut PassScratch,
+) where
+    PassScratch: RowsOf<T>,
+{
+    let vol = job.volume;
+    let (w, h, nd) = (vol.width as usize, vol.height as usize, vol.num_disparities);
+    let stride = nd + 2;
+    let dxs: [isize; NR] = std::array::from_fn(|r| job.dxs[r]);
+    let (p1, pen) = (job.pen.p1, job.pen);
+    let (rows, own, select) = ps.rows_and_rest();
+    rows.prepare(w, nd, NR);
+    // A new volume: no window sums to continue from.
+    select.colsum_row = None;
+    own.clear();
+    own.resize(nd, 0);
+    let PathRows {
+        slots,
+        slot_min,
+        save,
+        save_min,
+        horiz,
+    } = rows;
+    let mut hmin = 0u16;
+    for step in 0..h {
+        let y = if forward { step } else { h - 1 - step };
+        let has_prev = step > 0;
+        let y_prev = if !has_prev {
+            y
+        } else if forward {
+            y - 1
+        } else {
+            y + 1
+        };
+        let img = &job.image[y * w..(y + 1) * w];
+        let img_prev = &job.image[y_prev * w..(y_prev + 1) * w];
+        let cost_row = &vol.cost[y * w * nd..(y + 1) * w * nd];
+        let first = job.claims[y]
+            .compare_exchange(FREE, CLAIMED, Ordering::AcqRel, Ordering::Acquire)
+            .is_ok();
+        if !first {
+            wait_stored(&job.claims[y]);
+            select.reset(w);
+        }
+        // SAFETY: the claim protocol (module docs): the claimer writes the row until it
+        // publishes STORED; the other pass uses it only after seeing STORED.
+        let stored = unsafe { job.partial.row(y) };
+        for i in 0..w {
+            let x = if forward { i } else { w - 1 - i };
+            let c = &cost_row[x * nd..(x + 1) * nd];
+            if !first {
+                // The other pass's sums were written long ago (they are in memory, not in the
+                // cache): ask for those of a pixel a few steps ahead.
+                let ahead = if forward {
+                    x + PREFETCH_PX
+                } else {
+                    x.wrapping_sub(PREFETCH_PX)
+                };
+                if ahead < w {
+                    prefetch(&stored[ahead * nd..(ahead + 1) * nd]);
+                }
+            }
+            // Where the pass's sum goes (the stored row when first), and the other pass's sum.
+            let (acc, theirs): (&mut [u16], &[u16]) = if first {
+                (&mut stored[x * nd..(x + 1) * nd], &[])
+            } else {
+                (&mut own[..nd], &stored[x * nd..(x + 1) * nd])
+            };
+            let (h0, h1) = horiz.split_at_mut(stride);
+            let (hprev, hout) = if i % 2 == 0 { (&*h1, h0) } else { (&*h0, h1) };
+            // Keep the previous row's values of x before they are overwritten: x itself needs
+            // them now (vertical) and the next pixel of the row (diagonal from behind).
+            let (cur, other) = (i & 1, (i & 1) ^ 1);
+            let (sx, ss) = (x * NR * stride, cur * NR * stride);
+            save[ss..ss + NR * stride].copy_from_slice(&slots[sx..sx + NR * stride]);
+            save_min[cur * NR..(cur + 1) * NR].copy_from_slice(&slot_min[x * NR..(x + 1) * NR]);
+            // Predecessors in the previous row, when every path continues (the usual case).
+            let xps: [isize; NR] = std::array::from_fn(|r| x as isize + dxs[r]);
+            let inside = has_prev && i > 0 && xps.iter().all(|&xp| xp >= 0 && xp < w as isize);
+            // The pixel's slots, and the not yet visited neighbour's (diagonal from ahead).
+            let ahead = if forward { x + 1 } else { x.wrapping_sub(1) };
+            let (outs, ahead_slots): (&mut [T], &[T]) = if ahead < w && forward {
+                let (a, b) = slots.split_at_mut(ahead * NR * stride);
+                (&mut a[sx..], &b[..NR * stride])
+            } else if ahead < w {
+                let (a, b) = slots.split_at_mut(sx);
+                (&mut b[..NR * stride], &a[ahead * NR * stride..])
+            } else {
+                (&mut slots[sx..sx + NR * stride], &[])
+            };
+            // Where each direction's predecessor values are.
+            let pred = |r: usize| -> (&[T], u16) {
+                let dx = dxs[r];
+                let visited = if forward { dx < 0 } else { dx > 0 };
+                if dx == 0 || visited {
+                    let which = if dx == 0 { cur } else { other };
+                    let s0 = (which * NR + r) * stride;
+                    (&save[s0..s0 + stride], save_min[which * NR + r])
+                } else {
+                    let xp = (x as isize + dx) as usize;
+                    let s0 = r * stride;
+                    (&ahead_slots[s0..s0 + stride], slot_min[xp * NR + r])
+                }
+            };
+            if inside {
+                let xn = if forward { x - 1 } else { x + 1 };
+                let mut p2 = [0u16; N];
+                let mut pmin = [0u16; N];
+                p2[0] = pen.p2_for(img[x], img[xn]);
+                pmin[0] = hmin;
+                let mut prevs: [&[T]; N] = [hprev; N];
+                for r in 0..NR {
+                    let xp = xps[r] as usize;
+                    p2[r + 1] = pen.p2_for(img[x], img_prev[xp]);
+                    let (pv, pm) = pred(r);
+                    prevs[r + 1] = pv;
+                    pmin[r + 1] = pm;
+                }
+                let fused_select = N == 4 && !first && job.finish == Finish::Select;
+                let m: [u16; N] = if fused_select {
+                    // Second to the row: S of the pixel and its winner at once.
+                    let (o1, rest) = outs.split_at_mut(stride);
+                    let (o2, o3) = rest.split_at_mut(stride);
+                    let prevs = (prevs[0], prevs[1], prevs[2], prevs[3]);
+                    let (pm, p2) = (
+                        [pmin[0], pmin[1], pmin[2], pmin[3]],
+                        [p2[0], p2[1], p2[2], p2[3]],
+                    );
+                    let (m, best) =
+                        I::steps4_total(c, (prevs, pm, p1, p2, [hout, o1, o2, o3], acc), theirs);
+                    let total = &own[..nd];
+                    select.pixel_with_min::<I>(total, best, x, w, job.params.min_disparity_px);
+                    std::array::from_fn(|r| m[r])
+                } else if N == 4 {
+                    let (o1, rest) = outs.split_at_mut(stride);
+                    let (o2, o3) = rest.split_at_mut(stride);
+                    let prevs = (prevs[0], prevs[1], prevs[2], prevs[3]);
+                    let (pm, p2) = (
+                        [pmin[0], pmin[1], pmin[2], pmin[3]],
+                        [p2[0], p2[1], p2[2], p2[3]],
+                    );
+                    let m = I::steps4(c, (prevs, pm, p1, p2, [hout, o1, o2, o3], acc));
+                    std::array::from_fn(|r| m[r])
+                } else {
+                    let prevs = (prevs[0], prevs[1]);
+                    let m = I::steps2(
+                        c,
+                        prevs,
+                        [pmin[0], pmin[1]],
+                        p1,
+                        [p2[0], p2[1]],
+                        hout,
+                        outs,
+                        acc,
+                    );
+                    std::array::from_fn(|r| m[r])
+                };
+                hmin = m[0];
+                slot_min[x * NR..(x + 1) * NR].copy_from_slice(&m[1..]);
+            } else {
+                // Path starts: the first row, the first pixel of the row, the image's sides.
+                hmin = if i == 0 {
+                    path_start::<true, T>(c, hout, acc)
+                } else {
+                    let xn = if forward { x - 1 } else { x + 1 };
+                    let p2 = pen.p2_for(img[x], img[xn]);
+                    path_step::<true, T>(c, hprev, hmin, p1, p2, hout, acc)
+                };
+                let mut m = [0u16; NR];
+                for (r, out) in outs.chunks_exact_mut(stride).take(NR).enumerate() {
+                    let xp = xps[r];
+                    m[r] = if !has_prev || xp < 0 || xp >= w as isize {
+                        path_start::<false, T>(c, out, acc)
+                    } else {
+                        let p2 = pen.p2_for(img[x], img_prev[xp as usize]);
+                        let (pv, pm) = pred(r);
+                        path_step::<false, T>(c, pv, pm, p1, p2, out, acc)
+                    };
+                }
+                slot_min[x * NR..(x + 1) * NR].copy_from_slice(&m);
+            }
+            if !(first || inside && N == 4 && job.finish == Finish::Select) {
+                let theirs = &mut stored[x * nd..(x + 1) * nd];
+                match job.finish {
+                    Finish::Sum => {
+                        for (t, &a) in theirs.iter_mut().zip(own.iter()) {
+                            *t += a;
+                        }
+                    }
+                    Finish::Select => {
+                        for (a, &t) in own.iter_mut().zip(theirs.iter()) {
+                            *a += t;
+                        }
+                        select.pixel::<I>(&own[..nd], x, w, job.params.min_disparity_px);
+                    }
+                }
+            }
+        }
+        if first {
+            job.claims[y].store(STORED, Ordering::Release);
+        } else if job.finish == Finish::Select {
+            // SAFETY: only the second pass to reach row y writes its output row.
+            let (disp, conf) = unsafe { (job.disparity.row(y), job.confidence.row(y)) };
+            select.finish(y, Some(vol), w, nd, job.params, disp, conf);
+        }
+    }
+}
+
+/// [`run_pass_impl`], dispatched at run time to a copy compiled for AVX-512BW, AVX2 or the
+/// baseline.
+pub(super) fn run_pass(job: &Job, forward: bool, ps: &mut PassScratch) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx512f,avx512bw,avx512vl,avx2,popcnt")]
+        fn avx512(job: &Job, forward: bool, ps: &mut PassScratch) {
+            run_pass_impl::<Avx512>(job, forward, ps)
+        }
+        #[target_feature(enable = "avx2,popcnt")]
+        fn avx2(job: &Job, forward: bool, ps: &mut PassScratch) {
+            run_pass_impl::<Avx2>(job, forward, ps)
+        }
+        if std::is_x86_feature_detected!("avx512bw")
+            && std::is_x86_feature_detected!("avx512vl")
+            && std::is_x86_feature_detected!("popcnt")
+        {
+            // SAFETY: the CPU supports the features the copy was compiled for (checked above).
+            unsafe { avx512(job, forward, ps) };
+            return;
+        }
+        if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("popcnt") {
+            // SAFETY: as above.
+            unsafe { avx2(job, forward, ps) };
+            return;
+        }
+    }
+    run_pass_impl::<Baseline>(job, forward, ps)
+}
+
+/// Column offsets of the previous-row predecessors for `paths`.
+pub(super) fn predecessors(paths: SgmPaths) -> &'static [isize] {
+    match paths {
+        SgmPaths::Four => &[0],
+        SgmPaths::Eight => &[0, -1, 1],
+    }
+}
+
+/// Runs both passes (module docs) with `finish`; `partial` receives the stored rows.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn run_passes(
+    volume: &CostVolume,
+    image: &[u8],
+    params: &SgmParams,
+    finish: Finish,
+    scratch: &mut AggregateScratch,
+    partial_out: Option<&mut Vec<u16>>,
+    disparity: &mut [f32],
+    confidence: &mut [f32],
+) {
+    let (w, h, nd) = (
+        volume.width as usize,
+        volume.height as usize,
+        volume.num_disparities,
+    );
+    let n = w * h * nd;
+    let partial = match partial_out {
+        Some(p) => p,
+        None => &mut scratch.partial,
+    };
+    if partial.len() != n {
+        // calloc'd: rows no pass stores are never touched.
+        *partial = vec![0u16; n];
+    }
+    let claims: Vec<AtomicU8> = (0..h).map(|_| AtomicU8::new(FREE)).collect();
+    let job = Job {
+        volume,
+        image,
+        params,
+        pen: Penalties::of(params),
+        dxs: predecessors(params.paths),
+        finish,
+        claims: &claims,
+        partial: SharedRows::new(partial, w * nd, h),
+        // Empty outputs when summing (no row is selected).
+        disparity: SharedRows::new(disparity, w, if finish == Finish::Select { h } else { 0 }),
+        confidence: SharedRows::new(confidence, w, if finish == Finish::Select { h } else { 0 }),
+    };
+    let [fwd, bwd] = &mut scratch.passes;
+    rayon::join(|| run_pass(&job, true, fwd), || run_pass(&job, false, bwd));
+}
+
+/// Semi-global matching on `volume` (left image `image`): aggregation and selection streamed
+/// together (module docs). Returns disparities (NaN invalid) and confidences, as
+/// [`select_disparities`] of [`aggregate_paths`] would, bit for bit. `params` must be valid and
+/// match the volume's disparity range; `image` must have the volume's size.
+pub(crate) fn aggregate_and_select(
+    volume: &CostVolume,
+    image: &[u8],
+    params: &SgmParams,
+    scratch: &mut AggregateScratch,
+) -> (Image<f32>, Image<f32>) {
+    let (width, height) = (volume.width, volume.height);
+    let mut disp = Image::filled(width, height, f32::NAN);
+    let mut conf = Image::filled(width, height, 0.0f32);
+    run_passes(
+        volume,
+        image,
+        params,
+        Finish::Select,
+        scratch,
+        None,
+        &mut disp.data,
+        &mut conf.data,
+    );
+    (disp, conf)
+}
+
+/// The aggregated costs `S(p, d)` summed over the configured directions, `u16`, layout of the
+/// cost volume (the same passes, keeping every row).
+pub(crate) fn aggregate_all(
+    volume: &CostVolume,
+    image: &[u8],
+    params: &SgmParams,
+    scratch: &mut AggregateScratch,
+) -> Vec<u16> {
+    let mut sum = Vec::new();
+    run_passes(
+        volume,
+        image,
+        params,
+        Finish::Sum,
+        scratch,
+        Some(&mut sum),
+        &mut [],
+        &mut [],
+    );
+    sum
+}

@@ -1,0 +1,247 @@
+//! The post-filters of SGM's disparities: the vectorised 3×3 median over valid neighbours and
+//! the speckle filter (small connected regions of similar disparity removed).
+
+#[allow(unused_imports)]
+use super::*;
+
+/// 3×3 median over the valid (finite) neighbours of every valid pixel; invalid pixels stay NaN.
+/// An even count averages the two middle values. Values are ordered as `f32::total_cmp` orders
+/// them (through their integer keys, sorted by a 25-comparator network: no branches), 16 pixels
+/// at a time.
+pub fn median_filter_3x3(disparity: &Image<f32>) -> Image<f32> {
+    let w = disparity.width as usize;
+    let h = disparity.height as usize;
+    let mut out = disparity.clone();
+    if w == 0 {
+        return out;
+    }
+    out.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        // Neighbour rows (the row itself stands in for a missing one, its values then ignored).
+        let line = |yy: usize| &disparity.data[yy * w..(yy + 1) * w];
+        let rows = [line(y.saturating_sub(1)), line(y), line((y + 1).min(h - 1))];
+        let row_ok = [y > 0, true, y + 1 < h];
+        median_row(rows, row_ok, row);
+    });
+    out
+}
+
+/// Pixels filtered together by [`median_lanes`].
+pub(super) const MEDIAN_LANES: usize = 16;
+
+/// One row of [`median_filter_3x3`], dispatched to a copy compiled for AVX-512 or AVX2 where the
+/// CPU has it.
+pub(super) fn median_row(rows: [&[f32]; 3], row_ok: [bool; 3], out: &mut [f32]) {
+    #[inline(always)]
+    fn imp(rows: [&[f32]; 3], row_ok: [bool; 3], out: &mut [f32]) {
+        let w = out.len();
+        let mut x = 0;
+        // The first column, then interior pixels 16 at a time, then the rest one by one.
+        if w > 0 {
+            median_px(rows, row_ok, 0, &mut out[0]);
+            x = 1;
+        }
+        while x + MEDIAN_LANES < w {
+            median_lanes(rows, row_ok, x, &mut out[x..x + MEDIAN_LANES]);
+            x += MEDIAN_LANES;
+        }
+        while x < w {
+            median_px(rows, row_ok, x, &mut out[x]);
+            x += 1;
+        }
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx512f,avx512vl,avx2")]
+        fn avx512(rows: [&[f32]; 3], row_ok: [bool; 3], out: &mut [f32]) {
+            imp(rows, row_ok, out)
+        }
+        #[target_feature(enable = "avx2")]
+        fn avx2(rows: [&[f32]; 3], row_ok: [bool; 3], out: &mut [f32]) {
+            imp(rows, row_ok, out)
+        }
+        if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl") {
+            // SAFETY: the CPU supports the features the copy was compiled for (checked above).
+            unsafe { avx512(rows, row_ok, out) };
+            return;
+        }
+        if std::is_x86_feature_detected!("avx2") {
+            // SAFETY: as above.
+            unsafe { avx2(rows, row_ok, out) };
+            return;
+        }
+    }
+    imp(rows, row_ok, out)
+}
+
+/// The median at column `x` of the middle row (any column).
+#[inline(always)]
+pub(super) fn median_px(rows: [&[f32]; 3], row_ok: [bool; 3], x: usize, out: &mut f32) {
+    let w = rows[1].len();
+    if rows[1][x].is_nan() {
+        return;
+    }
+    let mut keys = [i32::MAX; 9];
+    let mut n = 0;
+    for (r, (&line, &ok)) in rows.iter().zip(&row_ok).enumerate() {
+        for c in 0..3 {
+            let xx = (x + c).wrapping_sub(1);
+            let v = if ok && xx < w { line[xx] } else { f32::NAN };
+            let valid = !v.is_nan();
+            keys[3 * r + c] = if valid { total_order_key(v) } else { i32::MAX };
+            n += valid as usize;
+        }
+    }
+    sort9(&mut keys);
+    *out = median_of_sorted(|i| keys[i], n);
+}
+
+/// The median of the `n` smallest of 9 sorted keys.
+#[inline(always)]
+pub(super) fn median_of_sorted(key: impl Fn(usize) -> i32, n: usize) -> f32 {
+    let at = |i: usize| from_total_order_key(key(i));
+    if n % 2 == 1 {
+        at(n / 2)
+    } else {
+        0.5 * (at(n / 2 - 1) + at(n / 2))
+    }
+}
+
+/// The medians of columns `[x0, x0 + 16)` (all with both horizontal neighbours), lane by lane:
+/// the network sorts 16 pixels' keys at once.
+#[inline(always)]
+pub(super) fn median_lanes(rows: [&[f32]; 3], row_ok: [bool; 3], x0: usize, out: &mut [f32]) {
+    const L: usize = MEDIAN_LANES;
+    let mut keys = [[i32::MAX; L]; 9];
+    let mut n = [0i32; L];
+    for (r, (&line, &ok)) in rows.iter().zip(&row_ok).enumerate() {
+        for c in 0..3 {
+            let src = &line[x0 + c - 1..x0 + c - 1 + L];
+            for l in 0..L {
+                let v = src[l];
+                let valid = ok & !v.is_nan();
+                keys[3 * r + c][l] = if valid { total_order_key(v) } else { i32::MAX };
+                n[l] += valid as i32;
+            }
+        }
+    }
+    for (a, b) in SORT9_PAIRS {
+        let (ka, kb) = (keys[a], keys[b]);
+        for l in 0..L {
+            keys[a][l] = ka[l].min(kb[l]);
+            keys[b][l] = ka[l].max(kb[l]);
+        }
+    }
+    let centre = &rows[1][x0..x0 + L];
+    for l in 0..L {
+        // The middle key(s): positions n/2 − 1 and n/2 (n ≥ 1 where the centre is valid).
+        let (mut lo, mut hi) = (i32::MAX, i32::MAX);
+        let m = n[l] / 2;
+        for (p, k) in keys.iter().enumerate() {
+            let p = p as i32;
+            lo = if p + 1 == m { k[l] } else { lo };
+            hi = if p == m { k[l] } else { hi };
+        }
+        let (vlo, vhi) = (from_total_order_key(lo), from_total_order_key(hi));
+        let median = if n[l] % 2 == 1 {
+            vhi
+        } else {
+            0.5 * (vlo + vhi)
+        };
+        out[l] = if centre[l].is_nan() {
+            centre[l]
+        } else {
+            median
+        };
+    }
+}
+
+/// An integer whose order is `f32::total_cmp`'s (the same bit trick).
+#[inline(always)]
+pub(super) fn total_order_key(v: f32) -> i32 {
+    let b = v.to_bits() as i32;
+    b ^ (((b >> 31) as u32) >> 1) as i32
+}
+
+/// Inverse of [`total_order_key`].
+#[inline(always)]
+pub(super) fn from_total_order_key(k: i32) -> f32 {
+    f32::from_bits((k ^ (((k >> 31) as u32) >> 1) as i32) as u32)
+}
+
+/// The comparators of [`sort9`].
+#[rustfmt::skip]
+pub(super) const SORT9_PAIRS: [(usize, usize); 25] = [
+    (0, 3), (1, 7), (2, 5), (4, 8),
+    (0, 7), (2, 4), (3, 8), (5, 6),
+    (0, 2), (1, 3), (4, 5), (7, 8),
+    (1, 4), (3, 6), (5, 7),
+    (0, 1), (2, 4), (3, 5), (6, 8),
+    (2, 3), (4, 5), (6, 7),
+    (1, 2), (3, 4), (5, 6),
+];
+
+/// Sorts 9 values ascending with a 25-comparator network of depth 7 (Dobbelaere's list of
+/// optimal networks; tested on every 0/1 input).
+#[inline(always)]
+pub(crate) fn sort9(v: &mut [i32; 9]) {
+    for (a, b) in SORT9_PAIRS {
+        let (x, y) = (v[a], v[b]);
+        v[a] = x.min(y);
+        v[b] = x.max(y);
+    }
+}
+
+/// Removes speckles: 4-connected regions (neighbours differing by at most `max_diff_px`) of at
+/// most `max_size_px` valid pixels become NaN. Returns how many pixels were removed.
+pub fn remove_speckles(disparity: &mut Image<f32>, max_size_px: usize, max_diff_px: f32) -> usize {
+    let w = disparity.width as usize;
+    let h = disparity.height as usize;
+    if max_size_px == 0 || w == 0 || h == 0 {
+        return 0;
+    }
+    let mut label = vec![0u32; w * h];
+    let mut stack: Vec<usize> = Vec::new();
+    let mut region: Vec<usize> = Vec::new();
+    let mut next = 1u32;
+    let mut removed = 0;
+    for start in 0..w * h {
+        if label[start] != 0 || disparity.data[start].is_nan() {
+            continue;
+        }
+        label[start] = next;
+        stack.push(start);
+        region.clear();
+        while let Some(i) = stack.pop() {
+            region.push(i);
+            let d = disparity.data[i];
+            let (x, y) = (i % w, i / w);
+            let mut visit = |j: usize| {
+                let dj = disparity.data[j];
+                if label[j] == 0 && !dj.is_nan() && (dj - d).abs() <= max_diff_px {
+                    label[j] = next;
+                    stack.push(j);
+                }
+            };
+            if x > 0 {
+                visit(i - 1);
+            }
+            if x + 1 < w {
+                visit(i + 1);
+            }
+            if y > 0 {
+                visit(i - w);
+            }
+            if y + 1 < h {
+                visit(i + w);
+            }
+        }
+        if region.len() <= max_size_px {
+            for &i in &region {
+                disparity.data[i] = f32::NAN;
+            }
+            removed += region.len();
+        }
+        next += 1;
+    }
+    removed
+}
