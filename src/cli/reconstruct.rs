@@ -412,7 +412,7 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
             overrun: m.overrun,
             writer_threads: 2,
         },
-        m.budget.regional(),
+        m.budget.regional()?,
     ))
 }
 

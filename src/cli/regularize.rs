@@ -120,14 +120,14 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         let stats = regularize_shard(
             &mut store,
             &tv,
-            &a.budget.regional(),
+            &a.budget.regional()?,
             shard,
             |done, total| {
                 bar.set_length(total as u64);
                 bar.set_position(done as u64);
                 true
             },
-            |p| backend.solve(p, &tv),
+            |p, tv| backend.solve(p, tv),
         )
         .with_context(|| format!("regularising shard {shard} of {}", a.dir))?;
         bar.finish_and_clear();
@@ -148,7 +148,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     let device = backend.device_name();
     let mut rec = Reconstructor::with_store(
         config,
-        Box::new(PagedStore::stored(store, a.budget.regional())),
+        Box::new(PagedStore::stored(store, a.budget.regional()?)),
         backend,
         0,
     )?;

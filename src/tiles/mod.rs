@@ -36,6 +36,8 @@ pub mod repair;
 pub mod s3;
 pub mod shards;
 pub mod store;
+pub mod sweep_state;
+pub mod sweeps;
 pub mod tileset;
 
 pub use files::MapLocation;

@@ -229,7 +229,7 @@ impl BlockStore for PagedStore {
     ) -> Result<RegularizeSummary> {
         let options = self.regional;
         let store = self.finish_paging()?;
-        let s = regularize_map_with(store, params, &options, progress, |p| {
+        let s = regularize_map_with(store, params, &options, progress, |p, params| {
             solver.solve(p, params)
         })?;
         Ok(RegularizeSummary {

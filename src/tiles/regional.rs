@@ -19,6 +19,7 @@
 //! with reserved numbers and a region record that the writer's next run adopts
 //! ([`super::shards::adopt`]) before it solves what no shard recorded.
 
+use super::manifest::ChunkEntry;
 use super::pager::BLOCK_RESIDENT_BYTES;
 use super::shards::{self, Shard, ShardPlan};
 use super::store::MapStore;
@@ -59,22 +60,174 @@ pub struct MapRegularizeStats {
     pub regions_adopted: usize,
     /// Regions left to other shards (a `--shard` run).
     pub regions_other_shards: usize,
+    /// Sweeps the iterations were split into (1: all at once with the exact halo).
+    pub sweeps: u32,
+    /// Region edge used, chunks (planned to the budget when not given).
+    pub region_chunks: u32,
 }
 
 /// How [`regularize_map`] tiles and bounds its work.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RegionalOptions {
-    /// Region edge, chunks.
+    /// Region edge, chunks; 0: the largest that fits the budget ([`plan_region_chunks`]).
     pub region_chunks: u32,
     /// Working-memory bound of one region, bytes.
     pub budget_bytes: u64,
     /// Halo thickness, blocks; `None` for the exact halo of the iteration count. A thinner halo
     /// leaves seams (kept for the test that shows it).
     pub halo_blocks: Option<i32>,
+    /// Iterations per sweep ([`super::sweeps`]: every region this many iterations at a time, the
+    /// solver state kept in the store between sweeps, a halo of `K + 1` voxels); `None` solves
+    /// each region with all iterations at once and the exact halo of `iterations + 1` voxels
+    /// (also what `--shard` runs always do, and a committing run that adopted shards' regions).
+    pub sweep_iterations: Option<u32>,
 }
 
-fn region_of(c: ChunkIndex, r: i32) -> [i32; 3] {
+pub(super) fn region_of(c: ChunkIndex, r: i32) -> [i32; 3] {
     [0, 1, 2].map(|a| c.0[a].div_euclid(r))
+}
+
+/// What a region's working memory is made of, for planning regions to a budget.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RegionCosts {
+    /// Bytes per gathered block (region and halo).
+    pub per_block: u64,
+    /// Bytes added per block of the region itself.
+    pub per_core_block: u64,
+}
+
+impl RegionCosts {
+    /// The costs of a swept pass (`swept`) or of one solve with the exact halo.
+    pub fn of(swept: bool) -> Self {
+        if swept {
+            RegionCosts {
+                per_block: super::sweeps::SWEEP_BYTES_PER_BLOCK,
+                per_core_block: super::sweeps::SWEEP_BYTES_PER_CORE_BLOCK,
+            }
+        } else {
+            RegionCosts {
+                per_block: BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64,
+                per_core_block: 0,
+            }
+        }
+    }
+
+    /// The most a region of `region_chunks`³ full chunks of `chunk_blocks`³ blocks with a halo of
+    /// `halo_blocks` can need, bytes: the bound that holds before anything is fused.
+    pub fn full_region_bytes(
+        &self,
+        chunk_blocks: u32,
+        region_chunks: u32,
+        halo_blocks: i32,
+    ) -> u64 {
+        let core = (chunk_blocks * region_chunks) as u64;
+        let with_halo = core + 2 * halo_blocks.max(0) as u64;
+        with_halo.pow(3) * self.per_block + core.pow(3) * self.per_core_block
+    }
+}
+
+/// The largest region edge (chunks) whose every region of the map, with a halo of `halo_blocks`,
+/// stays within `budget_bytes` by the bound of `costs` (the chunks' block counts from the
+/// manifest; a neighbour chunk counts with at most its blocks inside the halo), and that bound.
+/// An error when not even one chunk fits.
+pub fn plan_region_chunks(
+    chunks: &BTreeMap<ChunkIndex, ChunkEntry>,
+    chunk_blocks: u32,
+    halo_blocks: i32,
+    costs: RegionCosts,
+    budget_bytes: u64,
+) -> Result<(u32, u64)> {
+    let cb = chunk_blocks as i32;
+    let halo = halo_blocks.max(0);
+    let reach = (halo + cb - 1) / cb;
+    let bound = |r: i32| -> u64 {
+        let mut regions: BTreeMap<[i32; 3], Vec<ChunkIndex>> = BTreeMap::new();
+        for c in chunks.keys() {
+            regions.entry(region_of(*c, r)).or_default().push(*c);
+        }
+        let mut worst = 0u64;
+        for key in regions.keys() {
+            let lo = [0, 1, 2].map(|a| key[a] * r * cb - halo);
+            let hi = [0, 1, 2].map(|a| (key[a] + 1) * r * cb - 1 + halo);
+            let (mut core, mut gathered) = (0u64, 0u64);
+            for cz in key[2] * r - reach..=key[2] * r + r - 1 + reach {
+                for cy in key[1] * r - reach..=key[1] * r + r - 1 + reach {
+                    for cx in key[0] * r - reach..=key[0] * r + r - 1 + reach {
+                        let c = ChunkIndex([cx, cy, cz]);
+                        let Some(e) = chunks.get(&c) else { continue };
+                        if region_of(c, r) == *key {
+                            core += e.block_count as u64;
+                            gathered += e.block_count as u64;
+                        } else {
+                            let inside: i64 = (0..3)
+                                .map(|a| {
+                                    let (c0, c1) = (c.0[a] * cb, c.0[a] * cb + cb - 1);
+                                    (c1.min(hi[a]) - c0.max(lo[a]) + 1).max(0) as i64
+                                })
+                                .product();
+                            gathered += (e.block_count as u64).min(inside as u64);
+                        }
+                    }
+                }
+            }
+            worst = worst.max(gathered * costs.per_block + core * costs.per_core_block);
+        }
+        worst
+    };
+    let extent = (0..3)
+        .map(|a| {
+            let lo = chunks.keys().map(|c| c.0[a]).min().unwrap_or(0);
+            let hi = chunks.keys().map(|c| c.0[a]).max().unwrap_or(0);
+            hi - lo + 1
+        })
+        .max()
+        .unwrap_or(1);
+    let first = bound(1);
+    if first > budget_bytes {
+        return Err(Error::InvalidArgument(format!(
+            "regularising this map needs about {} MiB for its fullest chunk with a {halo}-block halo, over the {} MiB budget: use a larger --memory-budget",
+            first.div_ceil(1 << 20),
+            budget_bytes >> 20
+        )));
+    }
+    let (mut best, mut best_bytes) = (1, first);
+    // Regions of up to the map's extent (one region then holds every chunk).
+    for r in 2..=extent.max(1) {
+        let b = bound(r);
+        if b > budget_bytes {
+            break;
+        }
+        (best, best_bytes) = (r, b);
+    }
+    Ok((best as u32, best_bytes))
+}
+
+/// `options` with the region edge decided: as given, or planned to the budget (0).
+fn resolve(
+    store: &MapStore,
+    options: &RegionalOptions,
+    halo_blocks: i32,
+    swept: bool,
+) -> Result<RegionalOptions> {
+    if options.region_chunks > 0 {
+        return Ok(*options);
+    }
+    let (r, bytes) = plan_region_chunks(
+        &store.manifest().chunks,
+        store.chunk_blocks(),
+        halo_blocks,
+        RegionCosts::of(swept),
+        options.budget_bytes,
+    )?;
+    tracing::info!(
+        "regions of {r}³ chunks (the largest within the {} MiB budget: at most {} MiB each with a {halo_blocks}-block halo)",
+        options.budget_bytes >> 20,
+        bytes.div_ceil(1 << 20)
+    );
+    Ok(RegionalOptions {
+        region_chunks: r,
+        ..*options
+    })
 }
 
 /// Regularises every chunk of `store` with `params`, regions of `region_chunks`³ chunks, keeping
@@ -87,7 +240,7 @@ pub fn regularize_map(
     options: &RegionalOptions,
     progress: impl FnMut(usize, usize) -> bool,
 ) -> Result<MapRegularizeStats> {
-    regularize_map_with(store, params, options, progress, |p| {
+    regularize_map_with(store, params, options, progress, |p, params| {
         p.solve(params);
         Ok(())
     })
@@ -101,14 +254,9 @@ pub fn regularize_map_with(
     params: &TvParams,
     options: &RegionalOptions,
     progress: impl FnMut(usize, usize) -> bool,
-    solve: impl FnMut(&mut TvProblem) -> Result<()>,
+    solve: impl FnMut(&mut TvProblem, &TvParams) -> Result<()>,
 ) -> Result<MapRegularizeStats> {
     params.validate()?;
-    if options.region_chunks == 0 {
-        return Err(Error::InvalidArgument(
-            "--region-chunks must be at least 1".into(),
-        ));
-    }
     let t0 = std::time::Instant::now();
     let h = store.manifest().header;
     // Same parameters as the latest pass: continue it (a resumed run, or chunks fused since).
@@ -123,23 +271,70 @@ pub fn regularize_map_with(
         .halo_blocks
         .unwrap_or_else(|| RegionPlan::exact_halo_blocks(params.iterations))
         .max(0);
-    let key = shards::plan_key(store.manifest(), pass, params, options.region_chunks, halo);
-    let r = options.region_chunks.max(1) as i32;
-    let adopted = shards::adopt(store, key, |c| region_of(c, r))?;
-    if adopted.regions > 0 {
-        tracing::info!(
-            "{}: adopted {} regions ({} chunk files) solved by shards",
-            store.dir().display(),
-            adopted.regions,
-            adopted.chunks
-        );
-        store.commit()?;
-    }
-    let mut mode = Mode::Commit;
-    let result = regularize_pass(
-        store, params, options, pass, new_pass, progress, solve, &mut mode,
-    )
-    .and_then(|mut stats| {
+    let mut solve = solve;
+    let mut progress = progress;
+    let result = (|| {
+        // Shards solve with the exact halo: their records are adopted under that plan's key. (A
+        // budget too small for the exact halo's regions had no shards: sweeps go on without.)
+        let exact = match resolve(store, options, halo, false) {
+            Err(e) if options.sweep_iterations.is_none() => return Err(e),
+            r => r,
+        };
+        let adopted = match &exact {
+            Ok(exact) => {
+                let key =
+                    shards::plan_key(store.manifest(), pass, params, exact.region_chunks, halo);
+                let r = exact.region_chunks as i32;
+                shards::adopt(store, key, |c| region_of(c, r))?
+            }
+            Err(_) => Default::default(),
+        };
+        if adopted.regions > 0 {
+            tracing::info!(
+                "{}: adopted {} regions ({} chunk files) solved by shards",
+                store.dir().display(),
+                adopted.regions,
+                adopted.chunks
+            );
+            store.commit()?;
+        }
+        let all_done = store.manifest().chunks.values().all(|e| e.reg_pass == pass);
+        let swept = options
+            .sweep_iterations
+            .filter(|k| *k < params.iterations && adopted.regions == 0 && !all_done);
+        let mut stats = match swept {
+            Some(k) => {
+                let options = resolve(store, options, RegionPlan::exact_halo_blocks(k), true)?;
+                let run = super::sweeps::SweptPass {
+                    params,
+                    region_chunks: options.region_chunks,
+                    sweep_iterations: k,
+                    budget_bytes: options.budget_bytes,
+                    pass,
+                };
+                let mut stats =
+                    super::sweeps::regularize_swept(store, &run, &mut progress, &mut solve)?;
+                stats.region_chunks = options.region_chunks;
+                stats
+            }
+            None => {
+                let exact = exact?;
+                let mut mode = Mode::Commit;
+                let mut stats = regularize_pass(
+                    store,
+                    params,
+                    &exact,
+                    pass,
+                    new_pass,
+                    &mut progress,
+                    &mut solve,
+                    &mut mode,
+                )?;
+                stats.sweeps = 1;
+                stats.region_chunks = exact.region_chunks;
+                stats
+            }
+        };
         stats.regions_adopted = adopted.regions;
         if store.manifest().latest_pass_complete() {
             let removed = shards::close_plans(store)?;
@@ -148,8 +343,9 @@ pub fn regularize_map_with(
             }
         }
         Ok(stats)
-    });
-    if result.is_err() && new_pass && store.manifest().header.reg_pass == pass {
+    })();
+    let stopped = result.as_ref().map_or(true, |s| s.interrupted);
+    if stopped && new_pass && store.manifest().header.reg_pass == pass {
         // Nothing of the new pass may have been committed: forget it unless a region was.
         let committed = store.manifest().chunks.values().any(|e| e.reg_pass == pass);
         if !committed {
@@ -191,14 +387,9 @@ pub fn regularize_shard(
     options: &RegionalOptions,
     shard: Shard,
     progress: impl FnMut(usize, usize) -> bool,
-    solve: impl FnMut(&mut TvProblem) -> Result<()>,
+    solve: impl FnMut(&mut TvProblem, &TvParams) -> Result<()>,
 ) -> Result<MapRegularizeStats> {
     params.validate()?;
-    if options.region_chunks == 0 {
-        return Err(Error::InvalidArgument(
-            "--region-chunks must be at least 1".into(),
-        ));
-    }
     let t0 = std::time::Instant::now();
     let h = store.manifest().header;
     let (pass, new_pass) = if h.reg_pass > 0 && h.reg_params == *params {
@@ -211,6 +402,7 @@ pub fn regularize_shard(
         .halo_blocks
         .unwrap_or_else(|| RegionPlan::exact_halo_blocks(params.iterations))
         .max(0);
+    let options = &resolve(store, options, halo, false)?;
     let r = options.region_chunks as i32;
     let key = shards::plan_key(store.manifest(), pass, params, options.region_chunks, halo);
     let regions: std::collections::BTreeSet<[i32; 3]> = store
@@ -256,7 +448,7 @@ fn regularize_pass(
     pass: u32,
     new_pass: bool,
     mut progress: impl FnMut(usize, usize) -> bool,
-    mut solve: impl FnMut(&mut TvProblem) -> Result<()>,
+    mut solve: impl FnMut(&mut TvProblem, &TvParams) -> Result<()>,
     mode: &mut Mode,
 ) -> Result<MapRegularizeStats> {
     let cb = store.chunk_blocks() as i32;
@@ -352,7 +544,7 @@ fn regularize_pass(
             * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
         stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
         let mut problem = TvProblem::gather(&layer, &gathered);
-        solve(&mut problem)?;
+        solve(&mut problem, params)?;
         let core_list: Vec<BlockIndex> = core_blocks.values().flatten().copied().collect();
         problem.scatter(&mut layer, &core_list);
         stats.solved_blocks += problem.blocks().len();
