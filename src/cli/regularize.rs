@@ -45,10 +45,13 @@ impl fmt::Display for Regularized {
         let s = &self.outcome.summary;
         writeln!(
             f,
-            "regularisation pass {} (λ {}, {} iterations, halo {} blocks): {} regions solved, {} adopted from shards, {} already done; {} blocks written, {} solved with halos ({:.2}×)",
+            "regularisation pass {} (λ {}, {} iterations in {} {}, regions of {}³ chunks, halo {} blocks): {} regions solved, {} adopted from shards, {} already done; {} blocks written, {} solved with halos ({:.2}×)",
             s.pass,
             self.lambda,
             s.iterations,
+            s.sweeps,
+            if s.sweeps == 1 { "sweep" } else { "sweeps" },
+            s.region_chunks,
             s.halo_blocks,
             s.regions,
             s.regions_adopted,

@@ -244,6 +244,8 @@ impl BlockStore for PagedStore {
             peak_region_bytes: s.peak_region_bytes,
             pass: s.pass,
             regions_adopted: s.regions_adopted,
+            sweeps: s.sweeps,
+            region_chunks: s.region_chunks,
         })
     }
 

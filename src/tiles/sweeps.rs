@@ -44,16 +44,33 @@ pub const PROGRESS_FILE: &str = "sweeps/progress.dsp";
 /// Iterations per sweep by default: with `K + 1 = 8` voxels the halo is exactly one block.
 pub const DEFAULT_SWEEP_ITERATIONS: u32 = 7;
 
-/// Upper bound of the working memory one gathered block takes in a sweep: the solver's arrays
-/// and its state record as read (every voxel in Ω), bytes.
-pub const SWEEP_BYTES_PER_BLOCK: u64 = VOXELS_PER_BLOCK as u64
-    * (SOLVER_BYTES_PER_VOXEL + STATE_BYTES_PER_OMEGA_VOXEL as u64)
+/// Working memory of one gathered block in a sweep besides its Ω voxels: the solver's arrays
+/// and its state record's mask and index entry, bytes.
+pub const SWEEP_BYTES_PER_BLOCK: u64 = VOXELS_PER_BLOCK as u64 * SOLVER_BYTES_PER_VOXEL
     + (STATE_MASK_BYTES + STATE_ENTRY_BYTES) as u64;
-/// Upper bound of what a region's own block adds: the block decoded for the last step, and its
-/// state record encoded for writing, bytes.
-pub const SWEEP_BYTES_PER_CORE_BLOCK: u64 = BLOCK_RESIDENT_BYTES
-    + VOXELS_PER_BLOCK as u64 * STATE_BYTES_PER_OMEGA_VOXEL as u64
-    + (STATE_MASK_BYTES + STATE_ENTRY_BYTES) as u64;
+/// Working memory of one gathered Ω voxel: its state record as read, bytes.
+pub const SWEEP_BYTES_PER_OMEGA_VOXEL: u64 = STATE_BYTES_PER_OMEGA_VOXEL as u64;
+/// What a region's own block adds besides its Ω voxels: the block decoded for the last step and
+/// its state record's mask and index entry encoded for writing, bytes.
+pub const SWEEP_BYTES_PER_CORE_BLOCK: u64 =
+    BLOCK_RESIDENT_BYTES + (STATE_MASK_BYTES + STATE_ENTRY_BYTES) as u64;
+/// What a region's own Ω voxel adds: its state record encoded for writing, bytes.
+pub const SWEEP_BYTES_PER_CORE_OMEGA_VOXEL: u64 = STATE_BYTES_PER_OMEGA_VOXEL as u64;
+
+/// Writes scratch state: atomically (temporary name, rename) but not fsynced on local disks —
+/// a killed process leaves whole files, and after a power loss a torn one fails its CRC.
+fn write_scratch(files: &dyn MapFiles, name: &str, bytes: &[u8]) -> Result<()> {
+    let Some(dir) = files.location().as_dir() else {
+        return files.write(name, bytes);
+    };
+    let path = dir.join(name);
+    let tmp = path.with_extension("tmp");
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+    }
+    std::fs::write(&tmp, bytes).map_err(|e| Error::io(&tmp, e))?;
+    std::fs::rename(&tmp, &path).map_err(|e| Error::io(&path, e))
+}
 
 fn state_name(parity: u32, c: ChunkIndex) -> String {
     let [x, y, z] = c.0;
@@ -282,7 +299,7 @@ pub(super) fn regularize_swept(
             steps_done,
             regions_done: regions_done as u32,
         };
-        files.write(PROGRESS_FILE, &rec.encode())
+        write_scratch(&*files, PROGRESS_FILE, &rec.encode())
     };
     let total = regions.len() * (sweeps as usize + 1);
     let mut block_iterations = 0u64;
@@ -305,7 +322,7 @@ pub(super) fn regularize_swept(
                         step: 0,
                         block_count: states.len() as u32,
                     };
-                    files.write(&state_name(0, *c), &encode_state(&h, &states))?;
+                    write_scratch(&*files, &state_name(0, *c), &encode_state(&h, &states))?;
                 }
             } else if step == sweeps
                 && core
@@ -331,14 +348,16 @@ pub(super) fn regularize_swept(
                     |c| region_of(c, r) == *rkey,
                 )?;
                 states.sort_unstable_by_key(|(b, _, _)| *b);
-                let read_bytes: u64 = states
-                    .iter()
-                    .map(|(_, s, _)| (s.record_bytes() + STATE_ENTRY_BYTES) as u64)
-                    .sum();
-                let cores = states.iter().filter(|s| s.2).count() as u64;
-                let bytes = states.len() as u64 * VOXELS_PER_BLOCK as u64 * SOLVER_BYTES_PER_VOXEL
-                    + read_bytes
-                    + cores * SWEEP_BYTES_PER_CORE_BLOCK;
+                // The plan's bound ([`super::regional::RegionCosts`]) with the real counts.
+                let mut bytes = 0u64;
+                for (_, st, core) in &states {
+                    let omega = st.tsdf.len() as u64;
+                    bytes += SWEEP_BYTES_PER_BLOCK + omega * SWEEP_BYTES_PER_OMEGA_VOXEL;
+                    if *core {
+                        bytes +=
+                            SWEEP_BYTES_PER_CORE_BLOCK + omega * SWEEP_BYTES_PER_CORE_OMEGA_VOXEL;
+                    }
+                }
                 if bytes > run.budget_bytes {
                     return Err(Error::InvalidArgument(format!(
                         "region {rkey:?} with its {halo}-block halo needs about {} MiB, over the {} MiB budget; use a smaller --region-chunks or a larger --memory-budget",
@@ -485,7 +504,7 @@ fn write_states(
             step,
             block_count: list.len() as u32,
         };
-        files.write(&state_name(step % 2, c), &encode_state(&h, &list))?;
+        write_scratch(files, &state_name(step % 2, c), &encode_state(&h, &list))?;
     }
     Ok(())
 }

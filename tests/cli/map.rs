@@ -51,7 +51,7 @@ fn reconstruct_args<'a>(map: &'a str, out: &'a str) -> Vec<&'a str> {
         "--iterations",
         "8",
         "--region-chunks",
-        "2",
+        "1",
         "--voxel-size",
         "0.2",
         "--allow-overrun",
