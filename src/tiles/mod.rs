@@ -30,6 +30,7 @@ pub mod merge;
 mod paged;
 pub mod pager;
 pub mod parts;
+pub mod region_plan;
 pub mod regional;
 pub mod repair;
 #[cfg(feature = "s3")]
