@@ -1,11 +1,13 @@
 //! Offline regularisation of a stored map, region by region, within a memory budget, resumable.
 //!
-//! A region is a cube of `region_chunks`³ chunks. Each region is solved together with every stored
-//! block within [`RegionPlan::exact_halo_blocks`] of it (read from the neighbouring chunk files),
-//! and only the region's own chunks are written back (new files carrying `u`). The solve reads
-//! only `f`, `w` and Ω, which regularisation never changes, so regions are independent and the
-//! result equals one global in-memory solve of the same iterations (tested within one `i16`
-//! quantisation step), seams included.
+//! A region is a cube of `region_chunks`³ chunks (by default the largest whose working memory fits
+//! the budget, [`super::region_plan`]). By default the pass runs as sweeps ([`super::sweeps`]):
+//! every region `K` iterations at a time with a halo of `K + 1` voxels, the solver state kept in
+//! the map between sweeps. Otherwise (`sweep_iterations: None`, and always for shards) each region
+//! is solved with all iterations at once together with every stored block within
+//! [`RegionPlan::exact_halo_blocks`] of it (read from the neighbouring chunk files). Either way
+//! only the region's own chunks are written back (new files carrying `u`), and the result equals
+//! one global in-memory solve of the same iterations (tested: bit for bit), seams included.
 //!
 //! Progress is part of the manifest: a pass number and its parameters in the header, and per chunk
 //! the pass that wrote it. The manifest is committed after every region, so a killed run resumes

@@ -269,7 +269,11 @@ pub(super) fn regularize_swept(
         regions.entry(region_of(c, r)).or_default().push(c);
     }
     let files = store.files().clone();
-    let (mut step, mut skip) = match resume_point(store, key, pass, sweeps)? {
+    let resume = resume_point(store, key, pass, sweeps)?;
+    // A resumed run whose state cannot be read (a file torn by a power loss: state is not
+    // fsynced) starts the sweeps again, once.
+    let mut may_restart = resume.is_some();
+    let (mut step, mut skip) = match resume {
         Some(rec) => {
             tracing::info!(
                 "{}: resuming the swept pass at step {} of {}, region {} of {}",
@@ -304,6 +308,7 @@ pub(super) fn regularize_swept(
     let total = regions.len() * (sweeps as usize + 1);
     let mut block_iterations = 0u64;
     while step <= sweeps {
+        let mut restart = false;
         for (k, (rkey, core)) in regions.iter().enumerate().skip(skip) {
             let t0 = std::time::Instant::now();
             if step == 0 {
@@ -338,7 +343,7 @@ pub(super) fn regularize_swept(
                 };
                 let lo = [0, 1, 2].map(|a| rkey[a] * r * cb - halo);
                 let hi = [0, 1, 2].map(|a| (rkey[a] + 1) * r * cb - 1 + halo);
-                let mut states = gather_states(
+                let gathered = gather_states(
                     store,
                     key,
                     step,
@@ -346,7 +351,15 @@ pub(super) fn regularize_swept(
                     [0, 1, 2].map(|a| rkey[a] * r + r - 1 + reach),
                     (lo, hi),
                     |c| region_of(c, r) == *rkey,
-                )?;
+                );
+                let mut states = match gathered {
+                    Err(e @ Error::BadInput { .. }) if may_restart => {
+                        tracing::warn!("{e}; starting the sweeps of pass {pass} again");
+                        restart = true;
+                        break;
+                    }
+                    other => other?,
+                };
                 states.sort_unstable_by_key(|(b, _, _)| *b);
                 // The plan's bound ([`super::regional::RegionCosts`]) with the real counts.
                 let mut bytes = 0u64;
@@ -398,6 +411,12 @@ pub(super) fn regularize_swept(
             }
         }
         skip = 0;
+        if restart {
+            may_restart = false;
+            remove_state(&*files)?;
+            step = 0;
+            continue;
+        }
         step += 1;
         if step <= sweeps {
             record(step, 0)?;
