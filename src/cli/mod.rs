@@ -396,7 +396,7 @@ pub(crate) struct BudgetArgs {
     #[arg(long)]
     pub region_chunks: Option<u32>,
     /// Regularisation iterations per sweep: every region this many iterations at a time, the
-    /// solver state kept in the map between sweeps, a halo of (this + 1) voxels (7: one block);
+    /// solver state kept in the map between sweeps, a halo of (this + 1) voxels (15: two blocks, 7: one);
     /// 0 solves each region with all iterations at once and the exact halo.
     #[arg(long, default_value_t = denser::tiles::sweeps::DEFAULT_SWEEP_ITERATIONS)]
     pub sweep_iterations: u32,

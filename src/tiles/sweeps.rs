@@ -1,6 +1,6 @@
 //! Swept regional regularisation: every region `K` iterations at a time, the solver state kept
 //! in the map's store between sweeps, so a region needs a halo of `K + 1` voxels (one block at
-//! `K = 7`) instead of `iterations + 1`.
+//! `K = 7`, two at the default `K = 15`) instead of `iterations + 1`.
 //!
 //! Why it equals the global solve: one Chambolle–Pock iteration changes a voxel from values at
 //! most one voxel away (see [`RegionPlan::exact_halo_blocks`]), and only the gathered set's outer
@@ -41,8 +41,10 @@ use std::collections::BTreeMap;
 pub const SWEEPS_FOLDER: &str = "sweeps";
 /// The progress record's name.
 pub const PROGRESS_FILE: &str = "sweeps/progress.dsp";
-/// Iterations per sweep by default: with `K + 1 = 8` voxels the halo is exactly one block.
-pub const DEFAULT_SWEEP_ITERATIONS: u32 = 7;
+/// Iterations per sweep by default: a halo of `K + 1 = 16` voxels, two blocks. Measured against
+/// 7 (one block, 15 sweeps) and 23 (three blocks, 5 sweeps) on a 200 m street: 1.8–2.0× the
+/// global solve's CPU time against 2.5× and 2.6× (`docs/bench/regularize.md`).
+pub const DEFAULT_SWEEP_ITERATIONS: u32 = 15;
 
 /// Working memory of one gathered block in a sweep besides its Ω voxels: the solver's arrays
 /// and its state record's mask and index entry, bytes.
