@@ -105,6 +105,7 @@ fn paging(c: &mut Criterion) {
                         region_chunks: 2,
                         budget_bytes: 1 << 30,
                         halo_blocks: None,
+                        sweep_iterations: Some(denser::tiles::sweeps::DEFAULT_SWEEP_ITERATIONS),
                     },
                 );
                 let config = ReconstructionConfig {

@@ -69,6 +69,10 @@ pub struct RegularizeSummary {
     pub pass: u32,
     /// Regions adopted from `regularize --shard` runs (stored maps).
     pub regions_adopted: usize,
+    /// Sweeps the iterations were split into (regional: 1 with the exact halo), 0 when global.
+    pub sweeps: u32,
+    /// Region edge, chunks (regional), 0 when global.
+    pub region_chunks: u32,
 }
 
 /// What writing a surface produced.

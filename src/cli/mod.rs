@@ -391,19 +391,31 @@ pub(crate) struct BudgetArgs {
     /// (e.g. 1GiB, 512MiB).
     #[arg(long, default_value = "1GiB", value_parser = parse_bytes)]
     pub memory_budget: u64,
-    /// Regularisation region edge, chunks (bigger regions spend less on halos, need more memory).
-    #[arg(long, default_value_t = 2)]
-    pub region_chunks: u32,
+    /// Regularisation region edge, chunks (bigger regions spend less on halos, need more
+    /// memory); by default the largest whose working memory fits --memory-budget.
+    #[arg(long)]
+    pub region_chunks: Option<u32>,
+    /// Regularisation iterations per sweep: every region this many iterations at a time, the
+    /// solver state kept in the map between sweeps, a halo of (this + 1) voxels (15: two blocks, 7: one);
+    /// 0 solves each region with all iterations at once and the exact halo.
+    #[arg(long, default_value_t = denser::tiles::sweeps::DEFAULT_SWEEP_ITERATIONS)]
+    pub sweep_iterations: u32,
 }
 
 impl BudgetArgs {
-    /// Regional regularisation within this budget (the exact halo).
-    pub fn regional(&self) -> denser::tiles::regional::RegionalOptions {
-        denser::tiles::regional::RegionalOptions {
-            region_chunks: self.region_chunks,
+    /// Regional regularisation within this budget.
+    pub fn regional(&self) -> denser::Result<denser::tiles::regional::RegionalOptions> {
+        if self.region_chunks == Some(0) {
+            return Err(denser::Error::InvalidArgument(
+                "--region-chunks must be at least 1 (leave it out to fit the budget)".into(),
+            ));
+        }
+        Ok(denser::tiles::regional::RegionalOptions {
+            region_chunks: self.region_chunks.unwrap_or(0),
             budget_bytes: self.memory_budget,
             halo_blocks: None,
-        }
+            sweep_iterations: (self.sweep_iterations > 0).then_some(self.sweep_iterations),
+        })
     }
 }
 

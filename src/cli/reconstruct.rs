@@ -21,6 +21,7 @@ use denser::store::{BlockStore, MemoryStore, SurfaceOutput};
 use denser::tiles::job::{relative_hint, JobRecord};
 use denser::tiles::manifest::FRAMES_UNKNOWN;
 use denser::tiles::pager::{OverrunPolicy, PagerConfig};
+use denser::tiles::regional::check_budget_up_front;
 use denser::tiles::store::{MapStore, MANIFEST_FILE};
 use denser::tiles::{MapLocation, PagedStore};
 use std::fmt;
@@ -344,6 +345,15 @@ fn ram_limit_bytes() -> u64 {
 
 /// Opens (resuming) or creates the job's map, checking its job record.
 fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedStore> {
+    // Regularisation's memory is checked before any frame is fused (issue 15): a run never fuses
+    // for minutes and then finds its budget too small for one region.
+    let regional = m.budget.regional()?;
+    let check = |chunk_blocks: u32| -> denser::Result<()> {
+        if job.regularize {
+            check_budget_up_front(chunk_blocks, &regional, job.config.tv.iterations)?;
+        }
+        Ok(())
+    };
     let source = match detect_input(&job.input)? {
         InputKind::Kitti => job.source.as_str(),
         _ => "rgbd",
@@ -383,6 +393,7 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
     let mut store = if exists {
         // The writer lock first: the job record is checked (and a legacy one upgraded) under it.
         let store = MapStore::open_at(&m.dir)?;
+        check(store.chunk_blocks())?;
         if store.manifest().header.frames_committed == FRAMES_UNKNOWN {
             return Err(denser::Error::bad_input(
                 m.dir.display_path(),
@@ -392,6 +403,7 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
         record.check_or_write_at(&**store.files(), &job.input)?;
         store
     } else {
+        check(m.chunk_blocks)?;
         let s = MapStore::create_at(&m.dir, job.config.grid, m.chunk_blocks)?;
         let hint = match m.dir.as_dir() {
             Some(d) => relative_hint(d, &job.input),
@@ -412,7 +424,7 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
             overrun: m.overrun,
             writer_threads: 2,
         },
-        m.budget.regional(),
+        regional,
     ))
 }
 

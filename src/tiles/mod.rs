@@ -30,12 +30,15 @@ pub mod merge;
 mod paged;
 pub mod pager;
 pub mod parts;
+pub mod region_plan;
 pub mod regional;
 pub mod repair;
 #[cfg(feature = "s3")]
 pub mod s3;
 pub mod shards;
 pub mod store;
+pub mod sweep_state;
+pub mod sweeps;
 pub mod tileset;
 
 pub use files::MapLocation;

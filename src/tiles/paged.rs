@@ -229,7 +229,7 @@ impl BlockStore for PagedStore {
     ) -> Result<RegularizeSummary> {
         let options = self.regional;
         let store = self.finish_paging()?;
-        let s = regularize_map_with(store, params, &options, progress, |p| {
+        let s = regularize_map_with(store, params, &options, progress, |p, params| {
             solver.solve(p, params)
         })?;
         Ok(RegularizeSummary {
@@ -244,6 +244,8 @@ impl BlockStore for PagedStore {
             peak_region_bytes: s.peak_region_bytes,
             pass: s.pass,
             regions_adopted: s.regions_adopted,
+            sweeps: s.sweeps,
+            region_chunks: s.region_chunks,
         })
     }
 

@@ -1,11 +1,13 @@
 //! Offline regularisation of a stored map, region by region, within a memory budget, resumable.
 //!
-//! A region is a cube of `region_chunks`³ chunks. Each region is solved together with every stored
-//! block within [`RegionPlan::exact_halo_blocks`] of it (read from the neighbouring chunk files),
-//! and only the region's own chunks are written back (new files carrying `u`). The solve reads
-//! only `f`, `w` and Ω, which regularisation never changes, so regions are independent and the
-//! result equals one global in-memory solve of the same iterations (tested within one `i16`
-//! quantisation step), seams included.
+//! A region is a cube of `region_chunks`³ chunks (by default the largest whose working memory fits
+//! the budget, [`super::region_plan`]). By default the pass runs as sweeps ([`super::sweeps`]):
+//! every region `K` iterations at a time with a halo of `K + 1` voxels, the solver state kept in
+//! the map between sweeps. Otherwise (`sweep_iterations: None`, and always for shards) each region
+//! is solved with all iterations at once together with every stored block within
+//! [`RegionPlan::exact_halo_blocks`] of it (read from the neighbouring chunk files). Either way
+//! only the region's own chunks are written back (new files carrying `u`), and the result equals
+//! one global in-memory solve of the same iterations (tested: bit for bit), seams included.
 //!
 //! Progress is part of the manifest: a pass number and its parameters in the header, and per chunk
 //! the pass that wrote it. The manifest is committed after every region, so a killed run resumes
@@ -20,6 +22,8 @@
 //! ([`super::shards::adopt`]) before it solves what no shard recorded.
 
 use super::pager::BLOCK_RESIDENT_BYTES;
+use super::region_plan::resolve;
+pub use super::region_plan::{check_budget_up_front, plan_region_chunks, RegionCosts};
 use super::shards::{self, Shard, ShardPlan};
 use super::store::MapStore;
 use super::ChunkIndex;
@@ -59,21 +63,30 @@ pub struct MapRegularizeStats {
     pub regions_adopted: usize,
     /// Regions left to other shards (a `--shard` run).
     pub regions_other_shards: usize,
+    /// Sweeps the iterations were split into (1: all at once with the exact halo).
+    pub sweeps: u32,
+    /// Region edge used, chunks (planned to the budget when not given).
+    pub region_chunks: u32,
 }
 
 /// How [`regularize_map`] tiles and bounds its work.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RegionalOptions {
-    /// Region edge, chunks.
+    /// Region edge, chunks; 0: the largest that fits the budget ([`plan_region_chunks`]).
     pub region_chunks: u32,
     /// Working-memory bound of one region, bytes.
     pub budget_bytes: u64,
     /// Halo thickness, blocks; `None` for the exact halo of the iteration count. A thinner halo
     /// leaves seams (kept for the test that shows it).
     pub halo_blocks: Option<i32>,
+    /// Iterations per sweep ([`super::sweeps`]: every region this many iterations at a time, the
+    /// solver state kept in the store between sweeps, a halo of `K + 1` voxels); `None` solves
+    /// each region with all iterations at once and the exact halo of `iterations + 1` voxels
+    /// (also what `--shard` runs always do, and a committing run that adopted shards' regions).
+    pub sweep_iterations: Option<u32>,
 }
 
-fn region_of(c: ChunkIndex, r: i32) -> [i32; 3] {
+pub(super) fn region_of(c: ChunkIndex, r: i32) -> [i32; 3] {
     [0, 1, 2].map(|a| c.0[a].div_euclid(r))
 }
 
@@ -87,7 +100,7 @@ pub fn regularize_map(
     options: &RegionalOptions,
     progress: impl FnMut(usize, usize) -> bool,
 ) -> Result<MapRegularizeStats> {
-    regularize_map_with(store, params, options, progress, |p| {
+    regularize_map_with(store, params, options, progress, |p, params| {
         p.solve(params);
         Ok(())
     })
@@ -101,14 +114,9 @@ pub fn regularize_map_with(
     params: &TvParams,
     options: &RegionalOptions,
     progress: impl FnMut(usize, usize) -> bool,
-    solve: impl FnMut(&mut TvProblem) -> Result<()>,
+    solve: impl FnMut(&mut TvProblem, &TvParams) -> Result<()>,
 ) -> Result<MapRegularizeStats> {
     params.validate()?;
-    if options.region_chunks == 0 {
-        return Err(Error::InvalidArgument(
-            "--region-chunks must be at least 1".into(),
-        ));
-    }
     let t0 = std::time::Instant::now();
     let h = store.manifest().header;
     // Same parameters as the latest pass: continue it (a resumed run, or chunks fused since).
@@ -123,23 +131,70 @@ pub fn regularize_map_with(
         .halo_blocks
         .unwrap_or_else(|| RegionPlan::exact_halo_blocks(params.iterations))
         .max(0);
-    let key = shards::plan_key(store.manifest(), pass, params, options.region_chunks, halo);
-    let r = options.region_chunks.max(1) as i32;
-    let adopted = shards::adopt(store, key, |c| region_of(c, r))?;
-    if adopted.regions > 0 {
-        tracing::info!(
-            "{}: adopted {} regions ({} chunk files) solved by shards",
-            store.dir().display(),
-            adopted.regions,
-            adopted.chunks
-        );
-        store.commit()?;
-    }
-    let mut mode = Mode::Commit;
-    let result = regularize_pass(
-        store, params, options, pass, new_pass, progress, solve, &mut mode,
-    )
-    .and_then(|mut stats| {
+    let mut solve = solve;
+    let mut progress = progress;
+    let result = (|| {
+        // Shards solve with the exact halo: their records are adopted under that plan's key. (A
+        // budget too small for the exact halo's regions had no shards: sweeps go on without.)
+        let exact = match resolve(store, options, halo, false) {
+            Err(e) if options.sweep_iterations.is_none() => return Err(e),
+            r => r,
+        };
+        let adopted = match &exact {
+            Ok(exact) => {
+                let key =
+                    shards::plan_key(store.manifest(), pass, params, exact.region_chunks, halo);
+                let r = exact.region_chunks as i32;
+                shards::adopt(store, key, |c| region_of(c, r))?
+            }
+            Err(_) => Default::default(),
+        };
+        if adopted.regions > 0 {
+            tracing::info!(
+                "{}: adopted {} regions ({} chunk files) solved by shards",
+                store.dir().display(),
+                adopted.regions,
+                adopted.chunks
+            );
+            store.commit()?;
+        }
+        let all_done = store.manifest().chunks.values().all(|e| e.reg_pass == pass);
+        let swept = options
+            .sweep_iterations
+            .filter(|k| *k < params.iterations && adopted.regions == 0 && !all_done);
+        let mut stats = match swept {
+            Some(k) => {
+                let options = resolve(store, options, RegionPlan::exact_halo_blocks(k), true)?;
+                let run = super::sweeps::SweptPass {
+                    params,
+                    region_chunks: options.region_chunks,
+                    sweep_iterations: k,
+                    budget_bytes: options.budget_bytes,
+                    pass,
+                };
+                let mut stats =
+                    super::sweeps::regularize_swept(store, &run, &mut progress, &mut solve)?;
+                stats.region_chunks = options.region_chunks;
+                stats
+            }
+            None => {
+                let exact = exact?;
+                let mut mode = Mode::Commit;
+                let mut stats = regularize_pass(
+                    store,
+                    params,
+                    &exact,
+                    pass,
+                    new_pass,
+                    &mut progress,
+                    &mut solve,
+                    &mut mode,
+                )?;
+                stats.sweeps = 1;
+                stats.region_chunks = exact.region_chunks;
+                stats
+            }
+        };
         stats.regions_adopted = adopted.regions;
         if store.manifest().latest_pass_complete() {
             let removed = shards::close_plans(store)?;
@@ -148,8 +203,9 @@ pub fn regularize_map_with(
             }
         }
         Ok(stats)
-    });
-    if result.is_err() && new_pass && store.manifest().header.reg_pass == pass {
+    })();
+    let stopped = result.as_ref().map_or(true, |s| s.interrupted);
+    if stopped && new_pass && store.manifest().header.reg_pass == pass {
         // Nothing of the new pass may have been committed: forget it unless a region was.
         let committed = store.manifest().chunks.values().any(|e| e.reg_pass == pass);
         if !committed {
@@ -165,6 +221,8 @@ pub fn regularize_map_with(
 }
 
 /// How solved regions are recorded: committed by the map's writer, or written by a shard.
+// One value per run: the size difference between the variants costs nothing.
+#[allow(clippy::large_enum_variant)]
 enum Mode {
     /// Write the region's chunks and commit the manifest (the map's one writer).
     Commit,
@@ -191,14 +249,9 @@ pub fn regularize_shard(
     options: &RegionalOptions,
     shard: Shard,
     progress: impl FnMut(usize, usize) -> bool,
-    solve: impl FnMut(&mut TvProblem) -> Result<()>,
+    solve: impl FnMut(&mut TvProblem, &TvParams) -> Result<()>,
 ) -> Result<MapRegularizeStats> {
     params.validate()?;
-    if options.region_chunks == 0 {
-        return Err(Error::InvalidArgument(
-            "--region-chunks must be at least 1".into(),
-        ));
-    }
     let t0 = std::time::Instant::now();
     let h = store.manifest().header;
     let (pass, new_pass) = if h.reg_pass > 0 && h.reg_params == *params {
@@ -211,6 +264,7 @@ pub fn regularize_shard(
         .halo_blocks
         .unwrap_or_else(|| RegionPlan::exact_halo_blocks(params.iterations))
         .max(0);
+    let options = &resolve(store, options, halo, false)?;
     let r = options.region_chunks as i32;
     let key = shards::plan_key(store.manifest(), pass, params, options.region_chunks, halo);
     let regions: std::collections::BTreeSet<[i32; 3]> = store
@@ -256,7 +310,7 @@ fn regularize_pass(
     pass: u32,
     new_pass: bool,
     mut progress: impl FnMut(usize, usize) -> bool,
-    mut solve: impl FnMut(&mut TvProblem) -> Result<()>,
+    mut solve: impl FnMut(&mut TvProblem, &TvParams) -> Result<()>,
     mode: &mut Mode,
 ) -> Result<MapRegularizeStats> {
     let cb = store.chunk_blocks() as i32;
@@ -352,7 +406,7 @@ fn regularize_pass(
             * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
         stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
         let mut problem = TvProblem::gather(&layer, &gathered);
-        solve(&mut problem)?;
+        solve(&mut problem, params)?;
         let core_list: Vec<BlockIndex> = core_blocks.values().flatten().copied().collect();
         problem.scatter(&mut layer, &core_list);
         stats.solved_blocks += problem.blocks().len();

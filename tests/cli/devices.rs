@@ -88,7 +88,14 @@ fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
         "o_gpu",
     ];
     args.extend(common);
-    args.extend(["--device", "gpu", "--memory-budget", "64MiB"]);
+    args.extend([
+        "--device",
+        "gpu",
+        "--memory-budget",
+        "64MiB",
+        "--chunk-blocks",
+        "8",
+    ]);
     let out = ok(&args, d);
     assert!(
         line(&out, "fused").contains(&format!(" on {gpu}:")),
@@ -109,7 +116,14 @@ fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
         "o_cpu",
     ];
     args.extend(common);
-    args.extend(["--device", "cpu", "--memory-budget", "64MiB"]);
+    args.extend([
+        "--device",
+        "cpu",
+        "--memory-budget",
+        "64MiB",
+        "--chunk-blocks",
+        "8",
+    ]);
     let out = ok(&args, d);
     assert!(line(&out, "fused").contains(" on CPU:"), "{out}");
     assert!(

@@ -51,7 +51,7 @@ fn reconstruct_args<'a>(map: &'a str, out: &'a str) -> Vec<&'a str> {
         "--iterations",
         "8",
         "--region-chunks",
-        "2",
+        "1",
         "--voxel-size",
         "0.2",
         "--allow-overrun",
@@ -235,4 +235,120 @@ fn map_errors_are_clear() {
         "{}",
         text(&o)
     );
+}
+
+/// Issue 15's budget and issue 14 item 5 through the binary: `reconstruct --map` refuses a budget
+/// too small for regularising one region of full chunks before it fuses anything; `regularize`
+/// without `--region-chunks` plans regions to its budget and runs sweeps, and the result equals
+/// the exact-halo pass's (`--sweep-iterations 0`) voxel for voxel.
+#[test]
+fn regularize_plans_regions_to_the_budget_and_reconstruct_checks_it_before_fusion() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    ok(
+        &[
+            "synth",
+            "--out",
+            "drive",
+            "--length-m",
+            "40",
+            "--frame-spacing-m",
+            "4",
+            "--lidar-only",
+        ],
+        d,
+    );
+    let run = |map: &str, budget: &str, extra: &[&str]| {
+        let mut a = vec![
+            "reconstruct",
+            "drive/sequences/00",
+            "--depth",
+            "lidar",
+            "--map",
+            map,
+            "--out",
+            "out",
+            "--memory-budget",
+            budget,
+            "--voxel-size",
+            "0.2",
+            "--iterations",
+            "16",
+            "--no-eval",
+        ];
+        a.extend_from_slice(extra);
+        denser(&a, d)
+    };
+    // 16³-block chunks: one full chunk with its two-block halo may need ~266 MiB.
+    let t0 = std::time::Instant::now();
+    let o = run("small", "64MiB", &[]);
+    let t = text(&o);
+    assert!(!o.status.success(), "{t}");
+    assert!(
+        t.contains("over the 64 MiB budget") && t.contains("--chunk-blocks 8: up to 53 MiB"),
+        "{t}"
+    );
+    assert!(
+        !d.join("small/chunks").exists(),
+        "refused before fusing: {t}"
+    );
+    println!("refused in {:.2} s: {t}", t0.elapsed().as_secs_f64());
+
+    // Fused without regularising, then regularised with a small budget, planned.
+    let o = run("m", "64MiB", &["--chunk-blocks", "4", "--skip-regularize"]);
+    assert!(o.status.success(), "{}", text(&o));
+    copy_dir(&d.join("m"), &d.join("exact"));
+    let out = ok(
+        &[
+            "regularize",
+            "m",
+            "--iterations",
+            "16",
+            "--memory-budget",
+            "8MiB",
+        ],
+        d,
+    );
+    assert!(
+        out.contains("16 iterations in 2 sweeps, regions of") && out.contains("halo 2 blocks"),
+        "{out}"
+    );
+    assert!(!d.join("m/sweeps/s0").exists(), "state removed: {out}");
+    let out = ok(
+        &[
+            "regularize",
+            "exact",
+            "--iterations",
+            "16",
+            "--sweep-iterations",
+            "0",
+            "--region-chunks",
+            "1",
+        ],
+        d,
+    );
+    assert!(
+        out.contains("in 1 sweep,") && out.contains("halo 3 blocks"),
+        "{out}"
+    );
+    ok(&["export", "m", "--mesh", "swept.ply"], d);
+    ok(&["export", "exact", "--mesh", "exact.ply"], d);
+    let (a, b) = (
+        std::fs::read(d.join("swept.ply")).expect("swept"),
+        std::fs::read(d.join("exact.ply")).expect("exact"),
+    );
+    assert!(a.len() > 1000 && a == b, "the meshes of u differ");
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).expect("mkdir");
+    for e in std::fs::read_dir(from).expect("ls") {
+        let e = e.expect("entry");
+        let target = to.join(e.file_name());
+        if e.file_type().expect("type").is_dir() {
+            copy_dir(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), &target).expect("copy");
+        }
+    }
 }

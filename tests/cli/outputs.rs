@@ -268,7 +268,9 @@ fn an_in_memory_run_too_large_for_ram_stops_early_and_suggests_a_map() {
     assert!(!d.join("o/mesh_raw.ply").exists());
     // The same map streamed through a directory fits.
     let mut args = QUICK.to_vec();
+    // 8³-block chunks: one full chunk with its halo fits 64 MiB (16³ would be refused up front).
     args.extend(["--out", "o", "--map", "m", "--memory-budget", "64MiB"]);
+    args.extend(["--chunk-blocks", "8"]);
     let o = bin()
         .args(&args)
         .env("DENSER_RAM_LIMIT", "8MiB")

@@ -19,9 +19,9 @@ use denser::tiles::{group_by_chunk, ChunkIndex};
 use denser::Error;
 use std::path::Path;
 
-const CHUNK_BLOCKS: u32 = 2;
+pub(crate) const CHUNK_BLOCKS: u32 = 2;
 
-fn grid() -> GridParams {
+pub(crate) fn grid() -> GridParams {
     GridParams {
         voxel_size_m: 0.1,
         truncation_m: 0.4,
@@ -29,7 +29,7 @@ fn grid() -> GridParams {
 }
 
 /// A wavy, noisy surface through `nx × ny` chunks (blocks around z = 0): every block has Ω voxels.
-fn surface_layer(nx: i32, ny: i32, seed: u64) -> Layer {
+pub(crate) fn surface_layer(nx: i32, ny: i32, seed: u64) -> Layer {
     let mut layer = Layer::new(grid());
     let mut s = seed;
     let side = (nx * CHUNK_BLOCKS as i32) * 8;
@@ -62,7 +62,7 @@ fn surface_layer(nx: i32, ny: i32, seed: u64) -> Layer {
     layer
 }
 
-fn write_layer(store: &mut MapStore, layer: &Layer) {
+pub(crate) fn write_layer(store: &mut MapStore, layer: &Layer) {
     for (c, blocks) in group_by_chunk(layer.indices_sorted(), CHUNK_BLOCKS) {
         let refs: Vec<(BlockIndex, &Block)> = blocks
             .iter()
@@ -73,7 +73,7 @@ fn write_layer(store: &mut MapStore, layer: &Layer) {
     store.commit().expect("commit");
 }
 
-fn store_layer(store: &MapStore) -> Layer {
+pub(crate) fn store_layer(store: &MapStore) -> Layer {
     let mut layer = Layer::new(store.grid());
     for c in store.chunk_indices() {
         let d = store.read_chunk(c).expect("read").expect("present");
@@ -103,6 +103,7 @@ fn options() -> RegionalOptions {
         region_chunks: 1,
         budget_bytes: 1 << 30,
         halo_blocks: None,
+        sweep_iterations: None,
     }
 }
 

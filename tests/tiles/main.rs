@@ -10,3 +10,4 @@ mod format;
 mod paging;
 #[cfg(feature = "s3")]
 mod scaleout;
+mod sweeps;

@@ -44,7 +44,7 @@ fn views() -> Vec<denser::frame::DepthFrame> {
         .collect()
 }
 
-fn store_layer(store: &MapStore) -> Layer {
+pub(crate) fn store_layer(store: &MapStore) -> Layer {
     let mut layer = Layer::new(store.grid());
     for c in store.chunk_indices() {
         let d = store.read_chunk(c).expect("read").expect("present");
@@ -53,7 +53,7 @@ fn store_layer(store: &MapStore) -> Layer {
     layer
 }
 
-fn assert_layers_identical(a: &Layer, b: &Layer) {
+pub(crate) fn assert_layers_identical(a: &Layer, b: &Layer) {
     assert_eq!(a.indices_sorted(), b.indices_sorted(), "block sets differ");
     for i in a.indices_sorted() {
         assert!(a.get(&i) == b.get(&i), "block {i:?} differs");
@@ -80,6 +80,7 @@ fn paged(
             region_chunks: 2,
             budget_bytes: 1 << 30,
             halo_blocks: None,
+            sweep_iterations: None,
         },
     );
     let config = ReconstructionConfig {
@@ -167,7 +168,7 @@ fn paged_lidar_fusion_is_bit_identical_to_in_memory() {
     assert_layers_identical(&mem, &store_layer(&store));
 }
 
-fn fused_store(dir: &std::path::Path) -> (Layer, MapStore) {
+pub(crate) fn fused_store(dir: &std::path::Path) -> (Layer, MapStore) {
     let frames = views();
     let mut mem = Layer::new(grid());
     for f in &frames[..8] {
@@ -185,7 +186,7 @@ fn fused_store(dir: &std::path::Path) -> (Layer, MapStore) {
     (mem, store)
 }
 
-fn max_u_difference(a: &Layer, b: &Layer) -> (f32, usize) {
+pub(crate) fn max_u_difference(a: &Layer, b: &Layer) -> (f32, usize) {
     let mut worst = 0f32;
     let mut n_off = 0;
     for i in a.indices_sorted() {
@@ -216,6 +217,7 @@ fn regional_regularisation_of_the_store_equals_the_global_solve() {
         region_chunks: 1,
         budget_bytes: 1 << 30,
         halo_blocks: None,
+        sweep_iterations: None,
     };
     let stats = regularize_map(&mut store, &params, &opts, |_, _| true).expect("regional");
     assert!(stats.regions > 100, "{stats:?}");
@@ -242,6 +244,7 @@ fn regional_regularisation_of_the_store_equals_the_global_solve() {
     let (_, mut store2) = fused_store(&dir2.path().join("map"));
     let opts0 = RegionalOptions {
         halo_blocks: Some(0),
+        sweep_iterations: None,
         ..opts
     };
     regularize_map(&mut store2, &params, &opts0, |_, _| true).expect("no halo");
@@ -263,6 +266,7 @@ fn interrupted_regularisation_resumes_to_the_same_result() {
         region_chunks: 2,
         budget_bytes: 1 << 30,
         halo_blocks: None,
+        sweep_iterations: None,
     };
     let dir = tempfile::tempdir().expect("tempdir");
     let (_, mut whole) = fused_store(&dir.path().join("a"));
@@ -317,6 +321,7 @@ fn tiled_export_stitches_into_the_whole_map_mesh() {
         region_chunks: 2,
         budget_bytes: 1 << 30,
         halo_blocks: None,
+        sweep_iterations: None,
     };
     regularize_map(&mut store, &params, &opts, |_, _| true).expect("regional");
     for field in [Field::Raw, Field::Regularized] {
@@ -462,37 +467,41 @@ fn regional_regularisation_on_the_gpu_equals_the_global_cpu_solve() {
     use denser::regularize::solve_gpu;
     use denser::tiles::regional::regularize_map_with;
     let Some(ctx) = common::gpu() else { return };
-    let dir = tempfile::tempdir().expect("tempdir");
-    let (mut mem, mut store) = fused_store(&dir.path().join("map"));
-    let params = TvParams {
-        iterations: 20,
-        ..TvParams::paper(0.05)
-    };
-    regularize_layer(&mut mem, &params).expect("global");
-    let opts = RegionalOptions {
-        region_chunks: 4,
-        budget_bytes: 1 << 30,
-        halo_blocks: None,
-    };
-    let mut solves = 0;
-    let stats = regularize_map_with(
-        &mut store,
-        &params,
-        &opts,
-        |_, _| true,
-        |p| {
-            solves += 1;
-            solve_gpu(&ctx, p, &params)
-        },
-    )
-    .expect("regional on the GPU");
-    assert_eq!(solves, stats.regions);
-    assert!(stats.regions > 10, "{stats:?}");
-    let (worst, _) = max_u_difference(&mem, &store_layer(&store));
-    // The GPU TV tolerance (tests/gpu_compare.rs): |Δu| ≤ 1e-4, plus the i16 storage step.
-    eprintln!(
-        "{} regions on the GPU: max |u_tiled_gpu − u_global_cpu| = {worst:e}",
-        stats.regions
-    );
-    assert!(worst <= 1.5e-4, "{worst}");
+    // All iterations at once with the exact halo, and sweeps of 7 with the state kept between.
+    for sweep_iterations in [None, Some(7)] {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (mut mem, mut store) = fused_store(&dir.path().join("map"));
+        let params = TvParams {
+            iterations: 20,
+            ..TvParams::paper(0.05)
+        };
+        regularize_layer(&mut mem, &params).expect("global");
+        let opts = RegionalOptions {
+            region_chunks: 4,
+            budget_bytes: 1 << 30,
+            halo_blocks: None,
+            sweep_iterations,
+        };
+        let mut solves = 0;
+        let stats = regularize_map_with(
+            &mut store,
+            &params,
+            &opts,
+            |_, _| true,
+            |p, params| {
+                solves += 1;
+                solve_gpu(&ctx, p, params)
+            },
+        )
+        .expect("regional on the GPU");
+        assert_eq!(solves, stats.regions * stats.sweeps as usize);
+        assert!(stats.regions > 10, "{stats:?}");
+        let (worst, _) = max_u_difference(&mem, &store_layer(&store));
+        // The GPU TV tolerance (tests/gpu_compare.rs): |Δu| ≤ 1e-4, plus the i16 storage step.
+        eprintln!(
+            "{} regions on the GPU, {} sweeps: max |u_tiled_gpu − u_global_cpu| = {worst:e}",
+            stats.regions, stats.sweeps
+        );
+        assert!(worst <= 1.5e-4, "{worst}");
+    }
 }

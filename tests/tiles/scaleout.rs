@@ -90,6 +90,7 @@ fn options() -> RegionalOptions {
         region_chunks: 1,
         budget_bytes: 1 << 30,
         halo_blocks: None,
+        sweep_iterations: None,
     }
 }
 
@@ -173,8 +174,8 @@ fn sharded_regularisation_equals_one_process_on_disk() {
                 solved += 1;
                 stop_after.is_none_or(|n| solved < n)
             },
-            |p| {
-                p.solve(&params());
+            |p, prm| {
+                p.solve(prm);
                 Ok(())
             },
         )
@@ -282,8 +283,8 @@ fn a_map_on_s3_equals_the_map_on_disk() {
             &options(),
             Shard { index, count: 2 },
             |_, _| true,
-            |p| {
-                p.solve(&params());
+            |p, prm| {
+                p.solve(prm);
                 Ok(())
             },
         )

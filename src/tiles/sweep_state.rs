@@ -1,0 +1,392 @@
+//! The solver state a swept regularisation pass keeps between sweeps (`formats/sweep-state.md`):
+//! one file per chunk and sweep parity holding, for each of the chunk's blocks, its Ω voxels'
+//! stored TSDF and weight and the Chambolle–Pock state `u`, `ū`, `p` (f32), behind a block index
+//! so that a halo read takes only the blocks it needs (each block record has its own CRC); and a
+//! small progress record saying which step of the pass finished for how many regions.
+//!
+//! Pure codecs: no I/O here ([`super::sweeps`] reads and writes through
+//! [`super::files::MapFiles`]). Voxels outside Ω are not stored: the solver never reads or
+//! changes them ([`crate::regularize::TvProblem`]'s link bits need both voxels in Ω).
+
+use crate::error::{Error, Result};
+use crate::grid::{BlockIndex, VOXELS_PER_BLOCK};
+use std::path::Path;
+
+/// Magic of a state file.
+pub const STATE_MAGIC: [u8; 4] = *b"DSW1";
+/// Format version of state files this build reads and writes.
+pub const STATE_VERSION: u16 = 1;
+/// Bytes of a state file's fixed header.
+pub const STATE_HEADER_BYTES: usize = 40;
+/// Bytes of one block-index entry.
+pub const STATE_ENTRY_BYTES: usize = 24;
+/// Bytes of a block record per Ω voxel: TSDF `i16`, weight `u8`, `u`, `ū`, `p_x`, `p_y`, `p_z`.
+pub const STATE_BYTES_PER_OMEGA_VOXEL: usize = 2 + 1 + 5 * 4;
+/// Bytes of a block record's Ω bit mask.
+pub const STATE_MASK_BYTES: usize = VOXELS_PER_BLOCK / 8;
+
+/// Magic of the progress record.
+pub const PROGRESS_MAGIC: [u8; 4] = *b"DSP1";
+/// Format version of the progress record.
+pub const PROGRESS_VERSION: u16 = 1;
+
+/// One block's state as stored: its Ω voxels in voxel order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct BlockState {
+    /// Ω bit per voxel (bit `i % 64` of word `i / 64`).
+    pub omega: [u64; 8],
+    /// Stored TSDF (`grid::encode_tsdf` units) of the Ω voxels.
+    pub tsdf: Vec<i16>,
+    /// Observation count of the Ω voxels.
+    pub weight: Vec<u8>,
+    /// Primal variable.
+    pub u: Vec<f32>,
+    /// Over-relaxed primal variable.
+    pub ubar: Vec<f32>,
+    /// Dual variable, three components.
+    pub p: [Vec<f32>; 3],
+}
+
+impl BlockState {
+    /// Number of Ω voxels.
+    pub fn omega_count(&self) -> usize {
+        self.omega.iter().map(|w| w.count_ones() as usize).sum()
+    }
+
+    /// Whether voxel `i` is in Ω.
+    pub fn in_omega(&self, i: usize) -> bool {
+        self.omega[i / 64] >> (i % 64) & 1 != 0
+    }
+
+    /// Bytes of the record.
+    pub fn record_bytes(&self) -> usize {
+        STATE_MASK_BYTES + self.tsdf.len() * STATE_BYTES_PER_OMEGA_VOXEL
+    }
+
+    fn encode(&self, out: &mut Vec<u8>) {
+        for w in self.omega {
+            out.extend_from_slice(&w.to_le_bytes());
+        }
+        for v in &self.tsdf {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        out.extend_from_slice(&self.weight);
+        for plane in [&self.u, &self.ubar, &self.p[0], &self.p[1], &self.p[2]] {
+            for v in plane.iter() {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+    }
+
+    fn decode(b: &[u8]) -> Option<Self> {
+        if b.len() < STATE_MASK_BYTES {
+            return None;
+        }
+        let mut omega = [0u64; 8];
+        for (k, w) in omega.iter_mut().enumerate() {
+            *w = u64::from_le_bytes(b[8 * k..8 * k + 8].try_into().ok()?);
+        }
+        let mut s = BlockState {
+            omega,
+            ..Default::default()
+        };
+        let n = s.omega_count();
+        if b.len() != STATE_MASK_BYTES + n * STATE_BYTES_PER_OMEGA_VOXEL {
+            return None;
+        }
+        let mut at = STATE_MASK_BYTES;
+        s.tsdf = b[at..at + 2 * n]
+            .chunks_exact(2)
+            .map(|c| i16::from_le_bytes([c[0], c[1]]))
+            .collect();
+        at += 2 * n;
+        s.weight = b[at..at + n].to_vec();
+        at += n;
+        let mut plane = || {
+            let v: Vec<f32> = b[at..at + 4 * n]
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect();
+            at += 4 * n;
+            v
+        };
+        s.u = plane();
+        s.ubar = plane();
+        s.p = [plane(), plane(), plane()];
+        Some(s)
+    }
+}
+
+/// What a state file's header says.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StateHeader {
+    /// The pass's key ([`super::sweeps`]): state of another pass or map is never read.
+    pub key: u64,
+    /// The chunk.
+    pub chunk: [i32; 3],
+    /// The step whose result this is (0: the initial state).
+    pub step: u32,
+    /// Number of blocks.
+    pub block_count: u32,
+}
+
+/// Encodes a chunk's state file from its blocks (sorted by index).
+pub fn encode_state(header: &StateHeader, blocks: &[(BlockIndex, BlockState)]) -> Vec<u8> {
+    let records: usize = blocks.iter().map(|(_, s)| s.record_bytes()).sum();
+    let table = STATE_HEADER_BYTES + blocks.len() * STATE_ENTRY_BYTES;
+    let mut out = Vec::with_capacity(table + records);
+    out.extend_from_slice(&STATE_MAGIC);
+    out.extend_from_slice(&STATE_VERSION.to_le_bytes());
+    out.extend_from_slice(&[0, 0]);
+    out.extend_from_slice(&header.key.to_le_bytes());
+    for a in header.chunk {
+        out.extend_from_slice(&a.to_le_bytes());
+    }
+    out.extend_from_slice(&header.step.to_le_bytes());
+    out.extend_from_slice(&(blocks.len() as u32).to_le_bytes());
+    out.extend_from_slice(&[0; 4]); // the header CRC, below
+    let mut body = Vec::with_capacity(records);
+    for (b, s) in blocks {
+        let offset = (table + body.len()) as u64;
+        let start = body.len();
+        s.encode(&mut body);
+        let crc = crc32fast::hash(&body[start..]);
+        for a in b.0 {
+            out.extend_from_slice(&a.to_le_bytes());
+        }
+        out.extend_from_slice(&(offset as u32).to_le_bytes());
+        out.extend_from_slice(&crc.to_le_bytes());
+        out.extend_from_slice(&((body.len() - start) as u32).to_le_bytes());
+    }
+    let crc = crc32fast::hash(&[&out[..36], &out[STATE_HEADER_BYTES..]].concat());
+    out[36..40].copy_from_slice(&crc.to_le_bytes());
+    out.extend_from_slice(&body);
+    out
+}
+
+/// A state file's header and block index, checked; `path` names the file in errors.
+pub struct StateIndex {
+    /// The header.
+    pub header: StateHeader,
+    /// Per block: index, byte range of its record, CRC-32 of the record.
+    pub entries: Vec<(BlockIndex, std::ops::Range<usize>, u32)>,
+}
+
+/// Reads and checks a state file's header and block index.
+pub fn decode_state_index(path: &Path, b: &[u8]) -> Result<StateIndex> {
+    let bad = |m: String| Error::bad_input(path, m);
+    if b.len() < STATE_HEADER_BYTES || b[..4] != STATE_MAGIC {
+        return Err(bad("not a denser sweep state file (bad magic)".into()));
+    }
+    let le32 = |at: usize| u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]);
+    let version = u16::from_le_bytes([b[4], b[5]]);
+    if version != STATE_VERSION {
+        return Err(bad(format!(
+            "sweep state version {version}, this denser reads version {STATE_VERSION}"
+        )));
+    }
+    let key = u64::from_le_bytes(b[8..16].try_into().map_err(|_| bad("short".into()))?);
+    let chunk = [le32(16) as i32, le32(20) as i32, le32(24) as i32];
+    let step = le32(28);
+    let count = le32(32) as usize;
+    let table = STATE_HEADER_BYTES + count * STATE_ENTRY_BYTES;
+    if b.len() < table {
+        return Err(bad(format!(
+            "sweep state file is {} bytes, its index of {count} blocks needs {table}",
+            b.len()
+        )));
+    }
+    let crc = crc32fast::hash(&[&b[..36], &b[STATE_HEADER_BYTES..table]].concat());
+    if crc != le32(36) {
+        return Err(bad(
+            "sweep state header checksum mismatch (corrupted)".into()
+        ));
+    }
+    let mut entries = Vec::with_capacity(count);
+    for k in 0..count {
+        let at = STATE_HEADER_BYTES + k * STATE_ENTRY_BYTES;
+        let index = BlockIndex([le32(at) as i32, le32(at + 4) as i32, le32(at + 8) as i32]);
+        let (offset, crc, len) = (
+            le32(at + 12) as usize,
+            le32(at + 16),
+            le32(at + 20) as usize,
+        );
+        if offset < table || offset + len > b.len() {
+            return Err(bad(format!(
+                "sweep state block {:?}: record {offset}..{} outside the file of {} bytes",
+                index.0,
+                offset + len,
+                b.len()
+            )));
+        }
+        entries.push((index, offset..offset + len, crc));
+    }
+    Ok(StateIndex {
+        header: StateHeader {
+            key,
+            chunk,
+            step,
+            block_count: count as u32,
+        },
+        entries,
+    })
+}
+
+/// Decodes one block record of a state file (checked against its CRC).
+pub fn decode_block_state(
+    path: &Path,
+    b: &[u8],
+    entry: &(BlockIndex, std::ops::Range<usize>, u32),
+) -> Result<BlockState> {
+    let rec = &b[entry.1.clone()];
+    if crc32fast::hash(rec) != entry.2 {
+        return Err(Error::bad_input(
+            path,
+            format!(
+                "sweep state block {:?}: checksum mismatch (corrupted)",
+                entry.0 .0
+            ),
+        ));
+    }
+    BlockState::decode(rec).ok_or_else(|| {
+        Error::bad_input(
+            path,
+            format!(
+                "sweep state block {:?}: record length does not match its Ω mask",
+                entry.0 .0
+            ),
+        )
+    })
+}
+
+/// How far a swept pass has come (`sweeps/progress.dsp`, a bincode 2 payload behind a header).
+#[derive(Clone, Debug, PartialEq, bincode::Encode, bincode::Decode)]
+pub struct SweepProgress {
+    /// Key of the pass (map, pass number, parameters, region edge, iterations per sweep).
+    pub key: u64,
+    /// The chunk table the pass started from: index and file number of every chunk.
+    pub chunks: Vec<([i32; 3], u64)>,
+    /// Steps finished for every region (0: none; step 0 writes the initial state, step `s ≥ 1`
+    /// runs sweep `s`).
+    pub steps_done: u32,
+    /// Regions (in the pass's order) finished of the step under way.
+    pub regions_done: u32,
+}
+
+impl SweepProgress {
+    /// The record's file bytes.
+    pub fn encode(&self) -> Vec<u8> {
+        let payload = bincode::encode_to_vec(self, bincode::config::standard())
+            .expect("encoding to a Vec cannot fail");
+        let mut out = Vec::with_capacity(16 + payload.len());
+        out.extend_from_slice(&PROGRESS_MAGIC);
+        out.extend_from_slice(&PROGRESS_VERSION.to_le_bytes());
+        out.extend_from_slice(&[0, 0]);
+        out.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+        out.extend_from_slice(&payload);
+        let crc = crc32fast::hash(&out);
+        out.extend_from_slice(&crc.to_le_bytes());
+        out
+    }
+
+    /// Decodes file bytes; `path` names the file in errors.
+    pub fn decode(path: &Path, b: &[u8]) -> Result<Self> {
+        let bad = |m: String| Error::bad_input(path, m);
+        if b.len() < 16 || b[..4] != PROGRESS_MAGIC {
+            return Err(bad("not a denser sweep progress record (bad magic)".into()));
+        }
+        let version = u16::from_le_bytes([b[4], b[5]]);
+        if version != PROGRESS_VERSION {
+            return Err(bad(format!(
+                "sweep progress version {version}, this denser reads version {PROGRESS_VERSION}"
+            )));
+        }
+        let len = u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize;
+        if b.len() != 16 + len {
+            return Err(bad(format!(
+                "sweep progress record is {} bytes, its header says {}",
+                b.len(),
+                16 + len
+            )));
+        }
+        let crc = u32::from_le_bytes([b[12 + len], b[13 + len], b[14 + len], b[15 + len]]);
+        if crc32fast::hash(&b[..12 + len]) != crc {
+            return Err(bad("sweep progress checksum mismatch (corrupted)".into()));
+        }
+        let (record, used) = bincode::decode_from_slice::<SweepProgress, _>(
+            &b[12..12 + len],
+            bincode::config::standard(),
+        )
+        .map_err(|e| bad(format!("sweep progress payload: {e}")))?;
+        if used != len {
+            return Err(bad(format!(
+                "sweep progress payload has {} trailing bytes",
+                len - used
+            )));
+        }
+        Ok(record)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn state_files_round_trip_and_refuse_corruption() {
+        let mut s = BlockState::default();
+        for i in [0usize, 5, 63, 64, 300, 511] {
+            s.omega[i / 64] |= 1 << (i % 64);
+            s.tsdf.push(i as i16 - 200);
+            s.weight.push((i % 127) as u8);
+            s.u.push(i as f32 * 0.5);
+            s.ubar.push(-(i as f32));
+            s.p[0].push(0.25);
+            s.p[1].push(-0.75);
+            s.p[2].push(i as f32 / 512.0);
+        }
+        let blocks = vec![
+            (BlockIndex([-1, 2, 3]), s.clone()),
+            (BlockIndex([0, 2, 3]), BlockState::default()),
+        ];
+        let h = StateHeader {
+            key: 0x1234_5678_9abc_def0,
+            chunk: [-1, 0, 0],
+            step: 3,
+            block_count: 2,
+        };
+        let bytes = encode_state(&h, &blocks);
+        let p = Path::new("x.dsws");
+        let idx = decode_state_index(p, &bytes).expect("index");
+        assert_eq!(idx.header, h);
+        assert_eq!(idx.entries.len(), 2);
+        for (e, (b, want)) in idx.entries.iter().zip(&blocks) {
+            assert_eq!(e.0, *b);
+            assert_eq!(&decode_block_state(p, &bytes, e).expect("block"), want);
+        }
+        // A flipped bit in a record is found by that record's CRC only.
+        let mut bad = bytes.clone();
+        let at = idx.entries[0].1.start + STATE_MASK_BYTES + 3;
+        bad[at] ^= 1;
+        let idx2 = decode_state_index(p, &bad).expect("index intact");
+        assert!(decode_block_state(p, &bad, &idx2.entries[0]).is_err());
+        // A flipped bit in the index is found by the header CRC.
+        let mut bad = bytes.clone();
+        bad[STATE_HEADER_BYTES + 1] ^= 1;
+        assert!(decode_state_index(p, &bad).is_err());
+        assert!(decode_state_index(p, &bytes[..10]).is_err());
+        let pr = SweepProgress {
+            key: 7,
+            chunks: vec![([1, 2, 3], 9)],
+            steps_done: 4,
+            regions_done: 2,
+        };
+        assert_eq!(
+            SweepProgress::decode(p, &pr.encode()).expect("progress"),
+            pr
+        );
+        let mut b = pr.encode();
+        b[13] ^= 1;
+        assert!(SweepProgress::decode(p, &b).is_err());
+    }
+}

@@ -1,0 +1,569 @@
+//! Swept regional regularisation: every region `K` iterations at a time, the solver state kept
+//! in the map's store between sweeps, so a region needs a halo of `K + 1` voxels (one block at
+//! `K = 7`, two at the default `K = 15`) instead of `iterations + 1`.
+//!
+//! Why it equals the global solve: one Chambolle–Pock iteration changes a voxel from values at
+//! most one voxel away (see [`RegionPlan::exact_halo_blocks`]), and only the gathered set's outer
+//! layer is wrong from the start (its links to ungathered neighbours are cut). A region that
+//! starts sweep `s` from the state (u, ū, p) every voxel had after sweep `s − 1` therefore ends
+//! it with its own voxels exactly in the global solve's state after sweep `s`, provided every
+//! region of sweep `s` reads the state of sweep `s − 1`: sweep `s` writes parity `s mod 2`
+//! (`sweeps/sP/…`) and reads the other, never what a neighbour still reads. The arithmetic per
+//! voxel does not depend on which blocks are gathered, so the result is bit-identical to the
+//! global solve before quantisation (tested).
+//!
+//! Steps of a pass, each over every region in order: step 0 writes each chunk's initial state
+//! from its chunk file (u = ū = f, p = 0); steps 1 … S−1 run sweeps of `K` iterations and write
+//! state; step S runs the last sweep (the remaining iterations) and writes the region's chunk
+//! files with `u`, committing the manifest per region exactly as the exact-halo pass does (the
+//! last complete pass stays readable until the new one is whole). A progress record
+//! (`sweeps/progress.dsp`) is written after every region, so a killed run resumes with the
+//! region after the last one finished; a record of another pass, parameters or chunk table is
+//! discarded with the state. The state files are removed when the pass completes.
+//! Layouts: `formats/sweep-state.md`.
+
+use super::files::MapFiles;
+use super::pager::BLOCK_RESIDENT_BYTES;
+use super::regional::{region_of, MapRegularizeStats, SOLVER_BYTES_PER_VOXEL};
+use super::store::MapStore;
+use super::sweep_state::{
+    decode_block_state, decode_state_index, encode_state, BlockState, StateHeader, SweepProgress,
+    STATE_BYTES_PER_OMEGA_VOXEL, STATE_ENTRY_BYTES, STATE_MASK_BYTES,
+};
+use super::ChunkIndex;
+use crate::error::{Error, Result};
+use crate::grid::{decode_tsdf, Block, BlockIndex, Layer, VOXELS_PER_BLOCK};
+use crate::regularize::{RegionPlan, TvParams, TvProblem};
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+
+/// Folder of a swept pass's state and progress record in the map's store.
+pub const SWEEPS_FOLDER: &str = "sweeps";
+/// The progress record's name.
+pub const PROGRESS_FILE: &str = "sweeps/progress.dsp";
+/// Iterations per sweep by default: a halo of `K + 1 = 16` voxels, two blocks. Measured against
+/// 7 (one block, 15 sweeps) and 23 (three blocks, 5 sweeps) on a 200 m street: 1.8–2.0× the
+/// global solve's CPU time against 2.5× and 2.6× (`docs/bench/regularize.md`).
+pub const DEFAULT_SWEEP_ITERATIONS: u32 = 15;
+
+/// Working memory of one gathered block in a sweep besides its Ω voxels: the solver's arrays
+/// and its state record's mask and index entry, bytes.
+pub const SWEEP_BYTES_PER_BLOCK: u64 = VOXELS_PER_BLOCK as u64 * SOLVER_BYTES_PER_VOXEL
+    + (STATE_MASK_BYTES + STATE_ENTRY_BYTES) as u64;
+/// Working memory of one gathered Ω voxel: its state record as read, bytes.
+pub const SWEEP_BYTES_PER_OMEGA_VOXEL: u64 = STATE_BYTES_PER_OMEGA_VOXEL as u64;
+/// What a region's own block adds besides its Ω voxels: the block decoded for the last step and
+/// its state record's mask and index entry encoded for writing, bytes.
+pub const SWEEP_BYTES_PER_CORE_BLOCK: u64 =
+    BLOCK_RESIDENT_BYTES + (STATE_MASK_BYTES + STATE_ENTRY_BYTES) as u64;
+/// What a region's own Ω voxel adds: its state record encoded for writing, bytes.
+pub const SWEEP_BYTES_PER_CORE_OMEGA_VOXEL: u64 = STATE_BYTES_PER_OMEGA_VOXEL as u64;
+
+/// Writes scratch state: atomically (temporary name, rename) but not fsynced on local disks —
+/// a killed process leaves whole files, and after a power loss a torn one fails its CRC.
+fn write_scratch(files: &dyn MapFiles, name: &str, bytes: &[u8]) -> Result<()> {
+    let Some(dir) = files.location().as_dir() else {
+        return files.write(name, bytes);
+    };
+    let path = dir.join(name);
+    let tmp = path.with_extension("tmp");
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+    }
+    std::fs::write(&tmp, bytes).map_err(|e| Error::io(&tmp, e))?;
+    std::fs::rename(&tmp, &path).map_err(|e| Error::io(&path, e))
+}
+
+fn state_name(parity: u32, c: ChunkIndex) -> String {
+    let [x, y, z] = c.0;
+    format!("{SWEEPS_FOLDER}/s{parity}/c_{x}_{y}_{z}.dsws")
+}
+
+fn fnv(h: &mut u64, bytes: &[u8]) {
+    for b in bytes {
+        *h ^= *b as u64;
+        *h = h.wrapping_mul(0x100_0000_01b3);
+    }
+}
+
+/// The key of a swept pass: map, pass, parameters, region edge and iterations per sweep.
+fn pass_key(store: &MapStore, pass: u32, params: &TvParams, region_chunks: u32, k: u32) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    fnv(&mut h, b"sweeps");
+    fnv(&mut h, &store.manifest().header.map_id.to_le_bytes());
+    for v in [
+        pass,
+        params.lambda.to_bits(),
+        params.sigma.to_bits(),
+        params.tau.to_bits(),
+        params.theta.to_bits(),
+        params.iterations,
+        region_chunks,
+        k,
+    ] {
+        fnv(&mut h, &v.to_le_bytes());
+    }
+    h
+}
+
+/// Removes every object under `sweeps/`.
+pub fn remove_state(files: &dyn MapFiles) -> Result<usize> {
+    let listed = files.list_recursive(SWEEPS_FOLDER)?;
+    for o in &listed {
+        files.delete(&format!("{SWEEPS_FOLDER}/{}", o.name))?;
+    }
+    Ok(listed.len())
+}
+
+/// Where a swept pass resumes: the progress record if it belongs to this pass and chunk table.
+fn resume_point(
+    store: &MapStore,
+    key: u64,
+    pass: u32,
+    last_step: u32,
+) -> Result<Option<SweepProgress>> {
+    let files = store.files();
+    let Some(bytes) = files.read(PROGRESS_FILE)? else {
+        return Ok(None);
+    };
+    let rec = SweepProgress::decode(&files.path(PROGRESS_FILE), &bytes)?;
+    if rec.key != key || rec.chunks.len() != store.manifest().chunks.len() {
+        return Ok(None);
+    }
+    // A chunk may only have changed by the last step's own writes.
+    let same = rec.chunks.iter().all(|(c, seq)| {
+        store
+            .manifest()
+            .chunks
+            .get(&ChunkIndex(*c))
+            .is_some_and(|e| {
+                e.file_seq == *seq || (rec.steps_done == last_step && e.reg_pass == pass)
+            })
+    });
+    Ok(same.then_some(rec))
+}
+
+/// One block's initial state: u = ū = f on Ω, p = 0.
+fn initial_state(block: &Block) -> BlockState {
+    let mut s = BlockState::default();
+    for i in 0..VOXELS_PER_BLOCK {
+        if block.omega(i) {
+            s.omega[i / 64] |= 1 << (i % 64);
+            s.tsdf.push(block.tsdf[i]);
+            s.weight.push(block.weight(i));
+            let f = decode_tsdf(block.tsdf[i]);
+            s.u.push(f);
+            s.ubar.push(f);
+        }
+    }
+    let n = s.tsdf.len();
+    s.p = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+    s
+}
+
+/// A problem over `states` (sorted by index) with their stored state.
+fn problem_from_states(states: &[(BlockIndex, BlockState, bool)]) -> TvProblem {
+    let vb = VOXELS_PER_BLOCK;
+    let n = states.len() * vb;
+    let mut f = vec![0.0f32; n];
+    let mut w = vec![0.0f32; n];
+    let mut omega = vec![false; n];
+    f.par_chunks_mut(vb)
+        .zip(w.par_chunks_mut(vb))
+        .zip(omega.par_chunks_mut(vb))
+        .zip(states.par_iter())
+        .for_each(|(((f, w), om), (_, s, _))| {
+            let mut k = 0;
+            for i in 0..vb {
+                if s.in_omega(i) {
+                    f[i] = decode_tsdf(s.tsdf[k]);
+                    w[i] = s.weight[k] as f32;
+                    om[i] = true;
+                    k += 1;
+                }
+            }
+        });
+    let blocks = states.iter().map(|(b, _, _)| *b).collect();
+    let mut problem = TvProblem::from_arrays(blocks, f, w, omega);
+    let (u, ubar, p) = problem.state_mut();
+    let (px, rest) = p.split_at_mut(n);
+    let (py, pz) = rest.split_at_mut(n);
+    u.par_chunks_mut(vb)
+        .zip(ubar.par_chunks_mut(vb))
+        .zip(px.par_chunks_mut(vb))
+        .zip(py.par_chunks_mut(vb))
+        .zip(pz.par_chunks_mut(vb))
+        .zip(states.par_iter())
+        .for_each(|(((((u, ub), px), py), pz), (_, s, _))| {
+            let mut k = 0;
+            for i in 0..vb {
+                if s.in_omega(i) {
+                    u[i] = s.u[k];
+                    ub[i] = s.ubar[k];
+                    px[i] = s.p[0][k];
+                    py[i] = s.p[1][k];
+                    pz[i] = s.p[2][k];
+                    k += 1;
+                }
+            }
+        });
+    problem
+}
+
+/// Copies the solver's state of block slot `slot` back into `s` (its Ω voxels).
+fn read_back(problem: &TvProblem, slot: usize, s: &mut BlockState) {
+    let vb = VOXELS_PER_BLOCK;
+    let (u, ubar, p) = problem.state();
+    let n = u.len();
+    let mut k = 0;
+    for i in 0..vb {
+        if s.in_omega(i) {
+            let g = slot * vb + i;
+            s.u[k] = u[g];
+            s.ubar[k] = ubar[g];
+            for d in 0..3 {
+                s.p[d][k] = p[d * n + g];
+            }
+            k += 1;
+        }
+    }
+}
+
+/// What [`regularize_swept`] needs beside the store.
+pub(super) struct SweptPass<'a> {
+    /// The solve's parameters (all iterations).
+    pub params: &'a TvParams,
+    /// Region edge, chunks.
+    pub region_chunks: u32,
+    /// Iterations per sweep.
+    pub sweep_iterations: u32,
+    /// Working-memory bound of one region, bytes.
+    pub budget_bytes: u64,
+    /// The pass number (begun by the caller).
+    pub pass: u32,
+}
+
+/// Runs pass `run.pass` as sweeps (see the module documentation). `solve(problem, params)` runs
+/// `params.iterations` iterations from the problem's state.
+pub(super) fn regularize_swept(
+    store: &mut MapStore,
+    run: &SweptPass,
+    progress: &mut dyn FnMut(usize, usize) -> bool,
+    solve: &mut dyn FnMut(&mut TvProblem, &TvParams) -> Result<()>,
+) -> Result<MapRegularizeStats> {
+    let params = run.params;
+    let k_iter = run.sweep_iterations.clamp(1, params.iterations.max(1));
+    let sweeps = params.iterations.div_ceil(k_iter);
+    let cb = store.chunk_blocks() as i32;
+    let r = run.region_chunks as i32;
+    let halo = RegionPlan::exact_halo_blocks(k_iter);
+    let reach = (halo + cb - 1) / cb;
+    let pass = run.pass;
+    let key = pass_key(store, pass, params, run.region_chunks, k_iter);
+    let mut stats = MapRegularizeStats {
+        pass,
+        halo_blocks: halo,
+        sweeps,
+        ..Default::default()
+    };
+    let mut regions: BTreeMap<[i32; 3], Vec<ChunkIndex>> = BTreeMap::new();
+    for c in store.chunk_indices() {
+        regions.entry(region_of(c, r)).or_default().push(c);
+    }
+    let files = store.files().clone();
+    let resume = resume_point(store, key, pass, sweeps)?;
+    // A resumed run whose state cannot be read (a file torn by a power loss: state is not
+    // fsynced) starts the sweeps again, once.
+    let mut may_restart = resume.is_some();
+    let (mut step, mut skip) = match resume {
+        Some(rec) => {
+            tracing::info!(
+                "{}: resuming the swept pass at step {} of {}, region {} of {}",
+                store.dir().display(),
+                rec.steps_done,
+                sweeps,
+                rec.regions_done,
+                regions.len()
+            );
+            (rec.steps_done, rec.regions_done as usize)
+        }
+        None => {
+            remove_state(&*files)?;
+            (0, 0)
+        }
+    };
+    let chunks: Vec<([i32; 3], u64)> = store
+        .manifest()
+        .chunks
+        .iter()
+        .map(|(c, e)| (c.0, e.file_seq))
+        .collect();
+    let record = |steps_done: u32, regions_done: usize| -> Result<()> {
+        let rec = SweepProgress {
+            key,
+            chunks: chunks.clone(),
+            steps_done,
+            regions_done: regions_done as u32,
+        };
+        write_scratch(&*files, PROGRESS_FILE, &rec.encode())
+    };
+    let total = regions.len() * (sweeps as usize + 1);
+    let mut block_iterations = 0u64;
+    while step <= sweeps {
+        let mut restart = false;
+        for (k, (rkey, core)) in regions.iter().enumerate().skip(skip) {
+            let t0 = std::time::Instant::now();
+            if step == 0 {
+                for c in core {
+                    let Some(d) = store.read_chunk(*c)? else {
+                        continue;
+                    };
+                    let states: Vec<(BlockIndex, BlockState)> = d
+                        .blocks
+                        .par_iter()
+                        .map(|(b, block)| (*b, initial_state(block)))
+                        .collect();
+                    let h = StateHeader {
+                        key,
+                        chunk: c.0,
+                        step: 0,
+                        block_count: states.len() as u32,
+                    };
+                    write_scratch(&*files, &state_name(0, *c), &encode_state(&h, &states))?;
+                }
+            } else if step == sweeps
+                && core
+                    .iter()
+                    .all(|c| store.manifest().chunks[c].reg_pass == pass)
+            {
+                stats.regions_skipped += 1;
+            } else {
+                let iterations = if step < sweeps {
+                    k_iter
+                } else {
+                    params.iterations - k_iter * (sweeps - 1)
+                };
+                let lo = [0, 1, 2].map(|a| rkey[a] * r * cb - halo);
+                let hi = [0, 1, 2].map(|a| (rkey[a] + 1) * r * cb - 1 + halo);
+                let gathered = gather_states(
+                    store,
+                    key,
+                    step,
+                    [0, 1, 2].map(|a| rkey[a] * r - reach),
+                    [0, 1, 2].map(|a| rkey[a] * r + r - 1 + reach),
+                    (lo, hi),
+                    |c| region_of(c, r) == *rkey,
+                );
+                let mut states = match gathered {
+                    Err(e @ Error::BadInput { .. }) if may_restart => {
+                        tracing::warn!("{e}; starting the sweeps of pass {pass} again");
+                        restart = true;
+                        break;
+                    }
+                    other => other?,
+                };
+                states.sort_unstable_by_key(|(b, _, _)| *b);
+                // The plan's bound ([`super::regional::RegionCosts`]) with the real counts.
+                let mut bytes = 0u64;
+                for (_, st, core) in &states {
+                    let omega = st.tsdf.len() as u64;
+                    bytes += SWEEP_BYTES_PER_BLOCK + omega * SWEEP_BYTES_PER_OMEGA_VOXEL;
+                    if *core {
+                        bytes +=
+                            SWEEP_BYTES_PER_CORE_BLOCK + omega * SWEEP_BYTES_PER_CORE_OMEGA_VOXEL;
+                    }
+                }
+                if bytes > run.budget_bytes {
+                    return Err(Error::InvalidArgument(format!(
+                        "region {rkey:?} with its {halo}-block halo needs about {} MiB, over the {} MiB budget; use a smaller --region-chunks or a larger --memory-budget",
+                        bytes >> 20,
+                        run.budget_bytes >> 20
+                    )));
+                }
+                stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
+                let mut problem = problem_from_states(&states);
+                solve(
+                    &mut problem,
+                    &TvParams {
+                        iterations,
+                        ..*params
+                    },
+                )?;
+                block_iterations += states.len() as u64 * iterations as u64;
+                // Slots are the sorted states' positions.
+                states.retain(|s| s.2);
+                if step < sweeps {
+                    write_states(&*files, &problem, &mut states, key, step, store)?;
+                } else {
+                    write_chunks(store, &problem, &states, pass, &mut stats)?;
+                    store.commit()?;
+                    stats.regions += 1;
+                }
+            }
+            record(step, k + 1)?;
+            tracing::debug!(
+                "step {step}/{sweeps} region {rkey:?}: {:.3} s",
+                t0.elapsed().as_secs_f64()
+            );
+            let done = step as usize * regions.len() + k + 1;
+            if !progress(done, total) {
+                stats.interrupted = done < total;
+                stats.solved_blocks = (block_iterations / params.iterations.max(1) as u64) as usize;
+                return Ok(stats);
+            }
+        }
+        skip = 0;
+        if restart {
+            may_restart = false;
+            remove_state(&*files)?;
+            step = 0;
+            continue;
+        }
+        step += 1;
+        if step <= sweeps {
+            record(step, 0)?;
+        }
+    }
+    stats.solved_blocks = (block_iterations / params.iterations.max(1) as u64) as usize;
+    remove_state(&*files)?;
+    Ok(stats)
+}
+
+/// Reads the state of step `step − 1` of every stored block in `bounds` (blocks) from the chunks
+/// `c_lo ..= c_hi`, marking the blocks of chunks `is_core` says are the region's.
+fn gather_states(
+    store: &MapStore,
+    key: u64,
+    step: u32,
+    c_lo: [i32; 3],
+    c_hi: [i32; 3],
+    bounds: ([i32; 3], [i32; 3]),
+    is_core: impl Fn(ChunkIndex) -> bool,
+) -> Result<Vec<(BlockIndex, BlockState, bool)>> {
+    let files = store.files();
+    let (lo, hi) = bounds;
+    let mut out = Vec::new();
+    for cz in c_lo[2]..=c_hi[2] {
+        for cy in c_lo[1]..=c_hi[1] {
+            for cx in c_lo[0]..=c_hi[0] {
+                let c = ChunkIndex([cx, cy, cz]);
+                if !store.contains(c) {
+                    continue;
+                }
+                let name = state_name((step - 1) % 2, c);
+                let path = files.path(&name);
+                let Some(bytes) = files.read(&name)? else {
+                    return Err(Error::bad_input(
+                        &path,
+                        format!(
+                            "the state of step {} is missing (a map changed under a swept pass?); delete {SWEEPS_FOLDER}/ to restart the pass",
+                            step - 1
+                        ),
+                    ));
+                };
+                let index = decode_state_index(&path, &bytes)?;
+                let h = index.header;
+                if h.key != key || h.chunk != c.0 || h.step != step - 1 {
+                    return Err(Error::bad_input(
+                        &path,
+                        format!(
+                            "holds chunk {:?} after step {} of another pass (key {:016x}), expected chunk {:?} after step {} of key {key:016x}; delete {SWEEPS_FOLDER}/ to restart the pass",
+                            h.chunk,
+                            h.step,
+                            h.key,
+                            c.0,
+                            step - 1
+                        ),
+                    ));
+                }
+                let core = is_core(c);
+                let picked: Vec<_> = index
+                    .entries
+                    .iter()
+                    .filter(|(b, _, _)| (0..3).all(|a| b.0[a] >= lo[a] && b.0[a] <= hi[a]))
+                    .collect();
+                let decoded: Vec<Result<(BlockIndex, BlockState, bool)>> = picked
+                    .par_iter()
+                    .map(|e| Ok((e.0, decode_block_state(&path, &bytes, e)?, core)))
+                    .collect();
+                for d in decoded {
+                    out.push(d?);
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Writes the region's state after step `step`, one file per chunk.
+fn write_states(
+    files: &dyn MapFiles,
+    problem: &TvProblem,
+    states: &mut [(BlockIndex, BlockState, bool)],
+    key: u64,
+    step: u32,
+    store: &MapStore,
+) -> Result<()> {
+    let blocks = problem.blocks();
+    states.par_iter_mut().for_each(|(b, s, _)| {
+        if let Ok(slot) = blocks.binary_search(b) {
+            read_back(problem, slot, s);
+        }
+    });
+    let cb = store.chunk_blocks();
+    let mut by_chunk: BTreeMap<ChunkIndex, Vec<(BlockIndex, BlockState)>> = BTreeMap::new();
+    for (b, s, _) in states.iter_mut() {
+        by_chunk
+            .entry(ChunkIndex::of_block(*b, cb))
+            .or_default()
+            .push((*b, std::mem::take(s)));
+    }
+    for (c, list) in by_chunk {
+        let h = StateHeader {
+            key,
+            chunk: c.0,
+            step,
+            block_count: list.len() as u32,
+        };
+        write_scratch(files, &state_name(step % 2, c), &encode_state(&h, &list))?;
+    }
+    Ok(())
+}
+
+/// The last step: the region's chunk files with `u`, written (the caller commits).
+fn write_chunks(
+    store: &mut MapStore,
+    problem: &TvProblem,
+    states: &[(BlockIndex, BlockState, bool)],
+    pass: u32,
+    stats: &mut MapRegularizeStats,
+) -> Result<()> {
+    let cb = store.chunk_blocks();
+    let mut chunks: Vec<ChunkIndex> = states
+        .iter()
+        .map(|(b, _, _)| ChunkIndex::of_block(*b, cb))
+        .collect();
+    chunks.dedup();
+    chunks.sort_unstable();
+    chunks.dedup();
+    for c in chunks {
+        let Some(d) = store.read_chunk(c)? else {
+            continue;
+        };
+        let mut layer = Layer::new(store.grid());
+        let list: Vec<BlockIndex> = d.blocks.iter().map(|(b, _)| *b).collect();
+        layer.put_blocks(d.blocks);
+        problem.scatter(&mut layer, &list);
+        let refs: Vec<(BlockIndex, &Block)> = list
+            .iter()
+            .filter_map(|b| layer.get(b).map(|x| (*b, x)))
+            .collect();
+        stats.core_omega_voxels += refs
+            .iter()
+            .map(|(_, b)| b.observed_count() as u64)
+            .sum::<u64>();
+        stats.core_blocks += refs.len();
+        store.write_chunk(c, &refs, pass)?;
+    }
+    Ok(())
+}
