@@ -85,9 +85,11 @@ pub(crate) struct MapArgs {
     map: Option<MapLocation>,
     #[command(flatten)]
     budget: BudgetArgs,
-    /// Chunk edge in blocks (a chunk is one file; 16 blocks = 12.8 m at 10 cm voxels).
-    #[arg(long, default_value_t = denser::tiles::DEFAULT_CHUNK_BLOCKS)]
-    chunk_blocks: u32,
+    /// Chunk edge in blocks (a chunk is one file; 16 blocks = 12.8 m at 10 cm voxels). Default:
+    /// 16, or 8 or 4 when regularising one chunk of 16 (or 8) with its halo might not fit the
+    /// memory budget.
+    #[arg(long)]
+    chunk_blocks: Option<u32>,
     /// Commit a resumable checkpoint every this many frames (0: only at the end).
     #[arg(long, default_value_t = 50)]
     checkpoint_every: u64,
@@ -122,7 +124,7 @@ pub(crate) struct Job {
 pub(crate) struct MapJob {
     pub dir: MapLocation,
     pub budget: BudgetArgs,
-    pub chunk_blocks: u32,
+    pub chunk_blocks: Option<u32>,
     pub checkpoint_every: u64,
     pub overrun: OverrunPolicy,
 }
@@ -343,6 +345,27 @@ fn ram_limit_bytes() -> u64 {
     }
 }
 
+/// The chunk edge of a new map when `--chunk-blocks` is not given: the default, halved while
+/// regularising one chunk with its halo might not fit the budget (`check`), down to 4 blocks
+/// (whose refusal, if even that does not fit, names the budget that would do).
+fn planned_chunk_blocks(check: impl Fn(u32) -> denser::Result<()>) -> denser::Result<u32> {
+    let mut c = denser::tiles::DEFAULT_CHUNK_BLOCKS;
+    loop {
+        match check(c) {
+            Ok(()) => {
+                if c != denser::tiles::DEFAULT_CHUNK_BLOCKS {
+                    tracing::info!(
+                        "chunks of {c}³ blocks, so that regularising one region fits the memory budget"
+                    );
+                }
+                return Ok(c);
+            }
+            Err(e) if c <= 4 => return Err(e),
+            Err(_) => c /= 2,
+        }
+    }
+}
+
 /// Opens (resuming) or creates the job's map, checking its job record.
 fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedStore> {
     // Regularisation's memory is checked before any frame is fused (issue 15): a run never fuses
@@ -403,8 +426,14 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
         record.check_or_write_at(&**store.files(), &job.input)?;
         store
     } else {
-        check(m.chunk_blocks)?;
-        let s = MapStore::create_at(&m.dir, job.config.grid, m.chunk_blocks)?;
+        let chunk_blocks = match m.chunk_blocks {
+            Some(c) => {
+                check(c)?;
+                c
+            }
+            None => planned_chunk_blocks(check)?,
+        };
+        let s = MapStore::create_at(&m.dir, job.config.grid, chunk_blocks)?;
         let hint = match m.dir.as_dir() {
             Some(d) => relative_hint(d, &job.input),
             None => job.input.display().to_string(),

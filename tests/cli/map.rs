@@ -281,7 +281,7 @@ fn regularize_plans_regions_to_the_budget_and_reconstruct_checks_it_before_fusio
     };
     // 16³-block chunks: one full chunk with its two-block halo may need ~266 MiB.
     let t0 = std::time::Instant::now();
-    let o = run("small", "64MiB", &[]);
+    let o = run("small", "64MiB", &["--chunk-blocks", "16"]);
     let t = text(&o);
     assert!(!o.status.success(), "{t}");
     assert!(
@@ -293,6 +293,11 @@ fn regularize_plans_regions_to_the_budget_and_reconstruct_checks_it_before_fusio
         "refused before fusing: {t}"
     );
     println!("refused in {:.2} s: {t}", t0.elapsed().as_secs_f64());
+    // Without --chunk-blocks the chunk edge is planned to the budget: 8 blocks fit 64 MiB.
+    let o = run("planned", "64MiB", &[]);
+    assert!(o.status.success(), "{}", text(&o));
+    let i = denser(&["inspect", "planned"], d);
+    assert!(text(&i).contains("chunks of 8³ blocks"), "{}", text(&i));
 
     // Fused without regularising, then regularised with a small budget, planned.
     let o = run("m", "64MiB", &["--chunk-blocks", "4", "--skip-regularize"]);
