@@ -121,55 +121,12 @@ impl JobRecord {
 
     /// The record's file bytes (`formats/job.md`).
     pub fn encode(&self) -> Vec<u8> {
-        let payload = bincode::encode_to_vec(self, bincode::config::standard())
-            .expect("encoding to a Vec cannot fail");
-        let mut out = Vec::with_capacity(16 + payload.len());
-        out.extend_from_slice(&JOB_MAGIC);
-        out.extend_from_slice(&JOB_VERSION.to_le_bytes());
-        out.extend_from_slice(&[0, 0]);
-        out.extend_from_slice(&(payload.len() as u32).to_le_bytes());
-        out.extend_from_slice(&payload);
-        let crc = crc32fast::hash(&out);
-        out.extend_from_slice(&crc.to_le_bytes());
-        out
+        super::record::encode(JOB_MAGIC, JOB_VERSION, self)
     }
 
     /// Decodes file bytes; `path` names the file in errors.
     pub fn decode(path: &Path, b: &[u8]) -> Result<Self> {
-        let bad = |m: String| Error::bad_input(path, m);
-        if b.len() < 16 || b[..4] != JOB_MAGIC {
-            return Err(bad("not a denser job record (bad magic)".into()));
-        }
-        let version = u16::from_le_bytes([b[4], b[5]]);
-        if version != JOB_VERSION {
-            return Err(bad(format!(
-                "job record version {version}, this denser reads version {JOB_VERSION}"
-            )));
-        }
-        let len = u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize;
-        if b.len() != 16 + len {
-            return Err(bad(format!(
-                "job record is {} bytes, its header says {}",
-                b.len(),
-                16 + len
-            )));
-        }
-        let crc = u32::from_le_bytes([b[12 + len], b[13 + len], b[14 + len], b[15 + len]]);
-        if crc32fast::hash(&b[..12 + len]) != crc {
-            return Err(bad("job record checksum mismatch (corrupted)".into()));
-        }
-        let (record, used) = bincode::decode_from_slice::<JobRecord, _>(
-            &b[12..12 + len],
-            bincode::config::standard(),
-        )
-        .map_err(|e| bad(format!("job record payload: {e}")))?;
-        if used != len {
-            return Err(bad(format!(
-                "job record payload has {} trailing bytes",
-                len - used
-            )));
-        }
-        Ok(record)
+        super::record::decode(path, b, JOB_MAGIC, JOB_VERSION, "job record", "job record")
     }
 
     /// Writes the record into `map_dir` (atomically).

@@ -30,6 +30,7 @@ pub mod merge;
 mod paged;
 pub mod pager;
 pub mod parts;
+mod record;
 pub mod region_plan;
 pub mod regional;
 pub mod repair;

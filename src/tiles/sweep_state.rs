@@ -276,55 +276,19 @@ pub struct SweepProgress {
 impl SweepProgress {
     /// The record's file bytes.
     pub fn encode(&self) -> Vec<u8> {
-        let payload = bincode::encode_to_vec(self, bincode::config::standard())
-            .expect("encoding to a Vec cannot fail");
-        let mut out = Vec::with_capacity(16 + payload.len());
-        out.extend_from_slice(&PROGRESS_MAGIC);
-        out.extend_from_slice(&PROGRESS_VERSION.to_le_bytes());
-        out.extend_from_slice(&[0, 0]);
-        out.extend_from_slice(&(payload.len() as u32).to_le_bytes());
-        out.extend_from_slice(&payload);
-        let crc = crc32fast::hash(&out);
-        out.extend_from_slice(&crc.to_le_bytes());
-        out
+        super::record::encode(PROGRESS_MAGIC, PROGRESS_VERSION, self)
     }
 
     /// Decodes file bytes; `path` names the file in errors.
     pub fn decode(path: &Path, b: &[u8]) -> Result<Self> {
-        let bad = |m: String| Error::bad_input(path, m);
-        if b.len() < 16 || b[..4] != PROGRESS_MAGIC {
-            return Err(bad("not a denser sweep progress record (bad magic)".into()));
-        }
-        let version = u16::from_le_bytes([b[4], b[5]]);
-        if version != PROGRESS_VERSION {
-            return Err(bad(format!(
-                "sweep progress version {version}, this denser reads version {PROGRESS_VERSION}"
-            )));
-        }
-        let len = u32::from_le_bytes([b[8], b[9], b[10], b[11]]) as usize;
-        if b.len() != 16 + len {
-            return Err(bad(format!(
-                "sweep progress record is {} bytes, its header says {}",
-                b.len(),
-                16 + len
-            )));
-        }
-        let crc = u32::from_le_bytes([b[12 + len], b[13 + len], b[14 + len], b[15 + len]]);
-        if crc32fast::hash(&b[..12 + len]) != crc {
-            return Err(bad("sweep progress checksum mismatch (corrupted)".into()));
-        }
-        let (record, used) = bincode::decode_from_slice::<SweepProgress, _>(
-            &b[12..12 + len],
-            bincode::config::standard(),
+        super::record::decode(
+            path,
+            b,
+            PROGRESS_MAGIC,
+            PROGRESS_VERSION,
+            "sweep progress record",
+            "sweep progress",
         )
-        .map_err(|e| bad(format!("sweep progress payload: {e}")))?;
-        if used != len {
-            return Err(bad(format!(
-                "sweep progress payload has {} trailing bytes",
-                len - used
-            )));
-        }
-        Ok(record)
     }
 }
 
