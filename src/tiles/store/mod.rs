@@ -34,9 +34,23 @@ use crate::error::{Error, Result};
 use crate::grid::{Block, BlockIndex, GridParams, VOXELS_PER_BLOCK};
 use crate::regularize::TvParams;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
 pub use super::files::write_atomically;
+
+mod cache;
+mod chunk_io;
+mod cleanup;
+mod manifest_io;
+
+use manifest_io::{chunk_object, lost_manifest, require_manifest};
+pub use manifest_io::{
+    count_chunk_files, count_chunk_objects, new_map_id, read_manifest, read_manifest_at,
+};
+
+use cache::ChunkCache;
+pub use cache::DEFAULT_OBJECT_CACHE_BYTES;
+pub use chunk_io::{read_chunk_file, ChunkWriter};
 
 /// Name of the manifest inside a map directory.
 pub const MANIFEST_FILE: &str = "manifest.dmf";
@@ -55,70 +69,6 @@ enum Access {
     /// keeps the files its manifest names.
     Reader(#[allow(dead_code)] Box<dyn ReaderHold>),
 }
-
-/// Chunk files read from an object store, kept in RAM up to a byte budget (least recently used
-/// first out). A chunk file never changes under its name, so a cached copy is never stale.
-#[derive(Debug, Default)]
-struct ChunkCache {
-    budget_bytes: u64,
-    state: Mutex<CacheState>,
-}
-
-#[derive(Debug, Default)]
-struct CacheState {
-    files: std::collections::HashMap<String, (Arc<Vec<u8>>, u64)>,
-    bytes: u64,
-    tick: u64,
-    hits: u64,
-    misses: u64,
-}
-
-impl ChunkCache {
-    fn get(&self, name: &str) -> Option<Arc<Vec<u8>>> {
-        let mut s = self.state.lock().ok()?;
-        s.tick += 1;
-        let tick = s.tick;
-        let hit = s.files.get_mut(name).map(|e| {
-            e.1 = tick;
-            e.0.clone()
-        });
-        if hit.is_some() {
-            s.hits += 1;
-        } else {
-            s.misses += 1;
-        }
-        hit
-    }
-
-    fn put(&self, name: &str, bytes: Arc<Vec<u8>>) {
-        let len = bytes.len() as u64;
-        if len > self.budget_bytes {
-            return;
-        }
-        let Ok(mut s) = self.state.lock() else { return };
-        while s.bytes + len > self.budget_bytes {
-            let Some(oldest) = s
-                .files
-                .iter()
-                .min_by_key(|(_, (_, t))| *t)
-                .map(|(k, _)| k.clone())
-            else {
-                break;
-            };
-            if let Some((b, _)) = s.files.remove(&oldest) {
-                s.bytes -= b.len() as u64;
-            }
-        }
-        s.tick += 1;
-        let tick = s.tick;
-        if s.files.insert(name.to_string(), (bytes, tick)).is_none() {
-            s.bytes += len;
-        }
-    }
-}
-
-/// Default RAM for chunk files read from an object store (see [`MapStore::set_cache_budget`]).
-pub const DEFAULT_OBJECT_CACHE_BYTES: u64 = 256 << 20;
 
 /// A map opened for writing ([`MapStore::create`], [`MapStore::open`]: one writer per map, see
 /// [`super::lock`] and [`super::s3`]) or for reading ([`MapStore::open_read_only`]), in a local
@@ -193,94 +143,6 @@ pub struct OpenCleanup {
     pub left_alone: Vec<String>,
     /// Files of regularisation shards kept for adoption (their plan is open, `formats/shards.md`).
     pub shard_files_kept: usize,
-}
-
-/// A fresh random map identity (never 0).
-pub fn new_map_id() -> u64 {
-    use std::hash::{BuildHasher, Hasher};
-    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
-    h.write_u32(std::process::id());
-    h.write_u128(
-        std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos()),
-    );
-    h.finish().max(1)
-}
-
-/// Chunk files (`*.dchk`) in `dir/chunks`, by name (0 when the folder is missing).
-pub fn count_chunk_files(dir: &Path) -> usize {
-    count_chunk_objects(&super::files::LocalFiles::new(dir))
-}
-
-/// Chunk files (`*.dchk`) under the map's `chunks/` (0 when there are none, or on an error).
-pub fn count_chunk_objects(files: &dyn MapFiles) -> usize {
-    files.list(CHUNKS_DIR).map_or(0, |v| {
-        v.iter().filter(|o| o.name.ends_with(".dchk")).count()
-    })
-}
-
-fn chunk_object(c: ChunkIndex, seq: u64) -> String {
-    format!("{CHUNKS_DIR}/{}", chunk_file_name(c, seq))
-}
-
-/// Refuses a map without a manifest: a lost manifest (chunk files present) names the repair
-/// command; an empty location is "not a map".
-fn require_manifest(files: &dyn MapFiles) -> Result<()> {
-    if files.exists(MANIFEST_FILE)? {
-        return Ok(());
-    }
-    if let Some(holder) = files.writer_holding() {
-        // A writer is creating the map (it commits its first manifest in a moment).
-        return Err(Error::MapLocked {
-            dir: files.location().display_path(),
-            holder,
-        });
-    }
-    Err(missing_manifest(files))
-}
-
-fn missing_manifest(files: &dyn MapFiles) -> Error {
-    match count_chunk_objects(files) {
-        0 => Error::bad_input(
-            files.path(MANIFEST_FILE),
-            "no manifest here: not a denser map directory (or never committed)",
-        ),
-        n => lost_manifest(files, n),
-    }
-}
-
-fn lost_manifest(files: &dyn MapFiles, n: usize) -> Error {
-    let loc = files.location();
-    Error::bad_input(
-        files.path(MANIFEST_FILE),
-        format!(
-            "missing, but {} holds {n} chunk files: the map's manifest is lost. Nothing was changed; run `denser repair {loc}` to rebuild it from the chunk files",
-            files.path(CHUNKS_DIR).display(),
-        ),
-    )
-}
-
-/// Reads and decodes `dir/manifest.dmf`; errors name the file.
-pub fn read_manifest(dir: &Path) -> Result<Manifest> {
-    read_manifest_at(&super::files::LocalFiles::new(dir)).map(|(m, _)| m)
-}
-
-/// Reads and decodes the map's manifest with its version; errors name the object.
-pub fn read_manifest_at(files: &dyn MapFiles) -> Result<(Manifest, ObjectVersion)> {
-    let Some((bytes, version)) = files.read_versioned(MANIFEST_FILE)? else {
-        return Err(missing_manifest(files));
-    };
-    let m = decode_manifest(&bytes).map_err(|e| {
-        Error::bad_input(
-            files.path(MANIFEST_FILE),
-            format!(
-                "{e}; run `denser repair {}` to rebuild it from the chunk files",
-                files.location()
-            ),
-        )
-    })?;
-    Ok((m, version))
 }
 
 impl MapStore {
@@ -360,12 +222,9 @@ impl MapStore {
         manifest_version: Option<ObjectVersion>,
         access: Access,
     ) -> Self {
-        let cache = files.deletes_after_s().map(|_| {
-            Arc::new(ChunkCache {
-                budget_bytes: DEFAULT_OBJECT_CACHE_BYTES,
-                ..Default::default()
-            })
-        });
+        let cache = files
+            .deletes_after_s()
+            .map(|_| Arc::new(ChunkCache::new(DEFAULT_OBJECT_CACHE_BYTES)));
         MapStore {
             dir: files.location().display_path(),
             files,
@@ -481,21 +340,13 @@ impl MapStore {
     /// the cache off). Local maps have no cache: the kernel's page cache serves them.
     pub fn set_cache_budget(&mut self, bytes: u64) {
         if self.files.deletes_after_s().is_some() {
-            self.cache = (bytes > 0).then(|| {
-                Arc::new(ChunkCache {
-                    budget_bytes: bytes,
-                    ..Default::default()
-                })
-            });
+            self.cache = (bytes > 0).then(|| Arc::new(ChunkCache::new(bytes)));
         }
     }
 
     /// Chunk-cache hits and misses so far (object stores).
     pub fn cache_stats(&self) -> (u64, u64) {
-        self.cache
-            .as_ref()
-            .and_then(|c| c.state.lock().ok().map(|s| (s.hits, s.misses)))
-            .unwrap_or((0, 0))
+        self.cache.as_ref().map_or((0, 0), |c| c.stats())
     }
 
     /// Whether this store holds the writer lock.
@@ -505,126 +356,6 @@ impl MapStore {
 
     fn file_path(&self, c: ChunkIndex, seq: u64) -> PathBuf {
         self.files.path(&chunk_object(c, seq))
-    }
-
-    /// Whether the header of chunk file `name` says it is file `seq` of chunk `c` of this map
-    /// (format 1 files carry no origin: their name is all there is). Reads the header only.
-    pub(crate) fn header_is_ours(&self, name: &str, c: ChunkIndex, seq: u64) -> bool {
-        let Ok(head) = self.files.read_range(name, 0..CHUNK_HEADER_V2_BYTES as u64) else {
-            return false;
-        };
-        let Ok((h, origin)) = decode_header_with_origin(&head) else {
-            return false;
-        };
-        // A map without an identity (format 1) cannot tell its files from others by id.
-        let id = self.manifest.header.map_id;
-        h.chunk == c && origin.is_none_or(|o| o.file_seq == seq && (id == 0 || o.map_id == id))
-    }
-
-    /// The writer's cleanup at open: `*.tmp` chunk files and `manifest.tmp` (only writers make
-    /// them), chunk files numbered at or after the committed next sequence number (allocated after
-    /// the last commit by a writer that died) unless a shard plan still open reserves their
-    /// numbers, and older versions of chunks the manifest names (superseded; only while no reader
-    /// can need them). Everything else is reported and left alone.
-    fn remove_leftovers(&mut self) -> Result<OpenCleanup> {
-        let mut out = OpenCleanup::default();
-        let listed = self.files.list(CHUNKS_DIR)?;
-        let next = self.manifest.header.next_file_seq;
-        let reserved = super::shards::reserved_ranges(&*self.files)?;
-        let mut superseded = Vec::new();
-        for obj in listed {
-            let name = obj.name;
-            let p = format!("{CHUNKS_DIR}/{name}");
-            let (stem, tmp) = if let Some(s) = name.strip_suffix(".tmp") {
-                (format!("{s}.dchk"), true)
-            } else {
-                (name.clone(), false)
-            };
-            let Some((c, seq)) = parse_chunk_file_name(&stem) else {
-                if name.starts_with('.') && name.ends_with(".new") {
-                    // A create-only write that died before its link (LocalFiles::write_new).
-                    self.files.delete(&p)?;
-                    out.removed_uncommitted.push(name);
-                    continue;
-                }
-                out.left_alone
-                    .push(format!("{name}: not a chunk file name"));
-                continue;
-            };
-            let named = |m: &std::collections::BTreeMap<ChunkIndex, ChunkEntry>| {
-                m.get(&c).is_some_and(|e| e.file_seq == seq)
-            };
-            if named(&self.manifest.chunks) || named(&self.manifest.kept) {
-                if tmp {
-                    out.left_alone
-                        .push(format!("{name}: temporary file of a committed version"));
-                }
-                continue;
-            }
-            if tmp {
-                // Only a writer makes these, and no other writer is alive.
-                self.files.delete(&p)?;
-                out.removed_uncommitted.push(name);
-                continue;
-            }
-            if reserved.iter().any(|r| r.contains(&seq)) {
-                // A regularisation shard's result, waiting for the committing run to adopt it.
-                out.shard_files_kept += 1;
-                continue;
-            }
-            let current = self.manifest.chunks.get(&c).map(|e| e.file_seq);
-            if seq >= next {
-                if self.header_is_ours(&p, c, seq) {
-                    self.files.delete(&p)?;
-                    out.removed_uncommitted.push(name);
-                } else {
-                    out.left_alone.push(format!(
-                        "{name}: numbered after the last commit but its header is not this map's file {seq} of chunk {:?}",
-                        c.0
-                    ));
-                }
-            } else if current.is_some_and(|cur| seq < cur) {
-                if self.header_is_ours(&p, c, seq) {
-                    superseded.push(name);
-                } else {
-                    out.left_alone.push(format!(
-                        "{name}: an older version by its name, but its header is not this map's file {seq} of chunk {:?}",
-                        c.0
-                    ));
-                }
-            } else {
-                out.left_alone.push(format!(
-                    "{name}: not named by the manifest, and nothing proves it is a leftover of this map"
-                ));
-            }
-        }
-        if !superseded.is_empty() {
-            let names: Vec<String> = superseded
-                .iter()
-                .map(|n| format!("{CHUNKS_DIR}/{n}"))
-                .collect();
-            let h = self.manifest.header;
-            if self.files.retire(&names, h.generation, h.map_id)? {
-                out.removed_superseded = superseded;
-            } else {
-                out.waiting_for_readers = superseded.len();
-                self.deferred.extend(names);
-            }
-        }
-        if self.location().as_dir().is_some() {
-            self.files.delete(MANIFEST_TMP)?;
-        }
-        if !out.removed_uncommitted.is_empty() {
-            tracing::info!(
-                "{}: removed {} chunk files written after the last commit by a writer that stopped",
-                self.dir.display(),
-                out.removed_uncommitted.len()
-            );
-        }
-        for l in &out.left_alone {
-            tracing::warn!("{}: left alone: {l}", self.files.path(CHUNKS_DIR).display());
-        }
-        Ok(out)
     }
 
     /// The map's directory (for an object store, its `s3://bucket/prefix` URL as a path: use
@@ -950,27 +681,6 @@ impl MapStore {
         view.cache = self.cache.clone();
         Ok(view)
     }
-
-    /// Reads every file the manifest names (current and kept) and checks it as
-    /// [`MapStore::read_entry`] does; returns one line per problem (file name and what is wrong),
-    /// empty when the map is sound.
-    pub fn verify(&self) -> Vec<String> {
-        let mut problems = Vec::new();
-        for (c, e) in &self.manifest.chunks {
-            if let Err(err) = self.read_entry(*c, e) {
-                problems.push(err.to_string());
-            }
-        }
-        for (c, e) in &self.manifest.kept {
-            if let Err(err) = self.read_entry(*c, e) {
-                problems.push(format!(
-                    "{err} (kept file of complete pass {})",
-                    self.manifest.header.complete_pass
-                ));
-            }
-        }
-        problems
-    }
 }
 
 impl Drop for MapStore {
@@ -983,183 +693,4 @@ impl Drop for MapStore {
 
 fn count_observed<'a>(blocks: impl Iterator<Item = &'a Block>) -> u32 {
     blocks.map(|b| b.observed_count() as u32).sum()
-}
-
-/// Memory-maps and decodes one chunk file (either format); errors name the file. Checks only
-/// the file itself: [`MapStore::read_chunk`] also checks it against the manifest.
-pub fn read_chunk_file(path: &Path) -> Result<DecodedChunk> {
-    read_chunk_file_len(path).map(|(d, _)| d)
-}
-
-fn read_chunk_file_len(path: &Path) -> Result<(DecodedChunk, u64)> {
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .map_or(String::new(), |n| n.to_string_lossy().into_owned());
-    let files = super::files::LocalFiles::new(dir);
-    decode_object(&files, &name, files.read(&name)?)
-}
-
-/// Decodes a chunk object read from `files`; errors name it.
-fn decode_object(
-    files: &dyn MapFiles,
-    name: &str,
-    bytes: Option<ObjectBytes>,
-) -> Result<(DecodedChunk, u64)> {
-    let path = files.path(name);
-    let Some(bytes) = bytes else {
-        return Err(Error::bad_input(
-            path,
-            "chunk file named by the manifest is missing (deleted by hand?); `inspect --verify` lists every problem",
-        ));
-    };
-    if bytes.is_empty() {
-        return Err(Error::bad_input(path, "empty chunk file"));
-    }
-    let d = decode_chunk(&bytes)
-        .map_err(|e| Error::bad_input(&path, format!("corrupted chunk: {e}")))?;
-    Ok((d, bytes.len() as u64))
-}
-
-impl MapStore {
-    /// Reads and decodes chunk object `name` (through the object-store cache where there is
-    /// one); errors name it.
-    fn read_object(&self, name: &str) -> Result<(DecodedChunk, u64)> {
-        if let Some(cache) = &self.cache {
-            let bytes = match cache.get(name) {
-                Some(b) => Some(ObjectBytes::Owned(b)),
-                None => match self.files.read(name)? {
-                    Some(ObjectBytes::Owned(b)) => {
-                        cache.put(name, b.clone());
-                        Some(ObjectBytes::Owned(b))
-                    }
-                    other => other,
-                },
-            };
-            return decode_object(&*self.files, name, bytes);
-        }
-        decode_object(&*self.files, name, self.files.read(name)?)
-    }
-}
-
-/// Encodes and writes chunk files; cheap to clone and `Send`, so background workers can own one.
-#[derive(Clone, Debug)]
-pub struct ChunkWriter {
-    files: Arc<dyn MapFiles>,
-    grid: GridParams,
-    chunk_blocks: u32,
-    zstd_level: i32,
-    map_id: u64,
-    /// The latest regularisation pass and its parameters when the writer was made.
-    pass: (u32, TvParams),
-}
-
-impl ChunkWriter {
-    fn encode(
-        &self,
-        c: ChunkIndex,
-        seq: u64,
-        blocks: &[(BlockIndex, &Block)],
-        reg_pass: u32,
-    ) -> (Vec<u8>, WrittenChunk) {
-        let header = ChunkHeader {
-            voxel_size_m: self.grid.voxel_size_m,
-            truncation_m: self.grid.truncation_m,
-            chunk: c,
-            chunk_blocks: self.chunk_blocks,
-            block_count: 0,
-            flags: 0,
-            payload_raw_bytes: 0,
-            payload_zstd_bytes: 0,
-            payload_crc32: 0,
-        };
-        let origin = ChunkOrigin {
-            map_id: self.map_id,
-            file_seq: seq,
-            reg_pass,
-            reg_params: if reg_pass != 0 && reg_pass == self.pass.0 {
-                self.pass.1
-            } else {
-                NO_PARAMS
-            },
-        };
-        let bytes = encode_chunk_with(&header, Some(&origin), blocks, self.zstd_level);
-        let has_reg = blocks.iter().any(|(_, b)| b.regularized.is_some());
-        let w = WrittenChunk {
-            chunk: c,
-            entry: ChunkEntry {
-                block_count: blocks.len() as u32,
-                observed_voxels: count_observed(blocks.iter().map(|(_, b)| *b)),
-                flags: if has_reg { ENTRY_HAS_REGULARIZED } else { 0 },
-                file_seq: seq,
-                file_bytes: bytes.len() as u64,
-                payload_crc32: u32::from_le_bytes(bytes[52..56].try_into().expect("header")),
-                reg_pass,
-            },
-        };
-        (bytes, w)
-    }
-
-    /// Encodes `blocks` of chunk `c` and writes them crash-safely as file number `seq` (from
-    /// [`MapStore::allocate_seq`]), in chunk format 2 with its origin (this map, `seq`,
-    /// `reg_pass` and that pass's parameters). The result must be given to [`MapStore::record`].
-    pub fn write(
-        &self,
-        c: ChunkIndex,
-        seq: u64,
-        blocks: &[(BlockIndex, &Block)],
-        reg_pass: u32,
-    ) -> Result<WrittenChunk> {
-        let (bytes, w) = self.encode(c, seq, blocks, reg_pass);
-        self.files.write_chunk(&chunk_object(c, seq), &bytes)?;
-        Ok(w)
-    }
-
-    /// [`ChunkWriter::write`] for a regularisation shard, create-only: when file `seq` of chunk
-    /// `c` exists already (a shard run again after it was killed, or two runs of one shard), the
-    /// existing file is kept and its entry returned, once its origin says it is this map's file
-    /// `seq` of `c` at `reg_pass`.
-    pub fn write_once(
-        &self,
-        c: ChunkIndex,
-        seq: u64,
-        blocks: &[(BlockIndex, &Block)],
-        reg_pass: u32,
-    ) -> Result<WrittenChunk> {
-        let name = chunk_object(c, seq);
-        let (bytes, w) = self.encode(c, seq, blocks, reg_pass);
-        if self.files.write_new(&name, &bytes)? {
-            return Ok(w);
-        }
-        let (d, len) = decode_object(&*self.files, &name, self.files.read(&name)?)?;
-        let ours = d.header.chunk == c
-            && d.origin.is_some_and(|o| {
-                o.file_seq == seq && o.map_id == self.map_id && o.reg_pass == reg_pass
-            });
-        if !ours {
-            return Err(Error::bad_input(
-                self.files.path(&name),
-                format!(
-                    "exists and is not this map's file {seq} of chunk {:?} at pass {reg_pass}; not replaced",
-                    c.0
-                ),
-            ));
-        }
-        Ok(WrittenChunk {
-            chunk: c,
-            entry: ChunkEntry {
-                block_count: d.header.block_count,
-                observed_voxels: count_observed(d.blocks.iter().map(|(_, b)| &**b)),
-                flags: if d.header.flags & FLAG_HAS_REGULARIZED != 0 {
-                    ENTRY_HAS_REGULARIZED
-                } else {
-                    0
-                },
-                file_seq: seq,
-                file_bytes: len,
-                payload_crc32: d.header.payload_crc32,
-                reg_pass,
-            },
-        })
-    }
 }

@@ -1,0 +1,183 @@
+//! Chunk files as bytes: decoding what was read (checked against nothing but itself), and
+//! [`ChunkWriter`], which encodes and writes them.
+
+use super::*;
+
+/// Memory-maps and decodes one chunk file (either format); errors name the file. Checks only
+/// the file itself: [`MapStore::read_chunk`] also checks it against the manifest.
+pub fn read_chunk_file(path: &Path) -> Result<DecodedChunk> {
+    read_chunk_file_len(path).map(|(d, _)| d)
+}
+
+pub(super) fn read_chunk_file_len(path: &Path) -> Result<(DecodedChunk, u64)> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .map_or(String::new(), |n| n.to_string_lossy().into_owned());
+    let files = crate::tiles::files::LocalFiles::new(dir);
+    decode_object(&files, &name, files.read(&name)?)
+}
+
+/// Decodes a chunk object read from `files`; errors name it.
+pub(super) fn decode_object(
+    files: &dyn MapFiles,
+    name: &str,
+    bytes: Option<ObjectBytes>,
+) -> Result<(DecodedChunk, u64)> {
+    let path = files.path(name);
+    let Some(bytes) = bytes else {
+        return Err(Error::bad_input(
+            path,
+            "chunk file named by the manifest is missing (deleted by hand?); `inspect --verify` lists every problem",
+        ));
+    };
+    if bytes.is_empty() {
+        return Err(Error::bad_input(path, "empty chunk file"));
+    }
+    let d = decode_chunk(&bytes)
+        .map_err(|e| Error::bad_input(&path, format!("corrupted chunk: {e}")))?;
+    Ok((d, bytes.len() as u64))
+}
+
+impl MapStore {
+    /// Reads and decodes chunk object `name` (through the object-store cache where there is
+    /// one); errors name it.
+    pub(super) fn read_object(&self, name: &str) -> Result<(DecodedChunk, u64)> {
+        if let Some(cache) = &self.cache {
+            let bytes = match cache.get(name) {
+                Some(b) => Some(ObjectBytes::Owned(b)),
+                None => match self.files.read(name)? {
+                    Some(ObjectBytes::Owned(b)) => {
+                        cache.put(name, b.clone());
+                        Some(ObjectBytes::Owned(b))
+                    }
+                    other => other,
+                },
+            };
+            return decode_object(&*self.files, name, bytes);
+        }
+        decode_object(&*self.files, name, self.files.read(name)?)
+    }
+}
+
+/// Encodes and writes chunk files; cheap to clone and `Send`, so background workers can own one.
+#[derive(Clone, Debug)]
+pub struct ChunkWriter {
+    pub(super) files: Arc<dyn MapFiles>,
+    pub(super) grid: GridParams,
+    pub(super) chunk_blocks: u32,
+    pub(super) zstd_level: i32,
+    pub(super) map_id: u64,
+    /// The latest regularisation pass and its parameters when the writer was made.
+    pub(super) pass: (u32, TvParams),
+}
+
+impl ChunkWriter {
+    fn encode(
+        &self,
+        c: ChunkIndex,
+        seq: u64,
+        blocks: &[(BlockIndex, &Block)],
+        reg_pass: u32,
+    ) -> (Vec<u8>, WrittenChunk) {
+        let header = ChunkHeader {
+            voxel_size_m: self.grid.voxel_size_m,
+            truncation_m: self.grid.truncation_m,
+            chunk: c,
+            chunk_blocks: self.chunk_blocks,
+            block_count: 0,
+            flags: 0,
+            payload_raw_bytes: 0,
+            payload_zstd_bytes: 0,
+            payload_crc32: 0,
+        };
+        let origin = ChunkOrigin {
+            map_id: self.map_id,
+            file_seq: seq,
+            reg_pass,
+            reg_params: if reg_pass != 0 && reg_pass == self.pass.0 {
+                self.pass.1
+            } else {
+                NO_PARAMS
+            },
+        };
+        let bytes = encode_chunk_with(&header, Some(&origin), blocks, self.zstd_level);
+        let has_reg = blocks.iter().any(|(_, b)| b.regularized.is_some());
+        let w = WrittenChunk {
+            chunk: c,
+            entry: ChunkEntry {
+                block_count: blocks.len() as u32,
+                observed_voxels: count_observed(blocks.iter().map(|(_, b)| *b)),
+                flags: if has_reg { ENTRY_HAS_REGULARIZED } else { 0 },
+                file_seq: seq,
+                file_bytes: bytes.len() as u64,
+                payload_crc32: u32::from_le_bytes(bytes[52..56].try_into().expect("header")),
+                reg_pass,
+            },
+        };
+        (bytes, w)
+    }
+
+    /// Encodes `blocks` of chunk `c` and writes them crash-safely as file number `seq` (from
+    /// [`MapStore::allocate_seq`]), in chunk format 2 with its origin (this map, `seq`,
+    /// `reg_pass` and that pass's parameters). The result must be given to [`MapStore::record`].
+    pub fn write(
+        &self,
+        c: ChunkIndex,
+        seq: u64,
+        blocks: &[(BlockIndex, &Block)],
+        reg_pass: u32,
+    ) -> Result<WrittenChunk> {
+        let (bytes, w) = self.encode(c, seq, blocks, reg_pass);
+        self.files.write_chunk(&chunk_object(c, seq), &bytes)?;
+        Ok(w)
+    }
+
+    /// [`ChunkWriter::write`] for a regularisation shard, create-only: when file `seq` of chunk
+    /// `c` exists already (a shard run again after it was killed, or two runs of one shard), the
+    /// existing file is kept and its entry returned, once its origin says it is this map's file
+    /// `seq` of `c` at `reg_pass`.
+    pub fn write_once(
+        &self,
+        c: ChunkIndex,
+        seq: u64,
+        blocks: &[(BlockIndex, &Block)],
+        reg_pass: u32,
+    ) -> Result<WrittenChunk> {
+        let name = chunk_object(c, seq);
+        let (bytes, w) = self.encode(c, seq, blocks, reg_pass);
+        if self.files.write_new(&name, &bytes)? {
+            return Ok(w);
+        }
+        let (d, len) = decode_object(&*self.files, &name, self.files.read(&name)?)?;
+        let ours = d.header.chunk == c
+            && d.origin.is_some_and(|o| {
+                o.file_seq == seq && o.map_id == self.map_id && o.reg_pass == reg_pass
+            });
+        if !ours {
+            return Err(Error::bad_input(
+                self.files.path(&name),
+                format!(
+                    "exists and is not this map's file {seq} of chunk {:?} at pass {reg_pass}; not replaced",
+                    c.0
+                ),
+            ));
+        }
+        Ok(WrittenChunk {
+            chunk: c,
+            entry: ChunkEntry {
+                block_count: d.header.block_count,
+                observed_voxels: count_observed(d.blocks.iter().map(|(_, b)| &**b)),
+                flags: if d.header.flags & FLAG_HAS_REGULARIZED != 0 {
+                    ENTRY_HAS_REGULARIZED
+                } else {
+                    0
+                },
+                file_seq: seq,
+                file_bytes: len,
+                payload_crc32: d.header.payload_crc32,
+                reg_pass,
+            },
+        })
+    }
+}

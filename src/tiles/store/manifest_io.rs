@@ -1,0 +1,92 @@
+//! The manifest and chunk files as objects of a map: their names, counting them, reading the
+//! committed manifest, and the errors for a map whose manifest is missing or lost.
+
+use super::*;
+
+/// A fresh random map identity (never 0).
+pub fn new_map_id() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u32(std::process::id());
+    h.write_u128(
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos()),
+    );
+    h.finish().max(1)
+}
+
+/// Chunk files (`*.dchk`) in `dir/chunks`, by name (0 when the folder is missing).
+pub fn count_chunk_files(dir: &Path) -> usize {
+    count_chunk_objects(&crate::tiles::files::LocalFiles::new(dir))
+}
+
+/// Chunk files (`*.dchk`) under the map's `chunks/` (0 when there are none, or on an error).
+pub fn count_chunk_objects(files: &dyn MapFiles) -> usize {
+    files.list(CHUNKS_DIR).map_or(0, |v| {
+        v.iter().filter(|o| o.name.ends_with(".dchk")).count()
+    })
+}
+
+pub(super) fn chunk_object(c: ChunkIndex, seq: u64) -> String {
+    format!("{CHUNKS_DIR}/{}", chunk_file_name(c, seq))
+}
+
+/// Refuses a map without a manifest: a lost manifest (chunk files present) names the repair
+/// command; an empty location is "not a map".
+pub(super) fn require_manifest(files: &dyn MapFiles) -> Result<()> {
+    if files.exists(MANIFEST_FILE)? {
+        return Ok(());
+    }
+    if let Some(holder) = files.writer_holding() {
+        // A writer is creating the map (it commits its first manifest in a moment).
+        return Err(Error::MapLocked {
+            dir: files.location().display_path(),
+            holder,
+        });
+    }
+    Err(missing_manifest(files))
+}
+
+fn missing_manifest(files: &dyn MapFiles) -> Error {
+    match count_chunk_objects(files) {
+        0 => Error::bad_input(
+            files.path(MANIFEST_FILE),
+            "no manifest here: not a denser map directory (or never committed)",
+        ),
+        n => lost_manifest(files, n),
+    }
+}
+
+pub(super) fn lost_manifest(files: &dyn MapFiles, n: usize) -> Error {
+    let loc = files.location();
+    Error::bad_input(
+        files.path(MANIFEST_FILE),
+        format!(
+            "missing, but {} holds {n} chunk files: the map's manifest is lost. Nothing was changed; run `denser repair {loc}` to rebuild it from the chunk files",
+            files.path(CHUNKS_DIR).display(),
+        ),
+    )
+}
+
+/// Reads and decodes `dir/manifest.dmf`; errors name the file.
+pub fn read_manifest(dir: &Path) -> Result<Manifest> {
+    read_manifest_at(&crate::tiles::files::LocalFiles::new(dir)).map(|(m, _)| m)
+}
+
+/// Reads and decodes the map's manifest with its version; errors name the object.
+pub fn read_manifest_at(files: &dyn MapFiles) -> Result<(Manifest, ObjectVersion)> {
+    let Some((bytes, version)) = files.read_versioned(MANIFEST_FILE)? else {
+        return Err(missing_manifest(files));
+    };
+    let m = decode_manifest(&bytes).map_err(|e| {
+        Error::bad_input(
+            files.path(MANIFEST_FILE),
+            format!(
+                "{e}; run `denser repair {}` to rebuild it from the chunk files",
+                files.location()
+            ),
+        )
+    })?;
+    Ok((m, version))
+}
