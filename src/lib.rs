@@ -19,6 +19,7 @@ pub mod geo;
 pub mod gpu;
 pub mod grid;
 pub mod io;
+pub mod memory;
 pub mod mesh;
 pub mod progress;
 pub mod reconstruct;

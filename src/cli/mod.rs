@@ -387,8 +387,9 @@ impl RangeArgs {
 /// The memory budget of out-of-core work.
 #[derive(Args, Clone, Copy, Debug)]
 pub(crate) struct BudgetArgs {
-    /// Memory budget for resident voxel blocks (fusion) and for one regularisation region
-    /// (e.g. 1GiB, 512MiB).
+    /// Memory budget of the process (e.g. 1GiB, 512MiB): a quarter of it, at most 64 MiB, is
+    /// kept for the process itself, the rest holds resident voxel blocks (fusion) or one
+    /// regularisation region. Peak RSS stays within this + 64 MiB (docs/bench/memory.md).
     #[arg(long, default_value = "1GiB", value_parser = parse_bytes)]
     pub memory_budget: u64,
     /// Regularisation region edge, chunks (bigger regions spend less on halos, need more
@@ -412,7 +413,7 @@ impl BudgetArgs {
         }
         Ok(denser::tiles::regional::RegionalOptions {
             region_chunks: self.region_chunks.unwrap_or(0),
-            budget_bytes: self.memory_budget,
+            budget_bytes: denser::memory::data_share_bytes(self.memory_budget),
             halo_blocks: None,
             sweep_iterations: (self.sweep_iterations > 0).then_some(self.sweep_iterations),
         })

@@ -11,10 +11,11 @@ use clap::ValueEnum;
 use denser::backend::Backend;
 use denser::depth::tgv::HoleFill;
 use denser::depth::StereoMethod;
-use denser::eval::{evaluate_reconstruction, peak_rss_bytes, EvaluationReport, GroundTruth};
+use denser::eval::{evaluate_reconstruction, EvaluationReport, GroundTruth};
 use denser::io::sequence::{
     detect_input, open_sequence, FrameRange, InputKind, RangeSource, Sequence,
 };
+use denser::memory::peak_rss_bytes;
 use denser::mesh::Field;
 use denser::reconstruct::{ReconstructionConfig, Reconstructor, RegularizeOutcome};
 use denser::store::{BlockStore, MemoryStore, SurfaceOutput};
@@ -449,7 +450,7 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
     Ok(PagedStore::new(
         store,
         PagerConfig {
-            budget_bytes: m.budget.memory_budget,
+            budget_bytes: denser::memory::data_share_bytes(m.budget.memory_budget),
             overrun: m.overrun,
             writer_threads: 2,
         },
@@ -528,7 +529,7 @@ impl fmt::Display for Report {
                 )?;
                 writeln!(
                     f,
-                    "pager: budget {} MiB, peak {:.1} MiB resident+writing, {} chunks evicted, {} written ({:.1} MiB), {} read back, {} over budget",
+                    "pager: {} MiB of the budget for blocks, peak {:.1} MiB resident+writing, {} chunks evicted, {} written ({:.1} MiB), {} read back, {} over budget",
                     p.budget_bytes >> 20,
                     mib(p.peak_bytes),
                     p.chunks_evicted,

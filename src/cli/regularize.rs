@@ -111,21 +111,9 @@ impl fmt::Display for ShardDone {
     }
 }
 
-/// Keeps freed solver arrays in the heap for the next region instead of returning them to the
-/// kernel: each region allocates its arrays anew, and glibc would otherwise map large ones fresh
-/// every time, a page fault per 4 KiB (measured: half of a swept pass's CPU time was the
-/// kernel's, `docs/bench/regularize.md`). Peak memory is unchanged: the largest region's.
-fn keep_freed_memory() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: mallopt only sets allocator parameters; called before the work's threads start.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 30);
-        libc::mallopt(libc::M_TRIM_THRESHOLD, 1 << 30);
-    }
-}
-
 pub(crate) fn run(a: Args) -> Result<Outcome> {
-    keep_freed_memory();
+    // Freed region arrays are reused by the next region; the pass trims above the budget.
+    denser::memory::keep_freed_memory();
     let mut backend = a.device.backend()?;
     if let Some(spec) = &a.shard {
         let shard = Shard::parse(spec)?;
@@ -183,6 +171,6 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         device,
         lambda: config.tv.lambda,
         timings: *rec.timings(),
-        peak_rss_bytes: denser::eval::peak_rss_bytes(),
+        peak_rss_bytes: denser::memory::peak_rss_bytes(),
     }))
 }

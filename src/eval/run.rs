@@ -7,19 +7,12 @@ use super::{
     EvaluationReport, GroundTruth, GroundTruthIndex, SensorCoverage, UpAxis,
 };
 use crate::frame::PointCloud;
+use crate::memory::peak_rss_bytes;
 use crate::mesh::{Field, Mesh};
 use crate::reconstruct::{Reconstructor, RegularizeOutcome};
 use crate::store::SurfaceOutput;
 use crate::{Error, Result};
 use std::path::{Path, PathBuf};
-
-/// Peak resident memory of this process (Linux `VmHWM`), bytes.
-pub fn peak_rss_bytes() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
-}
 
 /// The axis-aligned bounds of `points`, `None` when empty.
 fn bounds<'a>(points: impl Iterator<Item = [f64; 3]> + 'a) -> Option<([f64; 3], [f64; 3])> {

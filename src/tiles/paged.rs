@@ -48,18 +48,6 @@ pub struct PagedStore {
     empty: Layer,
 }
 
-/// Hands the allocator's free pages back to the kernel. The pager's blocks were freed in no
-/// particular order, leaving the heap fragmented; without this, regularisation's region arrays
-/// come more on top of the fusion's peak (measured at a 512 MiB budget on a 1200 m drive: 778
-/// MiB peak without, 727 MiB with; fusion alone 598 MiB; `docs/bench/memory.md`).
-fn release_free_memory() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: malloc_trim only returns free memory of glibc's heaps to the kernel.
-    unsafe {
-        libc::malloc_trim(0);
-    }
-}
-
 impl PagedStore {
     /// Fusion into `store` through a pager with `pager` settings; later regularisation uses
     /// `regional`.
@@ -121,7 +109,7 @@ impl PagedStore {
             };
             let (store, stats) = pager.finish(self.frames_last_commit)?;
             self.pager_stats = stats;
-            release_free_memory();
+            crate::memory::release_free_memory();
             self.state = State::Stored(store);
         }
         match &mut self.state {

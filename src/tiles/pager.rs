@@ -33,7 +33,10 @@ pub enum OverrunPolicy {
 /// Pager settings.
 #[derive(Clone, Copy, Debug)]
 pub struct PagerConfig {
-    /// Bytes of voxel blocks (resident plus being written) the pager keeps at most.
+    /// Bytes of voxel blocks (resident plus being written) the pager evicts down to after each
+    /// frame: the blocks' share of the memory budget ([`crate::memory::data_share_bytes`]). One
+    /// frame's own chunks may use the process's reserve beyond it; past the whole budget
+    /// ([`crate::memory::budget_for_data_bytes`] of this) the frame is an overrun.
     pub budget_bytes: u64,
     /// Reaction to a frame whose working set exceeds the budget.
     pub overrun: OverrunPolicy,
@@ -65,7 +68,7 @@ pub struct PagerStats {
     pub bytes_written: u64,
     /// Largest resident + in-flight block bytes seen after a frame's eviction.
     pub peak_bytes: u64,
-    /// Frames whose working set alone exceeded the budget.
+    /// Frames whose working set alone exceeded the whole budget.
     pub budget_overruns: u64,
     /// Seconds the caller's thread spent reading chunks.
     pub read_s: f64,
@@ -111,6 +114,8 @@ pub struct Pager {
     workers: Vec<std::thread::JoinHandle<()>>,
     stats: PagerStats,
     first_error: Option<Error>,
+    /// Evicted blocks' memory back to the kernel when the process passes the budget.
+    trim: crate::memory::TrimAbove,
 }
 
 impl Pager {
@@ -160,6 +165,9 @@ impl Pager {
             workers,
             stats: PagerStats::default(),
             first_error: None,
+            trim: crate::memory::TrimAbove::new(crate::memory::budget_for_data_bytes(
+                config.budget_bytes,
+            )),
         }
     }
 
@@ -360,15 +368,20 @@ impl Pager {
                 self.evict(c, before_evict)?;
             }
         }
+        self.trim.check();
         let used = self.used_bytes();
         self.stats.peak_bytes = self.stats.peak_bytes.max(used);
-        if used > self.config.budget_bytes {
+        // A frame whose chunks alone pass the blocks' share may borrow the process's reserve:
+        // only beyond the whole budget is it an overrun.
+        let limit = crate::memory::budget_for_data_bytes(self.config.budget_bytes);
+        if used > limit {
             self.stats.budget_overruns += 1;
             let msg = format!(
-                "memory budget of {} MiB exceeded: the current frame's {} chunks need {:.1} MiB resident; raise --memory-budget",
-                self.config.budget_bytes >> 20,
+                "memory budget of {} MiB exceeded: the current frame's {} chunks need {:.1} MiB resident; use a --memory-budget of at least {} MiB",
+                limit >> 20,
                 keep.len(),
-                used as f64 / (1u64 << 20) as f64
+                used as f64 / (1u64 << 20) as f64,
+                used.div_ceil(1 << 20)
             );
             match self.config.overrun {
                 OverrunPolicy::Error => return Err(Error::InvalidArgument(msg)),

@@ -136,9 +136,10 @@ pub fn plan_region_chunks(
     let first = bound(1);
     if first > budget_bytes {
         return Err(Error::InvalidArgument(format!(
-            "regularising this map needs about {} MiB for its fullest chunk with a {halo}-block halo, over the {} MiB budget: use a larger --memory-budget",
+            "regularising this map needs about {} MiB for its fullest chunk with a {halo}-block halo, over the {} MiB a region may use: use a --memory-budget of at least {} MiB",
             first.div_ceil(1 << 20),
-            budget_bytes >> 20
+            budget_bytes >> 20,
+            crate::memory::budget_for_data_bytes(first).div_ceil(1 << 20)
         )));
     }
     let (mut best, mut best_bytes) = (1, first);
@@ -184,9 +185,10 @@ pub fn check_budget_up_front(
         );
     }
     Err(Error::InvalidArgument(format!(
-        "regularising a region of {r}³ chunks of {chunk_blocks}³ blocks with its {halo}-block halo may need up to {} MiB, over the {} MiB budget: give a larger --memory-budget{smaller}{}, or --skip-regularize and then `denser regularize MAP`, which plans regions to the map's real block counts",
+        "regularising a region of {r}³ chunks of {chunk_blocks}³ blocks with its {halo}-block halo may need up to {} MiB, over the {} MiB a region may use: give a --memory-budget of at least {} MiB{smaller}{}, or --skip-regularize and then `denser regularize MAP`, which plans regions to the map's real block counts",
         bytes.div_ceil(1 << 20),
         options.budget_bytes >> 20,
+        crate::memory::budget_for_data_bytes(bytes).div_ceil(1 << 20),
         if options.region_chunks > 1 { ", a smaller --region-chunks" } else { "" }
     )))
 }
@@ -209,7 +211,7 @@ pub(super) fn resolve(
         options.budget_bytes,
     )?;
     tracing::info!(
-        "regions of {r}³ chunks (the largest within the {} MiB budget: at most {} MiB each with a {halo_blocks}-block halo)",
+        "regions of {r}³ chunks (the largest within the {} MiB a region may use: at most {} MiB each with a {halo_blocks}-block halo)",
         options.budget_bytes >> 20,
         bytes.div_ceil(1 << 20)
     );

@@ -339,7 +339,11 @@ fn regularize_pass(
     }
     let total = regions.len();
     let reach = (halo + cb - 1) / cb; // chunks of halo around a region
+                                      // Freed region arrays stay in the heap for the next region, unless that passes the budget.
+    let mut trim =
+        crate::memory::TrimAbove::new(crate::memory::budget_for_data_bytes(options.budget_bytes));
     for (k, (key, core)) in regions.iter().enumerate() {
+        trim.check();
         if let Mode::Shard {
             shard, recorded, ..
         } = mode
@@ -396,9 +400,10 @@ fn regularize_pass(
                 * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
             if bytes > options.budget_bytes {
                 return Err(Error::InvalidArgument(format!(
-                    "region {key:?} with its {halo}-block halo needs about {} MiB, over the {} MiB budget; use a smaller --region-chunks or a larger --memory-budget",
+                    "region {key:?} with its {halo}-block halo needs about {} MiB, over the {} MiB a region may use; use a smaller --region-chunks or a --memory-budget of at least {} MiB",
                     bytes >> 20,
-                    options.budget_bytes >> 20
+                    options.budget_bytes >> 20,
+                    crate::memory::budget_for_data_bytes(bytes).div_ceil(1 << 20)
                 )));
             }
         }

@@ -309,9 +309,13 @@ pub(super) fn regularize_swept(
     };
     let total = regions.len() * (sweeps as usize + 1);
     let mut block_iterations = 0u64;
+    // Freed region arrays stay in the heap for the next region, unless that passes the budget.
+    let mut trim =
+        crate::memory::TrimAbove::new(crate::memory::budget_for_data_bytes(run.budget_bytes));
     while step <= sweeps {
         let mut restart = false;
         for (k, (rkey, core)) in regions.iter().enumerate().skip(skip) {
+            trim.check();
             let t0 = std::time::Instant::now();
             if step == 0 {
                 for c in core {
@@ -375,9 +379,10 @@ pub(super) fn regularize_swept(
                 }
                 if bytes > run.budget_bytes {
                     return Err(Error::InvalidArgument(format!(
-                        "region {rkey:?} with its {halo}-block halo needs about {} MiB, over the {} MiB budget; use a smaller --region-chunks or a larger --memory-budget",
+                        "region {rkey:?} with its {halo}-block halo needs about {} MiB, over the {} MiB a region may use; use a smaller --region-chunks or a --memory-budget of at least {} MiB",
                         bytes >> 20,
-                        run.budget_bytes >> 20
+                        run.budget_bytes >> 20,
+                        crate::memory::budget_for_data_bytes(bytes).div_ceil(1 << 20)
                     )));
                 }
                 stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);

@@ -285,7 +285,10 @@ fn regularize_plans_regions_to_the_budget_and_reconstruct_checks_it_before_fusio
     let t = text(&o);
     assert!(!o.status.success(), "{t}");
     assert!(
-        t.contains("over the 64 MiB budget") && t.contains("--chunk-blocks 8: up to 53 MiB"),
+        // A 64 MiB budget leaves 48 MiB for a region (`denser::memory::data_share_bytes`).
+        t.contains("over the 48 MiB a region may use")
+            && t.contains("--memory-budget of at least 330 MiB")
+            && t.contains("--chunk-blocks 8: up to 53 MiB"),
         "{t}"
     );
     assert!(
@@ -293,8 +296,9 @@ fn regularize_plans_regions_to_the_budget_and_reconstruct_checks_it_before_fusio
         "refused before fusing: {t}"
     );
     println!("refused in {:.2} s: {t}", t0.elapsed().as_secs_f64());
-    // Without --chunk-blocks the chunk edge is planned to the budget: 8 blocks fit 64 MiB.
-    let o = run("planned", "64MiB", &[]);
+    // Without --chunk-blocks the chunk edge is planned to the budget: 8 blocks (53 MiB) fit the
+    // 54 MiB that a 72 MiB budget leaves for a region.
+    let o = run("planned", "72MiB", &[]);
     assert!(o.status.success(), "{}", text(&o));
     let i = denser(&["inspect", "planned"], d);
     assert!(text(&i).contains("chunks of 8³ blocks"), "{}", text(&i));
@@ -356,4 +360,103 @@ fn copy_dir(from: &Path, to: &Path) {
             std::fs::copy(e.path(), &target).expect("copy");
         }
     }
+}
+
+/// Issue 15 item 5: `--memory-budget B` bounds the process, not only the blocks it counts. The
+/// stated fixed overhead: the process keeps `min(B/4, 64 MiB)` of B for itself
+/// (`denser::memory::data_share_bytes`), its peak RSS stays within B + 64 MiB. Here the budget
+/// binds (chunks are evicted during fusion and regions are planned to it), and the peaks of
+/// `reconstruct --map` (fusion, regularisation, meshes) and `regularize` are read from the
+/// process's own `VmHWM`.
+#[test]
+fn memory_budget_bounds_the_process_peak() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    ok(
+        &[
+            "synth",
+            "--out",
+            "drive",
+            "--length-m",
+            "60",
+            "--frame-spacing-m",
+            "3",
+            "--lidar-only",
+        ],
+        d,
+    );
+    const MIB: u64 = 1 << 20;
+    let budget_mib = 32;
+    let bound = (budget_mib + 64) * MIB;
+    let budget = format!("{budget_mib}MiB");
+    ok(
+        &[
+            "reconstruct",
+            "drive/sequences/00",
+            "--depth",
+            "lidar",
+            "--map",
+            "m",
+            "--out",
+            "out",
+            "--memory-budget",
+            &budget,
+            "--max-depth",
+            "30",
+            "--iterations",
+            "20",
+            "--no-eval",
+            "--device",
+            "cpu",
+        ],
+        d,
+    );
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(d.join("out/map_report.json")).expect("map report"),
+    )
+    .expect("report JSON");
+    let paging = &report["map"]["paging"];
+    let data_share = paging["budget_bytes"].as_u64().expect("budget_bytes");
+    assert_eq!(
+        data_share,
+        24 * MIB,
+        "a quarter of 32 MiB kept for the process"
+    );
+    assert!(
+        paging["chunks_evicted"].as_u64().unwrap() > 0,
+        "the budget must bind for this test to mean anything: {paging}"
+    );
+    assert!(
+        paging["peak_bytes"].as_u64().unwrap() <= data_share,
+        "{paging}"
+    );
+    let peak = report["peak_rss_bytes"]
+        .as_u64()
+        .expect("peak RSS on Linux");
+    println!(
+        "reconstruct --map at {budget}: peak RSS {:.1} MiB (bound {} MiB)",
+        peak as f64 / MIB as f64,
+        bound / MIB
+    );
+    assert!(peak <= bound, "peak RSS {peak} over {bound}");
+
+    let out = ok(
+        &[
+            "regularize",
+            "m",
+            "--lambda",
+            "0.7",
+            "--memory-budget",
+            &budget,
+        ],
+        d,
+    );
+    let mib: f64 = out
+        .split("peak RSS ")
+        .nth(1)
+        .and_then(|s| s.split(" MiB").next())
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no peak RSS in: {out}"));
+    println!("regularize at {budget}: peak RSS {mib} MiB");
+    assert!(mib * MIB as f64 <= bound as f64, "{out}");
 }
