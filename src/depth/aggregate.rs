@@ -197,7 +197,13 @@ fn path_steps4<T: Cell>(
         &mut oc[1..d + 1],
         &mut od[1..d + 1],
     );
-    let [ja, jb, jc, jd] = [0, 1, 2, 3].map(|r| prev_min[r] + p2[r]);
+    // Element by element: `array::map` stayed out of line (a call per pixel).
+    let (ja, jb, jc, jd) = (
+        prev_min[0] + p2[0],
+        prev_min[1] + p2[1],
+        prev_min[2] + p2[2],
+        prev_min[3] + p2[3],
+    );
     let [pma, pmb, pmc, pmd] = prev_min;
     // Separate scalar minima (not an array): recognised as reductions, so the loop vectorises.
     let (mut ma, mut mb, mut mc, mut md) = (u16::MAX, u16::MAX, u16::MAX, u16::MAX);
@@ -264,7 +270,13 @@ fn path_steps4_total<T: Cell>(
         &mut oc[1..d + 1],
         &mut od[1..d + 1],
     );
-    let [ja, jb, jc, jd] = [0, 1, 2, 3].map(|r| prev_min[r] + p2[r]);
+    // Element by element: `array::map` stayed out of line (a call per pixel).
+    let (ja, jb, jc, jd) = (
+        prev_min[0] + p2[0],
+        prev_min[1] + p2[1],
+        prev_min[2] + p2[2],
+        prev_min[3] + p2[3],
+    );
     let [pma, pmb, pmc, pmd] = prev_min;
     let (mut ma, mut mb, mut mc, mut md) = (u16::MAX, u16::MAX, u16::MAX, u16::MAX);
     let mut mt = u16::MAX;
