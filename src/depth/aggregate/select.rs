@@ -257,11 +257,15 @@ pub(super) fn winner(
     for (&v, &k) in total.iter().zip(idx) {
         bk = bk.min(if v == best { k } else { u16::MAX });
     }
+    // Slices more than one away from the winner: k − (bk − 1) > 2 in wrapping arithmetic
+    // excludes exactly bk − 1, bk and bk + 1.
+    let near_lo = bk.wrapping_sub(1);
+    let mut second = u16::MAX;
+    for (&v, &k) in total.iter().zip(idx) {
+        let far = k.wrapping_sub(near_lo) > 2;
+        second = second.min(if far { v } else { u16::MAX });
+    }
     let bk = bk as usize;
-    // Slices more than one away from the winner: those before bk − 1 and after bk + 1 (two
-    // plain minima over contiguous slices, no mask).
-    let min_of = |s: &[u16]| s.iter().fold(u16::MAX, |m, &v| m.min(v));
-    let second = min_of(&total[..bk.saturating_sub(1)]).min(min_of(&total[(bk + 2).min(nd)..]));
     // Right pixel of slice k is xr0 − k; slices [k0, k1) fall inside the image.
     let xr0 = x as i64 - dmin as i64;
     let k0 = (xr0 - (w as i64 - 1)).max(0) as usize;
