@@ -35,8 +35,8 @@ pub(crate) struct Args {
     #[arg(long, default_value_t = 128)]
     num_disparities: usize,
     /// SGM aggregation directions (of sgm, and of the variational methods' SGM initialisation):
-    /// 4 (→ ← ↓ ↑), 5 (→ ← ↓ ↘ ↙, OpenCV StereoSGBM's 3-way mode) or 8 (all; the default
-    /// when left out is the library's, `SgmParams::default`).
+    /// 4 (→ ← ↓ ↑), 5 (→ ← ↓ ↘ ↙, OpenCV StereoSGBM's 3-way mode: faster, see
+    /// docs/bench/stereo.md) or 8 (all directions). Default: 8.
     #[arg(long, value_parser = parse_sgm_paths)]
     sgm_paths: Option<SgmPaths>,
     /// tv/tgv/tgv-tensor: keep occluded and poorly matching pixels (dense output for benchmarks
