@@ -2,11 +2,12 @@
 //! process CPU time), for profiling between benchmark runs.
 //!
 //! Run: `cargo run --release --example stereo_stages -- LEFT RIGHT [RUNS] [NUM_DISPARITIES]`
-//! (default: KITTI 00 frame 0 from ../shared/data, 9 runs, 128 disparities).
+//! (default: KITTI 00 frame 0 from ../shared/data, 9 runs, 128 disparities). `PATHS=4|5|8`
+//! picks the SGM aggregation directions; `ONLY=sgm|tgv` times one matcher only.
 use denser::depth::census::census_transform;
 use denser::depth::sgm::{
     aggregate_paths, median_filter_3x3, remove_speckles, select_disparities, CostVolume,
-    SgmMatcher, SgmParams,
+    SgmMatcher, SgmParams, SgmPaths,
 };
 use denser::depth::tgv::{
     box_filtered_costs, decoupling_search, diffusion_tensors, fill_from_background, Regulariser,
@@ -60,8 +61,17 @@ fn main() {
     let l = denser::io::image::read_grey(&left).expect("left image");
     let r = denser::io::image::read_grey(&right).expect("right image");
     println!("{}×{}, {nd} disparities, {runs} runs", l.width, l.height);
+    // PATHS=4|5|8: the aggregation directions (default: the library's).
+    let paths = match std::env::var("PATHS").as_deref() {
+        Ok("4") => SgmPaths::Four,
+        Ok("5") => SgmPaths::Five,
+        Ok("8") => SgmPaths::Eight,
+        _ => SgmParams::default().paths,
+    };
+    println!("{paths:?} paths");
     let sp = SgmParams {
         num_disparities: nd,
+        paths,
         ..SgmParams::default()
     };
     let sgm = SgmMatcher::new(sp).expect("parameters");
@@ -96,7 +106,7 @@ fn main() {
     let volume = time("census + cost volume", runs, || {
         sgm.cost_volume(&l, &r).expect("volume")
     });
-    let sum = time("aggregate 8 paths", runs, || {
+    let sum = time("aggregate paths", runs, || {
         aggregate_paths(&volume, &l, &sp).expect("aggregate")
     });
     time("select (WTA, LR, sub-pixel)", runs, || {

@@ -15,6 +15,7 @@
 //!
 //! Errors are never swallowed: a failed write-back is an error of the call that needed it.
 
+use crate::depth::sgm::SgmPaths;
 use crate::depth::tgv::HoleFill;
 use crate::depth::{DisparityEstimator, StereoMethod, TgvMatcherGpu};
 use crate::frame::DepthFrame;
@@ -158,17 +159,19 @@ impl Backend {
     }
 
     /// A matcher for `method` over `num_disparities` disparities with `fill` hole filling: the
-    /// variational methods run on the GPU when the backend has one; SGM on the CPU.
+    /// variational methods run on the GPU when the backend has one; SGM on the CPU. `paths`: the
+    /// SGM aggregation directions (SGM's, and those of the variational methods' initialisation).
     pub fn stereo_matcher(
         &self,
         method: StereoMethod,
         num_disparities: usize,
         fill: HoleFill,
+        paths: SgmPaths,
     ) -> Result<Box<dyn DisparityEstimator>> {
-        match (method.tgv_matcher(num_disparities, fill)?, &self.gpu) {
+        match (method.tgv_matcher(num_disparities, fill, paths)?, &self.gpu) {
             (Some(m), Some(ctx)) => Ok(Box::new(TgvMatcherGpu::new(ctx.clone(), m))),
             (Some(m), None) => Ok(Box::new(m)),
-            (None, _) => method.estimator_with_fill(num_disparities, fill),
+            (None, _) => method.estimator_with_fill(num_disparities, fill, paths),
         }
     }
 

@@ -3,7 +3,9 @@
 
 use super::{DeviceArgs, Outcome, StereoArg};
 use anyhow::{bail, Context, Result};
+use denser::depth::sgm::SgmPaths;
 use denser::depth::tgv::HoleFill;
+use denser::depth::SgmParams;
 use denser::depth::{DisparityMap, StereoMethod, StereoMetrics};
 use denser::frame::Image;
 use denser::io::calib::read_stereo_calibration;
@@ -32,6 +34,11 @@ pub(crate) struct Args {
     /// Disparity search range from 0, pixels.
     #[arg(long, default_value_t = 128)]
     num_disparities: usize,
+    /// SGM aggregation directions (of sgm, and of the variational methods' SGM initialisation):
+    /// 4 (→ ← ↓ ↑), 5 (→ ← ↓ ↘ ↙, OpenCV StereoSGBM's 3-way mode: faster, see
+    /// docs/bench/stereo.md) or 8 (all directions). Default: 8.
+    #[arg(long, value_parser = parse_sgm_paths)]
+    sgm_paths: Option<SgmPaths>,
     /// tv/tgv/tgv-tensor: keep occluded and poorly matching pixels (dense output for benchmarks
     /// that count missing pixels as errors).
     #[arg(long)]
@@ -81,6 +88,16 @@ impl fmt::Display for Matched {
     }
 }
 
+/// `--sgm-paths`: 4, 5 or 8.
+fn parse_sgm_paths(s: &str) -> std::result::Result<SgmPaths, String> {
+    match s {
+        "4" => Ok(SgmPaths::Four),
+        "5" => Ok(SgmPaths::Five),
+        "8" => Ok(SgmPaths::Eight),
+        _ => Err(format!("expected 4, 5 or 8 paths, got {s}")),
+    }
+}
+
 pub(crate) fn run(a: Args) -> Result<Outcome> {
     let method: StereoMethod = a.method.into();
     let context = || {
@@ -127,7 +144,8 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     } else {
         HoleFill::Visible
     };
-    let estimator = backend.stereo_matcher(method, a.num_disparities, fill)?;
+    let paths = a.sgm_paths.unwrap_or(SgmParams::default().paths);
+    let estimator = backend.stereo_matcher(method, a.num_disparities, fill, paths)?;
     let started = std::time::Instant::now();
     let map = estimator.estimate(&left, &right).with_context(context)?;
     let matching_s = started.elapsed().as_secs_f64();

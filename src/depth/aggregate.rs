@@ -13,6 +13,11 @@
 //! and read once, by whichever pass comes second, and two passes of 4 directions replace three
 //! sweeps over an 8-direction sum in memory.
 //!
+//! With 5 paths (OpenCV's 3-way mode) the forward pass is the same, and the second pass carries
+//! the right→left path alone: it needs no previous row, so it follows the forward pass down the
+//! image, never claims a row, and adds its path to each stored row and selects it (the light
+//! pass takes all the selection work).
+//!
 //! Sums of integers do not depend on the order of addition, so the result is bit-identical to
 //! summing the paths one after the other (`tests/depth/sgm.rs` checks it against a direct
 //! implementation of eq. 13). When the two closures of `rayon::join` run one after the other (no
@@ -192,7 +197,13 @@ fn path_steps4<T: Cell>(
         &mut oc[1..d + 1],
         &mut od[1..d + 1],
     );
-    let [ja, jb, jc, jd] = [0, 1, 2, 3].map(|r| prev_min[r] + p2[r]);
+    // Element by element: `array::map` stayed out of line (a call per pixel).
+    let (ja, jb, jc, jd) = (
+        prev_min[0] + p2[0],
+        prev_min[1] + p2[1],
+        prev_min[2] + p2[2],
+        prev_min[3] + p2[3],
+    );
     let [pma, pmb, pmc, pmd] = prev_min;
     // Separate scalar minima (not an array): recognised as reductions, so the loop vectorises.
     let (mut ma, mut mb, mut mc, mut md) = (u16::MAX, u16::MAX, u16::MAX, u16::MAX);
@@ -259,7 +270,13 @@ fn path_steps4_total<T: Cell>(
         &mut oc[1..d + 1],
         &mut od[1..d + 1],
     );
-    let [ja, jb, jc, jd] = [0, 1, 2, 3].map(|r| prev_min[r] + p2[r]);
+    // Element by element: `array::map` stayed out of line (a call per pixel).
+    let (ja, jb, jc, jd) = (
+        prev_min[0] + p2[0],
+        prev_min[1] + p2[1],
+        prev_min[2] + p2[2],
+        prev_min[3] + p2[3],
+    );
     let [pma, pmb, pmc, pmd] = prev_min;
     let (mut ma, mut mb, mut mc, mut md) = (u16::MAX, u16::MAX, u16::MAX, u16::MAX);
     let mut mt = u16::MAX;
@@ -287,6 +304,43 @@ fn path_steps4_total<T: Cell>(
         mt = mt.min(t);
     }
     ([ma, mb, mc, md], mt)
+}
+
+/// [`path_step`] for a lone horizontal path in the pass that comes second to a row (5 paths):
+/// its `L_r` plus the other pass's sum (`theirs`) gives `S` of the pixel, written to `total`;
+/// returns `min_d L_r` and `min_d S`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn path_step_total<T: Cell>(
+    cost: &[u8],
+    prev: &[T],
+    prev_min: u16,
+    p1: u16,
+    p2: u16,
+    out: &mut [T],
+    theirs: &[u16],
+    total: &mut [u16],
+) -> (u16, u16) {
+    let d = cost.len();
+    let (theirs, total) = (&theirs[..d], &mut total[..d]);
+    let prev = &prev[..d + 2];
+    let out = &mut out[1..d + 1];
+    let jump = prev_min + p2;
+    let (mut m, mut mt) = (u16::MAX, u16::MAX);
+    for k in 0..d {
+        let best = prev[k + 1]
+            .widen()
+            .min(prev[k].widen() + p1)
+            .min(prev[k + 2].widen() + p1)
+            .min(jump);
+        let v = cost[k] as u16 + best - prev_min;
+        out[k] = T::narrow(v);
+        let t = v + theirs[k];
+        total[k] = t;
+        m = m.min(v);
+        mt = mt.min(t);
+    }
+    (m, mt)
 }
 
 /// [`path_steps4`] for the 2 directions of a 4-path pass.
@@ -368,10 +422,18 @@ trait Isa {
         ob: &mut [T],
         acc: &mut [u16],
     ) -> [u16; 2];
+    /// [`path_step_total`]: `(prev, prev_min, p1, p2)`, output, `theirs`, `total`.
+    fn step1_total<T: Cell>(
+        cost: &[u8],
+        prev: (&[T], u16, u16, u16),
+        out: &mut [T],
+        theirs: &[u16],
+        total: &mut [u16],
+    ) -> (u16, u16);
 }
 
 macro_rules! isa {
-    ($name:ident, $win:ident, $s4:ident, $s4t:ident, $s2:ident, $($feature:literal)?) => {
+    ($name:ident, $win:ident, $s4:ident, $s4t:ident, $s2:ident, $s1t:ident, $($feature:literal)?) => {
         struct $name;
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
@@ -415,6 +477,17 @@ macro_rules! isa {
             acc: &mut [u16],
         ) -> [u16; 2] {
             path_steps2(cost, prev, prev_min, p1, p2, oa, ob, acc)
+        }
+        $(#[target_feature(enable = $feature)])?
+        #[inline(never)]
+        fn $s1t<T: Cell>(
+            cost: &[u8],
+            (prev, prev_min, p1, p2): (&[T], u16, u16, u16),
+            out: &mut [T],
+            theirs: &[u16],
+            total: &mut [u16],
+        ) -> (u16, u16) {
+            path_step_total(cost, prev, prev_min, p1, p2, out, theirs, total)
         }
         impl Isa for $name {
             #[inline(always)]
@@ -471,6 +544,20 @@ macro_rules! isa {
                     $s2(cost, prev, prev_min, p1, p2, oa, ob, acc)
                 }
             }
+            #[inline(always)]
+            fn step1_total<T: Cell>(
+                cost: &[u8],
+                prev: (&[T], u16, u16, u16),
+                out: &mut [T],
+                theirs: &[u16],
+                total: &mut [u16],
+            ) -> (u16, u16) {
+                // SAFETY: as above.
+                #[allow(unused_unsafe)]
+                unsafe {
+                    $s1t(cost, prev, out, theirs, total)
+                }
+            }
         }
     };
 }
@@ -481,6 +568,7 @@ isa!(
     steps4_baseline,
     steps4t_baseline,
     steps2_baseline,
+    step1t_baseline,
 );
 #[cfg(target_arch = "x86_64")]
 isa!(
@@ -489,6 +577,7 @@ isa!(
     steps4_avx2,
     steps4t_avx2,
     steps2_avx2,
+    step1t_avx2,
     "avx2"
 );
 #[cfg(target_arch = "x86_64")]
@@ -498,6 +587,7 @@ isa!(
     steps4_avx512,
     steps4t_avx512,
     steps2_avx512,
+    step1t_avx512,
     "avx512f,avx512bw,avx512vl,avx2"
 );
 

@@ -139,20 +139,24 @@ impl StereoMethod {
     /// A matcher of this kind searching `num_disparities` disparities from 0, other parameters at
     /// their defaults (variational methods fill [`tgv::HoleFill::Visible`] holes).
     pub fn estimator(&self, num_disparities: usize) -> Result<Box<dyn DisparityEstimator>> {
-        self.estimator_with_fill(num_disparities, tgv::HoleFill::Visible)
+        let paths = SgmParams::default().paths;
+        self.estimator_with_fill(num_disparities, tgv::HoleFill::Visible, paths)
     }
 
-    /// As [`StereoMethod::estimator`], with the variational methods' hole filling chosen
-    /// (ignored by SGM).
+    /// As [`StereoMethod::estimator`], with the variational methods' hole filling (ignored by
+    /// SGM) and the SGM aggregation paths (of SGM, and of the variational methods' SGM
+    /// initialisation) chosen.
     pub fn estimator_with_fill(
         &self,
         num_disparities: usize,
         hole_fill: tgv::HoleFill,
+        paths: sgm::SgmPaths,
     ) -> Result<Box<dyn DisparityEstimator>> {
-        match self.tgv_matcher(num_disparities, hole_fill)? {
+        match self.tgv_matcher(num_disparities, hole_fill, paths)? {
             Some(m) => Ok(Box::new(m)),
             None => Ok(Box::new(SgmMatcher::new(SgmParams {
                 num_disparities,
+                paths,
                 ..SgmParams::default()
             })?)),
         }
@@ -164,6 +168,7 @@ impl StereoMethod {
         &self,
         num_disparities: usize,
         hole_fill: tgv::HoleFill,
+        paths: sgm::SgmPaths,
     ) -> Result<Option<TgvMatcher>> {
         let regulariser = match self {
             StereoMethod::Sgm => return Ok(None),
@@ -176,6 +181,7 @@ impl StereoMethod {
             hole_fill,
             sgm: SgmParams {
                 num_disparities,
+                paths,
                 ..SgmParams::default()
             },
             ..TgvParams::default()

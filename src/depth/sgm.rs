@@ -7,7 +7,7 @@
 //!    signatures of left pixel `(x, y)` and right pixel `(x − d, y)`, for
 //!    `d ∈ [min_disparity_px, min_disparity_px + num_disparities)`, stored as `u8` with the
 //!    disparities of one pixel contiguous. Right pixels outside the image cost the maximum.
-//! 2. Path aggregation (eq. 13 of the paper): along each of 4 or 8 directions `r`,
+//! 2. Path aggregation (eq. 13 of the paper): along each of 4, 5 or 8 directions `r`,
 //!    `L_r(p, d) = C(p, d) + min(L_r(p−r, d), L_r(p−r, d±1) + P1, min_k L_r(p−r, k) + P2)
 //!    − min_k L_r(p−r, k)`, summed into `S(p, d)` (`u16`). P2 may adapt to the intensity step
 //!    along the path, `P2' = max(P1 + 1, P2·s / (s + |I(p) − I(p−r)|))` (after the paper's
@@ -46,6 +46,9 @@ const MAX_P2: u16 = 2000;
 pub enum SgmPaths {
     /// Left, right, up, down.
     Four,
+    /// Left, right, down and the two downward diagonals (OpenCV StereoSGBM's 3-way mode): one
+    /// sweep down the image carries four of them, the right→left path runs on its own.
+    Five,
     /// The four above plus the four diagonals (the paper's recommendation).
     Eight,
 }

@@ -327,3 +327,74 @@ fn stereo_reads_a_jpeg_and_a_tiff_pair() {
         );
     }
 }
+
+/// `--sgm-paths` picks the aggregation directions: each value gives, bit for bit, the library's
+/// matcher with those paths (no flag: 8); other values are refused by name.
+#[test]
+fn stereo_sgm_paths_flag_selects_the_library_mode() {
+    use denser::depth::sgm::{SgmMatcher, SgmParams, SgmPaths};
+    use denser::depth::DisparityEstimator;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let (left, right, _) = depth_support::planar_pair(120, 50, 9.0, 0.03, 0.01, 7);
+    write_grey_png(d.join("l.png"), &left).unwrap();
+    write_grey_png(d.join("r.png"), &right).unwrap();
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "stereo", "l.png", "r.png", "--out", "d.pfm", "--method", "sgm",
+        ];
+        args.extend_from_slice(&["--num-disparities", "20"]);
+        args.extend_from_slice(extra);
+        let o = denser(&args, d);
+        assert!(o.status.success(), "{}", text(&o));
+        read_pfm(d.join("d.pfm")).unwrap()
+    };
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    for (flag, paths) in [
+        (Some("4"), SgmPaths::Four),
+        (Some("5"), SgmPaths::Five),
+        (Some("8"), SgmPaths::Eight),
+        (None, SgmPaths::Eight),
+    ] {
+        let got = run(&flag.map_or(vec![], |f| vec!["--sgm-paths", f]));
+        let want = SgmMatcher::new(SgmParams {
+            num_disparities: 20,
+            paths,
+            ..SgmParams::default()
+        })
+        .unwrap()
+        .estimate(&left, &right)
+        .unwrap();
+        // PFM stores invalid as inf, the matcher NaN.
+        let want: Vec<f32> = want
+            .disparity_px
+            .data
+            .iter()
+            .map(|&v| if v.is_nan() { f32::INFINITY } else { v })
+            .collect();
+        let got: Vec<f32> = got
+            .data
+            .iter()
+            .map(|&v| if v.is_finite() { v } else { f32::INFINITY })
+            .collect();
+        assert_eq!(bits(&got), bits(&want), "{flag:?}");
+    }
+    let o = denser(
+        &[
+            "stereo",
+            "l.png",
+            "r.png",
+            "--out",
+            "x.pfm",
+            "--sgm-paths",
+            "6",
+        ],
+        d,
+    );
+    assert!(!o.status.success());
+    assert!(
+        text(&o).contains("expected 4, 5 or 8 paths"),
+        "{}",
+        text(&o)
+    );
+}

@@ -241,6 +241,7 @@ fn reference_aggregation(
     };
     let dirs: &[(i64, i64)] = match p.paths {
         denser::depth::sgm::SgmPaths::Four => &[(1, 0), (-1, 0), (0, 1), (0, -1)],
+        denser::depth::sgm::SgmPaths::Five => &[(1, 0), (-1, 0), (0, 1), (1, 1), (-1, 1)],
         denser::depth::sgm::SgmPaths::Eight => &[
             (1, 0),
             (-1, 0),
@@ -302,7 +303,7 @@ fn reference_aggregation(
 
 /// The streamed two-pass aggregation (both passes, in any interleaving) equals eq. 13 summed
 /// direction by direction, bit for bit, and the matcher's fused selection equals selecting on
-/// that sum; for 8 and 4 paths, u8 and u16 path storage (P2 ≤ 192 and P2 = 1500), and a
+/// that sum; for 8, 5 and 4 paths, u8 and u16 path storage (P2 ≤ 192 and P2 = 1500), and a
 /// disparity range starting below zero.
 #[test]
 fn streamed_aggregation_equals_direct_eq13() {
@@ -314,6 +315,8 @@ fn streamed_aggregation_equals_direct_eq13() {
         (SgmPaths::Four, 110, 0, 24),
         (SgmPaths::Eight, 1500, -3, 21),
         (SgmPaths::Four, 1500, 2, 17),
+        (SgmPaths::Five, 110, 0, 24),
+        (SgmPaths::Five, 1500, -3, 21),
     ] {
         let params = SgmParams {
             num_disparities: nd,

@@ -100,8 +100,9 @@ pub(super) struct Job<'a> {
     pub(super) image: &'a [u8],
     pub(super) params: &'a SgmParams,
     pub(super) pen: Penalties,
-    /// Column offsets of the previous-row predecessors (0 vertical, ±1 diagonal).
-    pub(super) dxs: &'a [isize],
+    /// Column offsets of the previous-row predecessors (0 vertical, ±1 diagonal) of the
+    /// forward and the backward pass; none: the pass carries the horizontal path only.
+    pub(super) dxs: [&'a [isize]; 2],
     pub(super) finish: Finish,
     pub(super) claims: &'a [AtomicU8],
     pub(super) partial: SharedRows<u16>,
@@ -125,11 +126,13 @@ pub(super) fn wait_stored(claim: &AtomicU8) {
 #[inline(always)]
 pub(super) fn run_pass_impl<I: Isa>(job: &Job, forward: bool, ps: &mut PassScratch) {
     let narrow = job.volume.max_cost as u16 + job.pen.p2 <= 254;
-    match (job.dxs.len(), narrow) {
+    match (job.dxs[usize::from(!forward)].len(), narrow) {
         (3, true) => run_pass_n::<3, 4, u8, I>(job, forward, ps),
         (3, false) => run_pass_n::<3, 4, u16, I>(job, forward, ps),
-        (_, true) => run_pass_n::<1, 2, u8, I>(job, forward, ps),
-        (_, false) => run_pass_n::<1, 2, u16, I>(job, forward, ps),
+        (1, true) => run_pass_n::<1, 2, u8, I>(job, forward, ps),
+        (1, false) => run_pass_n::<1, 2, u16, I>(job, forward, ps),
+        (_, true) => run_pass_n::<0, 1, u8, I>(job, forward, ps),
+        (_, false) => run_pass_n::<0, 1, u16, I>(job, forward, ps),
     }
 }
 
@@ -151,7 +154,10 @@ impl RowsOf<u16> for PassScratch {
 }
 
 /// [`run_pass_impl`] with `NR` previous-row directions (`N = NR + 1` with the horizontal one)
-/// and path costs stored as `T`.
+/// and path costs stored as `T`. A pass with the horizontal path only (`NR = 0`: the right→left
+/// path of 5 paths) needs no previous row: it visits the rows top to bottom right behind the
+/// forward pass, which claims them all, and selects every row (the lighter pass takes the
+/// selection, so that the two threads carry similar loads).
 #[inline(always)]
 pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
     job: &Job,
@@ -163,7 +169,9 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
     let vol = job.volume;
     let (w, h, nd) = (vol.width as usize, vol.height as usize, vol.num_disparities);
     let stride = nd + 2;
-    let dxs: [isize; NR] = std::array::from_fn(|r| job.dxs[r]);
+    let dxs: [isize; NR] = std::array::from_fn(|r| job.dxs[usize::from(!forward)][r]);
+    // Rows in the forward pass's order when this pass needs no previous row.
+    let rows_down = forward || NR == 0;
     let (p1, pen) = (job.pen.p1, job.pen);
     let (rows, own, select) = ps.rows_and_rest();
     rows.prepare(w, nd, NR);
@@ -180,11 +188,11 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
     } = rows;
     let mut hmin = 0u16;
     for step in 0..h {
-        let y = if forward { step } else { h - 1 - step };
+        let y = if rows_down { step } else { h - 1 - step };
         let has_prev = step > 0;
         let y_prev = if !has_prev {
             y
-        } else if forward {
+        } else if rows_down {
             y - 1
         } else {
             y + 1
@@ -192,9 +200,12 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
         let img = &job.image[y * w..(y + 1) * w];
         let img_prev = &job.image[y_prev * w..(y_prev + 1) * w];
         let cost_row = &vol.cost[y * w * nd..(y + 1) * w * nd];
-        let first = job.claims[y]
-            .compare_exchange(FREE, CLAIMED, Ordering::AcqRel, Ordering::Acquire)
-            .is_ok();
+        let first = NR > 0
+            && job.claims[y]
+                .compare_exchange(FREE, CLAIMED, Ordering::AcqRel, Ordering::Acquire)
+                .is_ok();
+        // Second to the row, with a fused kernel: S of each pixel and its winner at once.
+        let fused = !first && job.finish == Finish::Select && (N == 4 || N == 1);
         if !first {
             wait_stored(&job.claims[y]);
             select.reset(w);
@@ -233,7 +244,8 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
             save_min[cur * NR..(cur + 1) * NR].copy_from_slice(&slot_min[x * NR..(x + 1) * NR]);
             // Predecessors in the previous row, when every path continues (the usual case).
             let xps: [isize; NR] = std::array::from_fn(|r| x as isize + dxs[r]);
-            let inside = has_prev && i > 0 && xps.iter().all(|&xp| xp >= 0 && xp < w as isize);
+            let inside =
+                i > 0 && (NR == 0 || has_prev && xps.iter().all(|&xp| xp >= 0 && xp < w as isize));
             // The pixel's slots, and the not yet visited neighbour's (diagonal from ahead).
             let ahead = if forward { x + 1 } else { x.wrapping_sub(1) };
             let (outs, ahead_slots): (&mut [T], &[T]) = if ahead < w && forward {
@@ -273,8 +285,16 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                     prevs[r + 1] = pv;
                     pmin[r + 1] = pm;
                 }
-                let fused_select = N == 4 && !first && job.finish == Finish::Select;
-                let m: [u16; N] = if fused_select {
+                let m: [u16; N] = if fused && N == 1 {
+                    let (m, best) =
+                        I::step1_total(c, (hprev, pmin[0], p1, p2[0]), hout, theirs, acc);
+                    let total = &own[..nd];
+                    select.pixel_with_min::<I>(total, best, x, w, job.params.min_disparity_px);
+                    std::array::from_fn(|_| m)
+                } else if N == 1 {
+                    let m = path_step::<true, T>(c, hprev, pmin[0], p1, p2[0], hout, acc);
+                    std::array::from_fn(|_| m)
+                } else if fused {
                     // Second to the row: S of the pixel and its winner at once.
                     let (o1, rest) = outs.split_at_mut(stride);
                     let (o2, o3) = rest.split_at_mut(stride);
@@ -336,7 +356,7 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                 }
                 slot_min[x * NR..(x + 1) * NR].copy_from_slice(&m);
             }
-            if !(first || inside && N == 4 && job.finish == Finish::Select) {
+            if !(first || inside && fused) {
                 let theirs = &mut stored[x * nd..(x + 1) * nd];
                 match job.finish {
                     Finish::Sum => {
@@ -393,11 +413,13 @@ pub(super) fn run_pass(job: &Job, forward: bool, ps: &mut PassScratch) {
     run_pass_impl::<Baseline>(job, forward, ps)
 }
 
-/// Column offsets of the previous-row predecessors for `paths`.
-pub(super) fn predecessors(paths: SgmPaths) -> &'static [isize] {
+/// Column offsets of the previous-row predecessors of the forward and the backward pass for
+/// `paths`.
+pub(super) fn predecessors(paths: SgmPaths) -> [&'static [isize]; 2] {
     match paths {
-        SgmPaths::Four => &[0],
-        SgmPaths::Eight => &[0, -1, 1],
+        SgmPaths::Four => [&[0], &[0]],
+        SgmPaths::Five => [&[0, -1, 1], &[]],
+        SgmPaths::Eight => [&[0, -1, 1], &[0, -1, 1]],
     }
 }
 

@@ -88,17 +88,24 @@ impl RowSelect {
         let row = |yy: usize| &vol.cost[yy * n..(yy + 1) * n];
         let same_size = self.colsum.len() == n;
         let colsum = &mut self.colsum;
-        let mut add_sub = |add: Option<usize>, sub: Option<usize>| {
-            if let Some(a) = add {
+        let mut add_sub = |add: Option<usize>, sub: Option<usize>| match (add, sub) {
+            // Both in one sweep over `colsum` (the usual case: it is read and written once).
+            (Some(a), Some(b)) => {
+                for ((s, &ca), &cb) in colsum.iter_mut().zip(row(a)).zip(row(b)) {
+                    *s = s.wrapping_add(ca as u16).wrapping_sub(cb as u16);
+                }
+            }
+            (Some(a), None) => {
                 for (s, &c) in colsum.iter_mut().zip(row(a)) {
                     *s = s.wrapping_add(c as u16);
                 }
             }
-            if let Some(b) = sub {
+            (None, Some(b)) => {
                 for (s, &c) in colsum.iter_mut().zip(row(b)) {
                     *s = s.wrapping_sub(c as u16);
                 }
             }
+            (None, None) => {}
         };
         match self.colsum_row {
             Some(p) if p + 1 == y && same_size => {
@@ -242,18 +249,23 @@ pub(super) fn winner(
     dmin: i32,
 ) -> (usize, u16) {
     let nd = total.len();
-    // The first slice with the smallest cost (nd ≤ 4096 fits u16).
+    // Slice numbers as u16 lanes (nd ≤ 4096), so that the loops below compare 16-bit lanes
+    // rather than carrying a 64-bit index vector.
+    let idx = &SLICES[..nd];
+    // The first slice with the smallest cost.
     let mut bk = u16::MAX;
-    for (k, &v) in total.iter().enumerate() {
-        bk = bk.min(if v == best { k as u16 } else { u16::MAX });
+    for (&v, &k) in total.iter().zip(idx) {
+        bk = bk.min(if v == best { k } else { u16::MAX });
     }
-    let bk = bk as usize;
+    // Slices more than one away from the winner: k − (bk − 1) > 2 in wrapping arithmetic
+    // excludes exactly bk − 1, bk and bk + 1.
+    let near_lo = bk.wrapping_sub(1);
     let mut second = u16::MAX;
-    for (k, &v) in total.iter().enumerate() {
-        // Bitwise, not short-circuit, so that it stays a select.
-        let far = (k + 1 < bk) | (k > bk + 1);
+    for (&v, &k) in total.iter().zip(idx) {
+        let far = k.wrapping_sub(near_lo) > 2;
         second = second.min(if far { v } else { u16::MAX });
     }
+    let bk = bk as usize;
     // Right pixel of slice k is xr0 − k; slices [k0, k1) fall inside the image.
     let xr0 = x as i64 - dmin as i64;
     let k0 = (xr0 - (w as i64 - 1)).max(0) as usize;
@@ -265,9 +277,9 @@ pub(super) fn winner(
         // (w − 1 − xr0 is negative when dmin < 0 puts xr0 past the right edge; k0 makes up for it.)
         let at = (w as i64 - 1 - xr0 + k0 as i64) as usize;
         let (cost, slice) = (&mut right_cost[at..at + n], &mut right_k[at..at + n]);
-        let src = &total[k0..k1];
+        let (src, ks) = (&total[k0..k1], &idx[k0..k1]);
         for j in 0..n {
-            let (t, k) = (src[j], (k0 + j) as u16);
+            let (t, k) = (src[j], ks[j]);
             // Bitwise, not short-circuit, so that it stays a select.
             let better = (t < cost[j]) | ((t == cost[j]) & (k < slice[j]));
             cost[j] = if better { t } else { cost[j] };
@@ -276,6 +288,17 @@ pub(super) fn winner(
     }
     (bk, second)
 }
+
+/// 0, 1, 2, … as `u16`: the slice numbers of [`winner`] (at most 4096 disparities).
+static SLICES: [u16; 4096] = {
+    let mut a = [0u16; 4096];
+    let mut i = 0;
+    while i < 4096 {
+        a[i] = i as u16;
+        i += 1;
+    }
+    a
+};
 
 /// How many pixels ahead the second pass prefetches the first pass's sums.
 pub(super) const PREFETCH_PX: usize = 6;
