@@ -374,6 +374,8 @@ fn planned_chunk_blocks(check: impl Fn(u32) -> denser::Result<()>) -> denser::Re
 
 /// Opens (resuming) or creates the job's map, checking its job record.
 fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedStore> {
+    // Fusion within the budget: large buffers go straight back to the kernel.
+    denser::memory::map_large_allocations();
     // Regularisation's memory is checked before any frame is fused (issue 15): a run never fuses
     // for minutes and then finds its budget too small for one region.
     let regional = m.budget.regional()?;

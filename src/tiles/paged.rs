@@ -110,6 +110,8 @@ impl PagedStore {
             let (store, stats) = pager.finish(self.frames_last_commit)?;
             self.pager_stats = stats;
             crate::memory::release_free_memory();
+            // Regularisation next: its regions reuse freed arrays (bounded by its trims).
+            crate::memory::keep_freed_memory();
             self.state = State::Stored(store);
         }
         match &mut self.state {

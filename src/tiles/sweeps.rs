@@ -386,6 +386,7 @@ pub(super) fn regularize_swept(
                     )));
                 }
                 stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
+                trim.make_room(bytes);
                 let mut problem = problem_from_states(&states);
                 solve(
                     &mut problem,

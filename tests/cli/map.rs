@@ -426,8 +426,9 @@ fn memory_budget_bounds_the_process_peak() {
         paging["chunks_evicted"].as_u64().unwrap() > 0,
         "the budget must bind for this test to mean anything: {paging}"
     );
+    // The pager evicts down to its share; one frame's chunks may borrow the reserve, never more.
     assert!(
-        paging["peak_bytes"].as_u64().unwrap() <= data_share,
+        paging["peak_bytes"].as_u64().unwrap() <= budget_mib * MIB,
         "{paging}"
     );
     let peak = report["peak_rss_bytes"]
