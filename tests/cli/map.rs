@@ -287,7 +287,7 @@ fn regularize_plans_regions_to_the_budget_and_reconstruct_checks_it_before_fusio
     assert!(
         // A 64 MiB budget leaves 48 MiB for a region (`denser::memory::data_share_bytes`).
         t.contains("over the 48 MiB a region may use")
-            && t.contains("--memory-budget of at least 330 MiB")
+            && t.contains("--memory-budget of at least 331 MiB")
             && t.contains("--chunk-blocks 8: up to 53 MiB"),
         "{t}"
     );
