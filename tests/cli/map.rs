@@ -58,6 +58,23 @@ fn reconstruct_args<'a>(map: &'a str, out: &'a str) -> Vec<&'a str> {
     ]
 }
 
+/// A synthetic LiDAR-only drive in `d/drive` of `length_m`, a scan every `spacing_m`.
+fn lidar_drive(d: &Path, length_m: &str, spacing_m: &str) {
+    ok(
+        &[
+            "synth",
+            "--out",
+            "drive",
+            "--length-m",
+            length_m,
+            "--frame-spacing-m",
+            spacing_m,
+            "--lidar-only",
+        ],
+        d,
+    );
+}
+
 fn map_json(map: &str, cwd: &Path) -> serde_json::Value {
     let s = ok(&["inspect", map, "--verify", "--json"], cwd);
     let start = s.find('{').expect("json");
@@ -69,19 +86,7 @@ fn map_json(map: &str, cwd: &Path) -> serde_json::Value {
 fn killed_reconstruction_resumes_to_the_same_map() {
     let dir = tempfile::tempdir().expect("tempdir");
     let d = dir.path();
-    ok(
-        &[
-            "synth",
-            "--out",
-            "drive",
-            "--length-m",
-            "120",
-            "--frame-spacing-m",
-            "6",
-            "--lidar-only",
-        ],
-        d,
-    );
+    lidar_drive(d, "120", "6");
 
     // The reference: one uninterrupted run.
     ok(&reconstruct_args("ref", "ref_out"), d);
@@ -245,19 +250,7 @@ fn map_errors_are_clear() {
 fn regularize_plans_regions_to_the_budget_and_reconstruct_checks_it_before_fusion() {
     let dir = tempfile::tempdir().expect("tempdir");
     let d = dir.path();
-    ok(
-        &[
-            "synth",
-            "--out",
-            "drive",
-            "--length-m",
-            "40",
-            "--frame-spacing-m",
-            "4",
-            "--lidar-only",
-        ],
-        d,
-    );
+    lidar_drive(d, "40", "4");
     let run = |map: &str, budget: &str, extra: &[&str]| {
         let mut a = vec![
             "reconstruct",
@@ -372,19 +365,7 @@ fn copy_dir(from: &Path, to: &Path) {
 fn memory_budget_bounds_the_process_peak() {
     let dir = tempfile::tempdir().expect("tempdir");
     let d = dir.path();
-    ok(
-        &[
-            "synth",
-            "--out",
-            "drive",
-            "--length-m",
-            "60",
-            "--frame-spacing-m",
-            "3",
-            "--lidar-only",
-        ],
-        d,
-    );
+    lidar_drive(d, "60", "3");
     const MIB: u64 = 1 << 20;
     let budget_mib = 32;
     let bound = (budget_mib + 64) * MIB;
