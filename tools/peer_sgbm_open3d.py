@@ -13,7 +13,8 @@ Parameters, chosen to match `denser reconstruct`'s defaults:
 - SGBM: 128 disparities from 0, blockSize 5, P1 = 8*5^2, P2 = 32*5^2 (OpenCV's documented
   recommendation for grey), uniquenessRatio 10, speckleWindowSize 100, speckleRange 2,
   disp12MaxDiff 1, preFilterCap 63 (as tools/bench_opencv_sgbm.py).
-- Depth z = fx * B / d for d > 0, kept up to --depth-max (denser: 40 m for depth maps).
+- Depth z = fx * B / d for d > 0, kept up to --depth-max (denser: 40 m for depth maps), handed
+  to Open3D in millimetres (uint16; Open3D integrates u16 depth with u8 colour).
 - TSDF: voxel 0.10 m, 8^3-voxel blocks, truncation 10 voxels = 1.0 m (denser's default at 10 cm),
   colour from image_2.
 - Evaluation: Open3D KD-tree distances (accuracy: mesh vertex -> LiDAR, completeness:
@@ -133,18 +134,19 @@ def main():
         if left is None or right is None:
             sys.exit(f"{seq}: frame {i:06}: unreadable image_0/image_1 PNG")
         disp = matcher.compute(left, right).astype(np.float32) / 16.0  # fixed point, 4 fraction bits
-        depth = np.zeros_like(disp)
+        depth_m = np.zeros_like(disp)
         ok = disp > 0
-        depth[ok] = fx * baseline_m / disp[ok]
-        depth[depth > args.depth_max] = 0.0
+        depth_m[ok] = fx * baseline_m / disp[ok]
+        depth_m[depth_m > args.depth_max] = 0.0
+        depth_mm = np.rint(depth_m * 1000.0).astype(np.uint16)  # Open3D takes u16 depth with u8 colour
         color = o3d.t.io.read_image(str(seq / "image_2" / f"{i:06}.png"))
         t_stereo += time.perf_counter() - t
 
         t = time.perf_counter()
-        depth_img = o3d.t.geometry.Image(o3c.Tensor(depth))
+        depth_img = o3d.t.geometry.Image(o3c.Tensor(depth_mm))
         extr = o3c.Tensor(np.linalg.inv(poses[i]), dtype=o3c.Dtype.Float64)
-        coords = vbg.compute_unique_block_coordinates(depth_img, intr, extr, 1.0, args.depth_max, trunc_mult)
-        vbg.integrate(coords, depth_img, color, intr, intr, extr, 1.0, args.depth_max, trunc_mult)
+        coords = vbg.compute_unique_block_coordinates(depth_img, intr, extr, 1000.0, args.depth_max, trunc_mult)
+        vbg.integrate(coords, depth_img, color, intr, intr, extr, 1000.0, args.depth_max, trunc_mult)
         t_fuse += time.perf_counter() - t
 
     t = time.perf_counter()

@@ -81,7 +81,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         .unwrap_or_default();
     let written = evaluate_meshes(
         &refs,
-        &cloud,
+        cloud,
         coverage.as_ref(),
         &trajectory,
         &mut report,

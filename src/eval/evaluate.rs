@@ -78,12 +78,17 @@ pub fn evaluate_mesh_detailed(
     }
     check_mesh(mesh, &format!("surface '{label}'"))?;
     let points_m = surface_points(mesh, options.surface_sample_spacing_m)?;
+    let t = std::time::Instant::now();
     let accuracy_m = ground_truth.nearest_distances_m(&points_m)?;
+    let accuracy_s = t.elapsed().as_secs_f64();
     let accuracy = ErrorStats::from_distances(&accuracy_m, &options.histogram)?;
+    let t = std::time::Instant::now();
+    let mut completeness_queries = 0;
     let completeness = match &options.completeness {
         None => None,
         Some(region) => {
             let d = ground_truth.completeness_distances_m(&points_m, region)?;
+            completeness_queries = d.len();
             if d.is_empty() {
                 tracing::warn!(label, "no ground-truth point in the completeness region");
                 None
@@ -96,6 +101,9 @@ pub fn evaluate_mesh_detailed(
         label,
         points = points_m.len(),
         median_m = accuracy.median_m,
+        accuracy_s,
+        completeness_queries,
+        completeness_s = t.elapsed().as_secs_f64(),
         "evaluated surface"
     );
     let report = SurfaceReport {

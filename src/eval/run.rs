@@ -63,7 +63,7 @@ fn check_overlap(meshes: &[(&str, &Mesh)], ground_truth: &PointCloud) -> Result<
 /// draws the unscored points grey and `trajectory_m` (the sensor's path) as a line.
 pub fn evaluate_meshes(
     meshes: &[(&str, &Mesh)],
-    ground_truth: &PointCloud,
+    ground_truth: PointCloud,
     coverage: Option<&SensorCoverage>,
     trajectory_m: &[[f64; 3]],
     report: &mut EvaluationReport,
@@ -71,9 +71,9 @@ pub fn evaluate_meshes(
     out_dir: &Path,
 ) -> Result<Vec<PathBuf>> {
     std::fs::create_dir_all(out_dir).map_err(|e| Error::io(out_dir, e))?;
-    check_overlap(meshes, ground_truth)?;
+    check_overlap(meshes, &ground_truth)?;
     let t = std::time::Instant::now();
-    let index = GroundTruthIndex::new(ground_truth)?;
+    let index = GroundTruthIndex::from_cloud(ground_truth)?;
     let options = EvalOptions::default();
     let mut written = Vec::new();
     let mut evaluations = Vec::new();
@@ -239,7 +239,7 @@ pub fn evaluate_reconstruction(
     };
     let written = evaluate_meshes(
         &refs,
-        &gt,
+        gt,
         coverage.as_ref(),
         &trajectory,
         &mut report,
