@@ -659,6 +659,8 @@ fn maps_of_format_1_still_open_and_are_upgraded_by_their_next_commit() {
         let refs: Vec<(BlockIndex, &Block)> = d.blocks.iter().map(|(i, b)| (*i, &**b)).collect();
         let bytes = encode_chunk(&d.header, &refs, 3);
         e.file_bytes = bytes.len() as u64;
+        // Format 1's payload differs from format 3's: its CRC is the one a format-1 map records.
+        e.payload_crc32 = crc32fast::hash(&bytes[64..]);
         std::fs::write(&path, bytes).expect("v1 chunk");
     }
     m.header.map_id = 0;
