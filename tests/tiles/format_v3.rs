@@ -161,10 +161,15 @@ fn chunk_v3_golden_bytes() {
     assert_eq!(raw.len(), 516 + 5 * 3 + 2 * 3);
     let h = decode_header_with_origin(&file).expect("header").0;
     assert_eq!(h.payload_raw_bytes as usize, raw.len());
-    // The payload is one zstd frame per part, in order.
+    // The payload is one zstd frame per part, in order: the low bytes of the TSDF and of u at the
+    // level asked for (3), the other parts at level 15.
     let frames: Vec<u8> = parts
         .iter()
-        .flat_map(|p| zstd::bulk::compress(p, 3).expect("zstd"))
+        .enumerate()
+        .flat_map(|(k, p)| {
+            let level = if k == 3 || k == 8 { 3 } else { 15 };
+            zstd::bulk::compress(p, level).expect("zstd")
+        })
         .collect();
     assert_eq!(&file[CHUNK_HEADER_V2_BYTES..], &frames[..]);
     let back = zstd::bulk::decompress(&file[CHUNK_HEADER_V2_BYTES..], raw.len()).expect("zstd");
@@ -221,9 +226,10 @@ fn v3_round_trips_edge_cases_bit_for_bit() {
     assert!(d2.blocks == d3.blocks && d1.blocks == d3.blocks);
 }
 
-/// A surface crossing the block along z: a TSDF slope with noise of ±16, grey colour varying
-/// slowly, `u` the noise-free slope; voxels observed with probability 3/4.
-fn smooth_block(seed: u64) -> Box<Block> {
+/// A surface crossing the chunk along z: a TSDF slope (continuous across blocks; `at` is the
+/// block's place in the chunk) with noise of ±16, grey colour varying slowly, `u` the noise-free
+/// slope; voxels observed with probability 3/4.
+fn smooth_block(seed: u64, at: [i16; 3]) -> Box<Block> {
     let mut b = Block::new_boxed();
     let mut u = Box::new(b.tsdf);
     let mut s = seed | 1;
@@ -234,11 +240,15 @@ fn smooth_block(seed: u64) -> Box<Block> {
         if (s >> 60) % 4 == 0 {
             continue;
         }
-        let (x, y, z) = ((i % 8) as i16, ((i / 8) % 8) as i16, (i / 64) as i16);
-        u[i] = 3000 * z - 500 * y + 200 * x - 9000;
+        let (x, y, z) = (
+            8 * at[0] + (i % 8) as i16,
+            8 * at[1] + ((i / 8) % 8) as i16,
+            8 * at[2] + (i / 64) as i16,
+        );
+        u[i] = 1000 * z - 300 * y + 150 * x - 9000;
         b.tsdf[i] = u[i] + ((s >> 20) % 32) as i16 - 16;
         b.weight_omega[i] = OMEGA_BIT | 20;
-        let grey = (100 + 3 * x + 2 * y) as u8;
+        let grey = (60 + 3 * x + 2 * y) as u8;
         b.color[i] = [grey; 3];
     }
     b.regularized = Some(u);
@@ -250,10 +260,9 @@ fn v3_is_smaller_than_v2_on_smooth_fields() {
     let c = ChunkIndex([0, 0, 0]);
     let blocks: Vec<(BlockIndex, Box<Block>)> = (0..32)
         .map(|k| {
-            (
-                BlockIndex([k % 4, k / 4 % 4, k / 16]),
-                smooth_block(10 + k as u64),
-            )
+            let at = [k % 4, k / 4 % 4, k / 16];
+            let b = smooth_block(10 + k as u64, at.map(|c| c as i16));
+            (BlockIndex(at), b)
         })
         .collect();
     let refs: Vec<(BlockIndex, &Block)> = blocks.iter().map(|(i, b)| (*i, &**b)).collect();

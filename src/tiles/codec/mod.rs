@@ -17,8 +17,9 @@
 //! parameters) so that a file can be checked against the manifest entry that names it and a lost
 //! manifest can be rebuilt from the files alone) share that payload. Format 3 keeps format 2's
 //! header and layout but stores every voxel field as the residual of a prediction from the
-//! voxel's coded neighbours in the block ([`predict`]; `u` also from the TSDF's residual), which
-//! takes ~10 % fewer bytes. The store writes format 3 ([`encode_chunk_v3`]); all three are read.
+//! voxel's coded neighbours in its block and the blocks next to it ([`predict`]; `u` also from
+//! the TSDF's residual), one zstd frame per part (the structured parts at level 15 at least),
+//! which takes ~15 % fewer bytes. The store writes format 3 ([`encode_chunk_v3`]); all three are read.
 
 mod payload;
 pub mod predict;
@@ -72,6 +73,10 @@ pub const FLAG_HAS_REGULARIZED: u16 = 1;
 pub const BLOCK_HAS_REGULARIZED: u8 = 1;
 /// zstd level used by [`encode_chunk`] (3 = zstd's default: fast, ~4–5× on TSDF blocks).
 pub const DEFAULT_ZSTD_LEVEL: i32 = 3;
+/// Least zstd level of format 3 for the parts other than the low bytes of the TSDF and of `u`
+/// (weights, high bytes, colour, coordinates, flags): 4 % fewer bytes than level 3 for ~3× the
+/// encode time (`docs/bench/memory.md`).
+pub const STRUCTURED_ZSTD_LEVEL: i32 = 15;
 
 /// What a chunk header says, apart from the payload.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -229,16 +234,24 @@ fn encode_chunk_version(
     let planes = payload_planes(&order, version == CHUNK_VERSION_3);
     let raw_len: usize = planes.iter().map(|(_, p)| p.len()).sum();
     let compress =
-        |b: &[u8]| zstd::bulk::compress(b, zstd_level).expect("zstd of an in-memory buffer");
+        |b: &[u8], level: i32| zstd::bulk::compress(b, level).expect("zstd of an in-memory buffer");
     let zstd_payload = if version == CHUNK_VERSION_3 {
-        // One frame per non-empty part, so that zstd's entropy tables fit each part.
+        // One frame per non-empty part, so that zstd's entropy tables fit each part. The low
+        // bytes of the TSDF and of `u` are noise (no level shrinks them); the other parts get at
+        // least STRUCTURED_ZSTD_LEVEL.
         planes
             .iter()
             .filter(|(_, p)| !p.is_empty())
-            .flat_map(|(_, p)| compress(p))
+            .flat_map(|(name, p)| match *name {
+                "tsdf low" | "u low" => compress(p, zstd_level),
+                _ => compress(p, zstd_level.max(STRUCTURED_ZSTD_LEVEL)),
+            })
             .collect::<Vec<u8>>()
     } else {
-        compress(&planes.into_iter().flat_map(|(_, p)| p).collect::<Vec<u8>>())
+        compress(
+            &planes.into_iter().flat_map(|(_, p)| p).collect::<Vec<u8>>(),
+            zstd_level,
+        )
     };
     let h = ChunkHeader {
         block_count: n as u32,
@@ -580,13 +593,8 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
         )));
     }
     let rest = take(5 * k + 2 * k_reg)?;
-    payload::read_voxel_planes(
-        blocks.iter_mut().map(|(_, b)| &mut **b),
-        flags,
-        predicted,
-        (k, k_reg),
-        rest,
-    )?;
+    let locals: Vec<[u8; 3]> = coords.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    payload::read_voxel_planes(&mut blocks, &locals, flags, predicted, (k, k_reg), rest)?;
     Ok(DecodedChunk {
         header: h,
         origin,
