@@ -322,3 +322,21 @@ proptest! {
         assert_round_trip(&v3(&header(c), &blocks), &blocks);
     }
 }
+
+#[test]
+fn v3_predicts_across_blocks() {
+    // Block A at local (0, 0, 0) codes voxels 6 and 7 of its first row, block B at (1, 0, 0) its
+    // voxel 0: B's prediction is the linear extrapolation 2 · A7 − A6 along x.
+    let (mut a, mut b) = (Block::new_boxed(), Block::new_boxed());
+    (a.tsdf[6], a.tsdf[7], b.tsdf[0]) = (100, 200, 310);
+    (a.weight_omega[6], a.weight_omega[7], b.weight_omega[0]) = (1, 1, 1);
+    let blocks = vec![(BlockIndex([1, 0, 0]), b), (BlockIndex([0, 0, 0]), a)];
+    let file = v3(&header(ChunkIndex([0, 0, 0])), &blocks);
+    let h = decode_header_with_origin(&file).expect("header").0;
+    let raw = zstd::bulk::decompress(&file[CHUNK_HEADER_V2_BYTES..], h.payload_raw_bytes as usize)
+        .expect("zstd");
+    let t = 6 + 2 + 1024;
+    // A6: nothing before it, residual 100; A7: its x neighbour, 200 − 100; B0: 310 − (2·200 − 100).
+    assert_eq!(&raw[t..t + 6], &[200, 200, 20, 0, 0, 0]);
+    assert_round_trip(&file, &blocks);
+}
