@@ -19,7 +19,8 @@
 //! header and layout but stores every voxel field as the residual of a prediction from the
 //! voxel's coded neighbours in its block and the blocks next to it ([`predict`]; `u` also from
 //! the TSDF's residual), one zstd frame per part (the structured parts at level 15 at least),
-//! which takes ~15 % fewer bytes. The store writes format 3 ([`encode_chunk_v3`]); all three are read.
+//! which takes ~15 % fewer bytes. The store writes format 3 ([`encode_chunk_v3`]); all three
+//! are read.
 
 mod payload;
 pub mod predict;
@@ -74,8 +75,8 @@ pub const BLOCK_HAS_REGULARIZED: u8 = 1;
 /// zstd level used by [`encode_chunk`] (3 = zstd's default: fast, ~4–5× on TSDF blocks).
 pub const DEFAULT_ZSTD_LEVEL: i32 = 3;
 /// Least zstd level of format 3 for the parts other than the low bytes of the TSDF and of `u`
-/// (weights, high bytes, colour, coordinates, flags): 4 % fewer bytes than level 3 for ~3× the
-/// encode time (`docs/bench/memory.md`).
+/// (weights, high bytes, colour, coordinates, flags): 4 % fewer bytes in all than level 3, for
+/// ~5× the encode time (`docs/bench/memory.md`).
 pub const STRUCTURED_ZSTD_LEVEL: i32 = 15;
 
 /// What a chunk header says, apart from the payload.
