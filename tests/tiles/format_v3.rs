@@ -308,6 +308,45 @@ fn v3_every_truncation_and_flipped_byte_is_rejected() {
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(64))]
 
+    /// Arbitrary payloads behind a valid format-3 header (as a zstd frame, and raw) never panic
+    /// the decoder: they are refused or decoded.
+    #[test]
+    fn v3_decoder_never_panics(data in proptest::collection::vec(any::<u8>(), 0..3000), blocks in 0u32..5) {
+        let z = zstd::bulk::compress(&data, 1).expect("zstd");
+        for body in [&z[..], &data[..]] {
+            let h = ChunkHeader { block_count: blocks, payload_raw_bytes: data.len() as u32,
+                payload_zstd_bytes: body.len() as u32, payload_crc32: crc32fast::hash(body),
+                ..header(ChunkIndex([0, 0, 0])) };
+            let mut b = encode_header_v3(&h, &origin()).to_vec();
+            b.extend_from_slice(body);
+            let _ = decode_chunk(&b);
+        }
+    }
+
+    /// A well-formed format-3 payload of one block with arbitrary weights, flags and residuals
+    /// decodes without panicking, to a block with those weights.
+    #[test]
+    fn v3_arbitrary_residuals_decode(weights in proptest::collection::vec(any::<u8>(), 512), flag in 0u8..4,
+                                     seed in any::<u64>()) {
+        let k = if flag & 2 != 0 { 512 } else { weights.iter().filter(|w| **w != 0).count() };
+        let k_u = if flag & 1 != 0 { k } else { 0 };
+        let mut raw = vec![1, 2, 3, flag];
+        raw.extend_from_slice(&weights);
+        let mut s = seed;
+        raw.extend((0..5 * k + 2 * k_u).map(|_| {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 56) as u8
+        }));
+        let z = zstd::bulk::compress(&raw, 1).expect("zstd");
+        let h = ChunkHeader { block_count: 1, flags: (flag & 1) as u16, payload_raw_bytes: raw.len() as u32,
+            payload_zstd_bytes: z.len() as u32, payload_crc32: crc32fast::hash(&z), ..header(ChunkIndex([0, 0, 0])) };
+        let mut b = encode_header_v3(&h, &origin()).to_vec();
+        b.extend_from_slice(&z);
+        let d = decode_chunk(&b).expect("a well-formed payload decodes");
+        prop_assert_eq!(&d.blocks[0].1.weight_omega[..], &weights[..]);
+        prop_assert_eq!(d.blocks[0].1.regularized.is_some(), flag & 1 != 0);
+    }
+
     /// Random blocks (any fill, with or without u, smooth or arbitrary values) round-trip bit
     /// for bit in format 3.
     #[test]
