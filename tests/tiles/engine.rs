@@ -655,10 +655,14 @@ fn maps_of_format_1_still_open_and_are_upgraded_by_their_next_commit() {
     drop(w);
     for (c, e) in m.chunks.iter_mut() {
         let path = root.join(CHUNKS_DIR).join(chunk_file_name(*c, e.file_seq));
+        let written = std::fs::read(&path).expect("read");
+        assert_eq!(&written[8..10], &[3, 0], "this build writes chunk format 3");
         let d = denser::tiles::store::read_chunk_file(&path).expect("read");
         let refs: Vec<(BlockIndex, &Block)> = d.blocks.iter().map(|(i, b)| (*i, &**b)).collect();
         let bytes = encode_chunk(&d.header, &refs, 3);
         e.file_bytes = bytes.len() as u64;
+        // Format 1's payload differs from format 3's: its CRC is the one a format-1 map records.
+        e.payload_crc32 = crc32fast::hash(&bytes[64..]);
         std::fs::write(&path, bytes).expect("v1 chunk");
     }
     m.header.map_id = 0;
@@ -683,4 +687,9 @@ fn maps_of_format_1_still_open_and_are_upgraded_by_their_next_commit() {
     );
     assert!(r.verify().is_empty());
     assert!(r.manifest().pass_status().is_complete());
+    for (c, e) in &r.manifest().chunks {
+        let path = root.join(CHUNKS_DIR).join(chunk_file_name(*c, e.file_seq));
+        let head = std::fs::read(&path).expect("read");
+        assert_eq!(&head[8..10], &[3, 0], "rewritten in chunk format 3");
+    }
 }

@@ -7,6 +7,7 @@ mod common;
 mod engine;
 mod export_formats;
 mod format;
+mod format_v3;
 mod paging;
 #[cfg(feature = "s3")]
 mod scaleout;

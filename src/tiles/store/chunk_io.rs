@@ -101,7 +101,7 @@ impl ChunkWriter {
                 NO_PARAMS
             },
         };
-        let bytes = encode_chunk_with(&header, Some(&origin), blocks, self.zstd_level);
+        let bytes = encode_chunk_v3(&header, &origin, blocks, self.zstd_level);
         let has_reg = blocks.iter().any(|(_, b)| b.regularized.is_some());
         let w = WrittenChunk {
             chunk: c,

@@ -19,7 +19,7 @@
 //! rebuilds the manifest.
 
 use super::codec::{
-    decode_chunk, decode_header_with_origin, encode_chunk_with, ChunkHeader, ChunkOrigin,
+    decode_chunk, decode_header_with_origin, encode_chunk_v3, ChunkHeader, ChunkOrigin,
     DecodedChunk, CHUNK_HEADER_V2_BYTES, DEFAULT_ZSTD_LEVEL, FLAG_HAS_REGULARIZED, NO_PARAMS,
 };
 use super::files::{

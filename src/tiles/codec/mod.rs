@@ -12,11 +12,20 @@
 //! densely). TSDF values are stored as the zigzag-coded difference to the previous coded voxel of
 //! the block (x fastest), low bytes then high bytes; the regularised field as zigzag `u − f`.
 //!
-//! Two header versions share the payload: format 1 (64 bytes) and format 2 (128 bytes), which adds
-//! the file's **origin** ([`ChunkOrigin`]: map id, file sequence number, the regularisation pass
-//! that wrote `u` and its parameters) so that a file can be checked against the manifest entry
-//! that names it and a lost manifest can be rebuilt from the files alone. The store writes format
-//! 2 ([`encode_chunk_with`]); both are read.
+//! Format 1 (64-byte header) and format 2 (128 bytes, adding the file's **origin**
+//! ([`ChunkOrigin`]: map id, file sequence number, the regularisation pass that wrote `u` and its
+//! parameters) so that a file can be checked against the manifest entry that names it and a lost
+//! manifest can be rebuilt from the files alone) share that payload. Format 3 keeps format 2's
+//! header and layout but stores every voxel field as the residual of a prediction from the
+//! voxel's coded neighbours in its block and the blocks next to it ([`predict`]; `u` also from
+//! the TSDF's residual), one zstd frame per part (the structured parts at level 15 at least),
+//! which takes ~15 % fewer bytes. The store writes format 3 ([`encode_chunk_v3`]); all three
+//! are read.
+
+mod payload;
+pub mod predict;
+
+pub use payload::payload_planes;
 
 use super::ChunkIndex;
 use crate::grid::{Block, BlockIndex, VOXELS_PER_BLOCK};
@@ -26,11 +35,14 @@ use crate::regularize::TvParams;
 pub const CHUNK_MAGIC: [u8; 8] = *b"DNSRCHNK";
 /// Chunk format version of [`encode_chunk`] (no origin; still read).
 pub const CHUNK_VERSION: u16 = 1;
-/// Chunk format version with an origin ([`encode_chunk_with`]); the store writes this one.
+/// Chunk format version with an origin and the legacy payload ([`encode_chunk_with`]; still read).
 pub const CHUNK_VERSION_2: u16 = 2;
+/// Chunk format version with an origin and predicted voxel fields ([`encode_chunk_v3`]); the
+/// store writes this one.
+pub const CHUNK_VERSION_3: u16 = 3;
 /// Size of the fixed header of format 1, bytes.
 pub const CHUNK_HEADER_BYTES: usize = 64;
-/// Size of the fixed header of format 2, bytes.
+/// Size of the fixed header of formats 2 and 3, bytes.
 pub const CHUNK_HEADER_V2_BYTES: usize = 128;
 
 /// Where a chunk file comes from (format 2 only): what the store checks against the manifest
@@ -62,6 +74,10 @@ pub const FLAG_HAS_REGULARIZED: u16 = 1;
 pub const BLOCK_HAS_REGULARIZED: u8 = 1;
 /// zstd level used by [`encode_chunk`] (3 = zstd's default: fast, ~4–5× on TSDF blocks).
 pub const DEFAULT_ZSTD_LEVEL: i32 = 3;
+/// Least zstd level of format 3 for the parts other than the low bytes of the TSDF and of `u`
+/// (weights, high bytes, colour, coordinates, flags): 4 % fewer bytes in all than level 3, for
+/// ~5× the encode time (`docs/bench/memory.md`).
+pub const STRUCTURED_ZSTD_LEVEL: i32 = 15;
 
 /// What a chunk header says, apart from the payload.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -97,7 +113,7 @@ pub enum CodecError {
     BadMagic,
     /// A version this build cannot read.
     #[error(
-        "chunk format version {found} is not supported (this build reads versions {CHUNK_VERSION} and {CHUNK_VERSION_2})"
+        "chunk format version {found} is not supported (this build reads versions {CHUNK_VERSION} to {CHUNK_VERSION_3})"
     )]
     UnsupportedVersion {
         /// Version found in the header.
@@ -134,35 +150,6 @@ pub fn payload_raw_bytes(n: usize, coded: usize, coded_reg: usize) -> usize {
     n * (3 + 1 + VOXELS_PER_BLOCK) + coded * (2 + 3) + coded_reg * 2
 }
 
-/// Whether the empty voxels of `b` (weight/Ω byte 0) all hold the defaults (TSDF +1, colour 0,
-/// `u = f`), so that only its non-empty voxels need coding.
-fn sparse_ok(b: &Block) -> bool {
-    let t0 = Block::default().tsdf[0];
-    (0..VOXELS_PER_BLOCK).all(|i| {
-        b.weight_omega[i] != 0
-            || (b.tsdf[i] == t0
-                && b.color[i] == [0; 3]
-                && b.regularized.as_ref().is_none_or(|u| u[i] == b.tsdf[i]))
-    })
-}
-
-/// Voxels of a block that are coded, in linear order.
-fn coded_voxels(weight_omega: &[u8; VOXELS_PER_BLOCK], dense: bool) -> Vec<usize> {
-    (0..VOXELS_PER_BLOCK)
-        .filter(|&i| dense || weight_omega[i] != 0)
-        .collect()
-}
-
-#[inline]
-fn zigzag(d: i16) -> u16 {
-    ((d << 1) ^ (d >> 15)) as u16
-}
-
-#[inline]
-fn unzigzag(z: u16) -> i16 {
-    ((z >> 1) as i16) ^ -((z & 1) as i16)
-}
-
 /// Encodes `blocks` (all inside `header.chunk`, any order, no duplicates) into a complete chunk
 /// file of format 1 (no origin). `header.block_count`, `flags`, payload lengths and CRC are filled
 /// in here; the other header fields are taken as given.
@@ -184,6 +171,32 @@ pub fn encode_chunk_with(
     blocks: &[(BlockIndex, &Block)],
     zstd_level: i32,
 ) -> Vec<u8> {
+    let version = if origin.is_some() {
+        CHUNK_VERSION_2
+    } else {
+        CHUNK_VERSION
+    };
+    encode_chunk_version(header, origin, blocks, zstd_level, version)
+}
+
+/// Format 3: format 2's header carrying `origin`, voxel fields stored as prediction residuals.
+/// What the store writes.
+pub fn encode_chunk_v3(
+    header: &ChunkHeader,
+    origin: &ChunkOrigin,
+    blocks: &[(BlockIndex, &Block)],
+    zstd_level: i32,
+) -> Vec<u8> {
+    encode_chunk_version(header, Some(origin), blocks, zstd_level, CHUNK_VERSION_3)
+}
+
+/// `blocks` sorted by local coordinate in `header.chunk`, with those coordinates.
+///
+/// Panics if a block lies outside the chunk or appears twice (a caller bug, not bad input).
+pub fn local_order<'a>(
+    header: &ChunkHeader,
+    blocks: &[(BlockIndex, &'a Block)],
+) -> Vec<([u8; 3], &'a Block)> {
     let cb = header.chunk_blocks as i32;
     let first_block = header.chunk.origin_block(header.chunk_blocks);
     let mut order: Vec<([u8; 3], &Block)> = blocks
@@ -203,86 +216,59 @@ pub fn encode_chunk_with(
         order.windows(2).all(|w| w[0].0 != w[1].0),
         "duplicate block in chunk"
     );
+    order
+}
+
+fn encode_chunk_version(
+    header: &ChunkHeader,
+    origin: Option<&ChunkOrigin>,
+    blocks: &[(BlockIndex, &Block)],
+    zstd_level: i32,
+    version: u16,
+) -> Vec<u8> {
+    let order = local_order(header, blocks);
     let n = order.len();
     let n_reg = order
         .iter()
         .filter(|(_, b)| b.regularized.is_some())
         .count();
-    let flags: Vec<u8> = order
-        .iter()
-        .map(|(_, b)| {
-            (if b.regularized.is_some() {
-                BLOCK_HAS_REGULARIZED
-            } else {
-                0
-            }) | (if sparse_ok(b) { 0 } else { BLOCK_DENSE })
-        })
-        .collect();
-    let coded: Vec<Vec<usize>> = order
-        .iter()
-        .zip(&flags)
-        .map(|((_, b), f)| coded_voxels(&b.weight_omega, f & BLOCK_DENSE != 0))
-        .collect();
-    let k: usize = coded.iter().map(Vec::len).sum();
-    let k_reg: usize = coded
-        .iter()
-        .zip(&order)
-        .filter(|(_, (_, b))| b.regularized.is_some())
-        .map(|(c, _)| c.len())
-        .sum();
-    let mut raw = Vec::with_capacity(payload_raw_bytes(n, k, k_reg));
-    for (l, _) in &order {
-        raw.extend_from_slice(l);
-    }
-    raw.extend_from_slice(&flags);
-    for (_, b) in &order {
-        raw.extend_from_slice(&b.weight_omega);
-    }
-    // TSDF: zigzag delta to the previous coded voxel of the block (the first from 0).
-    let mut zz: Vec<u16> = Vec::with_capacity(k);
-    for ((_, b), c) in order.iter().zip(&coded) {
-        let mut prev = 0i16;
-        for &i in c {
-            zz.push(zigzag(b.tsdf[i].wrapping_sub(prev)));
-            prev = b.tsdf[i];
-        }
-    }
-    push_planes(&mut raw, &zz);
-    for ch in 0..3 {
-        for ((_, b), c) in order.iter().zip(&coded) {
-            raw.extend(c.iter().map(|&i| b.color[i][ch]));
-        }
-    }
-    zz.clear();
-    for ((_, b), c) in order.iter().zip(&coded) {
-        if let Some(u) = &b.regularized {
-            zz.extend(c.iter().map(|&i| zigzag(u[i].wrapping_sub(b.tsdf[i]))));
-        }
-    }
-    push_planes(&mut raw, &zz);
-    debug_assert_eq!(raw.len(), payload_raw_bytes(n, k, k_reg));
-    let zstd_payload =
-        zstd::bulk::compress(&raw, zstd_level).expect("zstd compression of an in-memory buffer");
+    let planes = payload_planes(&order, version == CHUNK_VERSION_3);
+    let raw_len: usize = planes.iter().map(|(_, p)| p.len()).sum();
+    let compress =
+        |b: &[u8], level: i32| zstd::bulk::compress(b, level).expect("zstd of an in-memory buffer");
+    let zstd_payload = if version == CHUNK_VERSION_3 {
+        // One frame per non-empty part, so that zstd's entropy tables fit each part. The low
+        // bytes of the TSDF and of `u` are noise (no level shrinks them); the other parts get at
+        // least STRUCTURED_ZSTD_LEVEL.
+        planes
+            .iter()
+            .filter(|(_, p)| !p.is_empty())
+            .flat_map(|(name, p)| match *name {
+                "tsdf low" | "u low" => compress(p, zstd_level),
+                _ => compress(p, zstd_level.max(STRUCTURED_ZSTD_LEVEL)),
+            })
+            .collect::<Vec<u8>>()
+    } else {
+        compress(
+            &planes.into_iter().flat_map(|(_, p)| p).collect::<Vec<u8>>(),
+            zstd_level,
+        )
+    };
     let h = ChunkHeader {
         block_count: n as u32,
         flags: if n_reg > 0 { FLAG_HAS_REGULARIZED } else { 0 },
-        payload_raw_bytes: raw.len() as u32,
+        payload_raw_bytes: raw_len as u32,
         payload_zstd_bytes: zstd_payload.len() as u32,
         payload_crc32: crc32fast::hash(&zstd_payload),
         ..*header
     };
     let mut out = Vec::with_capacity(CHUNK_HEADER_V2_BYTES + zstd_payload.len());
     match origin {
-        Some(o) => out.extend_from_slice(&encode_header_v2(&h, o)),
+        Some(o) => out.extend_from_slice(&header_with_origin(&h, o, version)),
         None => out.extend_from_slice(&encode_header(&h)),
     }
     out.extend_from_slice(&zstd_payload);
     out
-}
-
-fn push_planes(raw: &mut Vec<u8>, z: &[u16]) {
-    raw.extend(z.iter().map(|v| (*v & 0xff) as u8));
-    raw.extend(z.iter().map(|v| (*v >> 8) as u8));
 }
 
 /// The 64 header bytes of `h` in format 1 (CRC of bytes 0..60 in bytes 60..64).
@@ -297,8 +283,21 @@ pub fn encode_header(h: &ChunkHeader) -> [u8; CHUNK_HEADER_BYTES] {
 
 /// The 128 header bytes of `h` with `origin` in format 2 (CRC of bytes 0..124 in bytes 124..128).
 pub fn encode_header_v2(h: &ChunkHeader, origin: &ChunkOrigin) -> [u8; CHUNK_HEADER_V2_BYTES] {
+    header_with_origin(h, origin, CHUNK_VERSION_2)
+}
+
+/// The 128 header bytes of `h` with `origin` in format 3: format 2's table with version 3.
+pub fn encode_header_v3(h: &ChunkHeader, origin: &ChunkOrigin) -> [u8; CHUNK_HEADER_V2_BYTES] {
+    header_with_origin(h, origin, CHUNK_VERSION_3)
+}
+
+fn header_with_origin(
+    h: &ChunkHeader,
+    origin: &ChunkOrigin,
+    version: u16,
+) -> [u8; CHUNK_HEADER_V2_BYTES] {
     let mut b = [0u8; CHUNK_HEADER_V2_BYTES];
-    put_common(&mut b, h, CHUNK_VERSION_2);
+    put_common(&mut b, h, version);
     b[56..64].copy_from_slice(&origin.map_id.to_le_bytes());
     b[64..72].copy_from_slice(&origin.file_seq.to_le_bytes());
     b[72..76].copy_from_slice(&origin.reg_pass.to_le_bytes());
@@ -314,7 +313,7 @@ pub fn encode_header_v2(h: &ChunkHeader, origin: &ChunkOrigin) -> [u8; CHUNK_HEA
     b
 }
 
-/// Bytes 0..56, common to both formats.
+/// Bytes 0..56, common to all formats.
 fn put_common(b: &mut [u8], h: &ChunkHeader, version: u16) {
     let len = if version == CHUNK_VERSION {
         CHUNK_HEADER_BYTES
@@ -381,7 +380,7 @@ pub fn decode_header_with_origin(
     let version = le_u16(bytes, 8);
     let len = match version {
         CHUNK_VERSION => CHUNK_HEADER_BYTES,
-        CHUNK_VERSION_2 => CHUNK_HEADER_V2_BYTES,
+        CHUNK_VERSION_2 | CHUNK_VERSION_3 => CHUNK_HEADER_V2_BYTES,
         _ => return Err(CodecError::UnsupportedVersion { found: version }),
     };
     if bytes.len() < len {
@@ -460,7 +459,7 @@ pub fn decode_header_with_origin(
             h.payload_raw_bytes
         )));
     }
-    let origin = (version == CHUNK_VERSION_2).then(|| ChunkOrigin {
+    let origin = (version != CHUNK_VERSION).then(|| ChunkOrigin {
         map_id: u64::from_le_bytes(bytes[56..64].try_into().expect("8 bytes")),
         file_seq: u64::from_le_bytes(bytes[64..72].try_into().expect("8 bytes")),
         reg_pass: le_u32(bytes, 72),
@@ -486,10 +485,11 @@ pub struct DecodedChunk {
     pub blocks: Vec<(BlockIndex, Box<Block>)>,
 }
 
-/// Checks and decodes a complete chunk file of either format (header + payload; trailing bytes
+/// Checks and decodes a complete chunk file of any format (header + payload; trailing bytes
 /// are an error).
 pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
     let (h, origin) = decode_header_with_origin(bytes)?;
+    let predicted = le_u16(bytes, 8) == CHUNK_VERSION_3;
     let body = &bytes[header_len(origin.as_ref())..];
     let zlen = h.payload_zstd_bytes as usize;
     if body.len() < zlen {
@@ -572,17 +572,20 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
     for (k, (_, b)) in blocks.iter_mut().enumerate() {
         b.weight_omega.copy_from_slice(&w[k * vb..(k + 1) * vb]);
     }
-    let coded: Vec<Vec<usize>> = blocks
+    let coded: Vec<usize> = blocks
         .iter()
         .zip(flags)
-        .map(|((_, b), f)| coded_voxels(&b.weight_omega, f & BLOCK_DENSE != 0))
+        .map(|((_, b), f)| {
+            let m = payload::coded_mask(&b.weight_omega, f & BLOCK_DENSE != 0);
+            m.iter().filter(|c| **c).count()
+        })
         .collect();
-    let k: usize = coded.iter().map(Vec::len).sum();
+    let k: usize = coded.iter().sum();
     let k_reg: usize = coded
         .iter()
         .zip(flags)
         .filter(|(_, f)| **f & BLOCK_HAS_REGULARIZED != 0)
-        .map(|(c, _)| c.len())
+        .map(|(c, _)| c)
         .sum();
     if cap != payload_raw_bytes(n, k, k_reg) {
         return Err(CodecError::Malformed(format!(
@@ -590,41 +593,9 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
             payload_raw_bytes(n, k, k_reg)
         )));
     }
-    let lo = take(k)?;
-    let hi = take(k)?;
-    let mut j = 0;
-    for ((_, b), c) in blocks.iter_mut().zip(&coded) {
-        let mut prev = 0i16;
-        for &i in c {
-            prev = prev.wrapping_add(unzigzag(lo[j] as u16 | (hi[j] as u16) << 8));
-            b.tsdf[i] = prev;
-            j += 1;
-        }
-    }
-    for ch in 0..3 {
-        let plane = take(k)?;
-        let mut j = 0;
-        for ((_, b), c) in blocks.iter_mut().zip(&coded) {
-            for &i in c {
-                b.color[i][ch] = plane[j];
-                j += 1;
-            }
-        }
-    }
-    let lo = take(k_reg)?;
-    let hi = take(k_reg)?;
-    let mut j = 0;
-    for (((_, b), c), f) in blocks.iter_mut().zip(&coded).zip(flags) {
-        if f & BLOCK_HAS_REGULARIZED == 0 {
-            continue;
-        }
-        let mut u = Box::new(b.tsdf);
-        for &i in c {
-            u[i] = b.tsdf[i].wrapping_add(unzigzag(lo[j] as u16 | (hi[j] as u16) << 8));
-            j += 1;
-        }
-        b.regularized = Some(u);
-    }
+    let rest = take(5 * k + 2 * k_reg)?;
+    let locals: Vec<[u8; 3]> = coords.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    payload::read_voxel_planes(&mut blocks, &locals, flags, predicted, (k, k_reg), rest)?;
     Ok(DecodedChunk {
         header: h,
         origin,
