@@ -11,7 +11,7 @@ use clap::ValueEnum;
 use denser::backend::Backend;
 use denser::depth::tgv::HoleFill;
 use denser::depth::StereoMethod;
-use denser::eval::{evaluate_reconstruction, EvaluationReport, GroundTruth};
+use denser::eval::{evaluate_reconstruction, EvaluationReport, GroundTruth, RunFacts};
 use denser::io::sequence::{
     detect_input, open_sequence, FrameRange, InputKind, RangeSource, Sequence,
 };
@@ -278,14 +278,19 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     bar.finish_and_clear();
     let mut written = results.files();
     let (surfaces, regularize) = (results.surfaces, results.regularize);
+    // The map and the input (the stereo matcher's buffers) are done with: free them before the
+    // evaluation loads the ground truth, so its memory does not add to theirs.
+    let (run, gpu_stats, input) = (RunFacts::of(&rec), rec.resident_stats(), seq.describe());
+    drop(rec);
+    drop(seq);
     let evaluation = match &job.ground_truth {
         Some(gt) => {
             let (report, files) = evaluate_reconstruction(
-                &rec,
+                &run,
                 &surfaces,
                 regularize.as_ref(),
                 gt,
-                &seq.describe(),
+                &input,
                 &job.earlier_timings_s,
                 &job.out_dir,
             )
@@ -296,14 +301,14 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
         None => None,
     };
     let report = Report {
-        input: seq.describe(),
-        device: rec.backend().device_name(),
+        input,
+        device: run.device,
         stereo_device,
         frames: frames.len(),
         resumed_from_frame: resumed,
-        timings: *rec.timings(),
-        summary: rec.summary(),
-        gpu: rec.resident_stats(),
+        timings: run.timings,
+        summary: run.summary,
+        gpu: gpu_stats,
         regularize,
         surfaces,
         evaluation,

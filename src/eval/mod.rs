@@ -52,5 +52,5 @@ pub use plot::{
     UNSCORED_GREY,
 };
 pub use report::{EvaluationReport, SurfaceReport};
-pub use run::{evaluate_meshes, evaluate_reconstruction};
+pub use run::{evaluate_meshes, evaluate_reconstruction, RunFacts};
 pub use stats::{percentile_of_sorted, ErrorStats, Histogram, HistogramSpec};

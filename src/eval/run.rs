@@ -7,10 +7,12 @@ use super::{
     EvaluationReport, GroundTruth, GroundTruthIndex, SensorCoverage, UpAxis,
 };
 use crate::frame::PointCloud;
+use crate::grid::GridParams;
 use crate::memory::peak_rss_bytes;
 use crate::mesh::{Field, Mesh};
-use crate::reconstruct::{Reconstructor, RegularizeOutcome};
-use crate::store::SurfaceOutput;
+use crate::reconstruct::{Reconstructor, RegularizeOutcome, StageTimings};
+use crate::regularize::TvParams;
+use crate::store::{StoreSummary, SurfaceOutput};
 use crate::{Error, Result};
 use std::path::{Path, PathBuf};
 
@@ -149,12 +151,45 @@ pub fn evaluate_meshes(
     Ok(written)
 }
 
+/// What the report of a reconstruction says about the run itself, taken from its
+/// [`Reconstructor`] so that the map can be freed before the ground truth is loaded (the
+/// evaluation's memory then adds to the surfaces', not to the map's).
+#[derive(Clone, Debug)]
+pub struct RunFacts {
+    /// The run's stage timings.
+    pub timings: StageTimings,
+    /// The map's totals.
+    pub summary: StoreSummary,
+    /// Voxel size and truncation.
+    pub grid: GridParams,
+    /// The regulariser's parameters.
+    pub tv: TvParams,
+    /// Where the stages ran ("CPU" or the adapter's name).
+    pub device: String,
+    /// The sensor's path, metres (world frame).
+    pub trajectory_m: Vec<[f64; 3]>,
+}
+
+impl RunFacts {
+    /// The facts of `rec`'s run so far.
+    pub fn of(rec: &Reconstructor) -> RunFacts {
+        RunFacts {
+            timings: *rec.timings(),
+            summary: rec.summary(),
+            grid: rec.config().grid,
+            tv: rec.config().tv,
+            device: rec.backend().device_name(),
+            trajectory_m: rec.trajectory_m().to_vec(),
+        }
+    }
+}
+
 /// Scores a reconstruction's surfaces (the raw one first: the baseline of the relative changes)
 /// against `ground_truth` and writes the report into `out_dir`, with the run's timings, memory,
 /// parameters and map size (`earlier_timings_s`: stages before the reconstruction, e.g.
 /// synthesising the drive). Surfaces a paged map streamed to files are read back.
 pub fn evaluate_reconstruction(
-    rec: &Reconstructor,
+    run: &RunFacts,
     surfaces: &[SurfaceOutput],
     regularize: Option<&RegularizeOutcome>,
     ground_truth: &GroundTruth,
@@ -169,7 +204,7 @@ pub fn evaluate_reconstruction(
         format!("{source}; ground truth: {}", ground_truth.describe()),
         gt.len() as u64,
     );
-    let timings = rec.timings();
+    let timings = &run.timings;
     report.timings_s.extend(earlier_timings_s.iter().cloned());
     report.timings_s.extend([
         (
@@ -182,7 +217,7 @@ pub fn evaluate_reconstruction(
         ("marching cubes (both fields)".to_string(), timings.mesh_s),
         ("loading ground truth".to_string(), load_s),
     ]);
-    let summary = rec.summary();
+    let summary = run.summary;
     if summary.ram_bytes > 0 {
         report
             .memory_bytes
@@ -193,13 +228,12 @@ pub fn evaluate_reconstruction(
             .memory_bytes
             .push(("voxel map (disk)".into(), summary.disk_bytes));
     }
-    let config = rec.config();
     let energy = regularize.and_then(|r| r.summary.energy);
     report.parameters = serde_json::json!({
-        "voxel_size_m": config.grid.voxel_size_m,
-        "truncation_m": config.grid.truncation_m,
-        "tv": config.tv,
-        "device": rec.backend().device_name(),
+        "voxel_size_m": run.grid.voxel_size_m,
+        "truncation_m": run.grid.truncation_m,
+        "tv": run.tv,
+        "device": run.device,
         "frames_fused": timings.frames_fused,
         "fusion_ms_per_frame": timings.fusion_ms_per_frame(),
         "voxel_updates_per_s": timings.voxel_updates_per_s(),
@@ -235,7 +269,7 @@ pub fn evaluate_reconstruction(
         .collect();
     let trajectory = match &coverage {
         Some(c) => c.trajectory_m(),
-        None => rec.trajectory_m().to_vec(),
+        None => run.trajectory_m.clone(),
     };
     let written = evaluate_meshes(
         &refs,

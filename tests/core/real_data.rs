@@ -5,7 +5,7 @@
 use crate::common;
 
 use denser::depth::{disparity_from_points, evaluate_disparity, StereoMethod};
-use denser::eval::{evaluate_reconstruction, GroundTruth};
+use denser::eval::{evaluate_reconstruction, GroundTruth, RunFacts};
 use denser::io::kitti::KittiSequence;
 use denser::io::sequence::{detect_input, open_sequence, FrameRange, InputKind, RangeSource};
 use denser::mesh::Field;
@@ -40,7 +40,7 @@ fn kitti_lidar_fusion_against_its_scans() {
         frames: FrameRange::ALL,
     };
     let (report, _) = evaluate_reconstruction(
-        &rec,
+        &RunFacts::of(&rec),
         &results.surfaces,
         results.regularize.as_ref(),
         &gt,
