@@ -399,6 +399,9 @@ impl Reconstructor {
         let mut surfaces =
             vec![self.write_surface(Field::Raw, &out_dir.join("mesh_raw.ply"), None)?];
         let regularize = if regularize {
+            // The raw mesh is on disk: not held beside the regulariser's arrays (an evaluation
+            // reads it back, as it does a paged map's).
+            surfaces[0].mesh = None;
             let r = self.regularize_with_progress(progress)?;
             surfaces.push(self.write_surface(
                 Field::Regularized,

@@ -267,6 +267,11 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     let resumed = rec.frames_committed();
     rec.fuse_sequence(seq.as_ref(), &frames)
         .with_context(context)?;
+    // The input (with the stereo matcher's cost volumes) is done with: free it before the
+    // regulariser allocates its arrays, so their memory does not add up.
+    let input = seq.describe();
+    drop(seq);
+    denser::memory::release_free_memory();
     let bar = denser::progress::bar(0, "regularising");
     let results = rec
         .write_results(&job.out_dir, job.regularize, &mut |done, total| {
@@ -278,11 +283,12 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     bar.finish_and_clear();
     let mut written = results.files();
     let (surfaces, regularize) = (results.surfaces, results.regularize);
-    // The map and the input (the stereo matcher's buffers) are done with: free them before the
-    // evaluation loads the ground truth, so its memory does not add to theirs.
-    let (run, gpu_stats, input) = (RunFacts::of(&rec), rec.resident_stats(), seq.describe());
+    // The map is done with: free it before the evaluation loads the ground truth, so its memory
+    // does not add to the map's.
+    let (run, gpu_stats) = (RunFacts::of(&rec), rec.resident_stats());
     drop(rec);
-    drop(seq);
+    // The map's blocks (3 KiB each) were freed into glibc's arenas, which keep them resident.
+    denser::memory::release_free_memory();
     let evaluation = match &job.ground_truth {
         Some(gt) => {
             let (report, files) = evaluate_reconstruction(

@@ -48,7 +48,10 @@ pub struct CoverageBuilder {
 impl CoverageBuilder {
     /// Adds one scan (its pose, and the elevations and ranges of its returns).
     pub fn add(&mut self, scan: &LidarScan) {
-        let (mut lo, mut hi, mut far) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
+        // The returns of least and greatest elevation, as (z, √(x² + y²)): elevations compare as
+        // z₁·h₂ < z₂·h₁ (h ≥ 0), so atan2 is taken twice per scan, not once per return.
+        let (mut low, mut high, mut far): (Option<(f64, f64)>, Option<(f64, f64)>, f64) =
+            (None, None, 0.0);
         for p in &scan.points_sensor_m {
             let [x, y, z] = p.map(|v| v as f64);
             let horizontal = (x * x + y * y).sqrt();
@@ -56,11 +59,19 @@ impl CoverageBuilder {
             if !(range.is_finite() && range > 0.0) {
                 continue;
             }
-            let elevation = z.atan2(horizontal).to_degrees();
-            lo = lo.min(elevation);
-            hi = hi.max(elevation);
+            if low.is_none_or(|(lz, lh)| z * lh < lz * horizontal) {
+                low = Some((z, horizontal));
+            }
+            if high.is_none_or(|(hz, hh)| z * hh > hz * horizontal) {
+                high = Some((z, horizontal));
+            }
             far = far.max(range);
         }
+        let degrees = |(z, h): (f64, f64)| z.atan2(h).to_degrees();
+        let (lo, hi) = match (low, high) {
+            (Some(l), Some(h)) => (degrees(l), degrees(h)),
+            _ => (f64::INFINITY, f64::NEG_INFINITY),
+        };
         self.world_from_sensor.push(scan.world_from_sensor);
         if lo <= hi {
             let v = self.view.get_or_insert(SensorView {
@@ -119,11 +130,12 @@ impl SensorCoverage {
 
     /// Whether some scan had `p` (world frame, metres) within its range and field of view.
     pub fn covers(&self, p: [f64; 3]) -> bool {
+        self.covers_with(&self.view_test(), p)
+    }
+
+    /// [`SensorCoverage::covers`] with the view's test built once ([`SensorCoverage::view_test`]).
+    fn covers_with(&self, within: &impl Fn(f64, f64) -> bool, p: [f64; 3]) -> bool {
         let r = self.view.range_max_m;
-        let (lo, hi) = (
-            self.view.elevation_min_deg.to_radians(),
-            self.view.elevation_max_deg.to_radians(),
-        );
         let c = cell(p, r);
         (-1..=1).any(|dz| {
             (-1..=1).any(|dy| {
@@ -138,17 +150,37 @@ impl SensorCoverage {
                             return false;
                         }
                         let q = self.sensor_from_world[k as usize] * Point3::from(p);
-                        let elevation = q.z.atan2((q.x * q.x + q.y * q.y).sqrt());
-                        (lo..=hi).contains(&elevation)
+                        within(q.z, (q.x * q.x + q.y * q.y).sqrt())
                     })
                 })
             })
         })
     }
 
+    /// Whether a point at height `z` and horizontal distance `h` (sensor frame, metres) is within
+    /// the view's elevations: `lo ≤ atan2(z, h) ≤ hi`, tested as `h·tan lo ≤ z ≤ h·tan hi` (no
+    /// atan2 per point and scan: uncovered points try every scan in range). The two agree but
+    /// within rounding at the bounds; at `h = 0`, or a view reaching ±90°, atan2 decides.
+    fn view_test(&self) -> impl Fn(f64, f64) -> bool {
+        let (lo, hi) = (
+            self.view.elevation_min_deg.to_radians(),
+            self.view.elevation_max_deg.to_radians(),
+        );
+        let right = std::f64::consts::FRAC_PI_2;
+        let slopes = (lo > -right && hi < right).then(|| (lo.tan(), hi.tan()));
+        move |z: f64, h: f64| match slopes {
+            Some((tan_lo, tan_hi)) if h > 0.0 => h * tan_lo <= z && z <= h * tan_hi,
+            _ => (lo..=hi).contains(&z.atan2(h)),
+        }
+    }
+
     /// [`SensorCoverage::covers`] for every point, in parallel.
     pub fn mask(&self, points_m: &[[f64; 3]]) -> Vec<bool> {
-        points_m.par_iter().map(|&p| self.covers(p)).collect()
+        let within = self.view_test();
+        points_m
+            .par_iter()
+            .map(|&p| self.covers_with(&within, p))
+            .collect()
     }
 }
 
@@ -202,5 +234,42 @@ mod tests {
             vec![true, false]
         );
         assert_eq!(c.trajectory_m()[1], [50.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn the_slope_test_agrees_with_atan2_away_from_the_bounds() {
+        let mut b = CoverageBuilder::default();
+        b.add(&scan_at(0.0, &[-24.9, 0.0, 2.0]));
+        let c = b.build().expect("coverage");
+        let v = c.view();
+        // The extremes found by comparing slopes are the returns' own elevations.
+        assert!((v.elevation_min_deg + 24.9).abs() < 1e-5, "{v:?}");
+        assert!((v.elevation_max_deg - 2.0).abs() < 1e-5, "{v:?}");
+        let within = c.view_test();
+        let (lo, hi) = (
+            v.elevation_min_deg.to_radians(),
+            v.elevation_max_deg.to_radians(),
+        );
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut inside = 0;
+        for _ in 0..100_000 {
+            let (z, h) = (next() * 40.0 - 30.0, next() * 60.0);
+            let e = z.atan2(h);
+            if (e - lo).abs() < 1e-12 || (e - hi).abs() < 1e-12 {
+                continue;
+            }
+            let reference = (lo..=hi).contains(&e);
+            assert_eq!(within(z, h), reference, "z {z} h {h}");
+            inside += reference as usize;
+        }
+        assert!(inside > 10_000 && inside < 90_000, "{inside}");
+        // Straight above or below the sensor: atan2 decides (±90°, outside this view).
+        assert!(!within(1.0, 0.0) && !within(-1.0, 0.0));
     }
 }

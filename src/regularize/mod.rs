@@ -316,6 +316,7 @@ impl TvProblem {
         if n == 0 {
             return;
         }
+        assert_eq!(self.p.len(), 3 * n, "iterated after release_iterates");
         let vb = VOXELS_PER_BLOCK;
         let (mask, neighbors) = (&self.mask, &self.neighbors);
         // Dual step: reads ū everywhere, writes p of its own block.
@@ -446,6 +447,14 @@ impl TvProblem {
         partial.iter().sum()
     }
 
+    /// Frees the iterates that only the solver needs (ū and the dual p), keeping `u`, `f`, `w`
+    /// and Ω: what [`TvProblem::scatter`] and [`TvProblem::energy`] read. Call it when done: the
+    /// problem cannot be iterated afterwards.
+    pub fn release_iterates(&mut self) {
+        self.ubar = Vec::new();
+        self.p = Vec::new();
+    }
+
     /// Writes `u` into the `regularized` field of the given blocks of `layer` (voxels outside Ω
     /// keep their raw value). Blocks not in the problem or not in `layer` are skipped.
     pub fn scatter(&self, layer: &mut Layer, blocks: &[BlockIndex]) {
@@ -505,10 +514,21 @@ pub fn regularize_layer_with(
 ) -> crate::Result<(TouchedBlocks, RegularizeStats)> {
     params.validate()?;
     let blocks = layer.indices_sorted();
+    let resident_mib = || crate::memory::rss_bytes().unwrap_or(0) as f64 / (1 << 20) as f64;
+    tracing::debug!(resident_mib = resident_mib(), "regularisation: gathering");
     let mut problem = TvProblem::gather(layer, &blocks);
+    tracing::debug!(
+        resident_mib = resident_mib(),
+        voxels = problem.u.len(),
+        "regularisation: gathered"
+    );
     let energy_before = problem.energy(params.lambda);
     solve(&mut problem)?;
+    tracing::debug!(resident_mib = resident_mib(), "regularisation: solved");
     let energy_after = problem.energy(params.lambda);
+    // ū and p (16 of the solver's 29 bytes per voxel) are not needed to write u back: freed
+    // first, the blocks' new `regularized` arrays do not add to them.
+    problem.release_iterates();
     problem.scatter(layer, &blocks);
     let stats = RegularizeStats {
         blocks: blocks.len(),
