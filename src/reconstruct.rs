@@ -400,8 +400,10 @@ impl Reconstructor {
             vec![self.write_surface(Field::Raw, &out_dir.join("mesh_raw.ply"), None)?];
         let regularize = if regularize {
             // The raw mesh is on disk: not held beside the regulariser's arrays (an evaluation
-            // reads it back, as it does a paged map's).
+            // reads it back, as it does a paged map's), and the allocator's pages it and marching
+            // cubes used handed back (measured on a 200 m drive: 420 MiB resident but free).
             surfaces[0].mesh = None;
+            crate::memory::release_free_memory();
             let r = self.regularize_with_progress(progress)?;
             surfaces.push(self.write_surface(
                 Field::Regularized,

@@ -93,7 +93,7 @@ pub fn evaluate_mesh_detailed(
                 tracing::warn!(label, "no ground-truth point in the completeness region");
                 None
             } else {
-                Some(ErrorStats::from_distances(&d, &options.histogram)?)
+                Some(ErrorStats::from_owned_distances(d, &options.histogram)?)
             }
         }
     };

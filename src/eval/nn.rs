@@ -19,9 +19,11 @@ use serde::{Deserialize, Serialize};
 /// Queries handed to one rayon task at a time.
 const QUERY_CHUNK: usize = 4096;
 
-/// Queries sorted and answered together: the working memory of a query pass (32 bytes per query
-/// of a batch) stays bounded however many points are scored.
-const QUERY_BATCH: usize = 1 << 21;
+/// Queries sorted and answered together: the working memory of a query pass (about 52 bytes per
+/// query of a batch: the `f64` query, its Morton key and index, the answers) stays bounded however
+/// many points are scored. 2²⁰ rather than 2²¹: 52 MiB less at the evaluation's peak, no
+/// measurable change in time (`docs/bench/e2e.md`).
+const QUERY_BATCH: usize = 1 << 20;
 
 /// A k-d tree over points stored relative to the shared origin.
 ///
@@ -302,14 +304,9 @@ impl GroundTruthIndex {
         // The box rounds to f32 as the points did, so a point on a face stays inside.
         let lo_local = narrow(sub(&lo, &self.origin_m));
         let hi_local = narrow(sub(&hi, &self.origin_m));
+        let inside = |p: &[f32; 3]| (0..3).all(|k| p[k] >= lo_local[k] && p[k] <= hi_local[k]);
         let gt = &self.tree.points_local_m;
-        let selected: Vec<u32> = gt
-            .par_iter()
-            .enumerate()
-            .filter(|(_, p)| (0..3).all(|k| p[k] >= lo_local[k] && p[k] <= hi_local[k]))
-            .map(|(i, _)| i as u32)
-            .collect();
-        if selected.is_empty() {
+        if !gt.par_iter().any(inside) {
             return Ok(Vec::new());
         }
         let recon_local: Vec<[f32; 3]> = reconstructed_points_m
@@ -317,7 +314,17 @@ impl GroundTruthIndex {
             .map(|p| narrow(sub(p, &self.origin_m)))
             .collect();
         let tree = PointTree::new(recon_local)?;
-        Ok(tree.batched_distances_m(selected.len(), |i| gt[selected[i] as usize].map(f64::from)))
+        // Selected a batch at a time (no index of every selected point, 4 bytes per point).
+        let mut out = Vec::new();
+        for chunk in gt.chunks(QUERY_BATCH) {
+            let batch: Vec<[f64; 3]> = chunk
+                .par_iter()
+                .filter(|p| inside(p))
+                .map(|p| p.map(f64::from))
+                .collect();
+            out.extend(tree.nearest_distances_m(&batch));
+        }
+        Ok(out)
     }
 }
 

@@ -6,6 +6,7 @@
 //! not compute distances; see [`crate::eval::GroundTruthIndex`].
 
 use crate::error::{Error, Result};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Layout of an error histogram: regular bins `[i·w, (i+1)·w)` for `i < n` with
@@ -167,6 +168,15 @@ impl ErrorStats {
     /// Errors when `distances_m` is empty, holds a negative or non-finite value, or `spec` is
     /// invalid.
     pub fn from_distances(distances_m: &[f32], spec: &HistogramSpec) -> Result<ErrorStats> {
+        ErrorStats::from_owned_distances(distances_m.to_vec(), spec)
+    }
+
+    /// [`ErrorStats::from_distances`], sorting `distances_m` in place (no copy: the 27.9 M
+    /// completeness distances of a 200 m drive are 107 MiB).
+    pub fn from_owned_distances(
+        mut distances_m: Vec<f32>,
+        spec: &HistogramSpec,
+    ) -> Result<ErrorStats> {
         spec.validate()?;
         if distances_m.is_empty() {
             return Err(Error::InvalidArgument(
@@ -182,8 +192,9 @@ impl ErrorStats {
                 "distance {i} is {d}; distances must be finite and non-negative"
             )));
         }
-        let mut sorted = distances_m.to_vec();
-        sorted.sort_unstable_by(f32::total_cmp);
+        // Values equal under total_cmp are the same bits: any sort gives the same array.
+        distances_m.par_sort_unstable_by(f32::total_cmp);
+        let sorted = distances_m;
         let n = sorted.len() as f64;
         let (sum, sum_sq) = sorted.iter().fold((0.0f64, 0.0f64), |(s, q), &d| {
             let d = d as f64;
