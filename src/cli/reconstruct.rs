@@ -283,8 +283,8 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     bar.finish_and_clear();
     let mut written = results.files();
     let (surfaces, regularize) = (results.surfaces, results.regularize);
-    // The map is done with: free it before the evaluation loads the ground truth, so its memory
-    // does not add to the map's.
+    // The map is done with: free it before the evaluation loads the ground truth, so the two do
+    // not add up.
     let (run, gpu_stats) = (RunFacts::of(&rec), rec.resident_stats());
     drop(rec);
     // The map's blocks (3 KiB each) were freed into glibc's arenas, which keep them resident.

@@ -250,16 +250,10 @@ mod tests {
             v.elevation_min_deg.to_radians(),
             v.elevation_max_deg.to_radians(),
         );
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::synth::rng::Rng::new(7, 0);
         let mut inside = 0;
         for _ in 0..100_000 {
-            let (z, h) = (next() * 40.0 - 30.0, next() * 60.0);
+            let (z, h) = (rng.range(-30.0, 10.0), rng.range(0.0, 60.0));
             let e = z.atan2(h);
             if (e - lo).abs() < 1e-12 || (e - hi).abs() < 1e-12 {
                 continue;

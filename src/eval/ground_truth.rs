@@ -101,13 +101,13 @@ fn merge_scans(
     frames: &[usize],
     mut coverage: Option<&mut CoverageBuilder>,
 ) -> Result<PointCloud> {
-    // KITTI scans are 16 bytes per point: sized from the files, the merged cloud is allocated
-    // once (grown by doubling, it would briefly need up to twice its size).
+    // Sized from the scan files, the merged cloud is allocated once (grown by doubling, it would
+    // briefly need up to twice its size).
     let points: u64 = frames
         .iter()
         .filter_map(|&i| seq.velodyne_path(i))
         .filter_map(|p| std::fs::metadata(p).ok())
-        .map(|m| m.len() / 16)
+        .map(|m| m.len() / crate::io::kitti::VELODYNE_POINT_BYTES as u64)
         .sum();
     let mut cloud = PointCloud::default();
     cloud.points_m.reserve_exact(points as usize);

@@ -81,15 +81,18 @@ impl PointTree {
 }
 
 impl PointTree {
-    /// [`PointTree::nearest_distances_m`] of the `n` queries `query(i)` (relative to the shared
-    /// origin), [`QUERY_BATCH`] at a time.
-    fn batched_distances_m(&self, n: usize, query: impl Fn(usize) -> [f64; 3] + Sync) -> Vec<f32> {
-        let mut out = Vec::with_capacity(n);
-        for first in (0..n).step_by(QUERY_BATCH) {
-            let batch: Vec<[f64; 3]> = (first..n.min(first + QUERY_BATCH))
-                .into_par_iter()
-                .map(&query)
-                .collect();
+    /// [`PointTree::nearest_distances_m`] of the items of `items` that `keep` accepts, as
+    /// `query(item)` (relative to the shared origin), in order, [`QUERY_BATCH`] items at a time:
+    /// the queries are made a batch at a time, never all at once.
+    fn batched_distances_m<P: Sync>(
+        &self,
+        items: &[P],
+        keep: impl Fn(&P) -> bool + Sync,
+        query: impl Fn(&P) -> [f64; 3] + Sync,
+    ) -> Vec<f32> {
+        let mut out = Vec::new();
+        for chunk in items.chunks(QUERY_BATCH) {
+            let batch: Vec<[f64; 3]> = chunk.par_iter().filter(|p| keep(p)).map(&query).collect();
             out.extend(self.nearest_distances_m(&batch));
         }
         out
@@ -258,7 +261,7 @@ impl GroundTruthIndex {
         check_finite(points_m, "query")?;
         Ok(self
             .tree
-            .batched_distances_m(points_m.len(), |i| sub(&points_m[i], &self.origin_m)))
+            .batched_distances_m(points_m, |_| true, |p| sub(p, &self.origin_m)))
     }
 
     /// Completeness distances: for each ground-truth point selected by `region`, the distance to
@@ -315,16 +318,7 @@ impl GroundTruthIndex {
             .collect();
         let tree = PointTree::new(recon_local)?;
         // Selected a batch at a time (no index of every selected point, 4 bytes per point).
-        let mut out = Vec::new();
-        for chunk in gt.chunks(QUERY_BATCH) {
-            let batch: Vec<[f64; 3]> = chunk
-                .par_iter()
-                .filter(|p| inside(p))
-                .map(|p| p.map(f64::from))
-                .collect();
-            out.extend(tree.nearest_distances_m(&batch));
-        }
-        Ok(out)
+        Ok(tree.batched_distances_m(gt, inside, |p| p.map(f64::from)))
     }
 }
 

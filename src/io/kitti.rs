@@ -308,7 +308,7 @@ pub fn write_velodyne_bin(
             reflectance.len()
         )));
     }
-    let mut bytes = Vec::with_capacity(points_sensor_m.len() * 16);
+    let mut bytes = Vec::with_capacity(points_sensor_m.len() * VELODYNE_POINT_BYTES);
     for (p, r) in points_sensor_m.iter().zip(reflectance) {
         for v in [p[0], p[1], p[2], *r] {
             bytes.extend_from_slice(&v.to_le_bytes());
@@ -317,13 +317,16 @@ pub fn write_velodyne_bin(
     crate::io::atomic::write_file(path, &bytes)
 }
 
+/// Bytes per point of a Velodyne `.bin` scan: `x, y, z, reflectance` as little-endian `f32`.
+pub const VELODYNE_POINT_BYTES: usize = 16;
+
 /// Reads a Velodyne `.bin` scan into a [`LidarScan`] whose `world_from_sensor` is the
 /// identity. Points with a non-finite coordinate are dropped (counted in a debug log); a size
 /// that is not a multiple of 16 bytes is an error.
 pub fn read_velodyne_bin(path: impl AsRef<Path>) -> Result<LidarScan> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    if bytes.len() % 16 != 0 {
+    if bytes.len() % VELODYNE_POINT_BYTES != 0 {
         return Err(Error::bad_input(
             path,
             format!(
@@ -332,13 +335,13 @@ pub fn read_velodyne_bin(path: impl AsRef<Path>) -> Result<LidarScan> {
             ),
         ));
     }
-    let n = bytes.len() / 16;
+    let n = bytes.len() / VELODYNE_POINT_BYTES;
     let mut points = Vec::with_capacity(n);
     let mut intensity = Vec::with_capacity(n);
     let f = |c: &[u8], k: usize| {
         f32::from_le_bytes([c[4 * k], c[4 * k + 1], c[4 * k + 2], c[4 * k + 3]])
     };
-    for c in bytes.chunks_exact(16) {
+    for c in bytes.chunks_exact(VELODYNE_POINT_BYTES) {
         let p = [f(c, 0), f(c, 1), f(c, 2)];
         if p.iter().all(|v| v.is_finite()) {
             points.push(p);

@@ -25,7 +25,7 @@ mod ground;
 mod lidar;
 mod placement;
 mod render;
-mod rng;
+pub(crate) mod rng;
 mod route;
 mod streets;
 mod texture;
