@@ -104,9 +104,15 @@ pub struct TvProblem {
     ubar: Vec<f32>,
     /// Dual variable, structure of arrays: `p_x` of every voxel, then `p_y`, then `p_z`.
     p: Vec<f32>,
+    /// Per block, the iterations left during which it is updated (`None`: every iteration);
+    /// see [`TvProblem::limit_updates`].
+    horizon: Option<Vec<u32>>,
 }
 
 impl TvProblem {
+    /// The Ω bit of [`TvProblem::masks`].
+    pub const OMEGA_BIT: u8 = OMEGA;
+
     /// Gathers `blocks` (any order; sorted internally) from `layer`. Blocks not allocated are
     /// skipped. Voxels in blocks outside the set count as outside Ω.
     pub fn gather(layer: &Layer, blocks: &[BlockIndex]) -> Self {
@@ -145,9 +151,27 @@ impl TvProblem {
         omega: Vec<bool>,
     ) -> Self {
         let n = blocks.len() * VOXELS_PER_BLOCK;
+        let (u, ubar) = (f.clone(), f.clone());
+        Self::from_state(blocks, [f, w, u, ubar], omega, vec![0.0; 3 * n])
+    }
+
+    /// A problem over `blocks` (sorted, no duplicates) starting from a solver state: `[f, w, u,
+    /// ū]` and `omega` of `blocks.len() × 512` voxels each, `p` as three such planes (x, y, z).
+    /// What a swept pass builds from the state it stored after the previous sweep.
+    pub fn from_state(
+        blocks: Vec<BlockIndex>,
+        fields: [Vec<f32>; 4],
+        omega: Vec<bool>,
+        p: Vec<f32>,
+    ) -> Self {
+        let n = blocks.len() * VOXELS_PER_BLOCK;
+        let [f, w, u, ubar] = fields;
         assert!(
-            f.len() == n && w.len() == n && omega.len() == n,
-            "array sizes must be blocks × 512"
+            [f.len(), w.len(), u.len(), ubar.len(), omega.len()]
+                .iter()
+                .all(|l| *l == n)
+                && p.len() == 3 * n,
+            "array sizes must be blocks × 512 (p: three times that)"
         );
         let slot: HashMap<BlockIndex, u32> = blocks
             .iter()
@@ -168,36 +192,28 @@ impl TvProblem {
                 nb
             })
             .collect();
-        let mut problem = TvProblem {
+        let mask = sweep::link_masks(&neighbors, &omega);
+        TvProblem {
             blocks,
             neighbors,
-            u: f.clone(),
-            ubar: f.clone(),
+            u,
+            ubar,
             f,
             w,
-            mask: vec![0; n],
-            p: vec![0.0; 3 * n],
-        };
-        let mask: Vec<u8> = (0..n)
-            .into_par_iter()
-            .map(|g| {
-                if !omega[g] {
-                    return 0;
-                }
-                let mut m = OMEGA;
-                for d in 0..3 {
-                    if problem.forward(g, d).is_some_and(|h| omega[h]) {
-                        m |= fwd(d);
-                    }
-                    if problem.backward(g, d).is_some_and(|h| omega[h]) {
-                        m |= bwd(d);
-                    }
-                }
-                m
-            })
-            .collect();
-        problem.mask = mask;
-        problem
+            mask,
+            p,
+            horizon: None,
+        }
+    }
+
+    /// Updates block `b` during the next `horizon[b]` iterations only, leaving it as it is
+    /// after. For a region's halo: a block `8k + 1` voxels or more from the voxels whose result
+    /// is kept influences them only through its first `K − 8k` iterations of `K` (one iteration
+    /// moves information one voxel), so those past are work without effect. A GPU solver may
+    /// ignore this (the kept voxels are the same either way).
+    pub fn limit_updates(&mut self, horizon: Vec<u32>) {
+        assert_eq!(horizon.len(), self.blocks.len(), "one horizon per block");
+        self.horizon = Some(horizon);
     }
 
     /// The blocks of the problem, sorted.
@@ -303,9 +319,14 @@ impl TvProblem {
 
     /// Runs `params.iterations` primal–dual iterations.
     pub fn solve(&mut self, params: &TvParams) {
-        for _ in 0..params.iterations {
-            self.iterate(params);
-        }
+        // On a worker of rayon's pool, so that each iteration's parallel loops start there
+        // instead of waking the pool from outside (a futex round trip per loop, which costs more
+        // than a small region's loop itself).
+        rayon::scope(|_| {
+            for _ in 0..params.iterations {
+                self.iterate(params);
+            }
+        });
     }
 
     /// One primal–dual iteration (dual step, primal step, relaxation), parallel over blocks.
@@ -319,6 +340,8 @@ impl TvProblem {
         assert_eq!(self.p.len(), 3 * n, "iterated after release_iterates");
         let vb = VOXELS_PER_BLOCK;
         let (mask, neighbors) = (&self.mask, &self.neighbors);
+        let horizon = self.horizon.as_deref();
+        let live = |b: usize| horizon.is_none_or(|h| h[b] > 0);
         // Dual step: reads ū everywhere, writes p of its own block.
         let ubar = &self.ubar;
         let (px, rest) = self.p.split_at_mut(n);
@@ -328,6 +351,7 @@ impl TvProblem {
             .zip(pz.par_chunks_mut(vb))
             .with_min_len(BLOCKS_PER_TASK)
             .enumerate()
+            .filter(|(b, _)| live(*b))
             .for_each(|(b, ((x, y), z))| {
                 sweep::dual_block(
                     ubar,
@@ -351,6 +375,7 @@ impl TvProblem {
             .zip(self.ubar.par_chunks_mut(vb))
             .with_min_len(BLOCKS_PER_TASK)
             .enumerate()
+            .filter(|(b, _)| live(*b))
             .for_each(|(b, (u, ubar))| {
                 let r = b * vb..(b + 1) * vb;
                 sweep::primal_block(
@@ -365,6 +390,9 @@ impl TvProblem {
                     k,
                 )
             });
+        if let Some(h) = &mut self.horizon {
+            h.iter_mut().for_each(|h| *h = h.saturating_sub(1));
+        }
     }
 
     /// One iteration written voxel by voxel with [`TvProblem::gradient_at`] and

@@ -56,6 +56,32 @@ fn region_of(b: BlockIndex, r: i32) -> [i32; 3] {
     ]
 }
 
+impl TvProblem {
+    /// [`TvProblem::limit_updates`] for a region solve of `iterations` iterations keeping the
+    /// blocks from `core.0` to `core.1` (block indices, inclusive): a halo block `k` blocks from
+    /// the core (Chebyshev) has every voxel at least `8 (k − 1) + 1` voxels away, so it is
+    /// updated during the first `iterations − 8 (k − 1)` iterations only; the core and the
+    /// first ring always. The kept blocks' result is the same bit for bit (tested).
+    pub fn limit_updates_to_reach(&mut self, core: ([i32; 3], [i32; 3]), iterations: u32) {
+        let side = VOXELS_PER_SIDE as u32;
+        let horizon = self
+            .blocks()
+            .iter()
+            .map(|b| {
+                let ring = (0..3)
+                    .map(|a| (core.0[a] - b.0[a]).max(b.0[a] - core.1[a]).max(0))
+                    .max()
+                    .unwrap_or(0) as u32;
+                match ring {
+                    0 | 1 => u32::MAX,
+                    k => iterations.saturating_sub(side * (k - 1)),
+                }
+            })
+            .collect();
+        self.limit_updates(horizon);
+    }
+}
+
 /// Regularises `layer` region by region: each region of `plan.region_blocks`³ blocks is solved
 /// together with every allocated block within `plan.halo_blocks` of it, and only the region's
 /// own blocks are written. With [`RegionPlan::exact`] the result equals [`super::regularize_layer`]'s
@@ -121,6 +147,8 @@ pub fn regularize_regions_with(
             }
         }
         let mut problem = TvProblem::gather(layer, &gathered);
+        let (core_lo, core_hi) = (key.map(|k| k * r), key.map(|k| k * r + r - 1));
+        problem.limit_updates_to_reach((core_lo, core_hi), params.iterations);
         solve(&mut problem)?;
         problem.scatter(layer, &core);
         stats.regions += 1;

@@ -16,9 +16,10 @@
 //! run time; no target enables FMA contraction (Rust never contracts), so every version gives the
 //! same bits.
 
-use super::{bwd, fwd, NONE, OMEGA};
+use super::{bwd, fwd, NONE, OMEGA, STRIDE};
 use crate::grid::{VOXELS_PER_BLOCK, VOXELS_PER_SIDE};
 use multiversion::multiversion;
+use rayon::prelude::*;
 
 const N: usize = VOXELS_PER_BLOCK;
 const S: usize = VOXELS_PER_SIDE;
@@ -214,4 +215,47 @@ fn primal_kernel(
             ubar[i]
         };
     }
+}
+
+/// The Ω and link bits of every voxel (see [`super::TvProblem::masks`]) from each voxel's Ω flag
+/// and the blocks' neighbour table: per block, with the neighbour across a face read from the
+/// neighbouring block (no link where that block is not in the problem).
+pub(super) fn link_masks(neighbors: &[[u32; 6]], omega: &[bool]) -> Vec<u8> {
+    let mut mask = vec![0u8; omega.len()];
+    mask.par_chunks_mut(N)
+        .zip(neighbors.par_iter())
+        .enumerate()
+        .for_each(|(b, (m, nb))| {
+            let own = &omega[b * N..(b + 1) * N];
+            let other = |k: usize| (nb[k] != NONE).then(|| &omega[nb[k] as usize * N..][..N]);
+            let faces: [Option<&[bool]>; 6] = std::array::from_fn(other);
+            for z in 0..S {
+                for y in 0..S {
+                    for x in 0..S {
+                        let i = x + S * y + SLAB * z;
+                        if !own[i] {
+                            continue;
+                        }
+                        let c = [x, y, z];
+                        let mut bits = OMEGA;
+                        for d in 0..3 {
+                            let ahead = if c[d] + 1 < S {
+                                own[i + STRIDE[d]]
+                            } else {
+                                faces[2 * d].is_some_and(|o| o[i - (S - 1) * STRIDE[d]])
+                            };
+                            let behind = if c[d] > 0 {
+                                own[i - STRIDE[d]]
+                            } else {
+                                faces[2 * d + 1].is_some_and(|o| o[i + (S - 1) * STRIDE[d]])
+                            };
+                            bits |=
+                                if ahead { fwd(d) } else { 0 } | if behind { bwd(d) } else { 0 };
+                        }
+                        m[i] = bits;
+                    }
+                }
+            }
+        });
+    mask
 }

@@ -473,3 +473,36 @@ fn iterate_equals_the_voxel_by_voxel_reference_bit_for_bit() {
         assert_eq!(single.state().0, fast.state().0);
     }
 }
+
+/// The block-wise link bits equal their definition voxel by voxel: Ω at `g`, and a forward
+/// (backward) link along `d` where the voxel at `g ± e_d` exists in the problem and is in Ω.
+#[test]
+fn link_masks_follow_their_definition() {
+    let mut rng = Rng(11);
+    for &frac in &[0.3, 0.8, 1.0] {
+        let problem = random_problem(&mut rng, frac);
+        let n = problem.u.len();
+        let omega: Vec<bool> = problem.mask.iter().map(|m| m & OMEGA != 0).collect();
+        let (mut links, mut across) = (0usize, 0usize);
+        for g in 0..n {
+            let mut want = if omega[g] { OMEGA } else { 0 };
+            if omega[g] {
+                for d in 0..3 {
+                    if let Some(h) = problem.forward(g, d).filter(|h| omega[*h]) {
+                        want |= fwd(d);
+                        links += 1;
+                        across += usize::from(h / VOXELS_PER_BLOCK != g / VOXELS_PER_BLOCK);
+                    }
+                    if problem.backward(g, d).is_some_and(|h| omega[h]) {
+                        want |= bwd(d);
+                    }
+                }
+            }
+            assert_eq!(problem.mask[g], want, "voxel {g}, Ω fraction {frac}");
+        }
+        assert!(
+            links > 0 && across > 0,
+            "links {links}, across faces {across}"
+        );
+    }
+}

@@ -21,6 +21,7 @@
 //! with reserved numbers and a region record that the writer's next run adopts
 //! ([`super::shards::adopt`]) before it solves what no shard recorded.
 
+use super::files::ObjectBytes;
 use super::pager::BLOCK_RESIDENT_BYTES;
 use super::region_plan::resolve;
 pub use super::region_plan::{check_budget_up_front, plan_region_chunks, RegionCosts};
@@ -375,16 +376,21 @@ fn regularize_pass(
         let mut layer = Layer::new(store.grid());
         let mut gathered: Vec<BlockIndex> = Vec::new();
         let mut core_blocks: BTreeMap<ChunkIndex, Vec<BlockIndex>> = BTreeMap::new();
+        // The core chunks' files as read, whose unchanged parts the rewrite copies.
+        let mut core_files: BTreeMap<ChunkIndex, ObjectBytes> = BTreeMap::new();
         let c_lo = [0, 1, 2].map(|a| key[a] * r - reach);
         let c_hi = [0, 1, 2].map(|a| key[a] * r + r - 1 + reach);
         for cz in c_lo[2]..=c_hi[2] {
             for cy in c_lo[1]..=c_hi[1] {
                 for cx in c_lo[0]..=c_hi[0] {
                     let c = ChunkIndex([cx, cy, cz]);
-                    let Some(d) = store.read_chunk(c)? else {
+                    let Some((d, file)) = store.read_chunk_bytes(c)? else {
                         continue;
                     };
                     let is_core = region_of(c, r) == *key;
+                    if is_core {
+                        core_files.insert(c, file);
+                    }
                     for (b, block) in d.blocks {
                         if (0..3).all(|a| b.0[a] >= lo[a] && b.0[a] <= hi[a]) {
                             if is_core {
@@ -411,6 +417,13 @@ fn regularize_pass(
             * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
         stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
         let mut problem = TvProblem::gather(&layer, &gathered);
+        problem.limit_updates_to_reach(
+            (
+                [0, 1, 2].map(|a| key[a] * r * cb),
+                [0, 1, 2].map(|a| (key[a] + 1) * r * cb - 1),
+            ),
+            params.iterations,
+        );
         solve(&mut problem, params)?;
         let core_list: Vec<BlockIndex> = core_blocks.values().flatten().copied().collect();
         problem.scatter(&mut layer, &core_list);
@@ -433,7 +446,7 @@ fn regularize_pass(
                     .iter()
                     .map(|b| (*b, layer.get(b).expect("gathered block")))
                     .collect();
-                let w = writer.write_once(*c, seqs[c], &refs, pass)?;
+                let w = writer.write_once(*c, seqs[c], &refs, pass, core_files.get(c))?;
                 omega += w.entry.observed_voxels as u64;
                 stats.core_blocks += refs.len();
                 files.push(shards::RecordedFile {
@@ -483,7 +496,10 @@ fn regularize_pass(
                 .map(|(_, b)| b.observed_count() as u64)
                 .sum::<u64>();
             stats.core_blocks += refs.len();
-            store.write_chunk(*c, &refs, pass)?;
+            match core_files.get(c) {
+                Some(previous) => store.rewrite_chunk(*c, &refs, pass, previous)?,
+                None => store.write_chunk(*c, &refs, pass)?,
+            }
         }
         store.commit()?;
         stats.regions += 1;

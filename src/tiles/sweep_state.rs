@@ -133,6 +133,19 @@ pub struct StateHeader {
 /// Encodes a chunk's state file from its blocks (sorted by index).
 pub fn encode_state(header: &StateHeader, blocks: &[(BlockIndex, BlockState)]) -> Vec<u8> {
     let records: usize = blocks.iter().map(|(_, s)| s.record_bytes()).sum();
+    let index: Vec<BlockIndex> = blocks.iter().map(|(b, _)| *b).collect();
+    encode_state_with(header, &index, records, |k, out| blocks[k].1.encode(out))
+}
+
+/// [`encode_state`] with each block's record written by `record(k, out)` (appending block
+/// `blocks[k]`'s record to `out`); `records_bytes`: their total length, if known (0 otherwise).
+pub fn encode_state_with(
+    header: &StateHeader,
+    blocks: &[BlockIndex],
+    records_bytes: usize,
+    mut record: impl FnMut(usize, &mut Vec<u8>),
+) -> Vec<u8> {
+    let records = records_bytes;
     let table = STATE_HEADER_BYTES + blocks.len() * STATE_ENTRY_BYTES;
     let mut out = Vec::with_capacity(table + records);
     out.extend_from_slice(&STATE_MAGIC);
@@ -146,10 +159,10 @@ pub fn encode_state(header: &StateHeader, blocks: &[(BlockIndex, BlockState)]) -
     out.extend_from_slice(&(blocks.len() as u32).to_le_bytes());
     out.extend_from_slice(&[0; 4]); // the header CRC, below
     let mut body = Vec::with_capacity(records);
-    for (b, s) in blocks {
+    for (k, b) in blocks.iter().enumerate() {
         let offset = (table + body.len()) as u64;
         let start = body.len();
-        s.encode(&mut body);
+        record(k, &mut body);
         let crc = crc32fast::hash(&body[start..]);
         for a in b.0 {
             out.extend_from_slice(&a.to_le_bytes());
@@ -260,6 +273,123 @@ pub fn decode_block_state(
 }
 
 /// How far a swept pass has come (`sweeps/progress.dsp`, a bincode 2 payload behind a header).
+/// One block's 512-voxel slices of a solver's arrays (voxel `i` of the block at index `i`).
+pub struct DenseBlock<'a> {
+    /// Raw TSDF f.
+    pub f: &'a mut [f32],
+    /// Data weight w.
+    pub w: &'a mut [f32],
+    /// Ω.
+    pub omega: &'a mut [bool],
+    /// Primal variable u.
+    pub u: &'a mut [f32],
+    /// Relaxed primal variable ū.
+    pub ubar: &'a mut [f32],
+    /// Dual variable p (x, y, z).
+    pub p: [&'a mut [f32]; 3],
+}
+
+/// Decodes the record `entry` of state file `b` (read from `path`) into `out`: its Ω voxels
+/// get their stored values, the others are left as they are. Checks the record's CRC and length.
+pub fn decode_block_into(
+    path: &Path,
+    b: &[u8],
+    entry: (&BlockIndex, &std::ops::Range<usize>, u32),
+    out: DenseBlock,
+) -> Result<()> {
+    let rec = &b[entry.1.clone()];
+    let bad = |m: &str| Error::bad_input(path, format!("sweep state block {:?}: {m}", entry.0 .0));
+    if crc32fast::hash(rec) != entry.2 {
+        return Err(bad("checksum mismatch (corrupted)"));
+    }
+    if rec.len() < STATE_MASK_BYTES {
+        return Err(bad("record shorter than its Ω mask"));
+    }
+    let mut omega = [0u64; 8];
+    for (k, w) in omega.iter_mut().enumerate() {
+        *w = u64::from_le_bytes(rec[8 * k..8 * k + 8].try_into().expect("8 bytes"));
+    }
+    let n: usize = omega.iter().map(|w| w.count_ones() as usize).sum();
+    if rec.len() != STATE_MASK_BYTES + n * STATE_BYTES_PER_OMEGA_VOXEL {
+        return Err(bad("record length does not match its Ω mask"));
+    }
+    let idx = omega_voxels(&omega);
+    let (tsdf, rest) = rec[STATE_MASK_BYTES..].split_at(2 * n);
+    let (weight, rest) = rest.split_at(n);
+    for (c, &i) in tsdf.chunks_exact(2).zip(&idx) {
+        out.f[i] = crate::grid::decode_tsdf(i16::from_le_bytes([c[0], c[1]]));
+        out.omega[i] = true;
+    }
+    for (v, &i) in weight.iter().zip(&idx) {
+        out.w[i] = *v as f32;
+    }
+    let [px, py, pz] = out.p;
+    for (k, plane) in [out.u, out.ubar, px, py, pz].into_iter().enumerate() {
+        for (c, &i) in rest[4 * n * k..4 * n * (k + 1)].chunks_exact(4).zip(&idx) {
+            plane[i] = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+        }
+    }
+    Ok(())
+}
+
+/// The voxels an Ω mask of a block holds, in order.
+fn omega_voxels(mask: &[u64; 8]) -> Vec<usize> {
+    let mut idx = Vec::with_capacity(VOXELS_PER_BLOCK);
+    for (k, &word) in mask.iter().enumerate() {
+        let mut w = word;
+        while w != 0 {
+            idx.push(64 * k + w.trailing_zeros() as usize);
+            w &= w - 1;
+        }
+    }
+    idx
+}
+
+/// Appends the record of a block given as its 512-voxel slices (read-only [`DenseBlock`]): the
+/// voxels where `omega` holds, with f and w stored as the map stores them (`encode_tsdf`, a
+/// byte), which gives back exactly the values [`decode_block_into`] read.
+pub fn encode_dense_record(
+    out: &mut Vec<u8>,
+    omega: impl Fn(usize) -> bool,
+    fields: [&[f32]; 4],
+    p: [&[f32]; 3],
+) {
+    let [f, w, u, ubar] = fields;
+    let mut mask = [0u64; 8];
+    for i in 0..VOXELS_PER_BLOCK {
+        if omega(i) {
+            mask[i / 64] |= 1 << (i % 64);
+        }
+    }
+    let idx = omega_voxels(&mask);
+    let n = idx.len();
+    let start = out.len();
+    out.resize(
+        start + STATE_MASK_BYTES + n * STATE_BYTES_PER_OMEGA_VOXEL,
+        0,
+    );
+    let rec = &mut out[start..];
+    for (c, w) in rec.chunks_exact_mut(8).zip(mask) {
+        c.copy_from_slice(&w.to_le_bytes());
+    }
+    let (tsdf, rest) = rec[STATE_MASK_BYTES..].split_at_mut(2 * n);
+    let (weight, rest) = rest.split_at_mut(n);
+    for (c, &i) in tsdf.chunks_exact_mut(2).zip(&idx) {
+        c.copy_from_slice(&crate::grid::encode_tsdf(f[i]).to_le_bytes());
+    }
+    for (c, &i) in weight.iter_mut().zip(&idx) {
+        *c = w[i] as u8;
+    }
+    for (plane, out) in [u, ubar, p[0], p[1], p[2]]
+        .into_iter()
+        .zip(rest.chunks_exact_mut(4 * n.max(1)))
+    {
+        for (c, &i) in out.chunks_exact_mut(4).zip(&idx) {
+            c.copy_from_slice(&plane[i].to_le_bytes());
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq, bincode::Encode, bincode::Decode)]
 pub struct SweepProgress {
     /// Key of the pass (map, pass number, parameters, region edge, iterations per sweep).
@@ -352,5 +482,111 @@ mod tests {
         let mut b = pr.encode();
         b[13] ^= 1;
         assert!(SweepProgress::decode(p, &b).is_err());
+    }
+
+    /// A record written from a solver's dense slices decodes (both ways) to the same state, and
+    /// decoding into dense slices gives back what [`BlockState`] holds: f and w through the
+    /// map's quantisation exactly.
+    #[test]
+    fn dense_records_round_trip() {
+        let n = VOXELS_PER_BLOCK;
+        let mut s = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        let omega: Vec<bool> = (0..n).map(|_| next() % 3 != 0).collect();
+        let mut fields = [(); 4].map(|_| vec![0.0f32; n]);
+        let mut p = [(); 3].map(|_| vec![0.0f32; n]);
+        for i in (0..n).filter(|i| omega[*i]) {
+            fields[0][i] = crate::grid::decode_tsdf(((next() % 65535) as i32 - 32767) as i16);
+            fields[1][i] = (next() % 256) as f32;
+            for v in fields[2..].iter_mut().chain(p.iter_mut()) {
+                v[i] = f32::from_bits(next() as u32 & 0x3fff_ffff) - 1.0;
+            }
+        }
+        let mut rec = Vec::new();
+        encode_dense_record(
+            &mut rec,
+            |i| omega[i],
+            [&fields[0], &fields[1], &fields[2], &fields[3]],
+            [&p[0], &p[1], &p[2]],
+        );
+        let h = StateHeader {
+            key: 1,
+            chunk: [0, 0, 0],
+            step: 1,
+            block_count: 1,
+        };
+        let b = BlockIndex([3, -4, 5]);
+        let file = encode_state_with(&h, &[b], rec.len(), |_, out| out.extend_from_slice(&rec));
+        let path = Path::new("s.dsws");
+        let idx = decode_state_index(path, &file).expect("index");
+        let e = &idx.entries[0];
+        let state = decode_block_state(path, &file, e).expect("record");
+        assert_eq!(state.omega_count(), omega.iter().filter(|o| **o).count());
+        let [mut f, mut w, mut u, mut ubar] = [(); 4].map(|_| vec![7.0f32; n]);
+        let mut om = vec![false; n];
+        let mut q = [(); 3].map(|_| vec![7.0f32; n]);
+        let [qx, qy, qz] = &mut q;
+        let out = DenseBlock {
+            f: &mut f,
+            w: &mut w,
+            omega: &mut om,
+            u: &mut u,
+            ubar: &mut ubar,
+            p: [qx, qy, qz],
+        };
+        decode_block_into(path, &file, (&e.0, &e.1, e.2), out).expect("dense");
+        assert_eq!(om, omega);
+        let mut k = 0;
+        for i in 0..n {
+            let got = [f[i], w[i], u[i], ubar[i], q[0][i], q[1][i], q[2][i]];
+            if !omega[i] {
+                assert!(
+                    got.iter().all(|v| *v == 7.0),
+                    "voxel {i} outside Ω untouched"
+                );
+                continue;
+            }
+            let want = [
+                fields[0][i],
+                fields[1][i],
+                fields[2][i],
+                fields[3][i],
+                p[0][i],
+                p[1][i],
+                p[2][i],
+            ];
+            assert_eq!(got.map(f32::to_bits), want.map(f32::to_bits), "voxel {i}");
+            assert_eq!(crate::grid::decode_tsdf(state.tsdf[k]), fields[0][i]);
+            assert_eq!(state.weight[k] as f32, fields[1][i]);
+            assert_eq!(state.u[k].to_bits(), fields[2][i].to_bits());
+            k += 1;
+        }
+        // A corrupted record is refused by the dense decoder too.
+        let mut bad = file.clone();
+        bad[e.1.start + STATE_MASK_BYTES] ^= 4;
+        let out = DenseBlock {
+            f: &mut f,
+            w: &mut w,
+            omega: &mut om,
+            u: &mut u,
+            ubar: &mut ubar,
+            p: q.each_mut().map(|v| v.as_mut_slice()),
+        };
+        assert!(decode_block_into(path, &bad, (&e.0, &e.1, e.2), out).is_err());
+    }
+
+    /// Every stored TSDF value survives decoding to f32 and encoding back: the state files
+    /// store f as the map does.
+    #[test]
+    fn tsdf_quantisation_round_trips() {
+        use crate::grid::{decode_tsdf, encode_tsdf};
+        for q in -32767i16..=32767 {
+            assert_eq!(encode_tsdf(decode_tsdf(q)), q);
+        }
     }
 }

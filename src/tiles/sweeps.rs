@@ -17,18 +17,21 @@
 //! state; step S runs the last sweep (the remaining iterations) and writes the region's chunk
 //! files with `u`, committing the manifest per region exactly as the exact-halo pass does (the
 //! last complete pass stays readable until the new one is whole). A progress record
-//! (`sweeps/progress.dsp`) is written after every region, so a killed run resumes with the
-//! region after the last one finished; a record of another pass, parameters or chunk table is
+//! (`sweeps/progress.dsp`) is written at the end of each step and at most once a second within
+//! one, so a killed run resumes at most a second of regions before where it stopped (redoing a
+//! region of a step rewrites the same state from the same input); a record of another pass, parameters or chunk table is
 //! discarded with the state. The state files are removed when the pass completes.
 //! Layouts: `formats/sweep-state.md`.
 
 use super::files::MapFiles;
+use super::files::ObjectBytes;
 use super::pager::BLOCK_RESIDENT_BYTES;
 use super::regional::{region_of, MapRegularizeStats, SOLVER_BYTES_PER_VOXEL};
 use super::store::MapStore;
 use super::sweep_state::{
-    decode_block_state, decode_state_index, encode_state, BlockState, StateHeader, SweepProgress,
-    STATE_BYTES_PER_OMEGA_VOXEL, STATE_ENTRY_BYTES, STATE_MASK_BYTES,
+    decode_block_into, decode_state_index, encode_dense_record, encode_state, encode_state_with,
+    BlockState, DenseBlock, StateHeader, SweepProgress, STATE_BYTES_PER_OMEGA_VOXEL,
+    STATE_ENTRY_BYTES, STATE_MASK_BYTES,
 };
 use super::ChunkIndex;
 use crate::error::{Error, Result};
@@ -41,6 +44,8 @@ use std::collections::BTreeMap;
 pub const SWEEPS_FOLDER: &str = "sweeps";
 /// The progress record's name.
 pub const PROGRESS_FILE: &str = "sweeps/progress.dsp";
+/// Least time between two writes of the progress record within a step.
+const PROGRESS_INTERVAL: std::time::Duration = std::time::Duration::from_secs(1);
 /// Iterations per sweep by default: a halo of `K + 1 = 16` voxels, two blocks. Measured against
 /// 7 (one block, 15 sweeps) and 23 (three blocks, 5 sweeps) on a 200 m street: 1.8–2.0× the
 /// global solve's CPU time against 2.5× and 2.6× (`docs/bench/regularize.md`).
@@ -58,6 +63,38 @@ pub const SWEEP_BYTES_PER_CORE_BLOCK: u64 =
     BLOCK_RESIDENT_BYTES + (STATE_MASK_BYTES + STATE_ENTRY_BYTES) as u64;
 /// What a region's own Ω voxel adds: its state record encoded for writing, bytes.
 pub const SWEEP_BYTES_PER_CORE_OMEGA_VOXEL: u64 = STATE_BYTES_PER_OMEGA_VOXEL as u64;
+
+/// Writes a state file of parity `step mod 2` over the one of two steps before, in place: not
+/// atomic and not fsynced on local disks. Safe because nothing reads it before the step that
+/// writes it is over: a region redone after a kill rewrites it whole from the other parity,
+/// which that step never touches, and a file torn by a power loss fails its CRC (the sweeps then
+/// start again). In place rather than through a new file and a rename: the inode churn of ~2000
+/// files per pass was a tenth of its CPU time (`docs/bench/regularize.md`).
+fn write_state_file(files: &dyn MapFiles, name: &str, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let Some(dir) = files.location().as_dir() else {
+        return files.write(name, bytes);
+    };
+    let path = dir.join(name);
+    let write = || -> std::io::Result<()> {
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)?;
+        f.write_all(bytes)?;
+        f.set_len(bytes.len() as u64)
+    };
+    match write() {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            if let Some(parent) = path.parent() {
+                std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+            }
+            write().map_err(|e| Error::io(&path, e))
+        }
+        r => r.map_err(|e| Error::io(&path, e)),
+    }
+}
 
 /// Writes scratch state: atomically (temporary name, rename) but not fsynced on local disks —
 /// a killed process leaves whole files, and after a power loss a torn one fails its CRC.
@@ -161,72 +198,90 @@ fn initial_state(block: &Block) -> BlockState {
     s
 }
 
-/// A problem over `states` (sorted by index) with their stored state.
-fn problem_from_states(states: &[(BlockIndex, BlockState, bool)]) -> TvProblem {
+/// The stored blocks one region of a sweep gathers (its own and its halo's), sorted by index,
+/// with the state files their records are in.
+struct Gathered {
+    files: Vec<(std::path::PathBuf, ObjectBytes)>,
+    blocks: Vec<GatheredBlock>,
+}
+
+/// One gathered block: where its record is, and whether it is the region's own.
+struct GatheredBlock {
+    index: BlockIndex,
+    file: usize,
+    record: std::ops::Range<usize>,
+    crc: u32,
+    core: bool,
+}
+
+impl GatheredBlock {
+    /// Its Ω voxels, as its record's length says (checked when it is decoded).
+    fn omega_voxels(&self) -> u64 {
+        (self.record.len().saturating_sub(STATE_MASK_BYTES) / STATE_BYTES_PER_OMEGA_VOXEL) as u64
+    }
+}
+
+/// The problem over the gathered blocks, each record decoded straight into the solver's arrays,
+/// for `iterations` iterations keeping the blocks in `core` (lowest and highest block index):
+/// halo blocks are updated only while they can still reach the core
+/// ([`TvProblem::limit_updates_to_reach`]).
+fn problem_from_gathered(
+    g: &Gathered,
+    core: ([i32; 3], [i32; 3]),
+    iterations: u32,
+) -> Result<TvProblem> {
     let vb = VOXELS_PER_BLOCK;
-    let n = states.len() * vb;
-    let mut f = vec![0.0f32; n];
-    let mut w = vec![0.0f32; n];
+    let n = g.blocks.len() * vb;
+    let [mut f, mut w, mut u, mut ubar] = [(); 4].map(|_| vec![0.0f32; n]);
     let mut omega = vec![false; n];
+    let mut p = vec![0.0f32; 3 * n];
+    let (px, rest) = p.split_at_mut(n);
+    let (py, pz) = rest.split_at_mut(n);
     f.par_chunks_mut(vb)
         .zip(w.par_chunks_mut(vb))
         .zip(omega.par_chunks_mut(vb))
-        .zip(states.par_iter())
-        .for_each(|(((f, w), om), (_, s, _))| {
-            let mut k = 0;
-            for i in 0..vb {
-                if s.in_omega(i) {
-                    f[i] = decode_tsdf(s.tsdf[k]);
-                    w[i] = s.weight[k] as f32;
-                    om[i] = true;
-                    k += 1;
-                }
-            }
-        });
-    let blocks = states.iter().map(|(b, _, _)| *b).collect();
-    let mut problem = TvProblem::from_arrays(blocks, f, w, omega);
-    let (u, ubar, p) = problem.state_mut();
-    let (px, rest) = p.split_at_mut(n);
-    let (py, pz) = rest.split_at_mut(n);
-    u.par_chunks_mut(vb)
+        .zip(u.par_chunks_mut(vb))
         .zip(ubar.par_chunks_mut(vb))
         .zip(px.par_chunks_mut(vb))
         .zip(py.par_chunks_mut(vb))
         .zip(pz.par_chunks_mut(vb))
-        .zip(states.par_iter())
-        .for_each(|(((((u, ub), px), py), pz), (_, s, _))| {
-            let mut k = 0;
-            for i in 0..vb {
-                if s.in_omega(i) {
-                    u[i] = s.u[k];
-                    ub[i] = s.ubar[k];
-                    px[i] = s.p[0][k];
-                    py[i] = s.p[1][k];
-                    pz[i] = s.p[2][k];
-                    k += 1;
-                }
-            }
-        });
-    problem
+        .zip(g.blocks.par_iter())
+        .try_for_each(|((((((((f, w), omega), u), ubar), px), py), pz), b)| {
+            let (path, bytes) = &g.files[b.file];
+            let out = DenseBlock {
+                f,
+                w,
+                omega,
+                u,
+                ubar,
+                p: [px, py, pz],
+            };
+            decode_block_into(path, bytes, (&b.index, &b.record, b.crc), out)
+        })?;
+    let blocks = g.blocks.iter().map(|b| b.index).collect();
+    let mut problem = TvProblem::from_state(blocks, [f, w, u, ubar], omega, p);
+    problem.limit_updates_to_reach(core, iterations);
+    Ok(problem)
 }
 
-/// Copies the solver's state of block slot `slot` back into `s` (its Ω voxels).
-fn read_back(problem: &TvProblem, slot: usize, s: &mut BlockState) {
+/// Appends to `out` the state record of the problem's block slot `slot`.
+fn encode_slot(problem: &TvProblem, slot: usize, out: &mut Vec<u8>) {
     let vb = VOXELS_PER_BLOCK;
     let (u, ubar, p) = problem.state();
     let n = u.len();
-    let mut k = 0;
-    for i in 0..vb {
-        if s.in_omega(i) {
-            let g = slot * vb + i;
-            s.u[k] = u[g];
-            s.ubar[k] = ubar[g];
-            for d in 0..3 {
-                s.p[d][k] = p[d * n + g];
-            }
-            k += 1;
-        }
-    }
+    let r = slot * vb..(slot + 1) * vb;
+    let mask = &problem.masks()[r.clone()];
+    encode_dense_record(
+        out,
+        |i| mask[i] & TvProblem::OMEGA_BIT != 0,
+        [
+            &problem.f[r.clone()],
+            &problem.w[r.clone()],
+            &u[r.clone()],
+            &ubar[r.clone()],
+        ],
+        [0, 1, 2].map(|d| &p[d * n + r.start..d * n + r.end]),
+    );
 }
 
 /// What [`regularize_swept`] needs beside the store.
@@ -312,6 +367,7 @@ pub(super) fn regularize_swept(
     // Freed region arrays stay in the heap for the next region, unless that passes the budget.
     let mut trim =
         crate::memory::TrimAbove::new(crate::memory::budget_for_data_bytes(run.budget_bytes));
+    let mut last_record = std::time::Instant::now();
     while step <= sweeps {
         let mut restart = false;
         for (k, (rkey, core)) in regions.iter().enumerate().skip(skip) {
@@ -333,7 +389,7 @@ pub(super) fn regularize_swept(
                         step: 0,
                         block_count: states.len() as u32,
                     };
-                    write_scratch(&*files, &state_name(0, *c), &encode_state(&h, &states))?;
+                    write_state_file(&*files, &state_name(0, *c), &encode_state(&h, &states))?;
                 }
             } else if step == sweeps
                 && core
@@ -358,7 +414,37 @@ pub(super) fn regularize_swept(
                     (lo, hi),
                     |c| region_of(c, r) == *rkey,
                 );
-                let mut states = match gathered {
+                // Gathered, checked against the budget and decoded; a state file that cannot be
+                // read (torn by a power loss) restarts the sweeps once.
+                let built = gathered.and_then(|g| {
+                    // The plan's bound ([`super::regional::RegionCosts`]) with the real counts.
+                    let mut bytes = 0u64;
+                    for b in &g.blocks {
+                        let omega = b.omega_voxels();
+                        bytes += SWEEP_BYTES_PER_BLOCK + omega * SWEEP_BYTES_PER_OMEGA_VOXEL;
+                        if b.core {
+                            bytes += SWEEP_BYTES_PER_CORE_BLOCK
+                                + omega * SWEEP_BYTES_PER_CORE_OMEGA_VOXEL;
+                        }
+                    }
+                    if bytes > run.budget_bytes {
+                        return Err(Error::InvalidArgument(format!(
+                            "region {rkey:?} with its {halo}-block halo needs about {} MiB, over the {} MiB a region may use; use a smaller --region-chunks or a --memory-budget of at least {} MiB",
+                            bytes >> 20,
+                            run.budget_bytes >> 20,
+                            crate::memory::budget_for_data_bytes(bytes).div_ceil(1 << 20)
+                        )));
+                    }
+                    stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
+                    trim.make_room(bytes);
+                    let core = (
+                        [0, 1, 2].map(|a| rkey[a] * r * cb),
+                        [0, 1, 2].map(|a| (rkey[a] + 1) * r * cb - 1),
+                    );
+                    let problem = problem_from_gathered(&g, core, iterations)?;
+                    Ok((g.blocks, problem))
+                });
+                let (blocks, mut problem) = match built {
                     Err(e @ Error::BadInput { .. }) if may_restart => {
                         tracing::warn!("{e}; starting the sweeps of pass {pass} again");
                         restart = true;
@@ -366,28 +452,6 @@ pub(super) fn regularize_swept(
                     }
                     other => other?,
                 };
-                states.sort_unstable_by_key(|(b, _, _)| *b);
-                // The plan's bound ([`super::regional::RegionCosts`]) with the real counts.
-                let mut bytes = 0u64;
-                for (_, st, core) in &states {
-                    let omega = st.tsdf.len() as u64;
-                    bytes += SWEEP_BYTES_PER_BLOCK + omega * SWEEP_BYTES_PER_OMEGA_VOXEL;
-                    if *core {
-                        bytes +=
-                            SWEEP_BYTES_PER_CORE_BLOCK + omega * SWEEP_BYTES_PER_CORE_OMEGA_VOXEL;
-                    }
-                }
-                if bytes > run.budget_bytes {
-                    return Err(Error::InvalidArgument(format!(
-                        "region {rkey:?} with its {halo}-block halo needs about {} MiB, over the {} MiB a region may use; use a smaller --region-chunks or a --memory-budget of at least {} MiB",
-                        bytes >> 20,
-                        run.budget_bytes >> 20,
-                        crate::memory::budget_for_data_bytes(bytes).div_ceil(1 << 20)
-                    )));
-                }
-                stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
-                trim.make_room(bytes);
-                let mut problem = problem_from_states(&states);
                 solve(
                     &mut problem,
                     &TvParams {
@@ -395,24 +459,30 @@ pub(super) fn regularize_swept(
                         ..*params
                     },
                 )?;
-                block_iterations += states.len() as u64 * iterations as u64;
-                // Slots are the sorted states' positions.
-                states.retain(|s| s.2);
+                block_iterations += blocks.len() as u64 * iterations as u64;
                 if step < sweeps {
-                    write_states(&*files, &problem, &mut states, key, step, store)?;
+                    write_states(&*files, &problem, &blocks, key, step, store)?;
                 } else {
-                    write_chunks(store, &problem, &states, pass, &mut stats)?;
+                    write_chunks(store, &problem, &blocks, pass, &mut stats)?;
                     store.commit()?;
                     stats.regions += 1;
                 }
             }
-            record(step, k + 1)?;
+            // The progress record is rewritten at most every PROGRESS_INTERVAL (and at the end
+            // of each step, below): a killed run redoes the regions since, which rewrite the
+            // same state from the same input.
+            let last = k + 1 == regions.len();
+            if last || last_record.elapsed() >= PROGRESS_INTERVAL {
+                record(step, k + 1)?;
+                last_record = std::time::Instant::now();
+            }
             tracing::debug!(
                 "step {step}/{sweeps} region {rkey:?}: {:.3} s",
                 t0.elapsed().as_secs_f64()
             );
             let done = step as usize * regions.len() + k + 1;
             if !progress(done, total) {
+                record(step, k + 1)?;
                 stats.interrupted = done < total;
                 stats.solved_blocks = (block_iterations / params.iterations.max(1) as u64) as usize;
                 return Ok(stats);
@@ -435,8 +505,9 @@ pub(super) fn regularize_swept(
     Ok(stats)
 }
 
-/// Reads the state of step `step − 1` of every stored block in `bounds` (blocks) from the chunks
-/// `c_lo ..= c_hi`, marking the blocks of chunks `is_core` says are the region's.
+/// Indexes the state of step `step − 1` of every stored block in `bounds` (blocks) from the
+/// chunks `c_lo ..= c_hi`, marking the blocks of chunks `is_core` says are the region's; the
+/// records are decoded by [`problem_from_gathered`].
 fn gather_states(
     store: &MapStore,
     key: u64,
@@ -445,10 +516,13 @@ fn gather_states(
     c_hi: [i32; 3],
     bounds: ([i32; 3], [i32; 3]),
     is_core: impl Fn(ChunkIndex) -> bool,
-) -> Result<Vec<(BlockIndex, BlockState, bool)>> {
+) -> Result<Gathered> {
     let files = store.files();
     let (lo, hi) = bounds;
-    let mut out = Vec::new();
+    let mut out = Gathered {
+        files: Vec::new(),
+        blocks: Vec::new(),
+    };
     for cz in c_lo[2]..=c_hi[2] {
         for cy in c_lo[1]..=c_hi[1] {
             for cx in c_lo[0]..=c_hi[0] {
@@ -483,55 +557,68 @@ fn gather_states(
                     ));
                 }
                 let core = is_core(c);
-                let picked: Vec<_> = index
-                    .entries
-                    .iter()
-                    .filter(|(b, _, _)| (0..3).all(|a| b.0[a] >= lo[a] && b.0[a] <= hi[a]))
-                    .collect();
-                let decoded: Vec<Result<(BlockIndex, BlockState, bool)>> = picked
-                    .par_iter()
-                    .map(|e| Ok((e.0, decode_block_state(&path, &bytes, e)?, core)))
-                    .collect();
-                for d in decoded {
-                    out.push(d?);
-                }
+                let file = out.files.len();
+                out.blocks.extend(
+                    index
+                        .entries
+                        .into_iter()
+                        .filter(|(b, _, _)| (0..3).all(|a| b.0[a] >= lo[a] && b.0[a] <= hi[a]))
+                        .map(|(index, record, crc)| GatheredBlock {
+                            index,
+                            file,
+                            record,
+                            crc,
+                            core,
+                        }),
+                );
+                out.files.push((path, bytes));
             }
         }
     }
+    out.blocks.sort_unstable_by_key(|b| b.index);
     Ok(out)
 }
 
-/// Writes the region's state after step `step`, one file per chunk.
+/// Writes the state of the region's own blocks after step `step`, one file per chunk; the
+/// problem's slots are the positions in `blocks`.
 fn write_states(
     files: &dyn MapFiles,
     problem: &TvProblem,
-    states: &mut [(BlockIndex, BlockState, bool)],
+    blocks: &[GatheredBlock],
     key: u64,
     step: u32,
     store: &MapStore,
 ) -> Result<()> {
-    let blocks = problem.blocks();
-    states.par_iter_mut().for_each(|(b, s, _)| {
-        if let Ok(slot) = blocks.binary_search(b) {
-            read_back(problem, slot, s);
-        }
-    });
     let cb = store.chunk_blocks();
-    let mut by_chunk: BTreeMap<ChunkIndex, Vec<(BlockIndex, BlockState)>> = BTreeMap::new();
-    for (b, s, _) in states.iter_mut() {
+    let mut by_chunk: BTreeMap<ChunkIndex, Vec<(BlockIndex, usize, u64)>> = BTreeMap::new();
+    for (slot, b) in blocks.iter().enumerate().filter(|(_, b)| b.core) {
         by_chunk
-            .entry(ChunkIndex::of_block(*b, cb))
+            .entry(ChunkIndex::of_block(b.index, cb))
             .or_default()
-            .push((*b, std::mem::take(s)));
+            .push((b.index, slot, b.omega_voxels()));
     }
-    for (c, list) in by_chunk {
-        let h = StateHeader {
-            key,
-            chunk: c.0,
-            step,
-            block_count: list.len() as u32,
-        };
-        write_scratch(files, &state_name(step % 2, c), &encode_state(&h, &list))?;
+    let encoded: Vec<(ChunkIndex, Vec<u8>)> = by_chunk
+        .into_par_iter()
+        .map(|(c, list)| {
+            let h = StateHeader {
+                key,
+                chunk: c.0,
+                step,
+                block_count: list.len() as u32,
+            };
+            let index: Vec<BlockIndex> = list.iter().map(|(b, _, _)| *b).collect();
+            let bytes: u64 = list
+                .iter()
+                .map(|(_, _, o)| (STATE_MASK_BYTES as u64) + o * STATE_BYTES_PER_OMEGA_VOXEL as u64)
+                .sum();
+            let file = encode_state_with(&h, &index, bytes as usize, |k, out| {
+                encode_slot(problem, list[k].1, out)
+            });
+            (c, file)
+        })
+        .collect();
+    for (c, bytes) in encoded {
+        write_state_file(files, &state_name(step % 2, c), &bytes)?;
     }
     Ok(())
 }
@@ -540,20 +627,21 @@ fn write_states(
 fn write_chunks(
     store: &mut MapStore,
     problem: &TvProblem,
-    states: &[(BlockIndex, BlockState, bool)],
+    blocks: &[GatheredBlock],
     pass: u32,
     stats: &mut MapRegularizeStats,
 ) -> Result<()> {
     let cb = store.chunk_blocks();
-    let mut chunks: Vec<ChunkIndex> = states
+    let mut chunks: Vec<ChunkIndex> = blocks
         .iter()
-        .map(|(b, _, _)| ChunkIndex::of_block(*b, cb))
+        .filter(|b| b.core)
+        .map(|b| ChunkIndex::of_block(b.index, cb))
         .collect();
     chunks.dedup();
     chunks.sort_unstable();
     chunks.dedup();
     for c in chunks {
-        let Some(d) = store.read_chunk(c)? else {
+        let Some((d, previous)) = store.read_chunk_bytes(c)? else {
             continue;
         };
         let mut layer = Layer::new(store.grid());
@@ -569,7 +657,8 @@ fn write_chunks(
             .map(|(_, b)| b.observed_count() as u64)
             .sum::<u64>();
         stats.core_blocks += refs.len();
-        store.write_chunk(c, &refs, pass)?;
+        // Only `u` and the block flags change: the other parts keep their compressed frames.
+        store.rewrite_chunk(c, &refs, pass, &previous)?;
     }
     Ok(())
 }

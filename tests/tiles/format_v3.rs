@@ -6,8 +6,9 @@
 use denser::grid::{Block, BlockIndex, OMEGA_BIT, VOXELS_PER_BLOCK};
 use denser::regularize::TvParams;
 use denser::tiles::codec::{
-    decode_chunk, decode_header_with_origin, encode_chunk, encode_chunk_v3, encode_chunk_with,
-    encode_header_v2, encode_header_v3, ChunkHeader, ChunkOrigin, CHUNK_HEADER_V2_BYTES,
+    decode_chunk, decode_header_with_origin, encode_chunk, encode_chunk_v3,
+    encode_chunk_v3_reusing, encode_chunk_with, encode_header_v2, encode_header_v3, ChunkHeader,
+    ChunkOrigin, PreviousFrames, CHUNK_HEADER_V2_BYTES,
 };
 use denser::tiles::ChunkIndex;
 use proptest::prelude::*;
@@ -378,4 +379,50 @@ fn v3_predicts_across_blocks() {
     // A6: nothing before it, residual 100; A7: its x neighbour, 200 − 100; B0: 310 − (2·200 − 100).
     assert_eq!(&raw[t..t + 6], &[200, 200, 20, 0, 0, 0]);
     assert_round_trip(&file, &blocks);
+}
+
+/// A chunk rewritten with `u` added (what a regularisation pass writes) copies the unchanged
+/// parts' frames from the file it replaces: the result is byte for byte the fresh encoding, and
+/// frames of another chunk's file, or of a format-2 file, are never taken for parts they do not
+/// hold.
+#[test]
+fn rewrite_reuses_the_frames_of_unchanged_parts() {
+    let h = header(ChunkIndex([1, -2, 0]));
+    let first = h.chunk.origin_block(h.chunk_blocks);
+    let at = |k: i32| BlockIndex([first[0] + k % 4, first[1] + k / 4 % 4, first[2] + k / 16]);
+    let fused: Vec<(BlockIndex, Box<Block>)> = (0..40)
+        .map(|k| (at(k), random_block(k as u64 * 7 + 1, 5, false, false)))
+        .collect();
+    let regularised: Vec<(BlockIndex, Box<Block>)> = fused
+        .iter()
+        .enumerate()
+        .map(|(k, (i, b))| {
+            let mut b = b.clone();
+            let with_u = random_block(k as u64 * 7 + 1, 5, true, false);
+            b.regularized = with_u.regularized.clone();
+            (*i, b)
+        })
+        .collect();
+    let refs: Vec<(BlockIndex, &Block)> = regularised.iter().map(|(i, b)| (*i, &**b)).collect();
+    let old = v3(&h, &fused);
+    let fresh = encode_chunk_v3(&h, &origin(), &refs, 3);
+    let frames = PreviousFrames::of(&old);
+    // Coordinates, flags, weights, TSDF low/high, red, green, blue.
+    assert_eq!(frames.len(), 8, "one frame per non-empty part");
+    let reused = encode_chunk_v3_reusing(&h, &origin(), &refs, 3, &frames);
+    assert_eq!(reused, fresh, "byte-identical to the fresh encoding");
+    assert_round_trip(&reused, &regularised);
+
+    // Another chunk's file: only parts that are equal byte for byte could be taken.
+    let other: Vec<(BlockIndex, Box<Block>)> = (0..40)
+        .map(|k| (at(k), random_block(k as u64 * 11 + 5, 3, false, false)))
+        .collect();
+    let other_file = v3(&h, &other);
+    let r = encode_chunk_v3_reusing(&h, &origin(), &refs, 3, &PreviousFrames::of(&other_file));
+    assert_round_trip(&r, &regularised);
+    // A format-2 file, truncated bytes, garbage: nothing to reuse.
+    let f2 = encode_chunk_with(&h, Some(&origin()), &refs, 3);
+    assert!(PreviousFrames::of(&f2).is_empty());
+    assert!(PreviousFrames::of(&old[..old.len() - 5]).is_empty());
+    assert!(PreviousFrames::of(b"not a chunk").is_empty());
 }

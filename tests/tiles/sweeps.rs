@@ -266,3 +266,44 @@ fn least_budget(
     }
     hi
 }
+
+/// K = 15 (a two-block halo): the outer ring of the halo stops being updated once it can no
+/// longer reach the region (`TvProblem::limit_updates`), and the stored state after a sweep and
+/// the final `u` are still the global solve's, bit for bit.
+#[test]
+fn sweeps_with_a_two_block_halo_equal_the_global_solve_bit_for_bit() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let map = dir.path().join("map");
+    let (mem, mut store) = fused_store(&map);
+    let params = TvParams {
+        iterations: 40,
+        ..TvParams::paper(0.05)
+    };
+    let opts = RegionalOptions {
+        sweep_iterations: Some(15),
+        ..swept(1)
+    };
+    let all = mem.indices_sorted();
+    let mut global = TvProblem::gather(&mem, &all);
+    // Stop after the first sweep and compare every stored state.
+    let mut regions = 0;
+    let first = regularize_map(&mut store, &params, &opts, |done, total| {
+        regions = total / 4; // steps: initial state + 3 sweeps (15, 15, 10 iterations)
+        done < 2 * regions
+    })
+    .expect("first sweep");
+    assert_eq!(first.halo_blocks, 2, "15 iterations need 16 voxels of halo");
+    for _ in 0..15 {
+        global.iterate(&params);
+    }
+    assert_eq!(assert_state_equals(&map, 1, 1, &global), all.len());
+    let last = regularize_map(&mut store, &params, &opts, |_, _| true).expect("finish");
+    assert!(!last.interrupted && store.manifest().latest_pass_complete());
+    for _ in 15..40 {
+        global.iterate(&params);
+    }
+    let mut want = mem.clone();
+    global.scatter(&mut want, &all);
+    let (worst, _) = max_u_difference(&want, &store_layer(&store));
+    assert_eq!(worst, 0.0, "max |u_swept − u_global|");
+}

@@ -22,9 +22,11 @@
 //! which takes ~15 % fewer bytes. The store writes format 3 ([`encode_chunk_v3`]); all three
 //! are read.
 
+mod frames;
 mod payload;
 pub mod predict;
 
+pub use frames::PreviousFrames;
 pub use payload::payload_planes;
 
 use super::ChunkIndex;
@@ -176,7 +178,7 @@ pub fn encode_chunk_with(
     } else {
         CHUNK_VERSION
     };
-    encode_chunk_version(header, origin, blocks, zstd_level, version)
+    encode_chunk_version(header, origin, blocks, zstd_level, version, None)
 }
 
 /// Format 3: format 2's header carrying `origin`, voxel fields stored as prediction residuals.
@@ -187,7 +189,33 @@ pub fn encode_chunk_v3(
     blocks: &[(BlockIndex, &Block)],
     zstd_level: i32,
 ) -> Vec<u8> {
-    encode_chunk_version(header, Some(origin), blocks, zstd_level, CHUNK_VERSION_3)
+    encode_chunk_version(
+        header,
+        Some(origin),
+        blocks,
+        zstd_level,
+        CHUNK_VERSION_3,
+        None,
+    )
+}
+
+/// [`encode_chunk_v3`] copying the compressed frames of `previous` (the file this one replaces)
+/// for every part that has not changed, instead of compressing those parts again.
+pub fn encode_chunk_v3_reusing(
+    header: &ChunkHeader,
+    origin: &ChunkOrigin,
+    blocks: &[(BlockIndex, &Block)],
+    zstd_level: i32,
+    previous: &PreviousFrames,
+) -> Vec<u8> {
+    encode_chunk_version(
+        header,
+        Some(origin),
+        blocks,
+        zstd_level,
+        CHUNK_VERSION_3,
+        Some(previous),
+    )
 }
 
 /// `blocks` sorted by local coordinate in `header.chunk`, with those coordinates.
@@ -225,6 +253,7 @@ fn encode_chunk_version(
     blocks: &[(BlockIndex, &Block)],
     zstd_level: i32,
     version: u16,
+    previous: Option<&PreviousFrames>,
 ) -> Vec<u8> {
     let order = local_order(header, blocks);
     let n = order.len();
@@ -243,9 +272,14 @@ fn encode_chunk_version(
         planes
             .iter()
             .filter(|(_, p)| !p.is_empty())
-            .flat_map(|(name, p)| match *name {
-                "tsdf low" | "u low" => compress(p, zstd_level),
-                _ => compress(p, zstd_level.max(STRUCTURED_ZSTD_LEVEL)),
+            .flat_map(|(name, p)| {
+                if let Some(frame) = previous.and_then(|f| f.frame_of(p)) {
+                    return frame.to_vec();
+                }
+                match *name {
+                    "tsdf low" | "u low" => compress(p, zstd_level),
+                    _ => compress(p, zstd_level.max(STRUCTURED_ZSTD_LEVEL)),
+                }
             })
             .collect::<Vec<u8>>()
     } else {

@@ -24,6 +24,15 @@ pub(super) fn decode_object(
     name: &str,
     bytes: Option<ObjectBytes>,
 ) -> Result<(DecodedChunk, u64)> {
+    decode_object_bytes(files, name, bytes).map(|(d, b)| (d, b.len() as u64))
+}
+
+/// [`decode_object`] keeping the object's bytes.
+pub(super) fn decode_object_bytes(
+    files: &dyn MapFiles,
+    name: &str,
+    bytes: Option<ObjectBytes>,
+) -> Result<(DecodedChunk, ObjectBytes)> {
     let path = files.path(name);
     let Some(bytes) = bytes else {
         return Err(Error::bad_input(
@@ -36,13 +45,13 @@ pub(super) fn decode_object(
     }
     let d = decode_chunk(&bytes)
         .map_err(|e| Error::bad_input(&path, format!("corrupted chunk: {e}")))?;
-    Ok((d, bytes.len() as u64))
+    Ok((d, bytes))
 }
 
 impl MapStore {
     /// Reads and decodes chunk object `name` (through the object-store cache where there is
     /// one); errors name it.
-    pub(super) fn read_object(&self, name: &str) -> Result<(DecodedChunk, u64)> {
+    pub(super) fn read_object(&self, name: &str) -> Result<(DecodedChunk, ObjectBytes)> {
         if let Some(cache) = &self.cache {
             let bytes = match cache.get(name) {
                 Some(b) => Some(ObjectBytes::Owned(b)),
@@ -54,9 +63,36 @@ impl MapStore {
                     other => other,
                 },
             };
-            return decode_object(&*self.files, name, bytes);
+            return decode_object_bytes(&*self.files, name, bytes);
         }
-        decode_object(&*self.files, name, self.files.read(name)?)
+        decode_object_bytes(&*self.files, name, self.files.read(name)?)
+    }
+
+    /// [`MapStore::read_chunk`] keeping the file's bytes, for [`MapStore::rewrite_chunk`].
+    pub fn read_chunk_bytes(&self, c: ChunkIndex) -> Result<Option<(DecodedChunk, ObjectBytes)>> {
+        match self.manifest.chunks.get(&c) {
+            None => Ok(None),
+            Some(e) => self.read_entry_bytes(c, e).map(Some),
+        }
+    }
+
+    /// [`MapStore::write_chunk`] for a chunk whose file `previous` (as read by
+    /// [`MapStore::read_chunk_bytes`]) this one replaces: the parts that did not change keep
+    /// their compressed frames ([`PreviousFrames`]).
+    pub fn rewrite_chunk(
+        &mut self,
+        c: ChunkIndex,
+        blocks: &[(BlockIndex, &Block)],
+        reg_pass: u32,
+        previous: &[u8],
+    ) -> Result<()> {
+        self.require_writer("writing a chunk")?;
+        let seq = self.allocate_seq();
+        let w =
+            self.writer()
+                .write_reusing(c, seq, blocks, reg_pass, &PreviousFrames::of(previous))?;
+        self.record(w);
+        Ok(())
     }
 }
 
@@ -79,6 +115,7 @@ impl ChunkWriter {
         seq: u64,
         blocks: &[(BlockIndex, &Block)],
         reg_pass: u32,
+        previous: Option<&PreviousFrames>,
     ) -> (Vec<u8>, WrittenChunk) {
         let header = ChunkHeader {
             voxel_size_m: self.grid.voxel_size_m,
@@ -101,7 +138,10 @@ impl ChunkWriter {
                 NO_PARAMS
             },
         };
-        let bytes = encode_chunk_v3(&header, &origin, blocks, self.zstd_level);
+        let bytes = match previous {
+            Some(p) => encode_chunk_v3_reusing(&header, &origin, blocks, self.zstd_level, p),
+            None => encode_chunk_v3(&header, &origin, blocks, self.zstd_level),
+        };
         let has_reg = blocks.iter().any(|(_, b)| b.regularized.is_some());
         let w = WrittenChunk {
             chunk: c,
@@ -128,7 +168,19 @@ impl ChunkWriter {
         blocks: &[(BlockIndex, &Block)],
         reg_pass: u32,
     ) -> Result<WrittenChunk> {
-        let (bytes, w) = self.encode(c, seq, blocks, reg_pass);
+        self.write_reusing(c, seq, blocks, reg_pass, &PreviousFrames::default())
+    }
+
+    /// [`ChunkWriter::write`] copying the frames of `previous` for the parts that did not change.
+    pub fn write_reusing(
+        &self,
+        c: ChunkIndex,
+        seq: u64,
+        blocks: &[(BlockIndex, &Block)],
+        reg_pass: u32,
+        previous: &PreviousFrames,
+    ) -> Result<WrittenChunk> {
+        let (bytes, w) = self.encode(c, seq, blocks, reg_pass, Some(previous));
         self.files.write_chunk(&chunk_object(c, seq), &bytes)?;
         Ok(w)
     }
@@ -136,16 +188,19 @@ impl ChunkWriter {
     /// [`ChunkWriter::write`] for a regularisation shard, create-only: when file `seq` of chunk
     /// `c` exists already (a shard run again after it was killed, or two runs of one shard), the
     /// existing file is kept and its entry returned, once its origin says it is this map's file
-    /// `seq` of `c` at `reg_pass`.
+    /// `seq` of `c` at `reg_pass`. `previous`: the file this one replaces, whose unchanged parts'
+    /// frames are copied.
     pub fn write_once(
         &self,
         c: ChunkIndex,
         seq: u64,
         blocks: &[(BlockIndex, &Block)],
         reg_pass: u32,
+        previous: Option<&ObjectBytes>,
     ) -> Result<WrittenChunk> {
         let name = chunk_object(c, seq);
-        let (bytes, w) = self.encode(c, seq, blocks, reg_pass);
+        let frames = previous.map(|p| PreviousFrames::of(p));
+        let (bytes, w) = self.encode(c, seq, blocks, reg_pass, frames.as_ref());
         if self.files.write_new(&name, &bytes)? {
             return Ok(w);
         }

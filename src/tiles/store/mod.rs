@@ -19,8 +19,9 @@
 //! rebuilds the manifest.
 
 use super::codec::{
-    decode_chunk, decode_header_with_origin, encode_chunk_v3, ChunkHeader, ChunkOrigin,
-    DecodedChunk, CHUNK_HEADER_V2_BYTES, DEFAULT_ZSTD_LEVEL, FLAG_HAS_REGULARIZED, NO_PARAMS,
+    decode_chunk, decode_header_with_origin, encode_chunk_v3, encode_chunk_v3_reusing, ChunkHeader,
+    ChunkOrigin, DecodedChunk, PreviousFrames, CHUNK_HEADER_V2_BYTES, DEFAULT_ZSTD_LEVEL,
+    FLAG_HAS_REGULARIZED, NO_PARAMS,
 };
 use super::files::{
     Conditional, MapFiles, MapLocation, ObjectBytes, ObjectVersion, ReaderHold, WriterHold,
@@ -442,8 +443,18 @@ impl MapStore {
     /// every field that differs: a file replaced by another one (an older version, the same chunk
     /// of another map) is never read as if it were the committed one.
     pub fn read_entry(&self, c: ChunkIndex, e: &ChunkEntry) -> Result<DecodedChunk> {
+        self.read_entry_bytes(c, e).map(|(d, _)| d)
+    }
+
+    /// [`MapStore::read_entry`] keeping the file's bytes.
+    pub fn read_entry_bytes(
+        &self,
+        c: ChunkIndex,
+        e: &ChunkEntry,
+    ) -> Result<(DecodedChunk, ObjectBytes)> {
         let path = self.file_path(c, e.file_seq);
-        let (d, len) = self.read_object(&chunk_object(c, e.file_seq))?;
+        let (d, bytes) = self.read_object(&chunk_object(c, e.file_seq))?;
+        let len = bytes.len();
         let h = &d.header;
         let m = &self.manifest.header;
         let mut diff: Vec<String> = Vec::new();
@@ -517,7 +528,7 @@ impl MapStore {
                 ),
             ));
         }
-        Ok(d)
+        Ok((d, bytes))
     }
 
     fn require_writer(&self, what: &str) -> Result<()> {
