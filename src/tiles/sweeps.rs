@@ -237,27 +237,31 @@ fn problem_from_gathered(
     let mut p = vec![0.0f32; 3 * n];
     let (px, rest) = p.split_at_mut(n);
     let (py, pz) = rest.split_at_mut(n);
-    f.par_chunks_mut(vb)
-        .zip(w.par_chunks_mut(vb))
-        .zip(omega.par_chunks_mut(vb))
-        .zip(u.par_chunks_mut(vb))
-        .zip(ubar.par_chunks_mut(vb))
-        .zip(px.par_chunks_mut(vb))
-        .zip(py.par_chunks_mut(vb))
-        .zip(pz.par_chunks_mut(vb))
-        .zip(g.blocks.par_iter())
-        .try_for_each(|((((((((f, w), omega), u), ubar), px), py), pz), b)| {
-            let (path, bytes) = &g.files[b.file];
-            let out = DenseBlock {
-                f,
-                w,
-                omega,
-                u,
-                ubar,
-                p: [px, py, pz],
-            };
-            decode_block_into(path, bytes, (&b.index, &b.record, b.crc), out)
-        })?;
+    // Decoded on a worker of the pool, so that the loop's tasks start there rather than with a
+    // wake-up from outside (the arrays stay allocated by the calling thread).
+    rayon::scope(|_| {
+        f.par_chunks_mut(vb)
+            .zip(w.par_chunks_mut(vb))
+            .zip(omega.par_chunks_mut(vb))
+            .zip(u.par_chunks_mut(vb))
+            .zip(ubar.par_chunks_mut(vb))
+            .zip(px.par_chunks_mut(vb))
+            .zip(py.par_chunks_mut(vb))
+            .zip(pz.par_chunks_mut(vb))
+            .zip(g.blocks.par_iter())
+            .try_for_each(|((((((((f, w), omega), u), ubar), px), py), pz), b)| {
+                let (path, bytes) = &g.files[b.file];
+                let out = DenseBlock {
+                    f,
+                    w,
+                    omega,
+                    u,
+                    ubar,
+                    p: [px, py, pz],
+                };
+                decode_block_into(path, bytes, (&b.index, &b.record, b.crc), out)
+            })
+    })?;
     let blocks = g.blocks.iter().map(|b| b.index).collect();
     let mut problem = TvProblem::from_state(blocks, [f, w, u, ubar], omega, p);
     problem.limit_updates_to_reach(core, iterations);
@@ -461,7 +465,7 @@ pub(super) fn regularize_swept(
                 )?;
                 block_iterations += blocks.len() as u64 * iterations as u64;
                 if step < sweeps {
-                    write_states(&*files, &problem, &blocks, key, step, store)?;
+                    rayon::scope(|_| write_states(&*files, &problem, &blocks, key, step, store))?;
                 } else {
                     write_chunks(store, &problem, &blocks, pass, &mut stats)?;
                     store.commit()?;
