@@ -68,6 +68,101 @@ impl MapStore {
         decode_object_bytes(&*self.files, name, self.files.read(name)?)
     }
 
+    /// Reads the file `e` names for chunk `c` and checks it: both CRCs, then against the entry and
+    /// the manifest — file size, chunk coordinate, chunk edge, voxel size, μ, block count, payload
+    /// CRC, whether it carries `u`, voxels in Ω, and (format-2 files) the map id, the file sequence
+    /// number and the regularisation pass. Any mismatch is an error naming the file, the chunk and
+    /// every field that differs: a file replaced by another one (an older version, the same chunk
+    /// of another map) is never read as if it were the committed one.
+    pub fn read_entry(&self, c: ChunkIndex, e: &ChunkEntry) -> Result<DecodedChunk> {
+        self.read_entry_bytes(c, e).map(|(d, _)| d)
+    }
+
+    /// [`MapStore::read_entry`] keeping the file's bytes.
+    pub fn read_entry_bytes(
+        &self,
+        c: ChunkIndex,
+        e: &ChunkEntry,
+    ) -> Result<(DecodedChunk, ObjectBytes)> {
+        let path = self.file_path(c, e.file_seq);
+        let (d, bytes) = self.read_object(&chunk_object(c, e.file_seq))?;
+        let len = bytes.len();
+        let h = &d.header;
+        let m = &self.manifest.header;
+        let mut diff: Vec<String> = Vec::new();
+        let mut field = |name: &str, file: String, want: String| {
+            if file != want {
+                diff.push(format!("{name} {file} (manifest: {want})"));
+            }
+        };
+        field("chunk", format!("{:?}", h.chunk.0), format!("{:?}", c.0));
+        field(
+            "size",
+            format!("{len} bytes"),
+            format!("{} bytes", e.file_bytes),
+        );
+        field(
+            "chunk edge",
+            h.chunk_blocks.to_string(),
+            m.chunk_blocks.to_string(),
+        );
+        field(
+            "voxel size",
+            format!("{} m", h.voxel_size_m),
+            format!("{} m", m.voxel_size_m),
+        );
+        field(
+            "μ",
+            format!("{} m", h.truncation_m),
+            format!("{} m", m.truncation_m),
+        );
+        field(
+            "blocks",
+            h.block_count.to_string(),
+            e.block_count.to_string(),
+        );
+        field(
+            "payload CRC",
+            format!("{:#010x}", h.payload_crc32),
+            format!("{:#010x}", e.payload_crc32),
+        );
+        field(
+            "carries u",
+            (h.flags & FLAG_HAS_REGULARIZED != 0).to_string(),
+            (e.flags & ENTRY_HAS_REGULARIZED != 0).to_string(),
+        );
+        if let Some(o) = &d.origin {
+            field(
+                "file number",
+                o.file_seq.to_string(),
+                e.file_seq.to_string(),
+            );
+            if o.map_id != 0 && m.map_id != 0 {
+                field(
+                    "map id",
+                    format!("{:016x}", o.map_id),
+                    format!("{:016x}", m.map_id),
+                );
+            }
+            field("pass", o.reg_pass.to_string(), e.reg_pass.to_string());
+        }
+        if h.block_count == e.block_count {
+            let obs = count_observed(d.blocks.iter().map(|(_, b)| &**b));
+            field("Ω voxels", obs.to_string(), e.observed_voxels.to_string());
+        }
+        if !diff.is_empty() {
+            return Err(Error::bad_input(
+                &path,
+                format!(
+                    "chunk {:?} does not match its manifest entry: {}; the file was replaced (an older version, or another map's) and is not read",
+                    c.0,
+                    diff.join(", ")
+                ),
+            ));
+        }
+        Ok((d, bytes))
+    }
+
     /// [`MapStore::read_chunk`] keeping the file's bytes, for [`MapStore::rewrite_chunk`].
     pub fn read_chunk_bytes(&self, c: ChunkIndex) -> Result<Option<(DecodedChunk, ObjectBytes)>> {
         match self.manifest.chunks.get(&c) {
