@@ -19,8 +19,9 @@
 //! last complete pass stays readable until the new one is whole). A progress record
 //! (`sweeps/progress.dsp`) is written at the end of each step and at most once a second within
 //! one, so a killed run resumes at most a second of regions before where it stopped (redoing a
-//! region of a step rewrites the same state from the same input); a record of another pass, parameters or chunk table is
-//! discarded with the state. The state files are removed when the pass completes.
+//! region of a step rewrites the same state from the same input); a record of another pass,
+//! parameters or chunk table is discarded with the state. The state files are removed when the
+//! pass completes.
 //! Layouts: `formats/sweep-state.md`.
 
 use super::files::MapFiles;
@@ -48,7 +49,8 @@ pub const PROGRESS_FILE: &str = "sweeps/progress.dsp";
 const PROGRESS_INTERVAL: std::time::Duration = std::time::Duration::from_secs(1);
 /// Iterations per sweep by default: a halo of `K + 1 = 16` voxels, two blocks. Measured against
 /// 7 (one block, 15 sweeps) and 23 (three blocks, 5 sweeps) on a 200 m street: 1.8–2.0× the
-/// global solve's CPU time against 2.5× and 2.6× (`docs/bench/regularize.md`).
+/// global solve's CPU time against 2.5× and 2.6× (`docs/bench/regularize.md`; measured before
+/// halo rings stopped updating early, which favours wider halos: not measured again since).
 pub const DEFAULT_SWEEP_ITERATIONS: u32 = 15;
 
 /// Working memory of one gathered block in a sweep besides its Ω voxels: the solver's arrays
@@ -68,8 +70,8 @@ pub const SWEEP_BYTES_PER_CORE_OMEGA_VOXEL: u64 = STATE_BYTES_PER_OMEGA_VOXEL as
 /// atomic and not fsynced on local disks. Safe because nothing reads it before the step that
 /// writes it is over: a region redone after a kill rewrites it whole from the other parity,
 /// which that step never touches, and a file torn by a power loss fails its CRC (the sweeps then
-/// start again). In place rather than through a new file and a rename: the inode churn of ~2000
-/// files per pass was a tenth of its CPU time (`docs/bench/regularize.md`).
+/// start again). In place rather than through a new file and a rename: creating and renaming
+/// ~2000 files per pass was ~7 % of its CPU time (`docs/bench/regularize.md`).
 fn write_state_file(files: &dyn MapFiles, name: &str, bytes: &[u8]) -> Result<()> {
     use std::io::Write;
     let Some(dir) = files.location().as_dir() else {
