@@ -220,3 +220,19 @@ pub(super) fn resolve(
         ..*options
     })
 }
+
+/// The error of a region whose gathered blocks (`bytes` of working memory, its halo `halo`
+/// blocks) do not fit the `budget_bytes` a region may use, naming what would.
+pub(super) fn region_over_budget(
+    region: [i32; 3],
+    halo: i32,
+    bytes: u64,
+    budget_bytes: u64,
+) -> Error {
+    Error::InvalidArgument(format!(
+        "region {region:?} with its {halo}-block halo needs about {} MiB, over the {} MiB a region may use; use a smaller --region-chunks or a --memory-budget of at least {} MiB",
+        bytes >> 20,
+        budget_bytes >> 20,
+        crate::memory::budget_for_data_bytes(bytes).div_ceil(1 << 20)
+    ))
+}

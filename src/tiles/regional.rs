@@ -28,7 +28,7 @@ pub use super::region_plan::{check_budget_up_front, plan_region_chunks, RegionCo
 use super::shards::{self, Shard, ShardPlan};
 use super::store::MapStore;
 use super::ChunkIndex;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::grid::{Block, BlockIndex, Layer, VOXELS_PER_BLOCK};
 use crate::regularize::{RegionPlan, TvParams, TvProblem};
 use std::collections::BTreeMap;
@@ -405,12 +405,12 @@ fn regularize_pass(
             let bytes = gathered.len() as u64
                 * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
             if bytes > options.budget_bytes {
-                return Err(Error::InvalidArgument(format!(
-                    "region {key:?} with its {halo}-block halo needs about {} MiB, over the {} MiB a region may use; use a smaller --region-chunks or a --memory-budget of at least {} MiB",
-                    bytes >> 20,
-                    options.budget_bytes >> 20,
-                    crate::memory::budget_for_data_bytes(bytes).div_ceil(1 << 20)
-                )));
+                return Err(super::region_plan::region_over_budget(
+                    *key,
+                    halo,
+                    bytes,
+                    options.budget_bytes,
+                ));
             }
         }
         let bytes = gathered.len() as u64

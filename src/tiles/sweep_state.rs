@@ -78,22 +78,13 @@ impl BlockState {
         }
     }
 
-    fn decode(b: &[u8]) -> Option<Self> {
-        if b.len() < STATE_MASK_BYTES {
-            return None;
-        }
-        let mut omega = [0u64; 8];
-        for (k, w) in omega.iter_mut().enumerate() {
-            *w = u64::from_le_bytes(b[8 * k..8 * k + 8].try_into().ok()?);
-        }
+    /// The state of a record [`checked_record`] returned with its Ω mask.
+    fn decode(b: &[u8], omega: [u64; 8]) -> Self {
         let mut s = BlockState {
             omega,
             ..Default::default()
         };
         let n = s.omega_count();
-        if b.len() != STATE_MASK_BYTES + n * STATE_BYTES_PER_OMEGA_VOXEL {
-            return None;
-        }
         let mut at = STATE_MASK_BYTES;
         s.tsdf = b[at..at + 2 * n]
             .chunks_exact(2)
@@ -113,7 +104,7 @@ impl BlockState {
         s.u = plane();
         s.ubar = plane();
         s.p = [plane(), plane(), plane()];
-        Some(s)
+        s
     }
 }
 
@@ -245,34 +236,42 @@ pub fn decode_state_index(path: &Path, b: &[u8]) -> Result<StateIndex> {
     })
 }
 
+/// The record `entry` of state file `b` (read from `path`) with its Ω mask, checked: its CRC,
+/// then a length that matches the mask.
+fn checked_record<'a>(
+    path: &Path,
+    b: &'a [u8],
+    entry: (&BlockIndex, &std::ops::Range<usize>, u32),
+) -> Result<(&'a [u8], [u64; 8])> {
+    let rec = &b[entry.1.clone()];
+    let bad = |m: &str| Error::bad_input(path, format!("sweep state block {:?}: {m}", entry.0 .0));
+    if crc32fast::hash(rec) != entry.2 {
+        return Err(bad("checksum mismatch (corrupted)"));
+    }
+    if rec.len() < STATE_MASK_BYTES {
+        return Err(bad("record shorter than its Ω mask"));
+    }
+    let mut omega = [0u64; 8];
+    for (k, w) in omega.iter_mut().enumerate() {
+        *w = u64::from_le_bytes(rec[8 * k..8 * k + 8].try_into().expect("8 bytes"));
+    }
+    let n: usize = omega.iter().map(|w| w.count_ones() as usize).sum();
+    if rec.len() != STATE_MASK_BYTES + n * STATE_BYTES_PER_OMEGA_VOXEL {
+        return Err(bad("record length does not match its Ω mask"));
+    }
+    Ok((rec, omega))
+}
+
 /// Decodes one block record of a state file (checked against its CRC).
 pub fn decode_block_state(
     path: &Path,
     b: &[u8],
     entry: &(BlockIndex, std::ops::Range<usize>, u32),
 ) -> Result<BlockState> {
-    let rec = &b[entry.1.clone()];
-    if crc32fast::hash(rec) != entry.2 {
-        return Err(Error::bad_input(
-            path,
-            format!(
-                "sweep state block {:?}: checksum mismatch (corrupted)",
-                entry.0 .0
-            ),
-        ));
-    }
-    BlockState::decode(rec).ok_or_else(|| {
-        Error::bad_input(
-            path,
-            format!(
-                "sweep state block {:?}: record length does not match its Ω mask",
-                entry.0 .0
-            ),
-        )
-    })
+    let (rec, omega) = checked_record(path, b, (&entry.0, &entry.1, entry.2))?;
+    Ok(BlockState::decode(rec, omega))
 }
 
-/// How far a swept pass has come (`sweeps/progress.dsp`, a bincode 2 payload behind a header).
 /// One block's 512-voxel slices of a solver's arrays (voxel `i` of the block at index `i`).
 pub struct DenseBlock<'a> {
     /// Raw TSDF f.
@@ -297,23 +296,9 @@ pub fn decode_block_into(
     entry: (&BlockIndex, &std::ops::Range<usize>, u32),
     out: DenseBlock,
 ) -> Result<()> {
-    let rec = &b[entry.1.clone()];
-    let bad = |m: &str| Error::bad_input(path, format!("sweep state block {:?}: {m}", entry.0 .0));
-    if crc32fast::hash(rec) != entry.2 {
-        return Err(bad("checksum mismatch (corrupted)"));
-    }
-    if rec.len() < STATE_MASK_BYTES {
-        return Err(bad("record shorter than its Ω mask"));
-    }
-    let mut omega = [0u64; 8];
-    for (k, w) in omega.iter_mut().enumerate() {
-        *w = u64::from_le_bytes(rec[8 * k..8 * k + 8].try_into().expect("8 bytes"));
-    }
-    let n: usize = omega.iter().map(|w| w.count_ones() as usize).sum();
-    if rec.len() != STATE_MASK_BYTES + n * STATE_BYTES_PER_OMEGA_VOXEL {
-        return Err(bad("record length does not match its Ω mask"));
-    }
+    let (rec, omega) = checked_record(path, b, entry)?;
     let idx = omega_voxels(&omega);
+    let n = idx.len();
     let (tsdf, rest) = rec[STATE_MASK_BYTES..].split_at(2 * n);
     let (weight, rest) = rest.split_at(n);
     for (c, &i) in tsdf.chunks_exact(2).zip(&idx) {
@@ -390,6 +375,7 @@ pub fn encode_dense_record(
     }
 }
 
+/// How far a swept pass has come (`sweeps/progress.dsp`, a bincode 2 payload behind a header).
 #[derive(Clone, Debug, PartialEq, bincode::Encode, bincode::Decode)]
 pub struct SweepProgress {
     /// Key of the pass (map, pass number, parameters, region edge, iterations per sweep).

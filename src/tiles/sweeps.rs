@@ -78,24 +78,18 @@ fn write_state_file(files: &dyn MapFiles, name: &str, bytes: &[u8]) -> Result<()
         return files.write(name, bytes);
     };
     let path = dir.join(name);
-    let write = || -> std::io::Result<()> {
-        let mut f = std::fs::OpenOptions::new()
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(&path)?;
-        f.write_all(bytes)?;
-        f.set_len(bytes.len() as u64)
-    };
-    match write() {
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            if let Some(parent) = path.parent() {
-                std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
-            }
-            write().map_err(|e| Error::io(&path, e))
-        }
-        r => r.map_err(|e| Error::io(&path, e)),
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
     }
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(|e| Error::io(&path, e))?;
+    f.write_all(bytes)
+        .and_then(|()| f.set_len(bytes.len() as u64))
+        .map_err(|e| Error::io(&path, e))
 }
 
 /// Writes scratch state: atomically (temporary name, rename) but not fsynced on local disks —
@@ -434,12 +428,12 @@ pub(super) fn regularize_swept(
                         }
                     }
                     if bytes > run.budget_bytes {
-                        return Err(Error::InvalidArgument(format!(
-                            "region {rkey:?} with its {halo}-block halo needs about {} MiB, over the {} MiB a region may use; use a smaller --region-chunks or a --memory-budget of at least {} MiB",
-                            bytes >> 20,
-                            run.budget_bytes >> 20,
-                            crate::memory::budget_for_data_bytes(bytes).div_ceil(1 << 20)
-                        )));
+                        return Err(super::region_plan::region_over_budget(
+                            *rkey,
+                            halo,
+                            bytes,
+                            run.budget_bytes,
+                        ));
                     }
                     stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
                     trim.make_room(bytes);

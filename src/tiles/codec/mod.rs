@@ -189,13 +189,12 @@ pub fn encode_chunk_v3(
     blocks: &[(BlockIndex, &Block)],
     zstd_level: i32,
 ) -> Vec<u8> {
-    encode_chunk_version(
+    encode_chunk_v3_reusing(
         header,
-        Some(origin),
+        origin,
         blocks,
         zstd_level,
-        CHUNK_VERSION_3,
-        None,
+        &PreviousFrames::default(),
     )
 }
 

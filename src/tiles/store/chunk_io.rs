@@ -210,7 +210,7 @@ impl ChunkWriter {
         seq: u64,
         blocks: &[(BlockIndex, &Block)],
         reg_pass: u32,
-        previous: Option<&PreviousFrames>,
+        previous: &PreviousFrames,
     ) -> (Vec<u8>, WrittenChunk) {
         let header = ChunkHeader {
             voxel_size_m: self.grid.voxel_size_m,
@@ -233,10 +233,7 @@ impl ChunkWriter {
                 NO_PARAMS
             },
         };
-        let bytes = match previous {
-            Some(p) => encode_chunk_v3_reusing(&header, &origin, blocks, self.zstd_level, p),
-            None => encode_chunk_v3(&header, &origin, blocks, self.zstd_level),
-        };
+        let bytes = encode_chunk_v3_reusing(&header, &origin, blocks, self.zstd_level, previous);
         let has_reg = blocks.iter().any(|(_, b)| b.regularized.is_some());
         let w = WrittenChunk {
             chunk: c,
@@ -275,7 +272,7 @@ impl ChunkWriter {
         reg_pass: u32,
         previous: &PreviousFrames,
     ) -> Result<WrittenChunk> {
-        let (bytes, w) = self.encode(c, seq, blocks, reg_pass, Some(previous));
+        let (bytes, w) = self.encode(c, seq, blocks, reg_pass, previous);
         self.files.write_chunk(&chunk_object(c, seq), &bytes)?;
         Ok(w)
     }
@@ -294,8 +291,8 @@ impl ChunkWriter {
         previous: Option<&ObjectBytes>,
     ) -> Result<WrittenChunk> {
         let name = chunk_object(c, seq);
-        let frames = previous.map(|p| PreviousFrames::of(p));
-        let (bytes, w) = self.encode(c, seq, blocks, reg_pass, frames.as_ref());
+        let frames = previous.map(|p| PreviousFrames::of(p)).unwrap_or_default();
+        let (bytes, w) = self.encode(c, seq, blocks, reg_pass, &frames);
         if self.files.write_new(&name, &bytes)? {
             return Ok(w);
         }

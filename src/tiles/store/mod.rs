@@ -19,9 +19,9 @@
 //! rebuilds the manifest.
 
 use super::codec::{
-    decode_chunk, decode_header_with_origin, encode_chunk_v3, encode_chunk_v3_reusing, ChunkHeader,
-    ChunkOrigin, DecodedChunk, PreviousFrames, CHUNK_HEADER_V2_BYTES, DEFAULT_ZSTD_LEVEL,
-    FLAG_HAS_REGULARIZED, NO_PARAMS,
+    decode_chunk, decode_header_with_origin, encode_chunk_v3_reusing, ChunkHeader, ChunkOrigin,
+    DecodedChunk, PreviousFrames, CHUNK_HEADER_V2_BYTES, DEFAULT_ZSTD_LEVEL, FLAG_HAS_REGULARIZED,
+    NO_PARAMS,
 };
 use super::files::{
     Conditional, MapFiles, MapLocation, ObjectBytes, ObjectVersion, ReaderHold, WriterHold,
