@@ -11,7 +11,7 @@
 //! a covered point may still have been hidden from every scan.
 
 use crate::frame::LidarScan;
-use nalgebra::{Isometry3, Point3};
+use nalgebra::Isometry3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -32,10 +32,122 @@ pub struct SensorView {
 pub struct SensorCoverage {
     view: SensorView,
     sensor_from_world: Vec<Isometry3<f64>>,
-    origins: Vec<[f64; 3]>,
-    /// Scans by the cell of their origin, cells `range_max_m` wide: a point's candidates are
-    /// in the 27 cells around its own.
-    cells: HashMap<[i64; 3], Vec<u32>>,
+    /// For each cell (`range_max_m` wide) with a scan in it or next to it: the scans whose
+    /// origins lie in the 27 cells around it, the only ones that can reach a point in it.
+    cells: HashMap<[i64; 3], ScanBlock>,
+}
+
+/// The scans that can reach one cell, [`SCAN_LANES`] at a time as structure of arrays (padded
+/// with scans out of every range: origin at infinity), so that a point is tested against
+/// several scans at once.
+#[derive(Clone, Debug, Default)]
+struct ScanBlock {
+    lanes: Vec<ScanLanes>,
+    /// Scans in the last element of `lanes`.
+    used: usize,
+}
+
+/// [`SCAN_LANES`] scans.
+#[derive(Clone, Copy, Debug)]
+struct ScanLanes {
+    /// Scan origins, world frame, metres: x, y, z.
+    origin_m: [[f64; SCAN_LANES]; 3],
+    /// `sensor_from_world` rotations, row-major.
+    rotation: [[f64; SCAN_LANES]; 9],
+    /// `sensor_from_world` translations, metres.
+    translation_m: [[f64; SCAN_LANES]; 3],
+}
+
+impl ScanLanes {
+    const EMPTY: ScanLanes = ScanLanes {
+        origin_m: [[f64::INFINITY; SCAN_LANES]; 3],
+        rotation: [[0.0; SCAN_LANES]; 9],
+        translation_m: [[0.0; SCAN_LANES]; 3],
+    };
+}
+
+/// Scans tested together by [`ScanBlock::covers`].
+const SCAN_LANES: usize = 8;
+
+impl ScanBlock {
+    fn push(&mut self, origin_m: [f64; 3], sensor_from_world: &Isometry3<f64>) {
+        if self.lanes.is_empty() || self.used == SCAN_LANES {
+            self.lanes.push(ScanLanes::EMPTY);
+            self.used = 0;
+        }
+        let l = self.used;
+        let lanes = self.lanes.last_mut().expect("just pushed");
+        let r = sensor_from_world.rotation.to_rotation_matrix();
+        for k in 0..3 {
+            lanes.origin_m[k][l] = origin_m[k];
+            lanes.translation_m[k][l] = sensor_from_world.translation.vector[k];
+            for j in 0..3 {
+                lanes.rotation[3 * k + j][l] = r[(k, j)];
+            }
+        }
+        self.used += 1;
+    }
+
+    /// The scans, one at a time: (origin, rotation row-major, translation).
+    fn scans(&self) -> impl Iterator<Item = ([f64; 3], [f64; 9], [f64; 3])> + '_ {
+        self.lanes.iter().enumerate().flat_map(move |(i, lanes)| {
+            let n = if i + 1 == self.lanes.len() {
+                self.used
+            } else {
+                SCAN_LANES
+            };
+            (0..n).map(move |l| {
+                (
+                    lanes.origin_m.map(|v| v[l]),
+                    lanes.rotation.map(|v| v[l]),
+                    lanes.translation_m.map(|v| v[l]),
+                )
+            })
+        })
+    }
+
+    /// Whether a scan of this block has `p` within `range_m` and between the elevation slopes
+    /// `tan_lo`, `tan_hi` (as [`SensorCoverage::view_test`] with slopes, for `h > 0`). `None`
+    /// when no scan does by that test but one has `p` in range straight above or below it
+    /// (`h = 0`): the caller decides those with atan2.
+    fn covers(&self, p: [f64; 3], range_m: f64, tan_lo: f64, tan_hi: f64) -> Option<bool> {
+        block_covers(&self.lanes, p, range_m, tan_lo, tan_hi)
+    }
+}
+
+/// [`ScanBlock::covers`]: one straight loop over [`SCAN_LANES`] scans at a time.
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512vl+avx2+avx+sse4.1",
+    "x86_64+avx2+avx+sse4.1",
+    "x86_64+sse4.1"
+))]
+fn block_covers(
+    lanes: &[ScanLanes],
+    p: [f64; 3],
+    range_m: f64,
+    tan_lo: f64,
+    tan_hi: f64,
+) -> Option<bool> {
+    let rr = range_m * range_m;
+    let mut vertical = false;
+    for s in lanes {
+        let (o, r, t) = (&s.origin_m, &s.rotation, &s.translation_m);
+        let mut hit = false;
+        for k in 0..SCAN_LANES {
+            let d2 = (p[0] - o[0][k]).powi(2) + (p[1] - o[1][k]).powi(2) + (p[2] - o[2][k]).powi(2);
+            let x = r[0][k] * p[0] + r[1][k] * p[1] + r[2][k] * p[2] + t[0][k];
+            let y = r[3][k] * p[0] + r[4][k] * p[1] + r[5][k] * p[2] + t[1][k];
+            let z = r[6][k] * p[0] + r[7][k] * p[1] + r[8][k] * p[2] + t[2][k];
+            let h = (x * x + y * y).sqrt();
+            let in_range = d2 <= rr;
+            hit |= in_range & (h > 0.0) & (h * tan_lo <= z) & (z <= h * tan_hi);
+            vertical |= in_range & (h == 0.0);
+        }
+        if hit {
+            return Some(true);
+        }
+    }
+    (!vertical).then_some(false)
 }
 
 /// Accumulates the view of scans one at a time (so scans need not be held together).
@@ -93,17 +205,25 @@ impl CoverageBuilder {
             .iter()
             .map(|t| t.translation.vector.into())
             .collect();
-        let mut cells: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
-        for (k, o) in origins.iter().enumerate() {
-            cells
-                .entry(cell(*o, view.range_max_m))
-                .or_default()
-                .push(k as u32);
+        let sensor_from_world: Vec<Isometry3<f64>> =
+            self.world_from_sensor.iter().map(|t| t.inverse()).collect();
+        let mut cells: HashMap<[i64; 3], ScanBlock> = HashMap::new();
+        for (o, t) in origins.iter().zip(&sensor_from_world) {
+            let c = cell(*o, view.range_max_m);
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        cells
+                            .entry([c[0] + dx, c[1] + dy, c[2] + dz])
+                            .or_default()
+                            .push(*o, t);
+                    }
+                }
+            }
         }
         Some(SensorCoverage {
             view,
-            sensor_from_world: self.world_from_sensor.iter().map(|t| t.inverse()).collect(),
-            origins,
+            sensor_from_world,
             cells,
         })
     }
@@ -136,25 +256,22 @@ impl SensorCoverage {
     /// [`SensorCoverage::covers`] with the view's test built once ([`SensorCoverage::view_test`]).
     fn covers_with(&self, within: &impl Fn(f64, f64) -> bool, p: [f64; 3]) -> bool {
         let r = self.view.range_max_m;
-        let c = cell(p, r);
-        (-1..=1).any(|dz| {
-            (-1..=1).any(|dy| {
-                (-1..=1).any(|dx| {
-                    let Some(scans) = self.cells.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
-                        return false;
-                    };
-                    scans.iter().any(|&k| {
-                        let o = self.origins[k as usize];
-                        let d2: f64 = (0..3).map(|a| (p[a] - o[a]).powi(2)).sum();
-                        if d2 > r * r {
-                            return false;
-                        }
-                        let q = self.sensor_from_world[k as usize] * Point3::from(p);
-                        within(q.z, (q.x * q.x + q.y * q.y).sqrt())
-                    })
-                })
-            })
-        })
+        let slopes = self.slopes();
+        let Some(block) = self.cells.get(&cell(p, r)) else {
+            return false;
+        };
+        let fast = slopes.and_then(|(lo, hi)| block.covers(p, r, lo, hi));
+        fast.unwrap_or_else(|| block_covers_exactly(block, within, p, r))
+    }
+
+    /// The tangents of the view's elevation bounds, when both are within (−90°, 90°).
+    fn slopes(&self) -> Option<(f64, f64)> {
+        let (lo, hi) = (
+            self.view.elevation_min_deg.to_radians(),
+            self.view.elevation_max_deg.to_radians(),
+        );
+        let right = std::f64::consts::FRAC_PI_2;
+        (lo > -right && hi < right).then(|| (lo.tan(), hi.tan()))
     }
 
     /// Whether a point at height `z` and horizontal distance `h` (sensor frame, metres) is within
@@ -166,8 +283,7 @@ impl SensorCoverage {
             self.view.elevation_min_deg.to_radians(),
             self.view.elevation_max_deg.to_radians(),
         );
-        let right = std::f64::consts::FRAC_PI_2;
-        let slopes = (lo > -right && hi < right).then(|| (lo.tan(), hi.tan()));
+        let slopes = self.slopes();
         move |z: f64, h: f64| match slopes {
             Some((tan_lo, tan_hi)) if h > 0.0 => h * tan_lo <= z && z <= h * tan_hi,
             _ => (lo..=hi).contains(&z.atan2(h)),
@@ -182,6 +298,25 @@ impl SensorCoverage {
             .map(|&p| self.covers_with(&within, p))
             .collect()
     }
+}
+
+/// The scans of `block` one at a time with the view test `within` (atan2 where it must): the
+/// exact form behind [`ScanBlock::covers`], for the points it cannot decide.
+fn block_covers_exactly(
+    block: &ScanBlock,
+    within: &impl Fn(f64, f64) -> bool,
+    p: [f64; 3],
+    range_m: f64,
+) -> bool {
+    block.scans().any(|(o, r, t)| {
+        let d2: f64 = (0..3).map(|a| (p[a] - o[a]).powi(2)).sum();
+        if d2 > range_m * range_m {
+            return false;
+        }
+        let row = |j: usize| (0..3).map(|i| r[3 * j + i] * p[i]).sum::<f64>() + t[j];
+        let (x, y, z) = (row(0), row(1), row(2));
+        within(z, (x * x + y * y).sqrt())
+    })
 }
 
 /// The grid cell of `p` for cells `size_m` wide.
@@ -234,6 +369,61 @@ mod tests {
             vec![true, false]
         );
         assert_eq!(c.trajectory_m()[1], [50.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn the_lane_test_agrees_with_each_pose_applied_to_the_point() {
+        // Tilted, turned scans along a curved path (more than one cell and lane block apart);
+        // every random point is decided as the definition says: some scan in range sees it
+        // between its lowest and highest elevation (pose applied as the isometry, then atan2).
+        let mut rng = crate::synth::rng::Rng::new(11, 0);
+        let mut b = CoverageBuilder::default();
+        let mut poses = Vec::new();
+        for i in 0..21 {
+            let mut scan = scan_at(0.0, &[-24.9, -3.0, 2.0]);
+            let angle = i as f64 * 0.3;
+            scan.world_from_sensor = Isometry3::new(
+                nalgebra::Vector3::new(12.0 * i as f64, 5.0 * angle.sin(), 0.3 * angle.cos()),
+                nalgebra::Vector3::new(0.05 * angle.cos(), 0.04, angle),
+            );
+            poses.push(scan.world_from_sensor);
+            b.add(&scan);
+        }
+        let c = b.build().expect("coverage");
+        let v = c.view();
+        let (lo, hi) = (
+            v.elevation_min_deg.to_radians(),
+            v.elevation_max_deg.to_radians(),
+        );
+        let points: Vec<[f64; 3]> = (0..20_000)
+            .map(|_| {
+                [
+                    rng.range(-20.0, 270.0),
+                    rng.range(-20.0, 20.0),
+                    rng.range(-8.0, 4.0),
+                ]
+            })
+            .collect();
+        let mask = c.mask(&points);
+        let mut covered = 0;
+        for (p, &m) in points.iter().zip(&mask) {
+            let mut near_bound = false;
+            let reference = poses.iter().any(|t| {
+                let world = nalgebra::Point3::from(*p);
+                if (world - nalgebra::Point3::from(t.translation.vector)).norm() > v.range_max_m {
+                    return false;
+                }
+                let q = t.inverse() * world;
+                let e = q.z.atan2((q.x * q.x + q.y * q.y).sqrt());
+                near_bound |= (e - lo).abs() < 1e-9 || (e - hi).abs() < 1e-9;
+                (lo..=hi).contains(&e)
+            });
+            if !near_bound {
+                assert_eq!(m, reference, "{p:?}");
+            }
+            covered += m as usize;
+        }
+        assert!(covered > 2_000 && covered < 18_000, "{covered}");
     }
 
     #[test]

@@ -38,6 +38,7 @@ mod coverage;
 mod evaluate;
 mod ground_truth;
 mod nn;
+mod nn_grid;
 mod plot;
 mod report;
 pub mod run;

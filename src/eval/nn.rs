@@ -10,6 +10,7 @@
 //! This module does not summarise distances ([`crate::eval::ErrorStats`]) nor read files.
 
 use crate::error::{Error, Result};
+use crate::eval::nn_grid::CellGrid;
 use crate::frame::PointCloud;
 use crate::mesh::Mesh;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
@@ -34,6 +35,9 @@ const QUERY_BATCH: usize = 1 << 20;
 struct PointTree {
     tree: ImmutableKdTree<f32, 3>,
     points_local_m: Vec<[f32; 3]>,
+    /// When built with one ([`PointTree::with_grid`]): the cells of `points_local_m` (sorted by
+    /// cell), which answer queries near the points before any tree descent.
+    grid: Option<CellGrid>,
 }
 
 impl PointTree {
@@ -48,27 +52,77 @@ impl PointTree {
         Ok(PointTree {
             tree,
             points_local_m,
+            grid: None,
         })
+    }
+
+    /// [`PointTree::new`] with a [`CellGrid`] in front of the tree: the points are sorted by
+    /// cell first, and queries within about a cell of a point are answered by the grid.
+    fn with_grid(mut points_local_m: Vec<[f32; 3]>) -> Result<PointTree> {
+        let grid = CellGrid::build(&mut points_local_m);
+        let mut tree = PointTree::new(points_local_m)?;
+        tree.grid = grid;
+        Ok(tree)
     }
 
     /// Distance (metres) from each query (relative to the shared origin) to its nearest point, in
     /// the queries' order. Queries run in Morton order of their positions, so that consecutive
     /// queries walk the same branches of the tree.
     fn nearest_distances_m(&self, queries_local_m: &[[f64; 3]]) -> Vec<f32> {
+        let Some(grid) = &self.grid else {
+            return self.tree_distances_m(queries_local_m);
+        };
+        let mut out = grid.nearest_distances_m(&self.points_local_m, queries_local_m);
+        let left: Vec<u32> = (0..out.len() as u32)
+            .filter(|&i| out[i as usize].is_nan())
+            .collect();
+        let left_queries: Vec<[f64; 3]> =
+            left.iter().map(|&i| queries_local_m[i as usize]).collect();
+        for (&i, d) in left.iter().zip(self.tree_distances_m(&left_queries)) {
+            out[i as usize] = d;
+        }
+        tracing::debug!(
+            queries = out.len(),
+            by_tree = left.len(),
+            cell_m = grid.cell_m(),
+            "nearest neighbours through the cell grid"
+        );
+        out
+    }
+
+    /// [`PointTree::nearest_distances_m`] by the k-d tree alone.
+    fn tree_distances_m(&self, queries_local_m: &[[f64; 3]]) -> Vec<f32> {
         let order = morton_order(queries_local_m);
         let mut sorted = vec![0.0f32; queries_local_m.len()];
         sorted
             .par_chunks_mut(QUERY_CHUNK)
             .zip(order.par_chunks(QUERY_CHUNK))
             .for_each(|(out, idx)| {
+                // The previous query's nearest point bounds this one's search.
+                let mut previous: Option<[f32; 3]> = None;
                 for (o, &i) in out.iter_mut().zip(idx) {
                     let q = &queries_local_m[i as usize];
-                    let nn = self
-                        .tree
-                        .query(&q.map(|v| v as f32))
-                        .nearest_one::<SquaredEuclidean<f32>>()
-                        .execute();
-                    let p = self.points_local_m[nn.item as usize];
+                    let qf = q.map(|v| v as f32);
+                    let bounded = previous.and_then(|p| {
+                        let d2: f32 = (0..3).map(|k| (qf[k] - p[k]).powi(2)).sum();
+                        let radius = d2 * (1.0 + 1e-5) + f32::MIN_POSITIVE;
+                        self.tree
+                            .query(&qf)
+                            .nearest_n::<SquaredEuclidean<f32>>(std::num::NonZeroUsize::MIN)
+                            .within(radius)
+                            .execute()
+                            .first()
+                            .map(|nn| nn.item)
+                    });
+                    let item = bounded.unwrap_or_else(|| {
+                        self.tree
+                            .query(&qf)
+                            .nearest_one::<SquaredEuclidean<f32>>()
+                            .execute()
+                            .item
+                    });
+                    let p = self.points_local_m[item as usize];
+                    previous = Some(p);
                     *o = dist(q, &p.map(f64::from)) as f32;
                 }
             });
@@ -224,6 +278,9 @@ impl GroundTruthIndex {
         bounds_m: ([f64; 3], [f64; 3]),
         points_local_m: Vec<[f32; 3]>,
     ) -> Result<GroundTruthIndex> {
+        // No cell grid here: most accuracy queries of a raw surface lie farther from the ground
+        // truth than a few of its (dense) cells, and sorting 28 M points costs more than the
+        // grid saves (docs/bench/e2e.md).
         let tree = PointTree::new(points_local_m)?;
         tracing::debug!(points = tree.points_local_m.len(), "indexed ground truth");
         Ok(GroundTruthIndex {
@@ -266,8 +323,9 @@ impl GroundTruthIndex {
 
     /// Completeness distances: for each ground-truth point selected by `region`, the distance to
     /// the nearest of `reconstructed_points_m` (world frame, metres). Builds a temporary k-d tree
-    /// over the reconstructed points. The result follows the ground truth's order, skipping points
-    /// outside the region; it is empty when no ground-truth point is in the region.
+    /// (with a [`CellGrid`]) over the reconstructed points. The result follows the ground truth's
+    /// order, skipping points outside the region; it is empty when no ground-truth point is in
+    /// the region.
     ///
     /// Errors when `reconstructed_points_m` is empty or holds a non-finite coordinate, or when
     /// the region is malformed.
@@ -316,7 +374,7 @@ impl GroundTruthIndex {
             .par_iter()
             .map(|p| narrow(sub(p, &self.origin_m)))
             .collect();
-        let tree = PointTree::new(recon_local)?;
+        let tree = PointTree::with_grid(recon_local)?;
         // Selected a batch at a time (no index of every selected point, 4 bytes per point).
         Ok(tree.batched_distances_m(gt, inside, |p| p.map(f64::from)))
     }
@@ -540,6 +598,53 @@ mod tests {
         assert!(order.windows(2).all(|w| key(cell(w[0])) < key(cell(w[1]))));
         assert!(morton_order(&[]).is_empty());
         assert_eq!(morton_order(&[[1.0, 2.0, 3.0]; 3]).len(), 3);
+    }
+
+    #[test]
+    fn completeness_through_the_cell_grid_equals_brute_force() {
+        // A reconstruction on a ground plane and a wall, georeferenced far from the origin; ground
+        // truth near it (answered by the grid), a few cells off (the outer rings), and metres
+        // away (left to the tree). Every distance must be the brute-force one.
+        let mut s = 99u64;
+        let mut rnd = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let o = [4.0e5, 5.2e6, 30.0];
+        let mut recon = Vec::new();
+        for _ in 0..20_000 {
+            recon.push([o[0] + rnd() * 20.0, o[1] + rnd() * 20.0, o[2]]);
+            recon.push([o[0] + rnd() * 20.0, o[1] + 10.0, o[2] + rnd() * 4.0]);
+        }
+        let gt: Vec<[f64; 3]> = (0..6000)
+            .map(|i| {
+                let lift = [0.02, 0.3, 0.9, 6.0][i % 4];
+                [
+                    o[0] + rnd() * 20.0,
+                    o[1] + rnd() * 20.0,
+                    o[2] + lift * rnd(),
+                ]
+            })
+            .collect();
+        let index = GroundTruthIndex::from_points(&gt).unwrap();
+        let d = index
+            .completeness_distances_m(&recon, &CompletenessRegion::All)
+            .unwrap();
+        assert_eq!(d.len(), gt.len());
+        // Brute force in the index's own terms: f32 points relative to its origin.
+        let origin = index.origin_m();
+        let local = |p: &[f64; 3]| narrow(sub(p, &origin)).map(f64::from);
+        let recon_local: Vec<[f64; 3]> = recon.iter().map(local).collect();
+        for (g, di) in gt.iter().zip(&d) {
+            let q = local(g);
+            let brute = recon_local
+                .iter()
+                .map(|r| dist(r, &q))
+                .fold(f64::INFINITY, f64::min);
+            assert!((*di as f64 - brute).abs() < 1e-5, "{g:?}: {di} vs {brute}");
+        }
     }
 
     #[test]

@@ -85,7 +85,13 @@ pub fn evaluate_meshes(
         if let Some((count, bpv)) = voxels {
             e.report = e.report.with_voxels(count, bpv);
         }
+        let t_mask = std::time::Instant::now();
         let mask = coverage.map(|c| c.mask(&e.points_m));
+        tracing::debug!(
+            label,
+            seconds = t_mask.elapsed().as_secs_f64(),
+            "coverage mask"
+        );
         if let Some(mask) = &mask {
             let scored: Vec<f32> = e
                 .accuracy_m
