@@ -144,7 +144,10 @@ impl PointTree {
         keep: impl Fn(&P) -> bool + Sync,
         query: impl Fn(&P) -> [f64; 3] + Sync,
     ) -> Vec<f32> {
-        let mut out = Vec::new();
+        // Sized once: growing by doubling would hold the old and the new array together at the
+        // end (up to 3× the answers: 320 MiB for 28 M completeness queries).
+        let kept = items.par_iter().filter(|p| keep(p)).count();
+        let mut out = Vec::with_capacity(kept);
         for chunk in items.chunks(QUERY_BATCH) {
             let batch: Vec<[f64; 3]> = chunk.par_iter().filter(|p| keep(p)).map(&query).collect();
             out.extend(self.nearest_distances_m(&batch));

@@ -125,22 +125,22 @@ pub fn evaluate_meshes(
         )?;
         report.pictures.push(name);
         written.push(top);
-        evaluations.push(e);
+        // Only the summary is needed from here on: the points and their distances (~100 MiB for
+        // a 4 M-vertex surface) are freed before the next surface is scored.
+        evaluations.push(e.report);
         bar.inc(1);
     }
     bar.finish_and_clear();
     report.coverage = coverage.map(|c| c.view());
     let series: Vec<(&str, &super::ErrorStats)> = evaluations
         .iter()
-        .map(|e| (e.report.label.as_str(), &e.report.accuracy))
+        .map(|r| (r.label.as_str(), &r.accuracy))
         .collect();
     let hist = out_dir.join("error_histogram.png");
     plot_error_histograms_png(&hist, &series, 0.5)?;
     report.pictures.insert(0, "error_histogram.png".into());
     written.push(hist);
-    report
-        .surfaces
-        .extend(evaluations.into_iter().map(|e| e.report));
+    report.surfaces.extend(evaluations);
     report
         .timings_s
         .push(("evaluation".into(), t.elapsed().as_secs_f64()));
