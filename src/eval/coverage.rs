@@ -66,7 +66,7 @@ impl ScanLanes {
     };
 }
 
-/// Scans tested together by [`ScanBlock::covers`].
+/// Scans tested together by [`block_covers`].
 const SCAN_LANES: usize = 8;
 
 impl ScanBlock {
@@ -105,17 +105,12 @@ impl ScanBlock {
             })
         })
     }
-
-    /// Whether a scan of this block has `p` within `range_m` and between the elevation slopes
-    /// `tan_lo`, `tan_hi` (as [`SensorCoverage::view_test`] with slopes, for `h > 0`). `None`
-    /// when no scan does by that test but one has `p` in range straight above or below it
-    /// (`h = 0`): the caller decides those with atan2.
-    fn covers(&self, p: [f64; 3], range_m: f64, tan_lo: f64, tan_hi: f64) -> Option<bool> {
-        block_covers(&self.lanes, p, range_m, tan_lo, tan_hi)
-    }
 }
 
-/// [`ScanBlock::covers`]: one straight loop over [`SCAN_LANES`] scans at a time.
+/// Whether a scan of `lanes` has `p` within `range_m` and between the elevation slopes `tan_lo`,
+/// `tan_hi` (as [`SensorCoverage::view_test`] with slopes, for `h > 0`), in one straight loop
+/// over [`SCAN_LANES`] scans at a time. `None` when no scan does by that test but one has `p` in
+/// range straight above or below it (`h = 0`): the caller decides those with atan2.
 #[multiversion::multiversion(targets(
     "x86_64+avx512f+avx512bw+avx512vl+avx2+avx+sse4.1",
     "x86_64+avx2+avx+sse4.1",
@@ -250,17 +245,22 @@ impl SensorCoverage {
 
     /// Whether some scan had `p` (world frame, metres) within its range and field of view.
     pub fn covers(&self, p: [f64; 3]) -> bool {
-        self.covers_with(&self.view_test(), p)
+        self.covers_with(&self.view_test(), self.slopes(), p)
     }
 
-    /// [`SensorCoverage::covers`] with the view's test built once ([`SensorCoverage::view_test`]).
-    fn covers_with(&self, within: &impl Fn(f64, f64) -> bool, p: [f64; 3]) -> bool {
+    /// [`SensorCoverage::covers`] with the view's test and slopes built once
+    /// ([`SensorCoverage::view_test`], [`SensorCoverage::slopes`]).
+    fn covers_with(
+        &self,
+        within: &impl Fn(f64, f64) -> bool,
+        slopes: Option<(f64, f64)>,
+        p: [f64; 3],
+    ) -> bool {
         let r = self.view.range_max_m;
-        let slopes = self.slopes();
         let Some(block) = self.cells.get(&cell(p, r)) else {
             return false;
         };
-        let fast = slopes.and_then(|(lo, hi)| block.covers(p, r, lo, hi));
+        let fast = slopes.and_then(|(lo, hi)| block_covers(&block.lanes, p, r, lo, hi));
         fast.unwrap_or_else(|| block_covers_exactly(block, within, p, r))
     }
 
@@ -292,16 +292,16 @@ impl SensorCoverage {
 
     /// [`SensorCoverage::covers`] for every point, in parallel.
     pub fn mask(&self, points_m: &[[f64; 3]]) -> Vec<bool> {
-        let within = self.view_test();
+        let (within, slopes) = (self.view_test(), self.slopes());
         points_m
             .par_iter()
-            .map(|&p| self.covers_with(&within, p))
+            .map(|&p| self.covers_with(&within, slopes, p))
             .collect()
     }
 }
 
 /// The scans of `block` one at a time with the view test `within` (atan2 where it must): the
-/// exact form behind [`ScanBlock::covers`], for the points it cannot decide.
+/// exact form behind [`block_covers`], for the points it cannot decide.
 fn block_covers_exactly(
     block: &ScanBlock,
     within: &impl Fn(f64, f64) -> bool,

@@ -608,13 +608,8 @@ mod tests {
         // A reconstruction on a ground plane and a wall, georeferenced far from the origin; ground
         // truth near it (answered by the grid), a few cells off (the outer rings), and metres
         // away (left to the tree). Every distance must be the brute-force one.
-        let mut s = 99u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::synth::rng::Rng::new(99, 0);
+        let mut rnd = || rng.f64();
         let o = [4.0e5, 5.2e6, 30.0];
         let mut recon = Vec::new();
         for _ in 0..20_000 {

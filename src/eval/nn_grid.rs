@@ -336,17 +336,6 @@ fn cell_of_key(key: u64) -> [i64; 3] {
 mod tests {
     use super::*;
 
-    /// A generator of reproducible pseudo-random numbers in [0, 1).
-    fn lcg(seed: u64) -> impl FnMut() -> f64 {
-        let mut s = seed;
-        move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        }
-    }
-
     fn brute_force_m(points: &[[f32; 3]], q: &[f64; 3]) -> f64 {
         points
             .iter()
@@ -372,7 +361,8 @@ mod tests {
     fn answers_equal_brute_force_and_far_queries_stay_unanswered() {
         // Points on two planes (a street and a wall) plus scattered points; queries near the
         // surfaces, on cell boundaries, and far away.
-        let mut r = lcg(7);
+        let mut rng = crate::synth::rng::Rng::new(7, 0);
+        let mut r = || rng.f64();
         let mut points: Vec<[f32; 3]> = Vec::new();
         for _ in 0..6000 {
             points.push([(r() * 20.0 - 10.0) as f32, (r() * 20.0 - 10.0) as f32, 0.0]);
