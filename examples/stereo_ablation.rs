@@ -2,9 +2,11 @@
 //! the final map (invalid pixels marked) for one regulariser, on Middlebury 2014 Motorcycle (bad-2
 //! over all and non-occluded GT pixels, missing = bad) and KITTI 00 frame 0 vs its projected LiDAR
 //! (D1, EPE, density). Parameters from the environment (defaults = `TgvParams::default()`):
-//! `REG=tv|tgv|tgv-tensor DATA=mb,kitti LAMBDA A1 A2 GAMMA BETA WIN OUTER INNER T0 T1 MAXC OCC`.
+//! `REG=tv|tgv|tgv-tensor DATA=mb,kitti LAMBDA A1 A2 GAMMA BETA WIN OUTER INNER T0 T1 MAXC OCC`,
+//! and the SGM stage's `PATHS P1 P2 UNIQ LR MEDIAN SPK SPKD` (see `sgm_params`).
 //! Run: `REG=tgv-tensor DATA=mb,kitti cargo run --release --example stereo_ablation`.
 use denser::depth::metrics::mask_from_middlebury;
+use denser::depth::sgm::SgmPaths;
 use denser::depth::tgv::{HoleFill, Regulariser, TgvMatcher, TgvParams};
 use denser::depth::{disparity_from_points, evaluate_disparity, SgmParams};
 use denser::io::kitti::KittiSequence;
@@ -13,6 +15,30 @@ fn env<T: std::str::FromStr>(k: &str, d: T) -> T {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(d)
+}
+/// The TGV matcher's SGM stage: `SgmParams::tgv_initialisation` with `PATHS=4|5|8 P1 P2 UNIQ
+/// LR (px, < 0 off) MEDIAN=0|1 SPK SPKD` from the environment (SGM's own defaults:
+/// `PATHS=5 UNIQ=0 LR=2`).
+fn sgm_params(nd: usize) -> SgmParams {
+    let d = SgmParams::tgv_initialisation();
+    let lr: i64 = env("LR", d.lr_max_diff_px.map_or(-1, i64::from));
+    SgmParams {
+        num_disparities: nd,
+        paths: match env("PATHS", 0u32) {
+            4 => SgmPaths::Four,
+            5 => SgmPaths::Five,
+            8 => SgmPaths::Eight,
+            _ => d.paths,
+        },
+        p1: env("P1", d.p1),
+        p2: env("P2", d.p2),
+        uniqueness_ratio: env("UNIQ", d.uniqueness_ratio),
+        lr_max_diff_px: u32::try_from(lr).ok(),
+        median_filter: env("MEDIAN", u8::from(d.median_filter)) != 0,
+        speckle_max_size_px: env("SPK", d.speckle_max_size_px),
+        speckle_max_diff_px: env("SPKD", d.speckle_max_diff_px),
+        ..d
+    }
 }
 fn main() {
     let reg = match std::env::var("REG").unwrap_or("tgv-tensor".into()).as_str() {
@@ -40,10 +66,7 @@ fn main() {
                 Ok("all") => HoleFill::All,
                 _ => HoleFill::Visible,
             },
-            sgm: SgmParams {
-                num_disparities: nd,
-                ..SgmParams::default()
-            },
+            sgm: sgm_params(nd),
         })
         .unwrap()
     };
@@ -123,8 +146,8 @@ fn main() {
         ] {
             let m = evaluate_disparity(d, &gt, None).unwrap();
             println!(
-                "KITTI {name:6} D1 {:.2} EPE {:.3} dens {:.1} bad3 {:.2}",
-                m.d1_pct, m.epe_px, m.density_pct, m.bad3_pct
+                "KITTI {name:6} bad2 {:.2} D1 {:.2} EPE {:.3} dens {:.1} bad3 {:.2}",
+                m.bad2_pct, m.d1_pct, m.epe_px, m.density_pct, m.bad3_pct
             );
         }
         println!("KITTI time {dt:.2}s");

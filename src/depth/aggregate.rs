@@ -16,7 +16,12 @@
 //! With 5 paths (OpenCV's 3-way mode) the forward pass is the same, and the second pass carries
 //! the right→left path alone: it needs no previous row, so it follows the forward pass down the
 //! image, never claims a row, and adds its path to each stored row and selects it (the light
-//! pass takes all the selection work).
+//! pass takes all the selection work). Since it trails the forward pass closely, the stored rows
+//! then live in a ring of [`RING_ROWS`] rows that stays in the cache (the forward pass waits for
+//! the slot of row `y − RING_ROWS` to be consumed), not in a `w·h·D` buffer written to memory and
+//! read back. The forward pass never waits for a pass that has not started: when `rayon::join`
+//! runs the two closures one after the other, the forward pass finds the second one not begun at
+//! the first full ring and stores the remaining rows in place (`full_from`), as 8 paths always do.
 //!
 //! Sums of integers do not depend on the order of addition, so the result is bit-identical to
 //! summing the paths one after the other (`tests/depth/sgm.rs` checks it against a direct
@@ -29,7 +34,7 @@
 
 use super::sgm::{CostVolume, SgmParams, SgmPaths, SubpixelFit};
 use crate::frame::Image;
-use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicUsize, Ordering};
 
 /// Sentinel for "no such disparity" in padded path buffers; larger than any path cost plus P2,
 /// small enough that adding P1 cannot overflow `u16`.
@@ -39,6 +44,9 @@ pub(crate) const BIG: u16 = 16_384;
 const FREE: u8 = 0;
 const CLAIMED: u8 = 1;
 const STORED: u8 = 2;
+/// A stored row the second pass has finished with (5 paths with a ring of rows: its slot may be
+/// written again).
+const CONSUMED: u8 = 3;
 
 /// P1, P2 and the optional intensity adaptation, as integers for the inner loops.
 #[derive(Clone, Copy, Debug)]

@@ -139,26 +139,29 @@ impl StereoMethod {
     /// A matcher of this kind searching `num_disparities` disparities from 0, other parameters at
     /// their defaults (variational methods fill [`tgv::HoleFill::Visible`] holes).
     pub fn estimator(&self, num_disparities: usize) -> Result<Box<dyn DisparityEstimator>> {
-        let paths = SgmParams::default().paths;
-        self.estimator_with_fill(num_disparities, tgv::HoleFill::Visible, paths)
+        self.estimator_with_fill(num_disparities, tgv::HoleFill::Visible, None)
     }
 
     /// As [`StereoMethod::estimator`], with the variational methods' hole filling (ignored by
     /// SGM) and the SGM aggregation paths (of SGM, and of the variational methods' SGM
-    /// initialisation) chosen.
+    /// initialisation) chosen; `None`: the method's default ([`SgmParams::default`] for SGM,
+    /// [`SgmParams::tgv_initialisation`] for the variational methods).
     pub fn estimator_with_fill(
         &self,
         num_disparities: usize,
         hole_fill: tgv::HoleFill,
-        paths: sgm::SgmPaths,
+        paths: Option<sgm::SgmPaths>,
     ) -> Result<Box<dyn DisparityEstimator>> {
         match self.tgv_matcher(num_disparities, hole_fill, paths)? {
             Some(m) => Ok(Box::new(m)),
-            None => Ok(Box::new(SgmMatcher::new(SgmParams {
-                num_disparities,
-                paths,
-                ..SgmParams::default()
-            })?)),
+            None => {
+                let d = SgmParams::default();
+                Ok(Box::new(SgmMatcher::new(SgmParams {
+                    num_disparities,
+                    paths: paths.unwrap_or(d.paths),
+                    ..d
+                })?))
+            }
         }
     }
 
@@ -168,7 +171,7 @@ impl StereoMethod {
         &self,
         num_disparities: usize,
         hole_fill: tgv::HoleFill,
-        paths: sgm::SgmPaths,
+        paths: Option<sgm::SgmPaths>,
     ) -> Result<Option<TgvMatcher>> {
         let regulariser = match self {
             StereoMethod::Sgm => return Ok(None),
@@ -179,10 +182,13 @@ impl StereoMethod {
         Ok(Some(TgvMatcher::new(TgvParams {
             regulariser,
             hole_fill,
-            sgm: SgmParams {
-                num_disparities,
-                paths,
-                ..SgmParams::default()
+            sgm: {
+                let d = SgmParams::tgv_initialisation();
+                SgmParams {
+                    num_disparities,
+                    paths: paths.unwrap_or(d.paths),
+                    ..d
+                }
             },
             ..TgvParams::default()
         })?))

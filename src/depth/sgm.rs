@@ -103,9 +103,11 @@ pub struct SgmParams {
 }
 
 impl Default for SgmParams {
-    /// KITTI-sized defaults: 128 disparities from 0, 9×7 binary census, 8 paths, equiangular
-    /// sub-pixel fit, P1 = 14, P2 = 110 adapted with scale 16, 5 % uniqueness, LR check at
-    /// 1 px, median on, speckles ≤ 100 px (tuned on Middlebury 2014 Motorcycle, quarter size).
+    /// KITTI-sized defaults: 128 disparities from 0, 9×7 binary census, 5 paths (OpenCV 3-way's),
+    /// equiangular sub-pixel fit, P1 = 14, P2 = 110 adapted with scale 16, no uniqueness test,
+    /// LR check at 2 px, median on, speckles ≤ 100 px. Penalties and filters were tuned on
+    /// Middlebury 2014 Motorcycle (quarter size); paths, uniqueness and LR tolerance on it and
+    /// KITTI 00/0 together (`docs/bench/stereo.md`, run of 2026-11-26).
     fn default() -> Self {
         SgmParams {
             min_disparity_px: 0,
@@ -114,11 +116,11 @@ impl Default for SgmParams {
             p1: 14,
             p2: 110,
             p2_intensity_scale: Some(16),
-            paths: SgmPaths::Eight,
+            paths: SgmPaths::Five,
             subpixel: SubpixelFit::Equiangular,
             subpixel_cost_window: 5,
-            uniqueness_ratio: 0.05,
-            lr_max_diff_px: Some(1),
+            uniqueness_ratio: 0.0,
+            lr_max_diff_px: Some(2),
             median_filter: true,
             speckle_max_size_px: 100,
             speckle_max_diff_px: 1.0,
@@ -127,6 +129,20 @@ impl Default for SgmParams {
 }
 
 impl SgmParams {
+    /// The SGM stage of the variational matchers (`TgvParams::default().sgm`): 8 paths, 5 %
+    /// uniqueness and the LR check at 1 px, the SGM defaults before 2026-11-26. TGV anchors its
+    /// data term on the pixels SGM keeps, so it wants fewer, surer ones than SGM's own output:
+    /// with SGM's defaults its dense result on Motorcycle went from 9.18 to 10.73 % bad-2.0
+    /// (`docs/bench/stereo.md`, run of 2026-11-26).
+    pub fn tgv_initialisation() -> Self {
+        SgmParams {
+            paths: SgmPaths::Eight,
+            uniqueness_ratio: 0.05,
+            lr_max_diff_px: Some(1),
+            ..SgmParams::default()
+        }
+    }
+
     /// Checks ranges (disparity count, penalties, ratios).
     pub fn validate(&self) -> Result<()> {
         self.census.validate()?;
@@ -281,7 +297,6 @@ fn cost_row_impl(
     out: &mut [u8],
 ) {
     let w = l.len() / words;
-    out.fill(max_cost);
     // The right row reversed, so that the slices of a pixel read it forwards:
     // r[xr0 − k] = rev[w − 1 − xr0 + k] (one word per pixel; two-word signatures interleave).
     let mut rev = vec![0u64; w * words];
@@ -293,7 +308,11 @@ fn cost_row_impl(
         // Slices k ∈ [k0, k1) have their right pixel x − dmin − k inside [0, w).
         let k0 = (x as i64 - dmin as i64 - (w as i64 - 1)).max(0) as usize;
         let k1 = ((x as i64 - dmin as i64 + 1).max(0) as usize).min(nd);
-        if k0 >= k1 {
+        // Slices whose right pixel is outside the image cost the most.
+        let k0 = k0.min(k1);
+        o[..k0].fill(max_cost);
+        o[k1..].fill(max_cost);
+        if k0 == k1 {
             continue;
         }
         // Right pixel of slice k is xr0 − k, at rev index (w − 1 − xr0) + k, which is ≥ 0 for

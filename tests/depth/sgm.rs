@@ -338,15 +338,25 @@ fn streamed_aggregation_equals_direct_eq13() {
             ..params
         })
         .unwrap();
-        let fused = unfiltered.estimate(&left, &right).unwrap();
         let (d, c) = select_disparities(&direct, Some(&volume), w, h, &params).unwrap();
         let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        assert_eq!(bits(&fused.disparity_px.data), bits(&d.data), "{paths:?}");
-        assert_eq!(
-            bits(&fused.confidence.unwrap().data),
-            bits(&c.data),
-            "{paths:?}"
-        );
+        // One worker runs the passes one after the other (5 paths: the ring falls back to rows
+        // in place), two run them at once (through the ring).
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let fused = pool.install(|| unfiltered.estimate(&left, &right).unwrap());
+            let case = format!("{paths:?}, {threads} thread(s)");
+            assert_eq!(bits(&fused.disparity_px.data), bits(&d.data), "{case}");
+            assert_eq!(
+                bits(&fused.confidence.unwrap().data),
+                bits(&c.data),
+                "{case}"
+            );
+        }
+        let fused = unfiltered.estimate(&left, &right).unwrap();
         assert!(
             fused
                 .disparity_px
@@ -357,6 +367,103 @@ fn streamed_aggregation_equals_direct_eq13() {
                 > (w * h / 2) as usize
         );
     }
+}
+
+/// Speckle removal through runs and union–find removes exactly what a flood fill from every
+/// pixel removes: random images of blocky regions with quarter-pixel jitter (differences equal
+/// to the thresholds included), NaN holes, ±inf and size limits around the region sizes.
+#[test]
+fn speckle_runs_equal_a_flood_fill() {
+    use denser::depth::sgm::remove_speckles;
+    fn flood_fill(d: &mut [f32], w: usize, h: usize, max_size: usize, tol: f32) -> usize {
+        let mut seen = vec![false; w * h];
+        let mut removed = 0;
+        for start in 0..w * h {
+            if seen[start] || d[start].is_nan() {
+                continue;
+            }
+            seen[start] = true;
+            let (mut stack, mut region) = (vec![start], vec![]);
+            while let Some(i) = stack.pop() {
+                region.push(i);
+                let (x, y) = (i % w, i / w);
+                let mut near = vec![];
+                if x > 0 {
+                    near.push(i - 1);
+                }
+                if x + 1 < w {
+                    near.push(i + 1);
+                }
+                if y > 0 {
+                    near.push(i - w);
+                }
+                if y + 1 < h {
+                    near.push(i + w);
+                }
+                for j in near {
+                    if !seen[j] && !d[j].is_nan() && (d[j] - d[i]).abs() <= tol {
+                        seen[j] = true;
+                        stack.push(j);
+                    }
+                }
+            }
+            if region.len() <= max_size {
+                for &i in &region {
+                    d[i] = f32::NAN;
+                }
+                removed += region.len();
+            }
+        }
+        removed
+    }
+    let mut rng = common::Rng(17);
+    let mut total = 0;
+    for (w, h) in [(61, 43), (1, 30), (30, 1), (97, 64)] {
+        // Blocks of 1–6 pixels with their own level, jittered per pixel.
+        let levels: Vec<f32> = (0..w * h)
+            .map(|_| (rng.uniform() * 8.0).floor() as f32)
+            .collect();
+        let bw = 1 + (rng.uniform() * 6.0) as usize;
+        let data: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let u = rng.uniform();
+                if u < 0.1 {
+                    f32::NAN
+                } else if u < 0.105 {
+                    f32::INFINITY
+                } else if u < 0.11 {
+                    f32::NEG_INFINITY
+                } else {
+                    let (x, y) = (i % w, i / w);
+                    // Quarter steps: differences hit the thresholds exactly.
+                    levels[(y / bw) * w + x / bw] + (rng.uniform() * 3.0).floor() as f32 * 0.25
+                }
+            })
+            .collect();
+        for (max_size, tol) in [
+            (0, 1.0),
+            (1, 1.0),
+            (4, 0.5),
+            (20, 1.0),
+            (100, 2.0),
+            (5000, 0.3),
+        ] {
+            let mut want = data.clone();
+            let n_want = flood_fill(&mut want, w, h, max_size, tol);
+            let mut got = Image {
+                width: w as u32,
+                height: h as u32,
+                data: data.clone(),
+            };
+            let n_got = remove_speckles(&mut got, max_size, tol);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let case = format!("{w}×{h}, ≤ {max_size} px, ±{tol}");
+            assert_eq!(n_got, n_want, "{case}");
+            assert_eq!(bits(&got.data), bits(&want), "{case}");
+            total += n_got;
+        }
+    }
+    assert!(total > 1000, "the cases removed {total} pixels");
 }
 
 /// The vectorised 3×3 median equals sorting each window's valid values (`total_cmp`) and

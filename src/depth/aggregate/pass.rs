@@ -94,6 +94,53 @@ pub(crate) struct AggregateScratch {
     passes: [PassScratch; 2],
 }
 
+/// Rows of the 5-path ring ([`super`]): 8 rows of `w·D` sums (2.5 MB at 1241 × 128), in the
+/// last-level cache while the second pass reads them.
+pub(crate) const RING_ROWS: usize = 8;
+
+/// Where the stored rows live: a ring of [`RING_ROWS`] slots for rows before `full_from`, the
+/// row's own place in the buffer from there on (always, without a ring).
+pub(super) struct RowPlaces<'a> {
+    /// Whether rows before `full_from` share the ring's slots.
+    pub(super) ring: bool,
+    /// First row stored in place; set (once, by the forward pass, before it publishes that row
+    /// `STORED`) when the second pass had not started at the first full ring.
+    pub(super) full_from: &'a AtomicUsize,
+    /// Set by the second pass when it starts.
+    pub(super) started: &'a AtomicBool,
+}
+
+impl RowPlaces<'_> {
+    /// The buffer row of image row `y` (read after an acquire load of `y`'s `STORED`, which
+    /// orders it after the `full_from` store that concerns `y`).
+    fn slot(&self, y: usize) -> usize {
+        if self.ring && y < self.full_from.load(Ordering::Relaxed) {
+            y % RING_ROWS
+        } else {
+            y
+        }
+    }
+
+    /// The forward pass, before it stores row `y`: waits until the row that last used `y`'s ring
+    /// slot is consumed, or, when the second pass has not started, stores from `y` on in place.
+    fn make_room(&self, claims: &[AtomicU8], y: usize) {
+        if !self.ring || y < RING_ROWS || y >= self.full_from.load(Ordering::Relaxed) {
+            return;
+        }
+        let before = &claims[y - RING_ROWS];
+        if before.load(Ordering::Acquire) == CONSUMED {
+            return;
+        }
+        if !self.started.load(Ordering::Acquire) {
+            // Published to the second pass by the release store of row y's STORED.
+            self.full_from.store(y, Ordering::Relaxed);
+            return;
+        }
+        // The second pass is running and needs no row after y − 1: it gets there.
+        wait_for(before, CONSUMED);
+    }
+}
+
 /// Inputs of both passes.
 pub(super) struct Job<'a> {
     pub(super) volume: &'a CostVolume,
@@ -106,13 +153,15 @@ pub(super) struct Job<'a> {
     pub(super) finish: Finish,
     pub(super) claims: &'a [AtomicU8],
     pub(super) partial: SharedRows<u16>,
+    pub(super) places: RowPlaces<'a>,
     pub(super) disparity: SharedRows<f32>,
     pub(super) confidence: SharedRows<f32>,
 }
 
-pub(super) fn wait_stored(claim: &AtomicU8) {
+/// Waits until `claim` reaches `state` (acquire).
+pub(super) fn wait_for(claim: &AtomicU8, state: u8) {
     let mut spins = 0u32;
-    while claim.load(Ordering::Acquire) != STORED {
+    while claim.load(Ordering::Acquire) != state {
         if spins < 256 {
             std::hint::spin_loop();
             spins += 1;
@@ -206,13 +255,16 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                 .is_ok();
         // Second to the row, with a fused kernel: S of each pixel and its winner at once.
         let fused = !first && job.finish == Finish::Select && (N == 4 || N == 1);
-        if !first {
-            wait_stored(&job.claims[y]);
+        if first {
+            job.places.make_room(job.claims, y);
+        } else {
+            wait_for(&job.claims[y], STORED);
             select.reset(w);
         }
         // SAFETY: the claim protocol (module docs): the claimer writes the row until it
-        // publishes STORED; the other pass uses it only after seeing STORED.
-        let stored = unsafe { job.partial.row(y) };
+        // publishes STORED; the other pass uses it only after seeing STORED, and a ring slot is
+        // written again only after the row it held was published CONSUMED.
+        let stored = unsafe { job.partial.row(job.places.slot(y)) };
         for i in 0..w {
             let x = if forward { i } else { w - 1 - i };
             let c = &cost_row[x * nd..(x + 1) * nd];
@@ -379,6 +431,9 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
             // SAFETY: only the second pass to reach row y writes its output row.
             let (disp, conf) = unsafe { (job.disparity.row(y), job.confidence.row(y)) };
             select.finish(y, Some(vol), w, nd, job.params, disp, conf);
+            if job.places.ring {
+                job.claims[y].store(CONSUMED, Ordering::Release);
+            }
         }
     }
 }
@@ -450,21 +505,35 @@ pub(super) fn run_passes(
         *partial = vec![0u16; n];
     }
     let claims: Vec<AtomicU8> = (0..h).map(|_| AtomicU8::new(FREE)).collect();
+    let dxs = predecessors(params.paths);
+    // The ring when the second pass selects right behind the forward pass (5 paths).
+    let (full_from, started) = (AtomicUsize::new(h), AtomicBool::new(false));
     let job = Job {
         volume,
         image,
         params,
         pen: Penalties::of(params),
-        dxs: predecessors(params.paths),
+        dxs,
         finish,
         claims: &claims,
         partial: SharedRows::new(partial, w * nd, h),
+        places: RowPlaces {
+            ring: finish == Finish::Select && dxs[1].is_empty(),
+            full_from: &full_from,
+            started: &started,
+        },
         // Empty outputs when summing (no row is selected).
         disparity: SharedRows::new(disparity, w, if finish == Finish::Select { h } else { 0 }),
         confidence: SharedRows::new(confidence, w, if finish == Finish::Select { h } else { 0 }),
     };
     let [fwd, bwd] = &mut scratch.passes;
-    rayon::join(|| run_pass(&job, true, fwd), || run_pass(&job, false, bwd));
+    rayon::join(
+        || run_pass(&job, true, fwd),
+        || {
+            started.store(true, Ordering::Release);
+            run_pass(&job, false, bwd)
+        },
+    );
 }
 
 /// Semi-global matching on `volume` (left image `image`): aggregation and selection streamed

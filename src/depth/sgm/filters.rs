@@ -193,55 +193,87 @@ pub(crate) fn sort9(v: &mut [i32; 9]) {
 
 /// Removes speckles: 4-connected regions (neighbours differing by at most `max_diff_px`) of at
 /// most `max_size_px` valid pixels become NaN. Returns how many pixels were removed.
+///
+/// Regions are found as runs: each row splits into maximal runs of valid pixels whose
+/// horizontal neighbours are connected, the runs of consecutive rows are joined (union–find)
+/// where a pixel is connected to the one above it, and a region's size is the sum of its runs'
+/// lengths. The same regions as a flood fill from every pixel, in a few operations per pixel.
 pub fn remove_speckles(disparity: &mut Image<f32>, max_size_px: usize, max_diff_px: f32) -> usize {
     let w = disparity.width as usize;
     let h = disparity.height as usize;
     if max_size_px == 0 || w == 0 || h == 0 {
         return 0;
     }
-    let mut label = vec![0u32; w * h];
-    let mut stack: Vec<usize> = Vec::new();
-    let mut region: Vec<usize> = Vec::new();
-    let mut next = 1u32;
-    let mut removed = 0;
-    for start in 0..w * h {
-        if label[start] != 0 || disparity.data[start].is_nan() {
-            continue;
+    const NONE: u32 = u32::MAX;
+    let connected = |a: f32, b: f32| (a - b).abs() <= max_diff_px;
+    // Runs (row, first column, end column), their union–find parents and region sizes.
+    let mut runs: Vec<(u32, u32, u32)> = Vec::new();
+    let mut parent: Vec<u32> = Vec::new();
+    let mut size: Vec<u32> = Vec::new();
+    fn root(parent: &mut [u32], mut r: u32) -> u32 {
+        while parent[r as usize] != r {
+            let up = parent[parent[r as usize] as usize];
+            parent[r as usize] = up;
+            r = up;
         }
-        label[start] = next;
-        stack.push(start);
-        region.clear();
-        while let Some(i) = stack.pop() {
-            region.push(i);
-            let d = disparity.data[i];
-            let (x, y) = (i % w, i / w);
-            let mut visit = |j: usize| {
-                let dj = disparity.data[j];
-                if label[j] == 0 && !dj.is_nan() && (dj - d).abs() <= max_diff_px {
-                    label[j] = next;
-                    stack.push(j);
+        r
+    }
+    // The run of each pixel of the previous and the current row.
+    let mut above = vec![NONE; w];
+    let mut here = vec![NONE; w];
+    for y in 0..h {
+        let row = &disparity.data[y * w..(y + 1) * w];
+        let mut x = 0;
+        while x < w {
+            if row[x].is_nan() {
+                here[x] = NONE;
+                x += 1;
+                continue;
+            }
+            let x0 = x;
+            let id = runs.len() as u32;
+            here[x] = id;
+            x += 1;
+            while x < w && !row[x].is_nan() && connected(row[x], row[x - 1]) {
+                here[x] = id;
+                x += 1;
+            }
+            runs.push((y as u32, x0 as u32, x as u32));
+            parent.push(id);
+            size.push((x - x0) as u32);
+        }
+        if y > 0 {
+            let prev = &disparity.data[(y - 1) * w..y * w];
+            let mut last = (NONE, NONE);
+            for x in 0..w {
+                let (a, b) = (here[x], above[x]);
+                if a == NONE || b == NONE || (a, b) == last || !connected(row[x], prev[x]) {
+                    continue;
                 }
-            };
-            if x > 0 {
-                visit(i - 1);
-            }
-            if x + 1 < w {
-                visit(i + 1);
-            }
-            if y > 0 {
-                visit(i - w);
-            }
-            if y + 1 < h {
-                visit(i + w);
+                last = (a, b);
+                let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+                if ra != rb {
+                    // The larger region becomes the root.
+                    let (big, small) = if size[ra as usize] >= size[rb as usize] {
+                        (ra, rb)
+                    } else {
+                        (rb, ra)
+                    };
+                    parent[small as usize] = big;
+                    size[big as usize] += size[small as usize];
+                }
             }
         }
-        if region.len() <= max_size_px {
-            for &i in &region {
-                disparity.data[i] = f32::NAN;
-            }
-            removed += region.len();
+        std::mem::swap(&mut above, &mut here);
+    }
+    let mut removed = 0;
+    for (i, &(y, x0, x1)) in runs.iter().enumerate() {
+        let r = root(&mut parent, i as u32);
+        if size[r as usize] as usize <= max_size_px {
+            let row = y as usize * w;
+            disparity.data[row + x0 as usize..row + x1 as usize].fill(f32::NAN);
+            removed += (x1 - x0) as usize;
         }
-        next += 1;
     }
     removed
 }
