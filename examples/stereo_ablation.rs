@@ -16,11 +16,10 @@ fn env<T: std::str::FromStr>(k: &str, d: T) -> T {
         .and_then(|v| v.parse().ok())
         .unwrap_or(d)
 }
-/// The TGV matcher's SGM stage: `SgmParams::tgv_initialisation` with `PATHS=4|5|8 P1 P2 UNIQ
-/// LR (px, < 0 off) MEDIAN=0|1 SPK SPKD` from the environment (SGM's own defaults:
-/// `PATHS=5 UNIQ=0 LR=2`).
+/// The SGM stage: the defaults with `PATHS=4|5|8 P1 P2 UNIQ LR (px, < 0 off) MEDIAN=0|1 SPK
+/// SPKD` from the environment.
 fn sgm_params(nd: usize) -> SgmParams {
-    let d = SgmParams::tgv_initialisation();
+    let d = SgmParams::default();
     let lr: i64 = env("LR", d.lr_max_diff_px.map_or(-1, i64::from));
     SgmParams {
         num_disparities: nd,

@@ -63,26 +63,17 @@ fn main() {
     println!("{}×{}, {nd} disparities, {runs} runs", l.width, l.height);
     // PATHS=4|5|8: the aggregation directions (default: the library's).
     let paths = match std::env::var("PATHS").as_deref() {
-        Ok("4") => Some(SgmPaths::Four),
-        Ok("5") => Some(SgmPaths::Five),
-        Ok("8") => Some(SgmPaths::Eight),
-        _ => None,
+        Ok("4") => SgmPaths::Four,
+        Ok("5") => SgmPaths::Five,
+        Ok("8") => SgmPaths::Eight,
+        _ => SgmParams::default().paths,
     };
+    println!("{paths:?} paths");
     let sp = SgmParams {
         num_disparities: nd,
-        paths: paths.unwrap_or(SgmParams::default().paths),
+        paths,
         ..SgmParams::default()
     };
-    // The variational matcher's own SGM stage.
-    let tgv_sp = SgmParams {
-        num_disparities: nd,
-        paths: paths.unwrap_or(SgmParams::tgv_initialisation().paths),
-        ..SgmParams::tgv_initialisation()
-    };
-    println!(
-        "{:?} paths (SGM), {:?} (TGV's SGM stage)",
-        sp.paths, tgv_sp.paths
-    );
     let sgm = SgmMatcher::new(sp).expect("parameters");
     // ONLY=sgm|tgv: one estimate and nothing else (for instruction counts under callgrind).
     match std::env::var("ONLY").as_deref() {
@@ -94,7 +85,7 @@ fn main() {
         }
         Ok("tgv") => {
             let tgv = TgvMatcher::new(TgvParams {
-                sgm: tgv_sp,
+                sgm: sp,
                 ..TgvParams::default()
             })
             .expect("parameters");
@@ -148,7 +139,7 @@ fn main() {
         pb.iterate(&u0, 0.1, 10).expect("iterate")
     });
     let tgv = TgvMatcher::new(TgvParams {
-        sgm: tgv_sp,
+        sgm: sp,
         ..TgvParams::default()
     })
     .expect("parameters");

@@ -160,14 +160,13 @@ impl Backend {
 
     /// A matcher for `method` over `num_disparities` disparities with `fill` hole filling: the
     /// variational methods run on the GPU when the backend has one; SGM on the CPU. `paths`: the
-    /// SGM aggregation directions (SGM's, and those of the variational methods' initialisation;
-    /// `None`: the method's default).
+    /// SGM aggregation directions (SGM's, and those of the variational methods' initialisation).
     pub fn stereo_matcher(
         &self,
         method: StereoMethod,
         num_disparities: usize,
         fill: HoleFill,
-        paths: Option<SgmPaths>,
+        paths: SgmPaths,
     ) -> Result<Box<dyn DisparityEstimator>> {
         match (method.tgv_matcher(num_disparities, fill, paths)?, &self.gpu) {
             (Some(m), Some(ctx)) => Ok(Box::new(TgvMatcherGpu::new(ctx.clone(), m))),

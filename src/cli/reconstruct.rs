@@ -236,7 +236,12 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     let stereo = match job.source {
         RangeSource::Stereo => Some(
             backend
-                .stereo_matcher(job.stereo_method, job.num_disparities, HoleFill::None, None)
+                .stereo_matcher(
+                    job.stereo_method,
+                    job.num_disparities,
+                    HoleFill::None,
+                    denser::depth::SgmParams::default().paths,
+                )
                 .with_context(context)?,
         ),
         _ => None,

@@ -5,6 +5,7 @@ use super::{DeviceArgs, Outcome, StereoArg};
 use anyhow::{bail, Context, Result};
 use denser::depth::sgm::SgmPaths;
 use denser::depth::tgv::HoleFill;
+use denser::depth::SgmParams;
 use denser::depth::{DisparityMap, StereoMethod, StereoMetrics};
 use denser::frame::Image;
 use denser::io::calib::read_stereo_calibration;
@@ -34,9 +35,8 @@ pub(crate) struct Args {
     #[arg(long, default_value_t = 128)]
     num_disparities: usize,
     /// SGM aggregation directions (of sgm, and of the variational methods' SGM initialisation):
-    /// 4 (→ ← ↓ ↑), 5 (→ ← ↓ ↘ ↙, OpenCV StereoSGBM's 3-way mode) or 8 (all directions; about
-    /// 1.4× the time, see docs/bench/stereo.md). Default: 5 for sgm, 8 for the initialisation of
-    /// tv/tgv/tgv-tensor.
+    /// 4 (→ ← ↓ ↑), 5 (→ ← ↓ ↘ ↙, OpenCV StereoSGBM's 3-way mode: faster, see
+    /// docs/bench/stereo.md) or 8 (all directions). Default: 8.
     #[arg(long, value_parser = parse_sgm_paths)]
     sgm_paths: Option<SgmPaths>,
     /// tv/tgv/tgv-tensor: keep occluded and poorly matching pixels (dense output for benchmarks
@@ -144,7 +144,8 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     } else {
         HoleFill::Visible
     };
-    let estimator = backend.stereo_matcher(method, a.num_disparities, fill, a.sgm_paths)?;
+    let paths = a.sgm_paths.unwrap_or(SgmParams::default().paths);
+    let estimator = backend.stereo_matcher(method, a.num_disparities, fill, paths)?;
     let started = std::time::Instant::now();
     let map = estimator.estimate(&left, &right).with_context(context)?;
     let matching_s = started.elapsed().as_secs_f64();

@@ -139,29 +139,26 @@ impl StereoMethod {
     /// A matcher of this kind searching `num_disparities` disparities from 0, other parameters at
     /// their defaults (variational methods fill [`tgv::HoleFill::Visible`] holes).
     pub fn estimator(&self, num_disparities: usize) -> Result<Box<dyn DisparityEstimator>> {
-        self.estimator_with_fill(num_disparities, tgv::HoleFill::Visible, None)
+        let paths = SgmParams::default().paths;
+        self.estimator_with_fill(num_disparities, tgv::HoleFill::Visible, paths)
     }
 
     /// As [`StereoMethod::estimator`], with the variational methods' hole filling (ignored by
     /// SGM) and the SGM aggregation paths (of SGM, and of the variational methods' SGM
-    /// initialisation) chosen; `None`: the method's default ([`SgmParams::default`] for SGM,
-    /// [`SgmParams::tgv_initialisation`] for the variational methods).
+    /// initialisation) chosen.
     pub fn estimator_with_fill(
         &self,
         num_disparities: usize,
         hole_fill: tgv::HoleFill,
-        paths: Option<sgm::SgmPaths>,
+        paths: sgm::SgmPaths,
     ) -> Result<Box<dyn DisparityEstimator>> {
         match self.tgv_matcher(num_disparities, hole_fill, paths)? {
             Some(m) => Ok(Box::new(m)),
-            None => {
-                let d = SgmParams::default();
-                Ok(Box::new(SgmMatcher::new(SgmParams {
-                    num_disparities,
-                    paths: paths.unwrap_or(d.paths),
-                    ..d
-                })?))
-            }
+            None => Ok(Box::new(SgmMatcher::new(SgmParams {
+                num_disparities,
+                paths,
+                ..SgmParams::default()
+            })?)),
         }
     }
 
@@ -171,7 +168,7 @@ impl StereoMethod {
         &self,
         num_disparities: usize,
         hole_fill: tgv::HoleFill,
-        paths: Option<sgm::SgmPaths>,
+        paths: sgm::SgmPaths,
     ) -> Result<Option<TgvMatcher>> {
         let regulariser = match self {
             StereoMethod::Sgm => return Ok(None),
@@ -182,13 +179,10 @@ impl StereoMethod {
         Ok(Some(TgvMatcher::new(TgvParams {
             regulariser,
             hole_fill,
-            sgm: {
-                let d = SgmParams::tgv_initialisation();
-                SgmParams {
-                    num_disparities,
-                    paths: paths.unwrap_or(d.paths),
-                    ..d
-                }
+            sgm: SgmParams {
+                num_disparities,
+                paths,
+                ..SgmParams::default()
             },
             ..TgvParams::default()
         })?))

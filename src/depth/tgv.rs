@@ -149,7 +149,7 @@ impl Default for TgvParams {
             max_cost_fraction: 0.35,
             occlusion_tolerance_px: 0.5,
             hole_fill: HoleFill::Visible,
-            sgm: SgmParams::tgv_initialisation(),
+            sgm: SgmParams::default(),
         }
     }
 }

@@ -354,7 +354,7 @@ fn stereo_sgm_paths_flag_selects_the_library_mode() {
         (Some("4"), SgmPaths::Four),
         (Some("5"), SgmPaths::Five),
         (Some("8"), SgmPaths::Eight),
-        (None, SgmPaths::Five),
+        (None, SgmPaths::Eight),
     ] {
         let got = run(&flag.map_or(vec![], |f| vec!["--sgm-paths", f]));
         let want = SgmMatcher::new(SgmParams {

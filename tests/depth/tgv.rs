@@ -219,7 +219,7 @@ fn tgv(reg: Regulariser, nd: usize) -> TgvMatcher {
         regulariser: reg,
         sgm: SgmParams {
             num_disparities: nd,
-            ..SgmParams::tgv_initialisation()
+            ..SgmParams::default()
         },
         ..TgvParams::default()
     })
@@ -463,7 +463,7 @@ fn hole_fill_policies_nest() {
             hole_fill: fill,
             sgm: SgmParams {
                 num_disparities: 48,
-                ..SgmParams::tgv_initialisation()
+                ..SgmParams::default()
             },
             ..TgvParams::default()
         })

@@ -55,11 +55,10 @@ fn motorcycle() -> Option<(GreyImage, GreyImage, Image<f32>, Image<bool>)> {
     Some((read("im0.png"), read("im1.png"), gt, nocc))
 }
 
-/// The variational matchers' SGM stage over `num_disparities`.
 fn sgm_params(num_disparities: usize) -> SgmParams {
     SgmParams {
         num_disparities,
-        ..SgmParams::tgv_initialisation()
+        ..SgmParams::default()
     }
 }
 
