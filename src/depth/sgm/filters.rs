@@ -4,6 +4,25 @@
 #[allow(unused_imports)]
 use super::*;
 
+/// Calls `$exchange!` with the 25 comparators of the 9-input sorting network (depth 7,
+/// Dobbelaere's list of optimal networks) as pairs of the nine locals named: one list for the
+/// scalar [`sort9`] and the lane network of [`median_lanes`].
+#[rustfmt::skip]
+macro_rules! sort9_network {
+    ($exchange:ident; $k0:ident, $k1:ident, $k2:ident, $k3:ident, $k4:ident, $k5:ident, $k6:ident,
+     $k7:ident, $k8:ident) => {
+        $exchange!(
+            ($k0, $k3), ($k1, $k7), ($k2, $k5), ($k4, $k8),
+            ($k0, $k7), ($k2, $k4), ($k3, $k8), ($k5, $k6),
+            ($k0, $k2), ($k1, $k3), ($k4, $k5), ($k7, $k8),
+            ($k1, $k4), ($k3, $k6), ($k5, $k7),
+            ($k0, $k1), ($k2, $k4), ($k3, $k5), ($k6, $k8),
+            ($k2, $k3), ($k4, $k5), ($k6, $k7),
+            ($k1, $k2), ($k3, $k4), ($k5, $k6)
+        )
+    };
+}
+
 /// 3×3 median over the valid (finite) neighbours of every valid pixel; invalid pixels stay NaN.
 /// An even count averages the two middle values. Values are ordered as `f32::total_cmp` orders
 /// them (through their integer keys, sorted by a 25-comparator network: no branches), 16 pixels
@@ -111,26 +130,43 @@ pub(super) fn median_of_sorted(key: impl Fn(usize) -> i32, n: usize) -> f32 {
 #[inline(always)]
 pub(super) fn median_lanes(rows: [&[f32]; 3], row_ok: [bool; 3], x0: usize, out: &mut [f32]) {
     const L: usize = MEDIAN_LANES;
+    // The keys of one neighbour's 16 lanes (i32::MAX where invalid) and their validity, from a
+    // fixed-size array and integer tests only, so that the lanes vectorise.
+    #[inline(always)]
+    fn key_lanes(src: &[f32], ok: bool) -> ([i32; L], [i32; L]) {
+        let src: &[f32; L] = src.try_into().expect("16 lanes");
+        let (mut keys, mut valid) = ([0i32; L], [0i32; L]);
+        for l in 0..L {
+            // Not NaN: exponent and mantissa at most those of infinity.
+            let v = ok & (src[l].to_bits() & 0x7fff_ffff <= 0x7f80_0000);
+            keys[l] = if v { total_order_key(src[l]) } else { i32::MAX };
+            valid[l] = i32::from(v);
+        }
+        (keys, valid)
+    }
     let mut keys = [[i32::MAX; L]; 9];
     let mut n = [0i32; L];
-    for (r, (&line, &ok)) in rows.iter().zip(&row_ok).enumerate() {
+    for r in 0..3 {
         for c in 0..3 {
-            let src = &line[x0 + c - 1..x0 + c - 1 + L];
+            let (k, v) = key_lanes(&rows[r][x0 + c - 1..x0 + c - 1 + L], row_ok[r]);
+            keys[3 * r + c] = k;
             for l in 0..L {
-                let v = src[l];
-                let valid = ok & !v.is_nan();
-                keys[3 * r + c][l] = if valid { total_order_key(v) } else { i32::MAX };
-                n[l] += valid as i32;
+                n[l] += v[l];
             }
         }
     }
-    for (a, b) in SORT9_PAIRS {
-        let (ka, kb) = (keys[a], keys[b]);
-        for l in 0..L {
-            keys[a][l] = ka[l].min(kb[l]);
-            keys[b][l] = ka[l].max(kb[l]);
-        }
+    // The network on nine lane vectors held in locals (not indexed from an array), so that
+    // they stay in registers.
+    let [mut k0, mut k1, mut k2, mut k3, mut k4, mut k5, mut k6, mut k7, mut k8] = keys;
+    macro_rules! exchange_lanes {
+        ($(($a:ident, $b:ident)),*) => {$(
+            let low: [i32; L] = std::array::from_fn(|l| $a[l].min($b[l]));
+            $b = std::array::from_fn(|l| $a[l].max($b[l]));
+            $a = low;
+        )*};
     }
+    sort9_network!(exchange_lanes; k0, k1, k2, k3, k4, k5, k6, k7, k8);
+    let keys = [k0, k1, k2, k3, k4, k5, k6, k7, k8];
     let centre = &rows[1][x0..x0 + L];
     for l in 0..L {
         // The middle key(s): positions n/2 − 1 and n/2 (n ≥ 1 where the centre is valid).
@@ -168,27 +204,18 @@ pub(super) fn from_total_order_key(k: i32) -> f32 {
     f32::from_bits((k ^ (((k >> 31) as u32) >> 1) as i32) as u32)
 }
 
-/// The comparators of [`sort9`].
-#[rustfmt::skip]
-pub(super) const SORT9_PAIRS: [(usize, usize); 25] = [
-    (0, 3), (1, 7), (2, 5), (4, 8),
-    (0, 7), (2, 4), (3, 8), (5, 6),
-    (0, 2), (1, 3), (4, 5), (7, 8),
-    (1, 4), (3, 6), (5, 7),
-    (0, 1), (2, 4), (3, 5), (6, 8),
-    (2, 3), (4, 5), (6, 7),
-    (1, 2), (3, 4), (5, 6),
-];
-
 /// Sorts 9 values ascending with a 25-comparator network of depth 7 (Dobbelaere's list of
 /// optimal networks; tested on every 0/1 input).
 #[inline(always)]
 pub(crate) fn sort9(v: &mut [i32; 9]) {
-    for (a, b) in SORT9_PAIRS {
-        let (x, y) = (v[a], v[b]);
-        v[a] = x.min(y);
-        v[b] = x.max(y);
+    let [mut k0, mut k1, mut k2, mut k3, mut k4, mut k5, mut k6, mut k7, mut k8] = *v;
+    macro_rules! exchange {
+        ($(($a:ident, $b:ident)),*) => {$(
+            ($a, $b) = ($a.min($b), $a.max($b));
+        )*};
     }
+    sort9_network!(exchange; k0, k1, k2, k3, k4, k5, k6, k7, k8);
+    *v = [k0, k1, k2, k3, k4, k5, k6, k7, k8];
 }
 
 /// Removes speckles: 4-connected regions (neighbours differing by at most `max_diff_px`) of at
