@@ -7,12 +7,23 @@
 //! 2.5 ULP, so agreement is close but not bit for bit):
 //! - TV, 100 iterations: |u_gpu − u_cpu| ≤ 1e-4 (normalised TSDF units; one i16 step is 3.1e-5)
 //!   on every voxel, energies within 1e-5 relative.
-//! - Fusion: the same blocks; weights and Ω equal on ≥ 99.99 % of voxels; the quantised TSDF
-//!   within one step on ≥ 99.9 %.
+//! - Fusion: bit for bit on a software adapter (lavapipe: the same IEEE f32 operations in the
+//!   same order). Elsewhere the same blocks, and on every voxel outside the pixel-rounding ties
+//!   the same weight and Ω, the quantised TSDF within one step and colours within one level
+//!   (each update rounds a running mean whose inputs differ by < 1 step, so differences never
+//!   grow). A tie is a voxel that some frame projects within 5e-4 px of a pixel's rounding
+//!   boundary, or whose signed distance lies within 0.1 mm of −μ (`rounding_ties`, in f64):
+//!   there a last-bit difference picks another pixel's depth and the voxel may differ by any
+//!   amount. Ties must stay under 2 % of the voxels. Measured on an NVIDIA H200 (Vulkan,
+//!   driver 580.159.04, 2026-11-26), sphere scene at 5 cm: 5 942 ties among 456 704 voxels
+//!   (1.3 %), 596 of them differ; outside them 610 voxels differ by one step, none by more
+//!   (the bound of 1e-3 of voxels within a step that this replaced failed there: 580 voxels
+//!   up to 1 704 steps apart, all ties).
 //! - The GPU tier (`ResidentMap`): the same tolerance against the CPU; against the per-call GPU
 //!   kernel, and between pools that grow, spill to RAM or fall back, bit for bit (one shared
 //!   per-voxel function); GPU hash-table lookups equal the host table's exactly.
 
+use crate::agreement::{assert_fusion_agrees, compare_layers, rounding_ties};
 use crate::common;
 
 use common::gpu;
@@ -176,45 +187,6 @@ fn regularize_layer_gpu_matches_cpu_on_the_sphere_scene() {
     assert!(worst <= 4, "{worst} steps");
 }
 
-/// Voxel-by-voxel agreement of two layers over the same blocks.
-struct FusionAgreement {
-    voxels: usize,
-    weight_mismatch: usize,
-    tsdf_beyond_one_step: usize,
-    color_beyond_one: usize,
-    worst_tsdf_steps: i32,
-}
-
-fn compare_layers(a: &Layer, b: &Layer) -> FusionAgreement {
-    assert_eq!(a.indices_sorted(), b.indices_sorted(), "block sets differ");
-    let mut r = FusionAgreement {
-        voxels: 0,
-        weight_mismatch: 0,
-        tsdf_beyond_one_step: 0,
-        color_beyond_one: 0,
-        worst_tsdf_steps: 0,
-    };
-    for idx in a.indices_sorted() {
-        let (x, y) = (a.get(&idx).expect("a"), b.get(&idx).expect("b"));
-        for i in 0..VOXELS_PER_BLOCK {
-            r.voxels += 1;
-            if x.weight_omega[i] != y.weight_omega[i] {
-                r.weight_mismatch += 1;
-                continue;
-            }
-            let d = (x.tsdf[i] as i32 - y.tsdf[i] as i32).abs();
-            r.worst_tsdf_steps = r.worst_tsdf_steps.max(d);
-            if d > 1 {
-                r.tsdf_beyond_one_step += 1;
-            }
-            if (0..3).any(|k| (x.color[i][k] as i32 - y.color[i][k] as i32).abs() > 1) {
-                r.color_beyond_one += 1;
-            }
-        }
-    }
-    r
-}
-
 #[test]
 fn depth_fusion_gpu_matches_cpu_on_the_sphere_scene() {
     let Some(ctx) = gpu() else { return };
@@ -225,20 +197,15 @@ fn depth_fusion_gpu_matches_cpu_on_the_sphere_scene() {
         };
         let cpu = sphere_layer(grid, 6, 0.01, None);
         let gpu = sphere_layer(grid, 6, 0.01, Some(&ctx));
-        let r = compare_layers(&cpu, &gpu);
-        eprintln!(
-            "voxel {voxel} m: {} voxels, weight mismatches {}, |Δf| > 1 step {}, worst {} steps, colour > 1 {}",
-            r.voxels, r.weight_mismatch, r.tsdf_beyond_one_step, r.worst_tsdf_steps, r.color_beyond_one
-        );
+        // `sphere_layer` fuses these frames.
+        let ties = rounding_ties(grid, &orbit_frames(6, 0.01), &cpu.indices_sorted());
         eprintln!("{} voxels in Ω", cpu.observed_voxel_count());
         assert!(cpu.observed_voxel_count() > 50_000);
-        let n = r.voxels as f64;
-        assert!(r.weight_mismatch as f64 <= 1e-4 * n, "weights");
-        assert!(
-            (r.weight_mismatch + r.tsdf_beyond_one_step) as f64 <= 1e-3 * n,
-            "TSDF"
+        assert_fusion_agrees(
+            &format!("voxel {voxel} m"),
+            &ctx,
+            &compare_layers(&cpu, &gpu, &ties),
         );
-        assert!(r.color_beyond_one as f64 <= 1e-3 * n, "colour");
     }
 }
 
@@ -537,18 +504,12 @@ fn resident_fusion_matches_the_cpu_through_grows_spills_and_oversize_frames() {
     eprintln!("grow only: {s1:?}");
     assert!(s1.grows >= 1 && s1.blocks_spilled == 0 && s1.oversize_frames == 0);
     assert_eq!(grown_touched, cpu_touched, "touched blocks per frame");
-    let r = compare_layers(&cpu, &grown);
-    eprintln!(
-        "resident vs CPU: {} voxels, weight mismatches {}, |Δf| > 1 step {}, worst {} steps, colour > 1 {}",
-        r.voxels, r.weight_mismatch, r.tsdf_beyond_one_step, r.worst_tsdf_steps, r.color_beyond_one
+    let ties = rounding_ties(grid, &frames, &cpu.indices_sorted());
+    assert_fusion_agrees(
+        "resident vs CPU",
+        &ctx,
+        &compare_layers(&cpu, &grown, &ties),
     );
-    let n = r.voxels as f64;
-    assert!(r.weight_mismatch as f64 <= 1e-4 * n, "weights");
-    assert!(
-        (r.weight_mismatch + r.tsdf_beyond_one_step) as f64 <= 1e-3 * n,
-        "TSDF"
-    );
-    assert!(r.color_beyond_one as f64 <= 1e-3 * n, "colour");
     // A pool just larger than the largest frame: the orbit's map does not fit, so blocks spill
     // to RAM and come back; the voxels must not change (same kernel, same order per voxel).
     let tight_blocks = s1.largest_frame_blocks as u64 + 32;
@@ -583,8 +544,11 @@ fn resident_fusion_matches_the_cpu_through_grows_spills_and_oversize_frames() {
     assert!(s3.oversize_frames > 0 && s3.oversize_frames < 10);
     assert!(s3.blocks_uploaded > 0);
     assert_eq!(small_touched, cpu_touched);
-    let r = compare_layers(&cpu, &small);
-    assert!(r.weight_mismatch as f64 <= 1e-4 * r.voxels as f64);
+    assert_fusion_agrees(
+        "tiny pool vs CPU",
+        &ctx,
+        &compare_layers(&cpu, &small, &ties),
+    );
 }
 
 #[test]
@@ -641,9 +605,10 @@ fn reconstructor_keeps_depth_blocks_on_the_gpu_and_flushes_them_for_lidar() {
     let frames = orbit_frames(4, 0.01);
     let mut config = denser::reconstruct::ReconstructionConfig::paper(0.1);
     config.grid = grid;
+    let ctx = Arc::new(ctx);
     let mut rec = Reconstructor::in_memory(
         config,
-        Backend::gpu(Arc::new(ctx), ResidentOptions::default()),
+        Backend::gpu(ctx.clone(), ResidentOptions::default()),
     )
     .expect("config");
     let mut cpu = Layer::new(grid);
@@ -673,6 +638,8 @@ fn reconstructor_keeps_depth_blocks_on_the_gpu_and_flushes_them_for_lidar() {
     let after = rec.resident_stats().expect("resident").resident_blocks;
     assert!(after < before, "{after} !< {before}");
     rec.sync().expect("sync");
-    let r = compare_layers(rec_cpu.layer(), rec.layer());
-    assert!(r.weight_mismatch as f64 <= 1e-4 * r.voxels as f64);
+    // The LiDAR scan went through the CPU on both sides: only the frames' ties may differ.
+    let ties = rounding_ties(grid, &frames, &rec_cpu.layer().indices_sorted());
+    let r = compare_layers(rec_cpu.layer(), rec.layer(), &ties);
+    assert_fusion_agrees("reconstructor vs CPU", &ctx, &r);
 }

@@ -6,6 +6,7 @@ mod common;
 #[path = "../depth_support/mod.rs"]
 mod depth_support;
 
+mod agreement;
 mod compare;
 mod lidar;
 mod shaders;
