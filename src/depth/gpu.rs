@@ -394,10 +394,7 @@ fn record_census(
     };
     let buf_uniforms = ctx.uniform("census_uniforms", bytemuck::bytes_of(&uniforms));
     let buf_image = ctx.storage("census_image", &image.data);
-    let buf_sig = ctx.storage(
-        "census_signatures",
-        &vec![0u8; (n * words as u64 * 4) as usize],
-    );
+    let buf_sig = ctx.storage_zeroed("census_signatures", n * words as u64 * 4);
     let bind = ctx.bind_group(
         "census",
         &kernel.layout,
@@ -512,7 +509,7 @@ pub fn cost_volume_gpu(
     };
     let buf_uniforms = ctx.uniform("cost_uniforms", bytemuck::bytes_of(&uniforms));
     let packed_words = entries.div_ceil(4);
-    let buf_volume = ctx.storage("cost_volume", &vec![0u8; (packed_words * 4) as usize]);
+    let buf_volume = ctx.storage_zeroed("cost_volume", packed_words * 4);
     let bind = ctx.bind_group(
         "census_cost",
         &kernel.layout,

@@ -94,6 +94,10 @@ pub struct GpuContext {
     kernels: std::sync::Mutex<std::collections::HashMap<&'static str, std::sync::Arc<Kernel>>>,
 }
 
+/// Readbacks above this many bytes are copied out of the mapping by several threads: the copy
+/// into fresh host memory (first touch of every page) is what a large readback costs.
+const PARALLEL_COPY_BYTES: usize = 4 << 20;
+
 /// A compiled kernel: its bind-group layout and pipeline.
 #[derive(Debug)]
 pub(crate) struct Kernel {
@@ -297,6 +301,22 @@ impl GpuContext {
             })
     }
 
+    /// A zero-filled storage buffer of `bytes` (at least 4), usable as a copy source for
+    /// readback: wgpu clears it on the device, with no upload. Only the census kernels use it:
+    /// on an H200 their 60 MB cost volume took 3× less time than with uploaded zeros, whereas
+    /// the point-wise search's output, the TGV target and the resident flags measured slower
+    /// this way (`docs/bench/gpu.md`, run 5; cause not established).
+    pub(crate) fn storage_zeroed(&self, label: &str, bytes: u64) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: bytes.max(4).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT),
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    }
+
     /// The kernel `src` (bindings as [`ShaderSource::bindings`] declares them), compiled on
     /// first use and cached (by file name) for the life of the context. Compilation errors
     /// become [`Error::Gpu`].
@@ -412,12 +432,27 @@ impl GpuContext {
                 .slice(..)
                 .get_mapped_range()
                 .map_err(|e| Error::Gpu(format!("reading a mapped buffer: {e}")))?;
-            out.push(view[..*bytes as usize].to_vec());
+            out.push(copy_out(&view[..*bytes as usize]));
             drop(view);
             s.unmap();
         }
         Ok(out)
     }
+}
+
+/// `src` copied into a new vector; a large one by several threads, each touching its own pages
+/// of the new memory first.
+fn copy_out(src: &[u8]) -> Vec<u8> {
+    use rayon::prelude::*;
+    if src.len() < PARALLEL_COPY_BYTES {
+        return src.to_vec();
+    }
+    // Zeroed memory comes from the system untouched (calloc): the threads fault its pages in.
+    let mut out = vec![0u8; src.len()];
+    out.par_chunks_mut(1 << 20)
+        .zip(src.par_chunks(1 << 20))
+        .for_each(|(d, s)| d.copy_from_slice(s));
+    out
 }
 
 /// Validation and out-of-memory error scopes around a group of wgpu calls, so that a failure
@@ -444,5 +479,26 @@ impl ErrorScopes {
             return Err(Error::Gpu(format!("{doing}: {e}")));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn copy_out_equals_the_source_on_both_sides_of_the_threshold() {
+        for len in [
+            0,
+            5,
+            PARALLEL_COPY_BYTES - 1,
+            PARALLEL_COPY_BYTES,
+            (9 << 20) + 3,
+        ] {
+            let src: Vec<u8> = (0..len)
+                .map(|i| (i as u32).wrapping_mul(2_654_435_761).to_le_bytes()[3])
+                .collect();
+            assert_eq!(copy_out(&src), src, "{len} bytes");
+        }
     }
 }
