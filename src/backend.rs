@@ -15,8 +15,8 @@
 //!
 //! Errors are never swallowed: a failed write-back is an error of the call that needed it.
 
-use crate::depth::sgm::SgmPaths;
 use crate::depth::tgv::HoleFill;
+use crate::depth::SgmParams;
 use crate::depth::{DisparityEstimator, StereoMethod, TgvMatcherGpu};
 use crate::frame::DepthFrame;
 use crate::fusion::{
@@ -158,20 +158,19 @@ impl Backend {
         }
     }
 
-    /// A matcher for `method` over `num_disparities` disparities with `fill` hole filling: the
-    /// variational methods run on the GPU when the backend has one; SGM on the CPU. `paths`: the
-    /// SGM aggregation directions (SGM's, and those of the variational methods' initialisation).
+    /// A matcher for `method` with `fill` hole filling: the variational methods run on the GPU
+    /// when the backend has one; SGM on the CPU. `sgm`: the SGM parameters (SGM's, and those of
+    /// the variational methods' initialisation), the disparity range included.
     pub fn stereo_matcher(
         &self,
         method: StereoMethod,
-        num_disparities: usize,
+        sgm: SgmParams,
         fill: HoleFill,
-        paths: SgmPaths,
     ) -> Result<Box<dyn DisparityEstimator>> {
-        match (method.tgv_matcher(num_disparities, fill, paths)?, &self.gpu) {
+        match (method.tgv_matcher(sgm, fill)?, &self.gpu) {
             (Some(m), Some(ctx)) => Ok(Box::new(TgvMatcherGpu::new(ctx.clone(), m))),
             (Some(m), None) => Ok(Box::new(m)),
-            (None, _) => method.estimator_with_fill(num_disparities, fill, paths),
+            (None, _) => method.estimator_with_fill(sgm, fill),
         }
     }
 

@@ -238,9 +238,11 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
             backend
                 .stereo_matcher(
                     job.stereo_method,
-                    job.num_disparities,
+                    denser::depth::SgmParams {
+                        num_disparities: job.num_disparities,
+                        ..Default::default()
+                    },
                     HoleFill::None,
-                    denser::depth::SgmParams::default().paths,
                 )
                 .with_context(context)?,
         ),

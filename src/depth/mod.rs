@@ -139,26 +139,24 @@ impl StereoMethod {
     /// A matcher of this kind searching `num_disparities` disparities from 0, other parameters at
     /// their defaults (variational methods fill [`tgv::HoleFill::Visible`] holes).
     pub fn estimator(&self, num_disparities: usize) -> Result<Box<dyn DisparityEstimator>> {
-        let paths = SgmParams::default().paths;
-        self.estimator_with_fill(num_disparities, tgv::HoleFill::Visible, paths)
+        let sgm = SgmParams {
+            num_disparities,
+            ..SgmParams::default()
+        };
+        self.estimator_with_fill(sgm, tgv::HoleFill::Visible)
     }
 
     /// As [`StereoMethod::estimator`], with the variational methods' hole filling (ignored by
-    /// SGM) and the SGM aggregation paths (of SGM, and of the variational methods' SGM
-    /// initialisation) chosen.
+    /// SGM) and the SGM parameters (of SGM, and of the variational methods' SGM initialisation:
+    /// disparity range, aggregation paths, validity tests) chosen.
     pub fn estimator_with_fill(
         &self,
-        num_disparities: usize,
+        sgm: SgmParams,
         hole_fill: tgv::HoleFill,
-        paths: sgm::SgmPaths,
     ) -> Result<Box<dyn DisparityEstimator>> {
-        match self.tgv_matcher(num_disparities, hole_fill, paths)? {
+        match self.tgv_matcher(sgm, hole_fill)? {
             Some(m) => Ok(Box::new(m)),
-            None => Ok(Box::new(SgmMatcher::new(SgmParams {
-                num_disparities,
-                paths,
-                ..SgmParams::default()
-            })?)),
+            None => Ok(Box::new(SgmMatcher::new(sgm)?)),
         }
     }
 
@@ -166,9 +164,8 @@ impl StereoMethod {
     /// it), or `None` for SGM.
     pub fn tgv_matcher(
         &self,
-        num_disparities: usize,
+        sgm: SgmParams,
         hole_fill: tgv::HoleFill,
-        paths: sgm::SgmPaths,
     ) -> Result<Option<TgvMatcher>> {
         let regulariser = match self {
             StereoMethod::Sgm => return Ok(None),
@@ -179,11 +176,7 @@ impl StereoMethod {
         Ok(Some(TgvMatcher::new(TgvParams {
             regulariser,
             hole_fill,
-            sgm: SgmParams {
-                num_disparities,
-                paths,
-                ..SgmParams::default()
-            },
+            sgm,
             ..TgvParams::default()
         })?))
     }

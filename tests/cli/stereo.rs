@@ -328,10 +328,11 @@ fn stereo_reads_a_jpeg_and_a_tiff_pair() {
     }
 }
 
-/// `--sgm-paths` picks the aggregation directions: each value gives, bit for bit, the library's
-/// matcher with those paths (no flag: 8); other values are refused by name.
+/// `--sgm-paths`, `--sgm-lr-max-diff` and `--sgm-uniqueness` set the SGM parameters: each
+/// combination gives, bit for bit, the library's matcher with those parameters (no flag: the
+/// defaults); bad values are refused by name.
 #[test]
-fn stereo_sgm_paths_flag_selects_the_library_mode() {
+fn stereo_sgm_flags_select_the_library_parameters() {
     use denser::depth::sgm::{SgmMatcher, SgmParams, SgmPaths};
     use denser::depth::DisparityEstimator;
     let dir = tempfile::tempdir().expect("tempdir");
@@ -350,21 +351,65 @@ fn stereo_sgm_paths_flag_selects_the_library_mode() {
         read_pfm(d.join("d.pfm")).unwrap()
     };
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-    for (flag, paths) in [
-        (Some("4"), SgmPaths::Four),
-        (Some("5"), SgmPaths::Five),
-        (Some("8"), SgmPaths::Eight),
-        (None, SgmPaths::Eight),
+    let defaults = SgmParams {
+        num_disparities: 20,
+        ..SgmParams::default()
+    };
+    let mut valid = Vec::new();
+    for (flags, params) in [
+        (
+            &["--sgm-paths", "4"][..],
+            SgmParams {
+                paths: SgmPaths::Four,
+                ..defaults
+            },
+        ),
+        (
+            &["--sgm-paths", "5"],
+            SgmParams {
+                paths: SgmPaths::Five,
+                ..defaults
+            },
+        ),
+        (
+            &["--sgm-paths", "8"],
+            SgmParams {
+                paths: SgmPaths::Eight,
+                ..defaults
+            },
+        ),
+        (&[], defaults),
+        (
+            &[
+                "--sgm-paths",
+                "5",
+                "--sgm-lr-max-diff",
+                "2",
+                "--sgm-uniqueness",
+                "0",
+            ],
+            SgmParams {
+                paths: SgmPaths::Five,
+                lr_max_diff_px: Some(2),
+                uniqueness_ratio: 0.0,
+                ..defaults
+            },
+        ),
+        (
+            &["--sgm-lr-max-diff", "off", "--sgm-uniqueness", "0.2"],
+            SgmParams {
+                lr_max_diff_px: None,
+                uniqueness_ratio: 0.2,
+                ..defaults
+            },
+        ),
     ] {
-        let got = run(&flag.map_or(vec![], |f| vec!["--sgm-paths", f]));
-        let want = SgmMatcher::new(SgmParams {
-            num_disparities: 20,
-            paths,
-            ..SgmParams::default()
-        })
-        .unwrap()
-        .estimate(&left, &right)
-        .unwrap();
+        let flag = flags.join(" ");
+        let got = run(flags);
+        let want = SgmMatcher::new(params)
+            .unwrap()
+            .estimate(&left, &right)
+            .unwrap();
         // PFM stores invalid as inf, the matcher NaN.
         let want: Vec<f32> = want
             .disparity_px
@@ -377,8 +422,11 @@ fn stereo_sgm_paths_flag_selects_the_library_mode() {
             .iter()
             .map(|&v| if v.is_finite() { v } else { f32::INFINITY })
             .collect();
-        assert_eq!(bits(&got), bits(&want), "{flag:?}");
+        assert_eq!(bits(&got), bits(&want), "{flag}");
+        valid.push(got.iter().filter(|v| v.is_finite()).count());
     }
+    // The looser tests keep more pixels than the defaults (so the flags reached the matcher).
+    assert!(valid[4] > valid[1] && valid[5] > valid[3], "{valid:?}");
     let o = denser(
         &[
             "stereo",
@@ -397,4 +445,23 @@ fn stereo_sgm_paths_flag_selects_the_library_mode() {
         "{}",
         text(&o)
     );
+    for (flag, value, says) in [
+        (
+            "--sgm-lr-max-diff",
+            "two",
+            "expected a number of pixels or `off`",
+        ),
+        (
+            "--sgm-uniqueness",
+            "1.5",
+            "uniqueness_ratio must be in [0, 1)",
+        ),
+    ] {
+        let o = denser(
+            &["stereo", "l.png", "r.png", "--out", "x.pfm", flag, value],
+            d,
+        );
+        assert!(!o.status.success(), "{flag} {value}");
+        assert!(text(&o).contains(says), "{flag} {value}: {}", text(&o));
+    }
 }
