@@ -30,7 +30,6 @@ pub fn rounding_ties(
 ) -> HashSet<VoxelKey> {
     let vs = grid.voxel_size_m as f64;
     let mu = grid.truncation_m as f64;
-    let near_half = |x: f64| (x - x.floor() - 0.5).abs() < TIE_PX;
     let mut ties = HashSet::new();
     for f in frames {
         let camera_from_world = f.world_from_camera.inverse();
@@ -49,17 +48,12 @@ pub fn rounding_ties(
                 if !(u > -1.0 && v > -1.0 && u < w && v < h) {
                     continue;
                 }
-                // The pixels a last-bit change of (u, v) can pick: a tie matters where one of
-                // them would update the voxel (a depth, and the voxel in front of −μ).
-                let picks = |x: f64| {
-                    if near_half(x) {
-                        vec![(x - TIE_PX + 0.5).floor(), (x + TIE_PX + 0.5).floor()]
-                    } else {
-                        vec![(x + 0.5).floor()]
-                    }
-                };
+                // The pixels a last-bit change of (u, v) can pick (both ends of ±TIE_PX round
+                // to one pixel unless it is near a boundary): a tie matters where one of them
+                // would update the voxel (a depth, and the voxel in front of −μ).
+                let picks = |x: f64| [-TIE_PX, TIE_PX].map(|e| (x + e + 0.5).floor());
                 let (us, vs_) = (picks(u), picks(v));
-                let ambiguous_pixel = us.len() + vs_.len() > 2;
+                let ambiguous_pixel = us[0] != us[1] || vs_[0] != vs_[1];
                 let mut updates = false;
                 let mut band_end = false;
                 for &ur in &us {
