@@ -5,8 +5,10 @@
 //!
 //! * **Ground truth** is a point cloud in the world frame: all LiDAR scans of a drive merged with
 //!   their poses (the paper), or dense samples of the exact surfaces of a synthetic scene. It is
-//!   indexed once in a k-d tree ([`GroundTruthIndex`], `kiddo`), after subtracting a common origin
-//!   so that georeferenced coordinates keep their precision; all queries are `f64`.
+//!   indexed once ([`GroundTruthIndex`]) in a tree whose nodes keep the tight box of their points
+//!   (`box_tree`: a k-d tree's open cells would make a query a metre above a LiDAR-scanned street
+//!   visit every column of ground points within a metre), after subtracting a common origin so
+//!   that georeferenced coordinates keep their precision; all queries are `f64`.
 //! * **Accuracy** (the paper's "error"): for every reconstructed surface point, the Euclidean
 //!   distance to the *nearest ground-truth point*, metres. The reconstructed points are the mesh's
 //!   vertices, optionally plus points sampled on its triangles at a given spacing
@@ -18,7 +20,7 @@
 //!   distance to the nearest reconstructed point. It penalises holes and surfaces removed by the
 //!   regulariser, which accuracy cannot see. These queries (tens of millions, mostly centimetres
 //!   from the surface) are answered a grid cell at a time from the reconstructed points of the
-//!   cells around it, exactly; only those farther than a few cells reach a k-d tree.
+//!   cells around it, exactly; only those farther than a few cells reach a tree.
 //! * **Statistics** ([`ErrorStats`]): count, mean, RMSE, median, 75th and 90th percentiles (exact,
 //!   NumPy's linear interpolation), maximum, a fixed-width histogram whose last bin collects
 //!   overflow, and the mode = centre of the fullest regular bin.
@@ -36,6 +38,7 @@
 //! This module does not run the reconstruction: the caller hands it meshes (or a finished
 //! [`crate::reconstruct::Reconstructor`] and the surfaces it wrote).
 
+mod box_tree;
 mod coverage;
 mod evaluate;
 mod ground_truth;

@@ -1,19 +1,19 @@
-//! Nearest-neighbour distances between point sets with a k-d tree (`kiddo`), and points taken
-//! from a mesh's surface.
+//! Nearest-neighbour distances between point sets, and points taken from a mesh's surface.
 //!
-//! The ground truth is indexed once ([`GroundTruthIndex`]) and queried in parallel (rayon). All
-//! positions are shifted by a common origin (the centre of the ground truth's bounding box) before
-//! they enter a tree, so that georeferenced coordinates (LAS/UTM, ~10⁶ m) keep sub-millimetre
-//! precision in the `f32` the trees hold; queries stay `f64` until they enter the tree, and
-//! distances are returned as `f32` metres.
+//! The ground truth is indexed once ([`GroundTruthIndex`], a tree of tight boxes:
+//! [`crate::eval::box_tree`]) and queried in parallel (rayon). All positions are shifted by a
+//! common origin (the centre of the ground truth's bounding box) before they enter an index, so
+//! that georeferenced coordinates (LAS/UTM, ~10⁶ m) keep sub-millimetre precision in the `f32`
+//! the indices hold; queries stay `f64` until they enter the index, and distances are returned as
+//! `f32` metres.
 //!
 //! This module does not summarise distances ([`crate::eval::ErrorStats`]) nor read files.
 
 use crate::error::{Error, Result};
+use crate::eval::box_tree::BoxTree;
 use crate::eval::nn_grid::CellGrid;
 use crate::frame::PointCloud;
 use crate::mesh::Mesh;
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -26,53 +26,57 @@ const QUERY_CHUNK: usize = 4096;
 /// measurable change in time (`docs/bench/e2e.md`).
 const QUERY_BATCH: usize = 1 << 20;
 
-/// A k-d tree over points stored relative to the shared origin.
+/// Points stored relative to the shared origin, indexed for nearest-neighbour queries.
 ///
 /// The points are held in `f32` relative to the shared origin (half the memory of `f64`, so more
 /// of them stays in cache): a coordinate within ±4 km of the origin rounds by at most 0.25 mm
-/// (2⁻²⁴ of its distance from the origin; 3 µm at 50 m). The neighbour the tree finds is then
+/// (2⁻²⁴ of its distance from the origin; 3 µm at 50 m). The neighbour the index finds is then
 /// measured in `f64` from the `f64` query, so the distance returned is exact for the stored point.
 struct PointTree {
-    tree: ImmutableKdTree<f32, 3>,
-    points_local_m: Vec<[f32; 3]>,
-    /// When built with one ([`PointTree::with_grid`]): the cells of `points_local_m` (sorted by
-    /// cell), which answer queries near the points before any tree descent.
-    grid: Option<CellGrid>,
+    /// The points in a tree of tight boxes (which holds them, in its own order).
+    tree: BoxTree,
+    /// When built with one ([`PointTree::with_grid`]): a [`CellGrid`] over the points and the
+    /// points sorted by its cells, which answer queries near the points before any tree descent.
+    grid: Option<(CellGrid, Vec<[f32; 3]>)>,
 }
 
 impl PointTree {
-    /// Builds a tree over `points_local_m` (already relative to the shared origin).
+    /// Indexes `points_local_m` (already relative to the shared origin).
     fn new(points_local_m: Vec<[f32; 3]>) -> Result<PointTree> {
-        let tree = ImmutableKdTree::new_from_slice(&points_local_m).map_err(|e| {
-            Error::InvalidArgument(format!(
-                "cannot build a k-d tree over {} points: {e}",
+        if points_local_m.len() >= u32::MAX as usize {
+            return Err(Error::InvalidArgument(format!(
+                "cannot index {} points: at most 2³² − 2",
                 points_local_m.len()
-            ))
-        })?;
+            )));
+        }
         Ok(PointTree {
-            tree,
-            points_local_m,
+            tree: BoxTree::new(points_local_m),
             grid: None,
         })
     }
 
-    /// [`PointTree::new`] with a [`CellGrid`] in front of the tree: the points are sorted by
-    /// cell first, and queries within about a cell of a point are answered by the grid.
-    fn with_grid(mut points_local_m: Vec<[f32; 3]>) -> Result<PointTree> {
-        let grid = CellGrid::build(&mut points_local_m);
+    /// The indexed points (in the tree's order).
+    fn points_local_m(&self) -> &[[f32; 3]] {
+        self.tree.points()
+    }
+
+    /// [`PointTree::new`] with a [`CellGrid`] in front of the tree: queries within about a cell
+    /// of a point are answered by the grid, from a copy of the points sorted by cell.
+    fn with_grid(points_local_m: Vec<[f32; 3]>) -> Result<PointTree> {
+        let mut by_cell = points_local_m.clone();
+        let grid = CellGrid::build(&mut by_cell).map(|grid| (grid, by_cell));
         let mut tree = PointTree::new(points_local_m)?;
         tree.grid = grid;
         Ok(tree)
     }
 
     /// Distance (metres) from each query (relative to the shared origin) to its nearest point, in
-    /// the queries' order. Queries run in Morton order of their positions, so that consecutive
-    /// queries walk the same branches of the tree.
+    /// the queries' order.
     fn nearest_distances_m(&self, queries_local_m: &[[f64; 3]]) -> Vec<f32> {
-        let Some(grid) = &self.grid else {
+        let Some((grid, by_cell)) = &self.grid else {
             return self.tree_distances_m(queries_local_m);
         };
-        let mut out = grid.nearest_distances_m(&self.points_local_m, queries_local_m);
+        let mut out = grid.nearest_distances_m(by_cell, queries_local_m);
         let left: Vec<u32> = (0..out.len() as u32)
             .filter(|&i| out[i as usize].is_nan())
             .collect();
@@ -90,40 +94,25 @@ impl PointTree {
         out
     }
 
-    /// [`PointTree::nearest_distances_m`] by the k-d tree alone.
+    /// [`PointTree::nearest_distances_m`] by the tree alone. Queries run in Morton order of their
+    /// positions, each search seeded with the previous query's answer.
     fn tree_distances_m(&self, queries_local_m: &[[f64; 3]]) -> Vec<f32> {
         let order = morton_order(queries_local_m);
+        let points = self.points_local_m();
         let mut sorted = vec![0.0f32; queries_local_m.len()];
         sorted
             .par_chunks_mut(QUERY_CHUNK)
             .zip(order.par_chunks(QUERY_CHUNK))
             .for_each(|(out, idx)| {
-                // The previous query's nearest point bounds this one's search.
-                let mut previous: Option<[f32; 3]> = None;
+                let mut previous = None;
                 for (o, &i) in out.iter_mut().zip(idx) {
                     let q = &queries_local_m[i as usize];
-                    let qf = q.map(|v| v as f32);
-                    let bounded = previous.and_then(|p| {
-                        let d2: f32 = (0..3).map(|k| (qf[k] - p[k]).powi(2)).sum();
-                        let radius = d2 * (1.0 + 1e-5) + f32::MIN_POSITIVE;
-                        self.tree
-                            .query(&qf)
-                            .nearest_n::<SquaredEuclidean<f32>>(std::num::NonZeroUsize::MIN)
-                            .within(radius)
-                            .execute()
-                            .first()
-                            .map(|nn| nn.item)
-                    });
-                    let item = bounded.unwrap_or_else(|| {
-                        self.tree
-                            .query(&qf)
-                            .nearest_one::<SquaredEuclidean<f32>>()
-                            .execute()
-                            .item
-                    });
-                    let p = self.points_local_m[item as usize];
-                    previous = Some(p);
-                    *o = dist(q, &p.map(f64::from)) as f32;
+                    let nearest = self
+                        .tree
+                        .nearest(q.map(|v| v as f32), previous)
+                        .expect("a point tree is never empty");
+                    previous = Some(nearest);
+                    *o = dist(q, &points[nearest as usize].map(f64::from)) as f32;
                 }
             });
         let mut out = vec![0.0f32; queries_local_m.len()];
@@ -247,8 +236,8 @@ pub struct GroundTruthIndex {
     origin_m: [f64; 3],
     /// World-frame bounding box of the ground truth, metres.
     bounds_m: ([f64; 3], [f64; 3]),
-    /// The k-d tree over the ground-truth points relative to `origin_m` (which it keeps, for
-    /// completeness queries).
+    /// The ground-truth points relative to `origin_m`, indexed (the index holds them, in its own
+    /// order, for completeness queries).
     tree: PointTree,
 }
 
@@ -282,10 +271,10 @@ impl GroundTruthIndex {
         points_local_m: Vec<[f32; 3]>,
     ) -> Result<GroundTruthIndex> {
         // No cell grid here: most accuracy queries of a raw surface lie farther from the ground
-        // truth than a few of its (dense) cells, and sorting 28 M points costs more than the
-        // grid saves (docs/bench/e2e.md).
+        // truth than a few of its (dense) cells, which is where the tree's tight boxes pay
+        // (docs/bench/e2e.md).
         let tree = PointTree::new(points_local_m)?;
-        tracing::debug!(points = tree.points_local_m.len(), "indexed ground truth");
+        tracing::debug!(points = tree.points_local_m().len(), "indexed ground truth");
         Ok(GroundTruthIndex {
             origin_m,
             bounds_m,
@@ -295,12 +284,12 @@ impl GroundTruthIndex {
 
     /// Number of ground-truth points.
     pub fn len(&self) -> usize {
-        self.tree.points_local_m.len()
+        self.tree.points_local_m().len()
     }
 
     /// Always false: an index is never built over zero points.
     pub fn is_empty(&self) -> bool {
-        self.tree.points_local_m.is_empty()
+        self.tree.points_local_m().is_empty()
     }
 
     /// The origin subtracted from positions before queries, metres (world frame).
@@ -325,10 +314,10 @@ impl GroundTruthIndex {
     }
 
     /// Completeness distances: for each ground-truth point selected by `region`, the distance to
-    /// the nearest of `reconstructed_points_m` (world frame, metres). Builds a temporary k-d tree
-    /// (with a [`CellGrid`]) over the reconstructed points. The result follows the ground truth's
-    /// order, skipping points outside the region; it is empty when no ground-truth point is in
-    /// the region.
+    /// the nearest of `reconstructed_points_m` (world frame, metres). Builds a temporary index
+    /// (with a [`CellGrid`]) over the reconstructed points. The result follows the index's order
+    /// of the ground truth (spatial, not the input's), skipping points outside the region; it is
+    /// empty when no ground-truth point is in the region.
     ///
     /// Errors when `reconstructed_points_m` is empty or holds a non-finite coordinate, or when
     /// the region is malformed.
@@ -369,7 +358,7 @@ impl GroundTruthIndex {
         let lo_local = narrow(sub(&lo, &self.origin_m));
         let hi_local = narrow(sub(&hi, &self.origin_m));
         let inside = |p: &[f32; 3]| (0..3).all(|k| p[k] >= lo_local[k] && p[k] <= hi_local[k]);
-        let gt = &self.tree.points_local_m;
+        let gt = self.tree.points_local_m();
         if !gt.par_iter().any(inside) {
             return Ok(Vec::new());
         }
@@ -635,8 +624,20 @@ mod tests {
         let origin = index.origin_m();
         let local = |p: &[f64; 3]| narrow(sub(p, &origin)).map(f64::from);
         let recon_local: Vec<[f64; 3]> = recon.iter().map(local).collect();
-        for (g, di) in gt.iter().zip(&d) {
-            let q = local(g);
+        // The answers follow the index's order of the ground truth, which holds the same points.
+        let mut held: Vec<[f64; 3]> = index
+            .tree
+            .points_local_m()
+            .iter()
+            .map(|p| p.map(f64::from))
+            .collect();
+        let mut given: Vec<[f64; 3]> = gt.iter().map(local).collect();
+        for v in [&mut held, &mut given] {
+            v.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        }
+        assert_eq!(held, given);
+        for (g, di) in index.tree.points_local_m().iter().zip(&d) {
+            let q = g.map(f64::from);
             let brute = recon_local
                 .iter()
                 .map(|r| dist(r, &q))

@@ -8,7 +8,7 @@
 //! gathered block's boundary: any point outside the block is at least that far, so the candidate
 //! is the nearest point of the whole set. The queries left open gather the next ring of cells
 //! (5³, then 7³ cells, gathered anew); those still open after [`MAX_RING`] rings (far from every point) are left
-//! unanswered, for the caller's k-d tree.
+//! unanswered, for the caller's tree.
 //!
 //! Completeness queries (ground-truth points against a reconstruction) are mostly within a few
 //! centimetres of a surface: on the 200 m drive most of them are answered here, without a tree
@@ -65,8 +65,8 @@ struct Candidates {
 }
 
 impl CellGrid {
-    /// Chooses a cell size for `points`, sorts them by cell (in place: the caller's k-d tree is
-    /// then built over the same, sorted array) and indexes the occupied cells. `None` (points
+    /// Chooses a cell size for `points`, sorts them by cell (in place) and indexes the occupied
+    /// cells. `None` (points
     /// unchanged) when the set is empty or spans more cells than a key holds.
     pub(crate) fn build(points: &mut [[f32; 3]]) -> Option<CellGrid> {
         let cell_m = choose_cell_m(points)?;
@@ -98,7 +98,7 @@ impl CellGrid {
     /// Distance (metres) from each of `queries` to its nearest of `points` (the array this grid
     /// was built over), in the queries' order; [`UNANSWERED`] (NaN) where the nearest point may
     /// lie more than [`MAX_RING`] cells from the query's cell. The distance is measured in `f64` from the
-    /// query to the `f32` point that is nearest in `f32` arithmetic, as the k-d tree measures it.
+    /// query to the `f32` point that is nearest in `f32` arithmetic, as the tree measures it.
     pub(crate) fn nearest_distances_m(
         &self,
         points: &[[f32; 3]],
