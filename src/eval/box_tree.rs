@@ -16,6 +16,7 @@
 //! found first), and pruning is exact in the same arithmetic: a box's squared distance, rounded
 //! as the points' are, never exceeds the squared distance to a point inside it.
 
+use crate::error::{Error, Result};
 use rayon::prelude::*;
 
 /// Points per leaf (at most).
@@ -49,18 +50,21 @@ pub(crate) struct BoxTree {
 }
 
 impl BoxTree {
-    /// Indexes `points` (reordered in place; [`BoxTree::points`] gives them back).
-    pub(crate) fn new(mut points: Vec<[f32; 3]>) -> BoxTree {
-        assert!(
-            points.len() < u32::MAX as usize,
-            "a box tree indexes fewer than 2³² points"
-        );
+    /// Indexes `points` (reordered in place; [`BoxTree::points`] gives them back). Errors when
+    /// there are 2³² − 1 points or more (indices are `u32`).
+    pub(crate) fn new(mut points: Vec<[f32; 3]>) -> Result<BoxTree> {
+        if points.len() >= u32::MAX as usize {
+            return Err(Error::InvalidArgument(format!(
+                "cannot index {} points: at most 2³² − 2",
+                points.len()
+            )));
+        }
         let leaves = points.len().div_ceil(LEAF);
         let mut nodes = vec![Node::default(); (2 * leaves).saturating_sub(1)];
         if !points.is_empty() {
             build(&mut points, 0, &mut nodes);
         }
-        BoxTree { points, nodes }
+        Ok(BoxTree { points, nodes })
     }
 
     /// The indexed points, in the tree's order (the indices [`BoxTree::nearest`] returns).
@@ -75,17 +79,16 @@ impl BoxTree {
         if self.nodes.is_empty() {
             return None;
         }
-        let (mut best, mut best_d2) = match hint {
-            Some(i) => (i, squared_distance(&q, &self.points[i as usize])),
-            None => (u32::MAX, f32::INFINITY),
-        };
+        // Any point bounds the search; the hint, or the first.
+        let mut best = hint.unwrap_or(0);
+        let mut best_d2 = squared_distance(&q, &self.points[best as usize]);
         let mut stack = [(0u32, 0.0f32); STACK];
         stack[0] = (0, box_squared_distance(&q, &self.nodes[0]));
         let mut len = 1;
         while len > 0 {
             len -= 1;
             let (i, d2) = stack[len];
-            if d2 >= best_d2 && best != u32::MAX {
+            if d2 >= best_d2 {
                 continue;
             }
             let node = &self.nodes[i as usize];
@@ -95,7 +98,7 @@ impl BoxTree {
                     .enumerate()
                 {
                     let d2 = squared_distance(&q, p);
-                    if d2 < best_d2 || best == u32::MAX {
+                    if d2 < best_d2 {
                         best_d2 = d2;
                         best = node.start + j as u32;
                     }
@@ -239,7 +242,7 @@ mod tests {
         points.extend_from_within(..50);
         points.push([500.0, -300.0, 20.0]);
         let original = points.clone();
-        let tree = BoxTree::new(points);
+        let tree = BoxTree::new(points).unwrap();
         let mut sorted_in = original.clone();
         let mut sorted_out = tree.points().to_vec();
         for v in [&mut sorted_in, &mut sorted_out] {
@@ -272,10 +275,13 @@ mod tests {
 
     #[test]
     fn sizes_around_a_leaf_and_the_empty_set() {
-        assert_eq!(BoxTree::new(Vec::new()).nearest([0.0; 3], None), None);
+        assert_eq!(
+            BoxTree::new(Vec::new()).unwrap().nearest([0.0; 3], None),
+            None
+        );
         for n in [1, LEAF - 1, LEAF, LEAF + 1, 3 * LEAF + 5, 1000] {
             let points: Vec<[f32; 3]> = (0..n).map(|i| [i as f32, (i % 3) as f32, 0.0]).collect();
-            let tree = BoxTree::new(points.clone());
+            let tree = BoxTree::new(points.clone()).unwrap();
             assert_eq!(tree.nodes.len(), 2 * n.div_ceil(LEAF) - 1);
             for q in [
                 [-1.0, 0.0, 0.0],

@@ -43,14 +43,8 @@ struct PointTree {
 impl PointTree {
     /// Indexes `points_local_m` (already relative to the shared origin).
     fn new(points_local_m: Vec<[f32; 3]>) -> Result<PointTree> {
-        if points_local_m.len() >= u32::MAX as usize {
-            return Err(Error::InvalidArgument(format!(
-                "cannot index {} points: at most 2³² − 2",
-                points_local_m.len()
-            )));
-        }
         Ok(PointTree {
-            tree: BoxTree::new(points_local_m),
+            tree: BoxTree::new(points_local_m)?,
             grid: None,
         })
     }
