@@ -4,7 +4,8 @@
 //! The 8 (or 4) directions are split into two passes that run at the same time on two threads:
 //! a forward pass over the rows from top to bottom (left→right, and the three paths entering
 //! from the row above: ↓, ↘, ↙) and a backward pass from bottom to top (right→left, ↑, ↗, ↖).
-//! Each pass keeps one row of path costs per direction, updated in place pixel by pixel, never
+//! Each pass keeps two rows of path costs per direction, the previous row's and the current
+//! one's, which swap roles every row (no per-pixel copy of the values a pixel overwrites), never
 //! a whole `L_r`. For every row, the pass that reaches it first stores its four-path sum in a
 //! shared buffer (claiming the row with an atomic compare-and-swap, so it never waits while
 //! holding a claim); the second adds its own sum pixel by pixel and selects the winner at once

@@ -55,17 +55,14 @@ pub(super) struct PassScratch {
     pub(super) select: RowSelect,
 }
 
-/// A pass's rows of path costs, updated in place pixel by pixel.
+/// A pass's rows of path costs: the previous row's, read, and the current row's, written.
 #[derive(Default, Debug)]
 pub(super) struct PathRows<T> {
-    /// `L_r` of the row, `[x][dir][D + 2]`, padded with [`Cell::PAD`]: pixels already visited
-    /// in this row hold the current row's values, the others the previous row's.
+    /// `L_r` of two rows, the previous and the current one (they swap roles every row), each
+    /// `[x][dir][D + 2]`, padded with [`Cell::PAD`].
     pub(super) slots: Vec<T>,
-    /// Their minima, `[x][dir]`.
+    /// Their minima, two rows of `[x][dir]`.
     pub(super) slot_min: Vec<u16>,
-    /// The previous row's values of the last two pixels visited: `[2][dir][D + 2]`.
-    pub(super) save: Vec<T>,
-    pub(super) save_min: Vec<u16>,
     /// The horizontal path at the previous and current pixel: `[2][D + 2]`.
     pub(super) horiz: Vec<T>,
 }
@@ -77,10 +74,8 @@ impl<T: Cell> PathRows<T> {
             v.clear();
             v.resize(n, value);
         }
-        fill(&mut self.slots, w * nr * stride, T::PAD);
-        fill(&mut self.slot_min, w * nr, 0);
-        fill(&mut self.save, 2 * nr * stride, T::PAD);
-        fill(&mut self.save_min, 2 * nr, 0);
+        fill(&mut self.slots, 2 * w * nr * stride, T::PAD);
+        fill(&mut self.slot_min, 2 * w * nr, 0);
         fill(&mut self.horiz, 2 * stride, T::PAD);
     }
 }
@@ -231,10 +226,9 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
     let PathRows {
         slots,
         slot_min,
-        save,
-        save_min,
         horiz,
     } = rows;
+    let (row_len, min_len) = (w * NR * stride, w * NR);
     let mut hmin = 0u16;
     for step in 0..h {
         let y = if rows_down { step } else { h - 1 - step };
@@ -265,6 +259,14 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
         // publishes STORED; the other pass uses it only after seeing STORED, and a ring slot is
         // written again only after the row it held was published CONSUMED.
         let stored = unsafe { job.partial.row(job.places.slot(y)) };
+        // This row's path costs and the previous row's: the two halves swap roles every row.
+        let (lo, hi) = slots.split_at_mut(row_len);
+        let (lo_min, hi_min) = slot_min.split_at_mut(min_len);
+        let (prev, cur_row, prev_min, cur_min) = if step % 2 == 0 {
+            (&*hi, lo, &*hi_min, lo_min)
+        } else {
+            (&*lo, hi, &*lo_min, hi_min)
+        };
         for i in 0..w {
             let x = if forward { i } else { w - 1 - i };
             let c = &cost_row[x * nd..(x + 1) * nd];
@@ -288,40 +290,17 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
             };
             let (h0, h1) = horiz.split_at_mut(stride);
             let (hprev, hout) = if i % 2 == 0 { (&*h1, h0) } else { (&*h0, h1) };
-            // Keep the previous row's values of x before they are overwritten: x itself needs
-            // them now (vertical) and the next pixel of the row (diagonal from behind).
-            let (cur, other) = (i & 1, (i & 1) ^ 1);
-            let (sx, ss) = (x * NR * stride, cur * NR * stride);
-            save[ss..ss + NR * stride].copy_from_slice(&slots[sx..sx + NR * stride]);
-            save_min[cur * NR..(cur + 1) * NR].copy_from_slice(&slot_min[x * NR..(x + 1) * NR]);
+            let sx = x * NR * stride;
             // Predecessors in the previous row, when every path continues (the usual case).
             let xps: [isize; NR] = std::array::from_fn(|r| x as isize + dxs[r]);
             let inside =
                 i > 0 && (NR == 0 || has_prev && xps.iter().all(|&xp| xp >= 0 && xp < w as isize));
-            // The pixel's slots, and the not yet visited neighbour's (diagonal from ahead).
-            let ahead = if forward { x + 1 } else { x.wrapping_sub(1) };
-            let (outs, ahead_slots): (&mut [T], &[T]) = if ahead < w && forward {
-                let (a, b) = slots.split_at_mut(ahead * NR * stride);
-                (&mut a[sx..], &b[..NR * stride])
-            } else if ahead < w {
-                let (a, b) = slots.split_at_mut(sx);
-                (&mut b[..NR * stride], &a[ahead * NR * stride..])
-            } else {
-                (&mut slots[sx..sx + NR * stride], &[])
-            };
-            // Where each direction's predecessor values are.
+            let outs = &mut cur_row[sx..sx + NR * stride];
+            // Direction r's predecessor in the previous row (inside the image).
             let pred = |r: usize| -> (&[T], u16) {
-                let dx = dxs[r];
-                let visited = if forward { dx < 0 } else { dx > 0 };
-                if dx == 0 || visited {
-                    let which = if dx == 0 { cur } else { other };
-                    let s0 = (which * NR + r) * stride;
-                    (&save[s0..s0 + stride], save_min[which * NR + r])
-                } else {
-                    let xp = (x as isize + dx) as usize;
-                    let s0 = r * stride;
-                    (&ahead_slots[s0..s0 + stride], slot_min[xp * NR + r])
-                }
+                let xp = xps[r] as usize;
+                let s0 = (xp * NR + r) * stride;
+                (&prev[s0..s0 + stride], prev_min[xp * NR + r])
             };
             if inside {
                 let xn = if forward { x - 1 } else { x + 1 };
@@ -385,7 +364,7 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                     std::array::from_fn(|r| m[r])
                 };
                 hmin = m[0];
-                slot_min[x * NR..(x + 1) * NR].copy_from_slice(&m[1..]);
+                cur_min[x * NR..(x + 1) * NR].copy_from_slice(&m[1..]);
             } else {
                 // Path starts: the first row, the first pixel of the row, the image's sides.
                 hmin = if i == 0 {
@@ -406,7 +385,7 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                         path_step::<false, T>(c, pv, pm, p1, p2, out, acc)
                     };
                 }
-                slot_min[x * NR..(x + 1) * NR].copy_from_slice(&m);
+                cur_min[x * NR..(x + 1) * NR].copy_from_slice(&m);
             }
             if !(first || inside && fused) {
                 let theirs = &mut stored[x * nd..(x + 1) * nd];
