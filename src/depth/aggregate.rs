@@ -83,7 +83,7 @@ impl Penalties {
 /// How path costs `L_r` are stored between pixels: `u8` when every `L_r` fits (the census's
 /// largest cost plus P2 at most 254: `L_r ≤ C + P2`), else `u16`, so that a pass's row of path
 /// costs stays in the core's cache. The arithmetic is `u16` either way.
-pub(crate) trait Cell: Copy + Default + Send + Sync + std::fmt::Debug + 'static {
+pub(crate) trait Cell: Copy + Ord + Default + Send + Sync + std::fmt::Debug + 'static {
     /// Padding before the first and after the last slice: never the best predecessor (it is at
     /// least the largest cost plus P2, so `PAD + P1` loses to the jump `min + P2`).
     const PAD: Self;
@@ -119,7 +119,9 @@ impl Cell for u16 {
 
 /// One step of eq. 13 along a path: `out[1..=D]` ← L_r(p, ·) from `prev[1..=D]` (= L_r(p−r, ·),
 /// padded with [`Cell::PAD`] at 0 and D+1), and `acc` gets it added (or assigned when
-/// `ASSIGN`). Returns `min_d L_r(p, d)`.
+/// `ASSIGN`). Returns `min_d L_r(p, d)`. Every kernel here takes the two neighbouring slices'
+/// minimum before adding P1, in the stored type: `min(a, b) + P1 = min(a + P1, b + P1)` exactly
+/// (no value comes near `u16::MAX`), with one widening and one addition fewer.
 #[inline(always)]
 pub(crate) fn path_step<const ASSIGN: bool, T: Cell>(
     cost: &[u8],
@@ -139,8 +141,7 @@ pub(crate) fn path_step<const ASSIGN: bool, T: Cell>(
     for k in 0..d {
         let best = mid[k]
             .widen()
-            .min(lo[k].widen() + p1)
-            .min(hi[k].widen() + p1)
+            .min(lo[k].min(hi[k]).widen() + p1)
             .min(jump);
         let v = cost[k] as u16 + best - prev_min;
         out[k] = T::narrow(v);
@@ -220,23 +221,19 @@ fn path_steps4<T: Cell>(
         let c = cost[k] as u16;
         let ba = pa[k + 1]
             .widen()
-            .min(pa[k].widen() + p1)
-            .min(pa[k + 2].widen() + p1)
+            .min(pa[k].min(pa[k + 2]).widen() + p1)
             .min(ja);
         let bb = pb[k + 1]
             .widen()
-            .min(pb[k].widen() + p1)
-            .min(pb[k + 2].widen() + p1)
+            .min(pb[k].min(pb[k + 2]).widen() + p1)
             .min(jb);
         let bc = pc[k + 1]
             .widen()
-            .min(pc[k].widen() + p1)
-            .min(pc[k + 2].widen() + p1)
+            .min(pc[k].min(pc[k + 2]).widen() + p1)
             .min(jc);
         let bd = pd[k + 1]
             .widen()
-            .min(pd[k].widen() + p1)
-            .min(pd[k + 2].widen() + p1)
+            .min(pd[k].min(pd[k + 2]).widen() + p1)
             .min(jd);
         let (va, vb, vc, vd) = (c + ba - pma, c + bb - pmb, c + bc - pmc, c + bd - pmd);
         oa[k] = T::narrow(va);
@@ -294,8 +291,7 @@ fn path_steps4_total<T: Cell>(
         let best = |p: &[T], j: u16| {
             p[k + 1]
                 .widen()
-                .min(p[k].widen() + p1)
-                .min(p[k + 2].widen() + p1)
+                .min(p[k].min(p[k + 2]).widen() + p1)
                 .min(j)
         };
         let (ba, bb, bc, bd) = (best(pa, ja), best(pb, jb), best(pc, jc), best(pd, jd));
@@ -339,8 +335,7 @@ fn path_step_total<T: Cell>(
     for k in 0..d {
         let best = prev[k + 1]
             .widen()
-            .min(prev[k].widen() + p1)
-            .min(prev[k + 2].widen() + p1)
+            .min(prev[k].min(prev[k + 2]).widen() + p1)
             .min(jump);
         let v = cost[k] as u16 + best - prev_min;
         out[k] = T::narrow(v);
@@ -376,13 +371,11 @@ fn path_steps2<T: Cell>(
         let c = cost[k] as u16;
         let ba = pa[k + 1]
             .widen()
-            .min(pa[k].widen() + p1)
-            .min(pa[k + 2].widen() + p1)
+            .min(pa[k].min(pa[k + 2]).widen() + p1)
             .min(ja);
         let bb = pb[k + 1]
             .widen()
-            .min(pb[k].widen() + p1)
-            .min(pb[k + 2].widen() + p1)
+            .min(pb[k].min(pb[k + 2]).widen() + p1)
             .min(jb);
         let (va, vb) = (c + ba - pma, c + bb - pmb);
         oa[k] = T::narrow(va);
