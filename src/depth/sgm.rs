@@ -287,10 +287,13 @@ fn cost_row_impl(
     let w = l.len() / words;
     // The right row reversed, so that the slices of a pixel read it forwards:
     // r[xr0 − k] = rev[w − 1 − xr0 + k] (one word per pixel; two-word signatures interleave).
-    let mut rev = vec![0u64; w * words];
-    for (j, o) in rev.chunks_exact_mut(words).enumerate() {
-        o.copy_from_slice(&r[(w - 1 - j) * words..(w - j) * words]);
-    }
+    // (Collected, not zeroed and copied pixel by pixel: a `memset` and a `memmove` call per
+    // pixel showed up as 4 % of the matcher's samples.)
+    let rev: Vec<u64> = if words == 1 {
+        r.iter().rev().copied().collect()
+    } else {
+        r.chunks_exact(words).rev().flatten().copied().collect()
+    };
     for x in 0..w {
         let o = &mut out[x * nd..(x + 1) * nd];
         // Slices k ∈ [k0, k1) have their right pixel x − dmin − k inside [0, w).
