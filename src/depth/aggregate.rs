@@ -83,7 +83,9 @@ impl Penalties {
 /// How path costs `L_r` are stored between pixels: `u8` when every `L_r` fits (the census's
 /// largest cost plus P2 at most 254: `L_r ≤ C + P2`), else `u16`, so that a pass's row of path
 /// costs stays in the core's cache. The arithmetic is `u16` either way.
-pub(crate) trait Cell: Copy + Ord + Default + Send + Sync + std::fmt::Debug + 'static {
+pub(crate) trait Cell:
+    Copy + Ord + Default + Send + Sync + std::fmt::Debug + 'static
+{
     /// Padding before the first and after the last slice: never the best predecessor (it is at
     /// least the largest cost plus P2, so `PAD + P1` loses to the jump `min + P2`).
     const PAD: Self;
@@ -139,10 +141,7 @@ pub(crate) fn path_step<const ASSIGN: bool, T: Cell>(
     let jump = prev_min + p2;
     let mut m = u16::MAX;
     for k in 0..d {
-        let best = mid[k]
-            .widen()
-            .min(lo[k].min(hi[k]).widen() + p1)
-            .min(jump);
+        let best = mid[k].widen().min(lo[k].min(hi[k]).widen() + p1).min(jump);
         let v = cost[k] as u16 + best - prev_min;
         out[k] = T::narrow(v);
         if ASSIGN {
@@ -288,12 +287,7 @@ fn path_steps4_total<T: Cell>(
     let mut mt = u16::MAX;
     for k in 0..d {
         let c = cost[k] as u16;
-        let best = |p: &[T], j: u16| {
-            p[k + 1]
-                .widen()
-                .min(p[k].min(p[k + 2]).widen() + p1)
-                .min(j)
-        };
+        let best = |p: &[T], j: u16| p[k + 1].widen().min(p[k].min(p[k + 2]).widen() + p1).min(j);
         let (ba, bb, bc, bd) = (best(pa, ja), best(pb, jb), best(pc, jc), best(pd, jd));
         let (va, vb, vc, vd) = (c + ba - pma, c + bb - pmb, c + bc - pmc, c + bd - pmd);
         oa[k] = T::narrow(va);
