@@ -392,6 +392,24 @@ impl GpuContext {
 
     /// Copies the first `bytes` of each buffer back to the host, in one submission.
     pub(crate) fn read_back(&self, buffers: &[(&wgpu::Buffer, u64)]) -> Result<Vec<Vec<u8>>> {
+        // Zeroed memory comes from the system untouched (calloc): the copying threads fault its
+        // pages in.
+        let mut out: Vec<Vec<u8>> = buffers
+            .iter()
+            .map(|&(_, bytes)| vec![0u8; bytes as usize])
+            .collect();
+        let mut targets: Vec<(&wgpu::Buffer, &mut [u8])> = buffers
+            .iter()
+            .zip(out.iter_mut())
+            .map(|(&(buf, _), o)| (buf, o.as_mut_slice()))
+            .collect();
+        self.read_back_into(&mut targets)?;
+        Ok(out)
+    }
+
+    /// Copies the first `target.len()` bytes of each buffer into its target, in one submission
+    /// (no intermediate host copy). A target may be partly written when this fails.
+    pub(crate) fn read_back_into(&self, buffers: &mut [(&wgpu::Buffer, &mut [u8])]) -> Result<()> {
         let scope = ErrorScopes::push(&self.device);
         let mut encoder = self
             .device
@@ -400,14 +418,15 @@ impl GpuContext {
             });
         let staging: Vec<wgpu::Buffer> = buffers
             .iter()
-            .map(|(buf, bytes)| {
+            .map(|(buf, target)| {
+                let bytes = target.len() as u64;
                 let s = self.device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some("staging"),
-                    size: (*bytes).max(4),
+                    size: bytes.max(4),
                     usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
                     mapped_at_creation: false,
                 });
-                encoder.copy_buffer_to_buffer(buf, 0, &s, 0, *bytes);
+                encoder.copy_buffer_to_buffer(buf, 0, &s, 0, bytes);
                 s
             })
             .collect();
@@ -426,33 +445,30 @@ impl GpuContext {
             r.map_err(|e| Error::Gpu(format!("mapping readback buffer {k}: {e}")))?;
         }
         scope.pop("reading results back")?;
-        let mut out = Vec::with_capacity(staging.len());
-        for (s, (_, bytes)) in staging.iter().zip(buffers) {
+        for (s, (_, target)) in staging.iter().zip(buffers.iter_mut()) {
             let view = s
                 .slice(..)
                 .get_mapped_range()
                 .map_err(|e| Error::Gpu(format!("reading a mapped buffer: {e}")))?;
-            out.push(copy_out(&view[..*bytes as usize]));
+            copy_into(target, &view[..target.len()]);
             drop(view);
             s.unmap();
         }
-        Ok(out)
+        Ok(())
     }
 }
 
-/// `src` copied into a new vector; a large one by several threads, each touching its own pages
-/// of the new memory first.
-fn copy_out(src: &[u8]) -> Vec<u8> {
+/// `src` copied into `dst` (of the same length); a large one by several threads, each touching
+/// its own pages of `dst`.
+fn copy_into(dst: &mut [u8], src: &[u8]) {
     use rayon::prelude::*;
     if src.len() < PARALLEL_COPY_BYTES {
-        return src.to_vec();
+        dst.copy_from_slice(src);
+        return;
     }
-    // Zeroed memory comes from the system untouched (calloc): the threads fault its pages in.
-    let mut out = vec![0u8; src.len()];
-    out.par_chunks_mut(1 << 20)
+    dst.par_chunks_mut(1 << 20)
         .zip(src.par_chunks(1 << 20))
         .for_each(|(d, s)| d.copy_from_slice(s));
-    out
 }
 
 /// Validation and out-of-memory error scopes around a group of wgpu calls, so that a failure
@@ -487,7 +503,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn copy_out_equals_the_source_on_both_sides_of_the_threshold() {
+    fn copy_into_equals_the_source_on_both_sides_of_the_threshold() {
         for len in [
             0,
             5,
@@ -498,7 +514,9 @@ mod tests {
             let src: Vec<u8> = (0..len)
                 .map(|i| (i as u32).wrapping_mul(2_654_435_761).to_le_bytes()[3])
                 .collect();
-            assert_eq!(copy_out(&src), src, "{len} bytes");
+            let mut dst = vec![0u8; len];
+            copy_into(&mut dst, &src);
+            assert_eq!(dst, src, "{len} bytes");
         }
     }
 }

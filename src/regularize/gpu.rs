@@ -36,8 +36,10 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
     ctx.check_binding("TV arrays (4 bytes per voxel)", n64 * 4)?;
     let dual = ctx.kernel(&shaders::TV_DUAL)?;
     let primal = ctx.kernel(&shaders::TV_PRIMAL)?;
-    let neighbors: Vec<u32> = problem.neighbor_table().iter().flatten().copied().collect();
-    let mask: Vec<u32> = problem.masks().iter().map(|&m| m as u32).collect();
+    let mask: Vec<u32> = {
+        use rayon::prelude::*;
+        problem.masks().par_iter().map(|&m| m as u32).collect()
+    };
     let uniforms = TvUniforms {
         sigma: params.sigma,
         tau: params.tau,
@@ -49,7 +51,11 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
     let scope = ErrorScopes::push(&ctx.device);
     let (u, ubar, p) = problem.state();
     let buf_uniforms = ctx.uniform("tv_uniforms", bytemuck::bytes_of(&uniforms));
-    let buf_neighbors = ctx.storage("tv_neighbors", bytemuck::cast_slice(&neighbors));
+    // The table as it is (six u32 per voxel), not flattened into a copy.
+    let buf_neighbors = ctx.storage(
+        "tv_neighbors",
+        bytemuck::cast_slice(problem.neighbor_table()),
+    );
     let buf_mask = ctx.storage("tv_mask", bytemuck::cast_slice(&mask));
     let buf_f = ctx.storage("tv_f", bytemuck::cast_slice(&problem.f));
     let buf_w = ctx.storage("tv_w", bytemuck::cast_slice(&problem.w));
@@ -85,12 +91,13 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
         ctx.queue.submit([encoder.finish()]);
     }
     scope.pop("running the TV kernels")?;
-    let out = ctx.read_back(&[(&buf_u, n64 * 4), (&buf_ubar, n64 * 4), (&buf_p, n64 * 12)])?;
+    // Straight into the problem's arrays (one copy, no intermediate vectors).
     let (u, ubar, p) = problem.state_mut();
-    // Staging bytes carry no alignment guarantee: copy into typed vectors.
-    u.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&out[0]));
-    ubar.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&out[1]));
-    p.copy_from_slice(&bytemuck::pod_collect_to_vec::<u8, f32>(&out[2]));
+    ctx.read_back_into(&mut [
+        (&buf_u, bytemuck::cast_slice_mut(u)),
+        (&buf_ubar, bytemuck::cast_slice_mut(ubar)),
+        (&buf_p, bytemuck::cast_slice_mut(p)),
+    ])?;
     Ok(())
 }
 
