@@ -105,11 +105,15 @@ fn fuse_blocks(
         ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, voxel_count)?;
         ctx.queue.submit([encoder.finish()]);
         scope.pop("running the fusion kernel")?;
-        let out = ctx.read_back(&[(&buf_voxels, voxel_count * 8), (&buf_counters, 4)])?;
-        // Staging bytes carry no alignment guarantee: copy into typed vectors.
-        let counter: Vec<u32> = bytemuck::pod_collect_to_vec(&out[1]);
+        // Straight into typed vectors (one copy).
+        let mut voxels: Vec<GpuVoxel> = bytemuck::zeroed_vec(voxel_count as usize);
+        let mut counter = [0u32; 1];
+        ctx.read_back_into(&mut [
+            (&buf_voxels, bytemuck::cast_slice_mut(&mut voxels)),
+            (&buf_counters, bytemuck::cast_slice_mut(&mut counter)),
+        ])?;
         updates += counter[0] as usize;
-        results.push(bytemuck::pod_collect_to_vec(&out[0]));
+        results.push(voxels);
     }
     for (batch, result) in blocks.chunks_mut(per_batch).zip(&results) {
         for ((_, block), vox) in batch.iter_mut().zip(result.chunks_exact(VOXELS_PER_BLOCK)) {

@@ -317,11 +317,15 @@ fn fuse_blocks(
         }
         ctx.queue.submit([encoder.finish()]);
         scope.pop("running the LiDAR fusion kernel")?;
-        let out = ctx.read_back(&[(&buf_voxels, voxel_count * 8), (&buf_counters, 4)])?;
-        // Staging bytes carry no alignment guarantee: copy into typed vectors.
-        let counter: Vec<u32> = bytemuck::pod_collect_to_vec(&out[1]);
+        // Straight into typed vectors (one copy).
+        let mut voxels: Vec<GpuVoxel> = bytemuck::zeroed_vec(voxel_count as usize);
+        let mut counter = [0u32; 1];
+        ctx.read_back_into(&mut [
+            (&buf_voxels, bytemuck::cast_slice_mut(&mut voxels)),
+            (&buf_counters, bytemuck::cast_slice_mut(&mut counter)),
+        ])?;
         updates += counter[0] as usize;
-        results.push((order, bytemuck::pod_collect_to_vec(&out[0])));
+        results.push((order, voxels));
     }
     for (order, result) in &results {
         for (&b, vox) in order.iter().zip(result.chunks_exact(VOXELS_PER_BLOCK)) {

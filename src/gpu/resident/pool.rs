@@ -215,9 +215,11 @@ impl BlockPool {
         }
         ctx.queue.submit([encoder.finish()]);
         scope.pop("gathering blocks for readback")?;
-        let out = ctx.read_back(&[(&gather, bytes)])?;
-        // Staging bytes carry no alignment guarantee: copy into a typed vector.
-        Ok(bytemuck::pod_collect_to_vec(&out[0]))
+        // Straight into a typed vector (one copy).
+        let mut voxels: Vec<GpuVoxel> =
+            bytemuck::zeroed_vec(bytes as usize / std::mem::size_of::<GpuVoxel>());
+        ctx.read_back_into(&mut [(&gather, bytemuck::cast_slice_mut(&mut voxels))])?;
+        Ok(voxels)
     }
 }
 
