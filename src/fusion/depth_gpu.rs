@@ -105,14 +105,9 @@ fn fuse_blocks(
         ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, voxel_count)?;
         ctx.queue.submit([encoder.finish()]);
         scope.pop("running the fusion kernel")?;
-        // Straight into typed vectors (one copy).
-        let mut voxels: Vec<GpuVoxel> = bytemuck::zeroed_vec(voxel_count as usize);
-        let mut counter = [0u32; 1];
-        ctx.read_back_into(&mut [
-            (&buf_voxels, bytemuck::cast_slice_mut(&mut voxels)),
-            (&buf_counters, bytemuck::cast_slice_mut(&mut counter)),
-        ])?;
-        updates += counter[0] as usize;
+        let (voxels, counted) =
+            ctx.read_back_voxels(&buf_voxels, &buf_counters, voxel_count as usize)?;
+        updates += counted as usize;
         results.push(voxels);
     }
     for (batch, result) in blocks.chunks_mut(per_batch).zip(&results) {

@@ -317,14 +317,9 @@ fn fuse_blocks(
         }
         ctx.queue.submit([encoder.finish()]);
         scope.pop("running the LiDAR fusion kernel")?;
-        // Straight into typed vectors (one copy).
-        let mut voxels: Vec<GpuVoxel> = bytemuck::zeroed_vec(voxel_count as usize);
-        let mut counter = [0u32; 1];
-        ctx.read_back_into(&mut [
-            (&buf_voxels, bytemuck::cast_slice_mut(&mut voxels)),
-            (&buf_counters, bytemuck::cast_slice_mut(&mut counter)),
-        ])?;
-        updates += counter[0] as usize;
+        let (voxels, counted) =
+            ctx.read_back_voxels(&buf_voxels, &buf_counters, voxel_count as usize)?;
+        updates += counted as usize;
         results.push((order, voxels));
     }
     for (order, result) in &results {

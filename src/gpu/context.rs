@@ -407,6 +407,23 @@ impl GpuContext {
         Ok(out)
     }
 
+    /// A fusion kernel's `count` voxels and its update counter, read back in one submission
+    /// straight into typed memory.
+    pub(crate) fn read_back_voxels(
+        &self,
+        voxels: &wgpu::Buffer,
+        counter: &wgpu::Buffer,
+        count: usize,
+    ) -> Result<(Vec<super::layout::GpuVoxel>, u32)> {
+        let mut out: Vec<super::layout::GpuVoxel> = bytemuck::zeroed_vec(count);
+        let mut updates = [0u32; 1];
+        self.read_back_into(&mut [
+            (voxels, bytemuck::cast_slice_mut(&mut out)),
+            (counter, bytemuck::cast_slice_mut(&mut updates)),
+        ])?;
+        Ok((out, updates[0]))
+    }
+
     /// Copies the first `target.len()` bytes of each buffer into its target, in one submission
     /// (no intermediate host copy). A target may be partly written when this fails.
     pub(crate) fn read_back_into(&self, buffers: &mut [(&wgpu::Buffer, &mut [u8])]) -> Result<()> {
