@@ -289,11 +289,7 @@ fn cost_row_impl(
     // r[xr0 − k] = rev[w − 1 − xr0 + k] (one word per pixel; two-word signatures interleave).
     // (Collected, not zeroed and copied pixel by pixel: a `memset` and a `memmove` call per
     // pixel showed up as 4 % of the matcher's samples.)
-    let rev: Vec<u64> = if words == 1 {
-        r.iter().rev().copied().collect()
-    } else {
-        r.chunks_exact(words).rev().flatten().copied().collect()
-    };
+    let rev: Vec<u64> = r.chunks_exact(words).rev().flatten().copied().collect();
     for x in 0..w {
         let o = &mut out[x * nd..(x + 1) * nd];
         // Slices k ∈ [k0, k1) have their right pixel x − dmin − k inside [0, w).

@@ -19,6 +19,7 @@ use crate::regularize::{
     TvSolver,
 };
 use crate::Result;
+use rayon::prelude::*;
 
 /// Iterations recorded per command buffer (bounds the size of one submission).
 const ITERATIONS_PER_SUBMIT: u32 = 64;
@@ -36,10 +37,7 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
     ctx.check_binding("TV arrays (4 bytes per voxel)", n64 * 4)?;
     let dual = ctx.kernel(&shaders::TV_DUAL)?;
     let primal = ctx.kernel(&shaders::TV_PRIMAL)?;
-    let mask: Vec<u32> = {
-        use rayon::prelude::*;
-        problem.masks().par_iter().map(|&m| m as u32).collect()
-    };
+    let mask: Vec<u32> = problem.masks().par_iter().map(|&m| m as u32).collect();
     let uniforms = TvUniforms {
         sigma: params.sigma,
         tau: params.tau,
