@@ -80,23 +80,37 @@ impl Penalties {
     }
 }
 
-/// How path costs `L_r` are stored between pixels: `u8` when every `L_r` fits (the census's
-/// largest cost plus P2 at most 254: `L_r ≤ C + P2`), else `u16`, so that a pass's row of path
-/// costs stays in the core's cache. The arithmetic is `u16` either way.
+/// How path costs `L_r` are stored between pixels, and the type their recurrence is computed in:
+/// `u8` when every `L_r` fits (the census's largest cost plus P2 at most 254: `L_r ≤ C + P2`),
+/// else `u16`, so that a pass's row of path costs stays in the core's cache and a vector
+/// register holds twice the disparities. Sums over paths are `u16` either way.
+///
+/// In `u8` the recurrence saturates P1 and the jump `min L + P2` at 255 ([`Cell::sat`]). That is
+/// exact: a stored `L_r` is at most 254, so the middle predecessor (never padding) is always at
+/// most 254 and beats any term that saturated, as it beats that term's true value; and
+/// `best − min L` lies in [0, P2], so `C + best − min L ≤ 254` needs no wider type.
 pub(crate) trait Cell:
     Copy + Ord + Default + Send + Sync + std::fmt::Debug + 'static
 {
     /// Padding before the first and after the last slice: never the best predecessor (it is at
     /// least the largest cost plus P2, so `PAD + P1` loses to the jump `min + P2`).
     const PAD: Self;
-    /// The value, for the arithmetic.
+    /// Larger than every path cost (the start of a minimum).
+    const MAX: Self;
+    /// The value, as a sum's term.
     fn widen(self) -> u16;
-    /// A value computed in `u16` (fits by the choice of the type).
+    /// A path cost or minimum computed in `u16` (fits by the choice of the type).
     fn narrow(v: u16) -> Self;
+    /// A penalty or jump in the stored type, saturated at its largest value.
+    fn sat(v: u16) -> Self;
+    /// `L_r(p, d) = C + min(L(d), min(L(d − 1), L(d + 1)) + P1, jump) − min L`, eq. 13 with the
+    /// jump `min L + P2`, from the predecessor's slices `lo`, `mid`, `hi` (d − 1, d, d + 1).
+    fn lane(c: u8, lo: Self, mid: Self, hi: Self, p1: Self, jump: Self, prev_min: Self) -> Self;
 }
 
 impl Cell for u8 {
     const PAD: u8 = u8::MAX;
+    const MAX: u8 = u8::MAX;
     #[inline(always)]
     fn widen(self) -> u16 {
         self as u16
@@ -105,10 +119,21 @@ impl Cell for u8 {
     fn narrow(v: u16) -> u8 {
         v as u8
     }
+    #[inline(always)]
+    fn sat(v: u16) -> u8 {
+        v.min(u8::MAX as u16) as u8
+    }
+    #[inline(always)]
+    fn lane(c: u8, lo: u8, mid: u8, hi: u8, p1: u8, jump: u8, prev_min: u8) -> u8 {
+        // best ≥ prev_min and C + best − prev_min ≤ 254 (trait docs): wrapping never wraps.
+        let best = mid.min(lo.min(hi).saturating_add(p1)).min(jump);
+        best.wrapping_sub(prev_min).wrapping_add(c)
+    }
 }
 
 impl Cell for u16 {
     const PAD: u16 = BIG;
+    const MAX: u16 = u16::MAX;
     #[inline(always)]
     fn widen(self) -> u16 {
         self
@@ -117,13 +142,27 @@ impl Cell for u16 {
     fn narrow(v: u16) -> u16 {
         v
     }
+    #[inline(always)]
+    fn sat(v: u16) -> u16 {
+        v
+    }
+    #[inline(always)]
+    fn lane(c: u8, lo: u16, mid: u16, hi: u16, p1: u16, jump: u16, prev_min: u16) -> u16 {
+        c as u16 + mid.min(lo.min(hi) + p1).min(jump) - prev_min
+    }
+}
+
+/// P1, a predecessor's minimum and its jump (`min + P2`) in the stored type ([`Cell::sat`]).
+#[inline(always)]
+fn in_cell<T: Cell>(p1: u16, prev_min: u16, p2: u16) -> (T, T, T) {
+    (T::sat(p1), T::narrow(prev_min), T::sat(prev_min + p2))
 }
 
 /// One step of eq. 13 along a path: `out[1..=D]` ← L_r(p, ·) from `prev[1..=D]` (= L_r(p−r, ·),
 /// padded with [`Cell::PAD`] at 0 and D+1), and `acc` gets it added (or assigned when
-/// `ASSIGN`). Returns `min_d L_r(p, d)`. Every kernel here takes the two neighbouring slices'
-/// minimum before adding P1, in the stored type: `min(a, b) + P1 = min(a + P1, b + P1)` exactly
-/// (no value comes near `u16::MAX`), with one widening and one addition fewer.
+/// `ASSIGN`). Returns `min_d L_r(p, d)`. Every kernel here computes in the stored type
+/// ([`Cell::lane`]) and takes the two neighbouring slices' minimum before adding P1:
+/// `min(a, b) + P1 = min(a + P1, b + P1)` exactly.
 #[inline(always)]
 pub(crate) fn path_step<const ASSIGN: bool, T: Cell>(
     cost: &[u8],
@@ -138,20 +177,19 @@ pub(crate) fn path_step<const ASSIGN: bool, T: Cell>(
     let (lo, mid, hi) = (&prev[0..d], &prev[1..d + 1], &prev[2..d + 2]);
     let out = &mut out[1..d + 1];
     let acc = &mut acc[..d];
-    let jump = prev_min + p2;
-    let mut m = u16::MAX;
+    let (p1, pm, jump) = in_cell::<T>(p1, prev_min, p2);
+    let mut m = T::MAX;
     for k in 0..d {
-        let best = mid[k].widen().min(lo[k].min(hi[k]).widen() + p1).min(jump);
-        let v = cost[k] as u16 + best - prev_min;
-        out[k] = T::narrow(v);
+        let v = T::lane(cost[k], lo[k], mid[k], hi[k], p1, jump, pm);
+        out[k] = v;
         if ASSIGN {
-            acc[k] = v;
+            acc[k] = v.widen();
         } else {
-            acc[k] += v;
+            acc[k] += v.widen();
         }
         m = m.min(v);
     }
-    m
+    m.widen()
 }
 
 /// First pixel of a path: `L_r = C`.
@@ -178,6 +216,31 @@ pub(crate) fn path_start<const ASSIGN: bool, T: Cell>(
     m
 }
 
+/// A predecessor's path costs at the slices d − 1, d and d + 1 for every d (`[0..D]`, `[1..D+1]`
+/// and `[2..D+2]` of its padded row), made by the caller of a kernel compiled out of line. Seen
+/// as three unrelated slices there, each is read with plain vector loads. Given the one padded
+/// row, the compiler loaded `d + 1` only and rebuilt `d − 1` and `d` from it and the previous
+/// vector, two lane shuffles each (`vshufi64x2` + `vpalignr`): 16 shuffles per 32 slices in the
+/// four-path kernel, where shuffles share one execution port (`docs/bench/stereo.md`).
+#[derive(Clone, Copy)]
+pub(crate) struct Nbrs<'a, T> {
+    lo: &'a [T],
+    mid: &'a [T],
+    hi: &'a [T],
+}
+
+impl<'a, T> Nbrs<'a, T> {
+    /// The three views of `prev` (padded: `D + 2` entries) for `d` slices.
+    #[inline(always)]
+    fn of(prev: &'a [T], d: usize) -> Self {
+        Nbrs {
+            lo: &prev[..d],
+            mid: &prev[1..d + 1],
+            hi: &prev[2..d + 2],
+        }
+    }
+}
+
 /// [`path_step`] for the 4 directions of a pass at once (all continuing a path): one pass
 /// over the disparities computes every direction's `L_r` and their sum, which `acc` receives
 /// (assigned). Returns the directions' minima. Separate slice arguments (not arrays of slices)
@@ -187,7 +250,7 @@ pub(crate) fn path_start<const ASSIGN: bool, T: Cell>(
 #[allow(clippy::too_many_arguments)]
 fn path_steps4<T: Cell>(
     cost: &[u8],
-    (pa, pb, pc, pd): (&[T], &[T], &[T], &[T]),
+    [pa, pb, pc, pd]: [Nbrs<'_, T>; 4],
     prev_min: [u16; 4],
     p1: u16,
     p2: [u16; 4],
@@ -199,7 +262,10 @@ fn path_steps4<T: Cell>(
 ) -> [u16; 4] {
     let d = cost.len();
     let acc = &mut acc[..d];
-    let (pa, pb, pc, pd) = (&pa[..d + 2], &pb[..d + 2], &pc[..d + 2], &pd[..d + 2]);
+    let (al, am, ah) = (&pa.lo[..d], &pa.mid[..d], &pa.hi[..d]);
+    let (bl, bm, bh) = (&pb.lo[..d], &pb.mid[..d], &pb.hi[..d]);
+    let (cl, cm, ch) = (&pc.lo[..d], &pc.mid[..d], &pc.hi[..d]);
+    let (dl, dm, dh) = (&pd.lo[..d], &pd.mid[..d], &pd.hi[..d]);
     let (oa, ob, oc, od) = (
         &mut oa[1..d + 1],
         &mut ob[1..d + 1],
@@ -207,45 +273,29 @@ fn path_steps4<T: Cell>(
         &mut od[1..d + 1],
     );
     // Element by element: `array::map` stayed out of line (a call per pixel).
-    let (ja, jb, jc, jd) = (
-        prev_min[0] + p2[0],
-        prev_min[1] + p2[1],
-        prev_min[2] + p2[2],
-        prev_min[3] + p2[3],
-    );
-    let [pma, pmb, pmc, pmd] = prev_min;
+    let (p1t, pma, ja) = in_cell::<T>(p1, prev_min[0], p2[0]);
+    let (_, pmb, jb) = in_cell::<T>(p1, prev_min[1], p2[1]);
+    let (_, pmc, jc) = in_cell::<T>(p1, prev_min[2], p2[2]);
+    let (_, pmd, jd) = in_cell::<T>(p1, prev_min[3], p2[3]);
     // Separate scalar minima (not an array): recognised as reductions, so the loop vectorises.
-    let (mut ma, mut mb, mut mc, mut md) = (u16::MAX, u16::MAX, u16::MAX, u16::MAX);
+    let (mut ma, mut mb, mut mc, mut md) = (T::MAX, T::MAX, T::MAX, T::MAX);
     for k in 0..d {
-        let c = cost[k] as u16;
-        let ba = pa[k + 1]
-            .widen()
-            .min(pa[k].min(pa[k + 2]).widen() + p1)
-            .min(ja);
-        let bb = pb[k + 1]
-            .widen()
-            .min(pb[k].min(pb[k + 2]).widen() + p1)
-            .min(jb);
-        let bc = pc[k + 1]
-            .widen()
-            .min(pc[k].min(pc[k + 2]).widen() + p1)
-            .min(jc);
-        let bd = pd[k + 1]
-            .widen()
-            .min(pd[k].min(pd[k + 2]).widen() + p1)
-            .min(jd);
-        let (va, vb, vc, vd) = (c + ba - pma, c + bb - pmb, c + bc - pmc, c + bd - pmd);
-        oa[k] = T::narrow(va);
-        ob[k] = T::narrow(vb);
-        oc[k] = T::narrow(vc);
-        od[k] = T::narrow(vd);
-        acc[k] = va + vb + vc + vd;
+        let c = cost[k];
+        let va = T::lane(c, al[k], am[k], ah[k], p1t, ja, pma);
+        let vb = T::lane(c, bl[k], bm[k], bh[k], p1t, jb, pmb);
+        let vc = T::lane(c, cl[k], cm[k], ch[k], p1t, jc, pmc);
+        let vd = T::lane(c, dl[k], dm[k], dh[k], p1t, jd, pmd);
+        oa[k] = va;
+        ob[k] = vb;
+        oc[k] = vc;
+        od[k] = vd;
+        acc[k] = va.widen() + vb.widen() + vc.widen() + vd.widen();
         ma = ma.min(va);
         mb = mb.min(vb);
         mc = mc.min(vc);
         md = md.min(vd);
     }
-    [ma, mb, mc, md]
+    [ma.widen(), mb.widen(), mc.widen(), md.widen()]
 }
 
 /// [`path_steps4`] for the pass that comes second to a row: the 4-path sum plus the other
@@ -255,7 +305,7 @@ fn path_steps4<T: Cell>(
 #[allow(clippy::too_many_arguments)]
 fn path_steps4_total<T: Cell>(
     cost: &[u8],
-    (pa, pb, pc, pd): (&[T], &[T], &[T], &[T]),
+    [pa, pb, pc, pd]: [Nbrs<'_, T>; 4],
     prev_min: [u16; 4],
     p1: u16,
     p2: [u16; 4],
@@ -268,33 +318,33 @@ fn path_steps4_total<T: Cell>(
 ) -> ([u16; 4], u16) {
     let d = cost.len();
     let (theirs, total) = (&theirs[..d], &mut total[..d]);
-    let (pa, pb, pc, pd) = (&pa[..d + 2], &pb[..d + 2], &pc[..d + 2], &pd[..d + 2]);
+    let (al, am, ah) = (&pa.lo[..d], &pa.mid[..d], &pa.hi[..d]);
+    let (bl, bm, bh) = (&pb.lo[..d], &pb.mid[..d], &pb.hi[..d]);
+    let (cl, cm, ch) = (&pc.lo[..d], &pc.mid[..d], &pc.hi[..d]);
+    let (dl, dm, dh) = (&pd.lo[..d], &pd.mid[..d], &pd.hi[..d]);
     let (oa, ob, oc, od) = (
         &mut oa[1..d + 1],
         &mut ob[1..d + 1],
         &mut oc[1..d + 1],
         &mut od[1..d + 1],
     );
-    // Element by element: `array::map` stayed out of line (a call per pixel).
-    let (ja, jb, jc, jd) = (
-        prev_min[0] + p2[0],
-        prev_min[1] + p2[1],
-        prev_min[2] + p2[2],
-        prev_min[3] + p2[3],
-    );
-    let [pma, pmb, pmc, pmd] = prev_min;
-    let (mut ma, mut mb, mut mc, mut md) = (u16::MAX, u16::MAX, u16::MAX, u16::MAX);
+    let (p1t, pma, ja) = in_cell::<T>(p1, prev_min[0], p2[0]);
+    let (_, pmb, jb) = in_cell::<T>(p1, prev_min[1], p2[1]);
+    let (_, pmc, jc) = in_cell::<T>(p1, prev_min[2], p2[2]);
+    let (_, pmd, jd) = in_cell::<T>(p1, prev_min[3], p2[3]);
+    let (mut ma, mut mb, mut mc, mut md) = (T::MAX, T::MAX, T::MAX, T::MAX);
     let mut mt = u16::MAX;
     for k in 0..d {
-        let c = cost[k] as u16;
-        let best = |p: &[T], j: u16| p[k + 1].widen().min(p[k].min(p[k + 2]).widen() + p1).min(j);
-        let (ba, bb, bc, bd) = (best(pa, ja), best(pb, jb), best(pc, jc), best(pd, jd));
-        let (va, vb, vc, vd) = (c + ba - pma, c + bb - pmb, c + bc - pmc, c + bd - pmd);
-        oa[k] = T::narrow(va);
-        ob[k] = T::narrow(vb);
-        oc[k] = T::narrow(vc);
-        od[k] = T::narrow(vd);
-        let t = va + vb + vc + vd + theirs[k];
+        let c = cost[k];
+        let va = T::lane(c, al[k], am[k], ah[k], p1t, ja, pma);
+        let vb = T::lane(c, bl[k], bm[k], bh[k], p1t, jb, pmb);
+        let vc = T::lane(c, cl[k], cm[k], ch[k], p1t, jc, pmc);
+        let vd = T::lane(c, dl[k], dm[k], dh[k], p1t, jd, pmd);
+        oa[k] = va;
+        ob[k] = vb;
+        oc[k] = vc;
+        od[k] = vd;
+        let t = va.widen() + vb.widen() + vc.widen() + vd.widen() + theirs[k];
         total[k] = t;
         ma = ma.min(va);
         mb = mb.min(vb);
@@ -302,7 +352,7 @@ fn path_steps4_total<T: Cell>(
         md = md.min(vd);
         mt = mt.min(t);
     }
-    ([ma, mb, mc, md], mt)
+    ([ma.widen(), mb.widen(), mc.widen(), md.widen()], mt)
 }
 
 /// [`path_step`] for a lone horizontal path in the pass that comes second to a row (5 paths):
@@ -312,7 +362,7 @@ fn path_steps4_total<T: Cell>(
 #[allow(clippy::too_many_arguments)]
 fn path_step_total<T: Cell>(
     cost: &[u8],
-    prev: &[T],
+    prev: Nbrs<'_, T>,
     prev_min: u16,
     p1: u16,
     p2: u16,
@@ -322,23 +372,19 @@ fn path_step_total<T: Cell>(
 ) -> (u16, u16) {
     let d = cost.len();
     let (theirs, total) = (&theirs[..d], &mut total[..d]);
-    let prev = &prev[..d + 2];
+    let (lo, mid, hi) = (&prev.lo[..d], &prev.mid[..d], &prev.hi[..d]);
     let out = &mut out[1..d + 1];
-    let jump = prev_min + p2;
-    let (mut m, mut mt) = (u16::MAX, u16::MAX);
+    let (p1, pm, jump) = in_cell::<T>(p1, prev_min, p2);
+    let (mut m, mut mt) = (T::MAX, u16::MAX);
     for k in 0..d {
-        let best = prev[k + 1]
-            .widen()
-            .min(prev[k].min(prev[k + 2]).widen() + p1)
-            .min(jump);
-        let v = cost[k] as u16 + best - prev_min;
-        out[k] = T::narrow(v);
-        let t = v + theirs[k];
+        let v = T::lane(cost[k], lo[k], mid[k], hi[k], p1, jump, pm);
+        out[k] = v;
+        let t = v.widen() + theirs[k];
         total[k] = t;
         m = m.min(v);
         mt = mt.min(t);
     }
-    (m, mt)
+    (m.widen(), mt)
 }
 
 /// [`path_steps4`] for the 2 directions of a 4-path pass.
@@ -346,7 +392,7 @@ fn path_step_total<T: Cell>(
 #[allow(clippy::too_many_arguments)]
 fn path_steps2<T: Cell>(
     cost: &[u8],
-    (pa, pb): (&[T], &[T]),
+    [pa, pb]: [Nbrs<'_, T>; 2],
     prev_min: [u16; 2],
     p1: u16,
     p2: [u16; 2],
@@ -356,29 +402,23 @@ fn path_steps2<T: Cell>(
 ) -> [u16; 2] {
     let d = cost.len();
     let acc = &mut acc[..d];
-    let (pa, pb) = (&pa[..d + 2], &pb[..d + 2]);
+    let (al, am, ah) = (&pa.lo[..d], &pa.mid[..d], &pa.hi[..d]);
+    let (bl, bm, bh) = (&pb.lo[..d], &pb.mid[..d], &pb.hi[..d]);
     let (oa, ob) = (&mut oa[1..d + 1], &mut ob[1..d + 1]);
-    let (ja, jb) = (prev_min[0] + p2[0], prev_min[1] + p2[1]);
-    let (pma, pmb) = (prev_min[0], prev_min[1]);
-    let (mut ma, mut mb) = (u16::MAX, u16::MAX);
+    let (p1t, pma, ja) = in_cell::<T>(p1, prev_min[0], p2[0]);
+    let (_, pmb, jb) = in_cell::<T>(p1, prev_min[1], p2[1]);
+    let (mut ma, mut mb) = (T::MAX, T::MAX);
     for k in 0..d {
-        let c = cost[k] as u16;
-        let ba = pa[k + 1]
-            .widen()
-            .min(pa[k].min(pa[k + 2]).widen() + p1)
-            .min(ja);
-        let bb = pb[k + 1]
-            .widen()
-            .min(pb[k].min(pb[k + 2]).widen() + p1)
-            .min(jb);
-        let (va, vb) = (c + ba - pma, c + bb - pmb);
-        oa[k] = T::narrow(va);
-        ob[k] = T::narrow(vb);
-        acc[k] = va + vb;
+        let c = cost[k];
+        let va = T::lane(c, al[k], am[k], ah[k], p1t, ja, pma);
+        let vb = T::lane(c, bl[k], bm[k], bh[k], p1t, jb, pmb);
+        oa[k] = va;
+        ob[k] = vb;
+        acc[k] = va.widen() + vb.widen();
         ma = ma.min(va);
         mb = mb.min(vb);
     }
-    [ma, mb]
+    [ma.widen(), mb.widen()]
 }
 
 /// The arguments of [`path_steps4`] after the cost: predecessors, their minima, P1, P2s,
@@ -445,18 +485,37 @@ macro_rules! isa {
         }
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
-        fn $s4<T: Cell>(cost: &[u8], a: Steps4Args<'_, T>) -> [u16; 4] {
-            let (prev, pmin, p1, p2, [oa, ob, oc, od], acc) = a;
+        #[allow(clippy::too_many_arguments)]
+        fn $s4<T: Cell>(
+            cost: &[u8],
+            prev: [Nbrs<'_, T>; 4],
+            pmin: [u16; 4],
+            p1: u16,
+            p2: [u16; 4],
+            oa: &mut [T],
+            ob: &mut [T],
+            oc: &mut [T],
+            od: &mut [T],
+            acc: &mut [u16],
+        ) -> [u16; 4] {
             path_steps4(cost, prev, pmin, p1, p2, oa, ob, oc, od, acc)
         }
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
+        #[allow(clippy::too_many_arguments)]
         fn $s4t<T: Cell>(
             cost: &[u8],
-            a: Steps4Args<'_, T>,
+            prev: [Nbrs<'_, T>; 4],
+            pmin: [u16; 4],
+            p1: u16,
+            p2: [u16; 4],
+            oa: &mut [T],
+            ob: &mut [T],
+            oc: &mut [T],
+            od: &mut [T],
             theirs: &[u16],
+            total: &mut [u16],
         ) -> ([u16; 4], u16) {
-            let (prev, pmin, p1, p2, [oa, ob, oc, od], total) = a;
             path_steps4_total(cost, prev, pmin, p1, p2, oa, ob, oc, od, theirs, total)
         }
         $(#[target_feature(enable = $feature)])?
@@ -464,7 +523,7 @@ macro_rules! isa {
         #[allow(clippy::too_many_arguments)]
         fn $s2<T: Cell>(
             cost: &[u8],
-            prev: (&[T], &[T]),
+            prev: [Nbrs<'_, T>; 2],
             prev_min: [u16; 2],
             p1: u16,
             p2: [u16; 2],
@@ -478,7 +537,7 @@ macro_rules! isa {
         #[inline(never)]
         fn $s1t<T: Cell>(
             cost: &[u8],
-            (prev, prev_min, p1, p2): (&[T], u16, u16, u16),
+            (prev, prev_min, p1, p2): (Nbrs<'_, T>, u16, u16, u16),
             out: &mut [T],
             theirs: &[u16],
             total: &mut [u16],
@@ -504,11 +563,14 @@ macro_rules! isa {
             }
             #[inline(always)]
             fn steps4<T: Cell>(cost: &[u8], a: Steps4Args<'_, T>) -> [u16; 4] {
+                let ((pa, pb, pc, pd), pmin, p1, p2, [oa, ob, oc, od], acc) = a;
+                let d = cost.len();
+                let prev = [pa, pb, pc, pd].map(|p| Nbrs::of(p, d));
                 // SAFETY: `run_pass` instantiates this instruction set only where the CPU has
                 // it.
                 #[allow(unused_unsafe)]
                 unsafe {
-                    $s4(cost, a)
+                    $s4(cost, prev, pmin, p1, p2, oa, ob, oc, od, acc)
                 }
             }
             #[inline(always)]
@@ -517,10 +579,12 @@ macro_rules! isa {
                 a: Steps4Args<'_, T>,
                 theirs: &[u16],
             ) -> ([u16; 4], u16) {
+                let ((pa, pb, pc, pd), pmin, p1, p2, [oa, ob, oc, od], total) = a;
+                let prev = [pa, pb, pc, pd].map(|p| Nbrs::of(p, cost.len()));
                 // SAFETY: as above.
                 #[allow(unused_unsafe)]
                 unsafe {
-                    $s4t(cost, a, theirs)
+                    $s4t(cost, prev, pmin, p1, p2, oa, ob, oc, od, theirs, total)
                 }
             }
             #[inline(always)]
@@ -534,6 +598,7 @@ macro_rules! isa {
                 ob: &mut [T],
                 acc: &mut [u16],
             ) -> [u16; 2] {
+                let prev = [prev.0, prev.1].map(|p| Nbrs::of(p, cost.len()));
                 // SAFETY: as above.
                 #[allow(unused_unsafe)]
                 unsafe {
@@ -548,6 +613,7 @@ macro_rules! isa {
                 theirs: &[u16],
                 total: &mut [u16],
             ) -> (u16, u16) {
+                let prev = (Nbrs::of(prev.0, cost.len()), prev.1, prev.2, prev.3);
                 // SAFETY: as above.
                 #[allow(unused_unsafe)]
                 unsafe {

@@ -36,7 +36,7 @@ mod filters;
 
 #[allow(unused_imports)]
 use filters::*;
-pub use filters::{median_filter_3x3, remove_speckles};
+pub use filters::{median_filter_3x3, remove_speckles, remove_speckles_in_bands};
 
 /// Largest P2 accepted, so that 8 summed paths fit `u16`: 8·(128 + 2000) < 65 535.
 const MAX_P2: u16 = 2000;

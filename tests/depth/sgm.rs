@@ -371,10 +371,12 @@ fn streamed_aggregation_equals_direct_eq13() {
 
 /// Speckle removal through runs and union–find removes exactly what a flood fill from every
 /// pixel removes: random images of blocky regions with quarter-pixel jitter (differences equal
-/// to the thresholds included), NaN holes, ±inf and size limits around the region sizes.
+/// to the thresholds included), NaN holes, ±inf and size limits around the region sizes; with
+/// the rows labelled as one band and split into 2, 3 and 7 bands joined along their borders (and
+/// as many bands as rows).
 #[test]
 fn speckle_runs_equal_a_flood_fill() {
-    use denser::depth::sgm::remove_speckles;
+    use denser::depth::sgm::{remove_speckles, remove_speckles_in_bands};
     fn flood_fill(d: &mut [f32], w: usize, h: usize, max_size: usize, tol: f32) -> usize {
         let mut seen = vec![false; w * h];
         let mut removed = 0;
@@ -461,6 +463,16 @@ fn speckle_runs_equal_a_flood_fill() {
             assert_eq!(n_got, n_want, "{case}");
             assert_eq!(bits(&got.data), bits(&want), "{case}");
             total += n_got;
+            for bands in [1, 2, 3, 7, h] {
+                let mut got = Image {
+                    width: w as u32,
+                    height: h as u32,
+                    data: data.clone(),
+                };
+                let n_got = remove_speckles_in_bands(&mut got, max_size, tol, bands);
+                assert_eq!(n_got, n_want, "{case}, {bands} bands");
+                assert_eq!(bits(&got.data), bits(&want), "{case}, {bands} bands");
+            }
         }
     }
     assert!(total > 1000, "the cases removed {total} pixels");

@@ -225,82 +225,200 @@ pub(crate) fn sort9(v: &mut [i32; 9]) {
 /// horizontal neighbours are connected, the runs of consecutive rows are joined (union–find)
 /// where a pixel is connected to the one above it, and a region's size is the sum of its runs'
 /// lengths. The same regions as a flood fill from every pixel, in a few operations per pixel.
+/// Horizontal bands of rows are labelled on rayon's threads at once and then joined along their
+/// borders ([`remove_speckles_in_bands`]).
 pub fn remove_speckles(disparity: &mut Image<f32>, max_size_px: usize, max_diff_px: f32) -> usize {
+    // At least 64 rows a band: below that the join costs more than it saves.
+    let bands = rayon::current_num_threads().min(disparity.height as usize / 64);
+    remove_speckles_in_bands(disparity, max_size_px, max_diff_px, bands)
+}
+
+/// [`remove_speckles`] with the rows split into `bands` bands (at least one, at most one per
+/// row): the same result for any count, since the regions are the same sets.
+pub fn remove_speckles_in_bands(
+    disparity: &mut Image<f32>,
+    max_size_px: usize,
+    max_diff_px: f32,
+    bands: usize,
+) -> usize {
     let w = disparity.width as usize;
     let h = disparity.height as usize;
     if max_size_px == 0 || w == 0 || h == 0 {
         return 0;
     }
-    const NONE: u32 = u32::MAX;
     let connected = |a: f32, b: f32| (a - b).abs() <= max_diff_px;
-    // Runs (row, first column, end column), their union–find parents and region sizes.
-    let mut runs: Vec<(u32, u32, u32)> = Vec::new();
-    let mut parent: Vec<u32> = Vec::new();
-    let mut size: Vec<u32> = Vec::new();
-    fn root(parent: &mut [u32], mut r: u32) -> u32 {
-        while parent[r as usize] != r {
-            let up = parent[parent[r as usize] as usize];
-            parent[r as usize] = up;
-            r = up;
+    let bands = bands.clamp(1, h);
+    let first_row = |b: usize| b * h / bands;
+    let data = &disparity.data;
+    let mut labels: Vec<BandRuns> = (0..bands)
+        .into_par_iter()
+        .map(|b| BandRuns::label(data, w, first_row(b)..first_row(b + 1), connected))
+        .collect();
+    // One index space: each band's runs after the previous bands'.
+    let mut all = labels.remove(0);
+    for (b, band) in (1..).zip(labels) {
+        let offset = all.runs.len() as u32;
+        let y = first_row(b);
+        let below: Vec<u32> = band
+            .first_ids
+            .iter()
+            .map(|&id| if id == NONE { NONE } else { id + offset })
+            .collect();
+        all.runs.extend(band.runs);
+        all.parent.extend(band.parent.iter().map(|&p| p + offset));
+        all.size.extend(band.size);
+        {
+            // The band's first row against the previous band's last row.
+            let (row, prev) = (&data[y * w..(y + 1) * w], &data[(y - 1) * w..y * w]);
+            let above = std::mem::take(&mut all.last_ids);
+            all.join_rows(&below, &above, row, prev, connected);
         }
-        r
+        all.last_ids = band
+            .last_ids
+            .iter()
+            .map(|&id| if id == NONE { NONE } else { id + offset })
+            .collect();
     }
-    // The run of each pixel of the previous and the current row.
-    let mut above = vec![NONE; w];
-    let mut here = vec![NONE; w];
-    for y in 0..h {
-        let row = &disparity.data[y * w..(y + 1) * w];
-        let mut x = 0;
-        while x < w {
-            if row[x].is_nan() {
-                here[x] = NONE;
-                x += 1;
-                continue;
+    // Whether each run's region is a speckle (roots found once, serially), then the runs
+    // cleared band by band.
+    let small: Vec<bool> = (0..all.runs.len() as u32)
+        .map(|i| {
+            let r = root(&mut all.parent, i);
+            all.size[r as usize] as usize <= max_size_px
+        })
+        .collect();
+    let runs = &all.runs;
+    let removed = std::sync::atomic::AtomicUsize::new(0);
+    let mut rest: &mut [f32] = &mut disparity.data;
+    let mut chunks = Vec::with_capacity(bands);
+    for b in 0..bands {
+        let (band, tail) =
+            std::mem::take(&mut rest).split_at_mut((first_row(b + 1) - first_row(b)) * w);
+        chunks.push((first_row(b), band));
+        rest = tail;
+    }
+    chunks.into_par_iter().for_each(|(y0, band)| {
+        let start = runs.partition_point(|r| (r.0 as usize) < y0);
+        let mut n = 0;
+        for (i, &(y, x0, x1)) in runs.iter().enumerate().skip(start) {
+            let row = (y as usize).wrapping_sub(y0) * w;
+            if row >= band.len() {
+                break;
             }
-            let x0 = x;
-            let id = runs.len() as u32;
-            here[x] = id;
-            x += 1;
-            while x < w && !row[x].is_nan() && connected(row[x], row[x - 1]) {
-                here[x] = id;
-                x += 1;
+            if small[i] {
+                band[row + x0 as usize..row + x1 as usize].fill(f32::NAN);
+                n += (x1 - x0) as usize;
             }
-            runs.push((y as u32, x0 as u32, x as u32));
-            parent.push(id);
-            size.push((x - x0) as u32);
         }
-        if y > 0 {
-            let prev = &disparity.data[(y - 1) * w..y * w];
-            let mut last = (NONE, NONE);
-            for x in 0..w {
-                let (a, b) = (here[x], above[x]);
-                if a == NONE || b == NONE || (a, b) == last || !connected(row[x], prev[x]) {
+        removed.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
+    });
+    removed.into_inner()
+}
+
+/// "No run" in the per-pixel run ids of a row.
+const NONE: u32 = u32::MAX;
+
+/// The runs of a band of rows ([`remove_speckles`]) and their union–find forest.
+struct BandRuns {
+    /// (row, first column, end column), in row order.
+    runs: Vec<(u32, u32, u32)>,
+    /// Union–find parents and, at roots, region sizes.
+    parent: Vec<u32>,
+    size: Vec<u32>,
+    /// The run of each pixel of the band's first and last row ([`NONE`]: invalid pixel).
+    first_ids: Vec<u32>,
+    last_ids: Vec<u32>,
+}
+
+/// The root of `r`'s tree, halving the path on the way.
+fn root(parent: &mut [u32], mut r: u32) -> u32 {
+    while parent[r as usize] != r {
+        let up = parent[parent[r as usize] as usize];
+        parent[r as usize] = up;
+        r = up;
+    }
+    r
+}
+
+impl BandRuns {
+    /// Runs of the rows `rows` of `data` (`w` pixels a row), joined within the band.
+    fn label(
+        data: &[f32],
+        w: usize,
+        rows: std::ops::Range<usize>,
+        connected: impl Fn(f32, f32) -> bool + Copy,
+    ) -> Self {
+        let mut band = BandRuns {
+            runs: Vec::new(),
+            parent: Vec::new(),
+            size: Vec::new(),
+            first_ids: Vec::new(),
+            last_ids: Vec::new(),
+        };
+        // The run of each pixel of the previous and the current row.
+        let mut above = vec![NONE; w];
+        let mut here = vec![NONE; w];
+        for y in rows.clone() {
+            let row = &data[y * w..(y + 1) * w];
+            let mut x = 0;
+            while x < w {
+                if row[x].is_nan() {
+                    here[x] = NONE;
+                    x += 1;
                     continue;
                 }
-                last = (a, b);
-                let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
-                if ra != rb {
-                    // The larger region becomes the root.
-                    let (big, small) = if size[ra as usize] >= size[rb as usize] {
-                        (ra, rb)
-                    } else {
-                        (rb, ra)
-                    };
-                    parent[small as usize] = big;
-                    size[big as usize] += size[small as usize];
+                let x0 = x;
+                let id = band.runs.len() as u32;
+                here[x] = id;
+                x += 1;
+                while x < w && !row[x].is_nan() && connected(row[x], row[x - 1]) {
+                    here[x] = id;
+                    x += 1;
                 }
+                band.runs.push((y as u32, x0 as u32, x as u32));
+                band.parent.push(id);
+                band.size.push((x - x0) as u32);
+            }
+            if y == rows.start {
+                band.first_ids = here.clone();
+            } else {
+                let prev = &data[(y - 1) * w..y * w];
+                band.join_rows(&here, &above, row, prev, connected);
+            }
+            std::mem::swap(&mut above, &mut here);
+        }
+        band.last_ids = above;
+        band
+    }
+
+    /// Joins the regions of vertically connected pixels of two consecutive rows (`row` below
+    /// `prev`, with their pixels' runs `here` and `above`).
+    fn join_rows(
+        &mut self,
+        here: &[u32],
+        above: &[u32],
+        row: &[f32],
+        prev: &[f32],
+        connected: impl Fn(f32, f32) -> bool,
+    ) {
+        let mut last = (NONE, NONE);
+        for x in 0..row.len() {
+            let (a, b) = (here[x], above[x]);
+            if a == NONE || b == NONE || (a, b) == last || !connected(row[x], prev[x]) {
+                continue;
+            }
+            last = (a, b);
+            let (ra, rb) = (root(&mut self.parent, a), root(&mut self.parent, b));
+            if ra != rb {
+                // The larger region becomes the root.
+                let (big, small) = if self.size[ra as usize] >= self.size[rb as usize] {
+                    (ra, rb)
+                } else {
+                    (rb, ra)
+                };
+                self.parent[small as usize] = big;
+                self.size[big as usize] += self.size[small as usize];
             }
         }
-        std::mem::swap(&mut above, &mut here);
     }
-    let mut removed = 0;
-    for (i, &(y, x0, x1)) in runs.iter().enumerate() {
-        let r = root(&mut parent, i as u32);
-        if size[r as usize] as usize <= max_size_px {
-            let row = y as usize * w;
-            disparity.data[row + x0 as usize..row + x1 as usize].fill(f32::NAN);
-            removed += (x1 - x0) as usize;
-        }
-    }
-    removed
 }
