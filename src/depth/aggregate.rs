@@ -239,6 +239,18 @@ impl<'a, T> Nbrs<'a, T> {
             hi: &prev[2..d + 2],
         }
     }
+
+    /// [`Nbrs::of`] of four rows (element by element: `array::map` stayed out of line, a call
+    /// per pixel that took 4 % of the matcher's samples).
+    #[inline(always)]
+    fn of4((a, b, c, e): (&'a [T], &'a [T], &'a [T], &'a [T]), d: usize) -> [Self; 4] {
+        [
+            Self::of(a, d),
+            Self::of(b, d),
+            Self::of(c, d),
+            Self::of(e, d),
+        ]
+    }
 }
 
 /// [`path_step`] for the 4 directions of a pass at once (all continuing a path): one pass
@@ -565,7 +577,7 @@ macro_rules! isa {
             fn steps4<T: Cell>(cost: &[u8], a: Steps4Args<'_, T>) -> [u16; 4] {
                 let ((pa, pb, pc, pd), pmin, p1, p2, [oa, ob, oc, od], acc) = a;
                 let d = cost.len();
-                let prev = [pa, pb, pc, pd].map(|p| Nbrs::of(p, d));
+                let prev = Nbrs::of4((pa, pb, pc, pd), d);
                 // SAFETY: `run_pass` instantiates this instruction set only where the CPU has
                 // it.
                 #[allow(unused_unsafe)]
@@ -580,7 +592,7 @@ macro_rules! isa {
                 theirs: &[u16],
             ) -> ([u16; 4], u16) {
                 let ((pa, pb, pc, pd), pmin, p1, p2, [oa, ob, oc, od], total) = a;
-                let prev = [pa, pb, pc, pd].map(|p| Nbrs::of(p, cost.len()));
+                let prev = Nbrs::of4((pa, pb, pc, pd), cost.len());
                 // SAFETY: as above.
                 #[allow(unused_unsafe)]
                 unsafe {
@@ -598,7 +610,7 @@ macro_rules! isa {
                 ob: &mut [T],
                 acc: &mut [u16],
             ) -> [u16; 2] {
-                let prev = [prev.0, prev.1].map(|p| Nbrs::of(p, cost.len()));
+                let prev = [Nbrs::of(prev.0, cost.len()), Nbrs::of(prev.1, cost.len())];
                 // SAFETY: as above.
                 #[allow(unused_unsafe)]
                 unsafe {
