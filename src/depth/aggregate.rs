@@ -254,26 +254,26 @@ impl<'a, T> Nbrs<'a, T> {
 }
 
 /// [`path_step`] for the 4 directions of a pass at once (all continuing a path): one pass
-/// over the disparities computes every direction's `L_r` and their sum, which `acc` receives
-/// (assigned). Returns the directions' minima. Separate slice arguments (not arrays of slices)
-/// let the compiler know that outputs and inputs do not overlap, so the loop vectorises without
-/// run-time overlap checks.
+/// over the disparities computes every direction's `L_r` and their sum, which `out` receives.
+/// With `TOTAL` (the pass that comes second to a row) the other pass's sum `theirs` is added, so
+/// that `out` gets `S` of the pixel, and `min_d S` is returned beside the directions' minima
+/// (else `u16::MAX`). Separate slice arguments (not arrays of slices) let the compiler know that
+/// outputs and inputs do not overlap, so the loop vectorises without run-time overlap checks.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn path_steps4<T: Cell>(
+fn path_steps4<const TOTAL: bool, T: Cell>(
     cost: &[u8],
     [pa, pb, pc, pd]: [Nbrs<'_, T>; 4],
     prev_min: [u16; 4],
     p1: u16,
     p2: [u16; 4],
-    oa: &mut [T],
-    ob: &mut [T],
-    oc: &mut [T],
-    od: &mut [T],
-    acc: &mut [u16],
-) -> [u16; 4] {
+    [oa, ob, oc, od]: [&mut [T]; 4],
+    theirs: &[u16],
+    out: &mut [u16],
+) -> ([u16; 4], u16) {
     let d = cost.len();
-    let acc = &mut acc[..d];
+    let out = &mut out[..d];
+    let theirs = if TOTAL { &theirs[..d] } else { &[] };
     let (al, am, ah) = (&pa.lo[..d], &pa.mid[..d], &pa.hi[..d]);
     let (bl, bm, bh) = (&pb.lo[..d], &pb.mid[..d], &pb.hi[..d]);
     let (cl, cm, ch) = (&pc.lo[..d], &pc.mid[..d], &pc.hi[..d]);
@@ -291,60 +291,6 @@ fn path_steps4<T: Cell>(
     let (_, pmd, jd) = in_cell::<T>(p1, prev_min[3], p2[3]);
     // Separate scalar minima (not an array): recognised as reductions, so the loop vectorises.
     let (mut ma, mut mb, mut mc, mut md) = (T::MAX, T::MAX, T::MAX, T::MAX);
-    for k in 0..d {
-        let c = cost[k];
-        let va = T::lane(c, al[k], am[k], ah[k], p1t, ja, pma);
-        let vb = T::lane(c, bl[k], bm[k], bh[k], p1t, jb, pmb);
-        let vc = T::lane(c, cl[k], cm[k], ch[k], p1t, jc, pmc);
-        let vd = T::lane(c, dl[k], dm[k], dh[k], p1t, jd, pmd);
-        oa[k] = va;
-        ob[k] = vb;
-        oc[k] = vc;
-        od[k] = vd;
-        acc[k] = va.widen() + vb.widen() + vc.widen() + vd.widen();
-        ma = ma.min(va);
-        mb = mb.min(vb);
-        mc = mc.min(vc);
-        md = md.min(vd);
-    }
-    [ma.widen(), mb.widen(), mc.widen(), md.widen()]
-}
-
-/// [`path_steps4`] for the pass that comes second to a row: the 4-path sum plus the other
-/// pass's (`theirs`) gives `S` of the pixel, written to `total`; returns the directions' minima
-/// and `min_d S`.
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn path_steps4_total<T: Cell>(
-    cost: &[u8],
-    [pa, pb, pc, pd]: [Nbrs<'_, T>; 4],
-    prev_min: [u16; 4],
-    p1: u16,
-    p2: [u16; 4],
-    oa: &mut [T],
-    ob: &mut [T],
-    oc: &mut [T],
-    od: &mut [T],
-    theirs: &[u16],
-    total: &mut [u16],
-) -> ([u16; 4], u16) {
-    let d = cost.len();
-    let (theirs, total) = (&theirs[..d], &mut total[..d]);
-    let (al, am, ah) = (&pa.lo[..d], &pa.mid[..d], &pa.hi[..d]);
-    let (bl, bm, bh) = (&pb.lo[..d], &pb.mid[..d], &pb.hi[..d]);
-    let (cl, cm, ch) = (&pc.lo[..d], &pc.mid[..d], &pc.hi[..d]);
-    let (dl, dm, dh) = (&pd.lo[..d], &pd.mid[..d], &pd.hi[..d]);
-    let (oa, ob, oc, od) = (
-        &mut oa[1..d + 1],
-        &mut ob[1..d + 1],
-        &mut oc[1..d + 1],
-        &mut od[1..d + 1],
-    );
-    let (p1t, pma, ja) = in_cell::<T>(p1, prev_min[0], p2[0]);
-    let (_, pmb, jb) = in_cell::<T>(p1, prev_min[1], p2[1]);
-    let (_, pmc, jc) = in_cell::<T>(p1, prev_min[2], p2[2]);
-    let (_, pmd, jd) = in_cell::<T>(p1, prev_min[3], p2[3]);
-    let (mut ma, mut mb, mut mc, mut md) = (T::MAX, T::MAX, T::MAX, T::MAX);
     let mut mt = u16::MAX;
     for k in 0..d {
         let c = cost[k];
@@ -356,13 +302,18 @@ fn path_steps4_total<T: Cell>(
         ob[k] = vb;
         oc[k] = vc;
         od[k] = vd;
-        let t = va.widen() + vb.widen() + vc.widen() + vd.widen() + theirs[k];
-        total[k] = t;
+        let sum = va.widen() + vb.widen() + vc.widen() + vd.widen();
+        if TOTAL {
+            let t = sum + theirs[k];
+            out[k] = t;
+            mt = mt.min(t);
+        } else {
+            out[k] = sum;
+        }
         ma = ma.min(va);
         mb = mb.min(vb);
         mc = mc.min(vc);
         md = md.min(vd);
-        mt = mt.min(t);
     }
     ([ma.widen(), mb.widen(), mc.widen(), md.widen()], mt)
 }
@@ -510,7 +461,7 @@ macro_rules! isa {
             od: &mut [T],
             acc: &mut [u16],
         ) -> [u16; 4] {
-            path_steps4(cost, prev, pmin, p1, p2, oa, ob, oc, od, acc)
+            path_steps4::<false, T>(cost, prev, pmin, p1, p2, [oa, ob, oc, od], &[], acc).0
         }
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
@@ -528,7 +479,7 @@ macro_rules! isa {
             theirs: &[u16],
             total: &mut [u16],
         ) -> ([u16; 4], u16) {
-            path_steps4_total(cost, prev, pmin, p1, p2, oa, ob, oc, od, theirs, total)
+            path_steps4::<true, T>(cost, prev, pmin, p1, p2, [oa, ob, oc, od], theirs, total)
         }
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
