@@ -38,11 +38,6 @@ use crate::{Error, Result};
 /// Primal–dual iterations recorded per command buffer (bounds the size of one submission).
 const ITERATIONS_PER_SUBMIT: u32 = 64;
 
-fn to_f32(bytes: &[u8]) -> Vec<f32> {
-    // Staging bytes carry no alignment guarantee: copy into a typed vector.
-    bytemuck::pod_collect_to_vec::<u8, f32>(bytes)
-}
-
 /// A [`TgvProblem`] resident on the GPU: tensors, coupling target, primal, over-relaxed primal
 /// and dual, in the CPU's layout (`[u, v1, v2]`, `[p1, p2, q11, q22, q12]` per pixel).
 #[derive(Debug)]
@@ -195,9 +190,8 @@ impl<'c> TgvProblemGpu<'c> {
 
     /// The disparity `u`, pixels (read back).
     pub fn u(&self) -> Result<Vec<f32>> {
-        let n = self.pixels() as u64;
-        let out = self.ctx.read_back(&[(&self.primal, n * 12)])?;
-        Ok(to_f32(&out[0]).chunks_exact(3).map(|p| p[0]).collect())
+        let primal: Vec<[f32; 3]> = self.ctx.read_back_as(&self.primal, self.pixels())?;
+        Ok(primal.iter().map(|p| p[0]).collect())
     }
 
     /// Writes the GPU state (primal, over-relaxed primal, dual) into `problem`, which must be the
@@ -209,17 +203,16 @@ impl<'c> TgvProblemGpu<'c> {
                 self.width, self.height, problem.width, problem.height
             )));
         }
-        let n = self.pixels() as u64;
-        let out = self.ctx.read_back(&[
-            (&self.primal, n * 12),
-            (&self.primal_bar, n * 12),
-            (&self.dual, n * 20),
+        let n = self.pixels();
+        let mut primal: Vec<[f32; 3]> = bytemuck::zeroed_vec(n);
+        let mut primal_bar: Vec<[f32; 3]> = bytemuck::zeroed_vec(n);
+        let mut dual: Vec<[f32; 5]> = bytemuck::zeroed_vec(n);
+        self.ctx.read_back_into(&mut [
+            (&self.primal, bytemuck::cast_slice_mut(&mut primal)),
+            (&self.primal_bar, bytemuck::cast_slice_mut(&mut primal_bar)),
+            (&self.dual, bytemuck::cast_slice_mut(&mut dual)),
         ])?;
-        problem.set_state(
-            &bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&out[0]),
-            &bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&out[1]),
-            &bytemuck::pod_collect_to_vec::<u8, [f32; 5]>(&out[2]),
-        )
+        problem.set_state(&primal, &primal_bar, &dual)
     }
 }
 
@@ -342,8 +335,7 @@ pub fn pointwise_search_gpu(
     data.record_search(ctx, &mut encoder, &buf_u, 1, &buf_a, lambda, theta)?;
     ctx.queue.submit([encoder.finish()]);
     scope.pop("running the point-wise search")?;
-    let out = ctx.read_back(&[(&buf_a, n * 4)])?;
-    Ok(to_f32(&out[0]))
+    ctx.read_back_as(&buf_a, n as usize)
 }
 
 /// Checks that a stereo pair is non-empty, equally sized, with consistent buffers.
@@ -448,13 +440,14 @@ pub fn census_transform_gpu(
     let sig = record_census(ctx, &mut encoder, image, params, words)?;
     ctx.queue.submit([encoder.finish()]);
     scope.pop("running the census kernel")?;
-    let out = ctx.read_back(&[(&sig, n * words as u64 * 4)])?;
+    // `words` u32 per pixel, read back as u64 words.
+    let data = ctx.read_back_as::<u64>(&sig, n as usize * words as usize / 2)?;
     Ok(CensusImage {
         width: image.width,
         height: image.height,
         words_per_pixel: words as usize / 2,
         bits: params.bits(),
-        data: bytemuck::pod_collect_to_vec::<u8, u64>(&out[0]),
+        data,
     })
 }
 
@@ -518,8 +511,7 @@ pub fn cost_volume_gpu(
     ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, packed_words)?;
     ctx.queue.submit([encoder.finish()]);
     scope.pop("running the census cost kernels")?;
-    let mut out = ctx.read_back(&[(&buf_volume, packed_words * 4)])?;
-    let mut cost = std::mem::take(&mut out[0]);
+    let mut cost: Vec<u8> = ctx.read_back_as(&buf_volume, packed_words as usize * 4)?;
     cost.truncate(entries as usize);
     Ok(CostVolume {
         width: left.width,

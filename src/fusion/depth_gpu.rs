@@ -238,15 +238,18 @@ fn run_resident(
     ctx.record_dispatch(&mut encoder, &fuse.pipeline, &bind_fuse, voxel_count)?;
     ctx.queue.submit([encoder.finish()]);
     scope.pop("running the resident fusion kernel")?;
-    let out = ctx.read_back(&[(&buf_counters, 8), (&buf_updated, n * 4)])?;
-    let counters: Vec<u32> = bytemuck::pod_collect_to_vec(&out[0]);
+    let mut counters = [0u32; 2];
+    let mut flags: Vec<u32> = bytemuck::zeroed_vec(n as usize);
+    ctx.read_back_into(&mut [
+        (&buf_counters, bytemuck::cast_slice_mut(&mut counters)),
+        (&buf_updated, bytemuck::cast_slice_mut(&mut flags)),
+    ])?;
     if counters[1] != 0 {
         return Err(Error::Gpu(format!(
             "the GPU hash table could not resolve {} of {} resident blocks",
             counters[1], n
         )));
     }
-    let flags: Vec<u32> = bytemuck::pod_collect_to_vec(&out[1]);
     Ok((
         flags.iter().map(|&f| f != 0).collect(),
         counters[0] as usize,

@@ -390,20 +390,18 @@ impl GpuContext {
             })
     }
 
-    /// Copies the first `bytes` of each buffer back to the host, in one submission.
-    pub(crate) fn read_back(&self, buffers: &[(&wgpu::Buffer, u64)]) -> Result<Vec<Vec<u8>>> {
+    /// The first `count` elements of a buffer, read back straight into a typed vector (one
+    /// copy from the mapped staging buffer; [`GpuContext::read_back_into`] for several buffers
+    /// in one submission).
+    pub(crate) fn read_back_as<T: bytemuck::Pod>(
+        &self,
+        buffer: &wgpu::Buffer,
+        count: usize,
+    ) -> Result<Vec<T>> {
         // Zeroed memory comes from the system untouched (calloc): the copying threads fault its
         // pages in.
-        let mut out: Vec<Vec<u8>> = buffers
-            .iter()
-            .map(|&(_, bytes)| vec![0u8; bytes as usize])
-            .collect();
-        let mut targets: Vec<(&wgpu::Buffer, &mut [u8])> = buffers
-            .iter()
-            .zip(out.iter_mut())
-            .map(|(&(buf, _), o)| (buf, o.as_mut_slice()))
-            .collect();
-        self.read_back_into(&mut targets)?;
+        let mut out: Vec<T> = bytemuck::zeroed_vec(count);
+        self.read_back_into(&mut [(buffer, bytemuck::cast_slice_mut(&mut out))])?;
         Ok(out)
     }
 

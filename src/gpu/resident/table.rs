@@ -274,8 +274,7 @@ pub(crate) fn run_lookup(
     ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, keys.len() as u64)?;
     ctx.queue.submit([encoder.finish()]);
     scope.pop("looking blocks up on the GPU")?;
-    let out = ctx.read_back(&[(&buf_slots, keys.len() as u64 * 4)])?;
-    let slots: Vec<u32> = bytemuck::pod_collect_to_vec(&out[0]);
+    let slots: Vec<u32> = ctx.read_back_as(&buf_slots, keys.len())?;
     Ok(slots
         .into_iter()
         .map(|s| (s < SLOT_TOMBSTONE).then_some(s))
