@@ -221,7 +221,7 @@ pub(crate) fn path_start<const ASSIGN: bool, T: Cell>(
 /// as three unrelated slices there, each is read with plain vector loads. Given the one padded
 /// row, the compiler loaded `d + 1` only and rebuilt `d − 1` and `d` from it and the previous
 /// vector, two lane shuffles each (`vshufi64x2` + `vpalignr`): 16 shuffles per 32 slices in the
-/// four-path kernel, against none with three loads (`docs/bench/stereo.md`).
+/// four-path kernel, against none with three loads (`docs/bench/sgm-speed.md`).
 #[derive(Clone, Copy)]
 pub(crate) struct Nbrs<'a, T> {
     lo: &'a [T],

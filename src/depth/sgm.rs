@@ -610,54 +610,6 @@ mod tests {
     use super::aggregate::{path_step, BIG};
     use super::*;
 
-    /// The cost volume against its definition, pixel by pixel and slice by slice: `max_cost`
-    /// where the right pixel is outside the image, else the Hamming distance of the two
-    /// signatures; one- and two-word signatures, search ranges starting left of, at and right
-    /// of zero, wider than the image and not.
-    #[test]
-    fn cost_volume_equals_its_definition() {
-        let (w, h) = (37usize, 5usize);
-        let mut state = 7u64;
-        let mut next = || {
-            state = state
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            state
-        };
-        for words in [1usize, 2] {
-            let mut census = || CensusImage {
-                width: w as u32,
-                height: h as u32,
-                words_per_pixel: words,
-                bits: 60,
-                data: (0..w * h * words).map(|_| next() >> 4).collect(),
-            };
-            let (l, r) = (census(), census());
-            for (dmin, nd) in [(0, 16), (-5, 12), (7, 8), (0, 64), (-40, 90), (30, 20)] {
-                let v = CostVolume::from_census(&l, &r, dmin, nd).unwrap();
-                for y in 0..h {
-                    for x in 0..w {
-                        for k in 0..nd {
-                            let xr = x as i64 - dmin as i64 - k as i64;
-                            let want = if xr < 0 || xr >= w as i64 {
-                                60
-                            } else {
-                                let a = &l.data[(y * w + x) * words..][..words];
-                                let b = &r.data[(y * w + xr as usize) * words..][..words];
-                                a.iter()
-                                    .zip(b)
-                                    .map(|(a, b)| (a ^ b).count_ones())
-                                    .sum::<u32>() as u8
-                            };
-                            let got = v.cost[(y * w + x) * nd + k];
-                            assert_eq!(got, want, "{words} words, dmin {dmin}, {nd} slices");
-                        }
-                    }
-                }
-            }
-        }
-    }
-
     #[test]
     fn speckles_are_removed_and_large_regions_kept() {
         // 6×4 image: a 2-pixel island of 30 inside a region of 10 (20 pixels), and two NaNs.
