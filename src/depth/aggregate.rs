@@ -432,7 +432,7 @@ trait Isa {
 }
 
 macro_rules! isa {
-    ($name:ident, $win:ident, $s4:ident, $s4t:ident, $s2:ident, $s1t:ident, $($feature:literal)?) => {
+    ($name:ident, $win:ident, $s4:ident, $s2:ident, $s1t:ident, $($feature:literal)?) => {
         struct $name;
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
@@ -449,24 +449,7 @@ macro_rules! isa {
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
         #[allow(clippy::too_many_arguments)]
-        fn $s4<T: Cell>(
-            cost: &[u8],
-            prev: [Nbrs<'_, T>; 4],
-            pmin: [u16; 4],
-            p1: u16,
-            p2: [u16; 4],
-            oa: &mut [T],
-            ob: &mut [T],
-            oc: &mut [T],
-            od: &mut [T],
-            acc: &mut [u16],
-        ) -> [u16; 4] {
-            path_steps4::<false, T>(cost, prev, pmin, p1, p2, [oa, ob, oc, od], &[], acc).0
-        }
-        $(#[target_feature(enable = $feature)])?
-        #[inline(never)]
-        #[allow(clippy::too_many_arguments)]
-        fn $s4t<T: Cell>(
+        fn $s4<const TOTAL: bool, T: Cell>(
             cost: &[u8],
             prev: [Nbrs<'_, T>; 4],
             pmin: [u16; 4],
@@ -477,9 +460,9 @@ macro_rules! isa {
             oc: &mut [T],
             od: &mut [T],
             theirs: &[u16],
-            total: &mut [u16],
+            out: &mut [u16],
         ) -> ([u16; 4], u16) {
-            path_steps4::<true, T>(cost, prev, pmin, p1, p2, [oa, ob, oc, od], theirs, total)
+            path_steps4::<TOTAL, T>(cost, prev, pmin, p1, p2, [oa, ob, oc, od], theirs, out)
         }
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
@@ -533,7 +516,7 @@ macro_rules! isa {
                 // it.
                 #[allow(unused_unsafe)]
                 unsafe {
-                    $s4(cost, prev, pmin, p1, p2, oa, ob, oc, od, acc)
+                    $s4::<false, T>(cost, prev, pmin, p1, p2, oa, ob, oc, od, &[], acc).0
                 }
             }
             #[inline(always)]
@@ -547,7 +530,7 @@ macro_rules! isa {
                 // SAFETY: as above.
                 #[allow(unused_unsafe)]
                 unsafe {
-                    $s4t(cost, prev, pmin, p1, p2, oa, ob, oc, od, theirs, total)
+                    $s4::<true, T>(cost, prev, pmin, p1, p2, oa, ob, oc, od, theirs, total)
                 }
             }
             #[inline(always)]
@@ -591,7 +574,6 @@ isa!(
     Baseline,
     winner_baseline,
     steps4_baseline,
-    steps4t_baseline,
     steps2_baseline,
     step1t_baseline,
 );
@@ -600,7 +582,6 @@ isa!(
     Avx2,
     winner_avx2,
     steps4_avx2,
-    steps4t_avx2,
     steps2_avx2,
     step1t_avx2,
     "avx2"
@@ -610,7 +591,6 @@ isa!(
     Avx512,
     winner_avx512,
     steps4_avx512,
-    steps4t_avx512,
     steps2_avx512,
     step1t_avx512,
     "avx512f,avx512bw,avx512vl,avx2"
