@@ -8,6 +8,10 @@
 //! stages over a [`store::BlockStore`] (the map in RAM, or paged through chunk files by
 //! [`tiles`]) with the stages of one [`backend::Backend`] (CPU, or GPU through [`gpu`]).
 
+// Validation writes `!(x > 0.0)` on purpose: NaN fails it, where `x <= 0.0` would let NaN
+// through.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 pub mod backend;
 pub mod camera;
 pub mod depth;

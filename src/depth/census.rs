@@ -66,7 +66,7 @@ impl CensusParams {
 
     /// Checks that the window is odd-sized and that the signature fits 128 bits.
     pub fn validate(&self) -> Result<()> {
-        if self.window_width % 2 == 0 || self.window_height % 2 == 0 {
+        if self.window_width.is_multiple_of(2) || self.window_height.is_multiple_of(2) {
             return Err(Error::InvalidArgument(format!(
                 "census window must have odd sides, got {}×{}",
                 self.window_width, self.window_height

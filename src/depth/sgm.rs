@@ -151,7 +151,7 @@ impl SgmParams {
                 "p2_intensity_scale must be positive".into(),
             ));
         }
-        if self.subpixel_cost_window % 2 == 0 && self.subpixel_cost_window != 0 {
+        if self.subpixel_cost_window.is_multiple_of(2) && self.subpixel_cost_window != 0 {
             return Err(Error::InvalidArgument(format!(
                 "subpixel_cost_window must be 0 or odd, got {}",
                 self.subpixel_cost_window

@@ -179,7 +179,7 @@ impl TgvParams {
                 self.gamma
             )));
         }
-        if self.cost_window % 2 == 0 || self.cost_window > MAX_COST_WINDOW {
+        if self.cost_window.is_multiple_of(2) || self.cost_window > MAX_COST_WINDOW {
             return Err(Error::InvalidArgument(format!(
                 "cost_window must be odd and at most {MAX_COST_WINDOW}, got {}",
                 self.cost_window

@@ -157,8 +157,9 @@ impl CoverageBuilder {
     pub fn add(&mut self, scan: &LidarScan) {
         // The returns of least and greatest elevation, as (z, √(x² + y²)): elevations compare as
         // z₁·h₂ < z₂·h₁ (h ≥ 0), so atan2 is taken twice per scan, not once per return.
-        let (mut low, mut high, mut far): (Option<(f64, f64)>, Option<(f64, f64)>, f64) =
-            (None, None, 0.0);
+        let mut low: Option<(f64, f64)> = None;
+        let mut high: Option<(f64, f64)> = None;
+        let mut far = 0.0f64;
         for p in &scan.points_sensor_m {
             let [x, y, z] = p.map(|v| v as f64);
             let horizontal = (x * x + y * y).sqrt();

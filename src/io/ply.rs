@@ -260,10 +260,11 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<(PointCloud, Option<Vec<[u32; 
     decode_ply(&bytes).map_err(|msg| Error::bad_input(path, msg))
 }
 
+/// A decoded PLY file: its vertices and, for a mesh, its triangles.
+pub type PlyContents = (PointCloud, Option<Vec<[u32; 3]>>);
+
 /// Decodes a PLY file held in memory (see [`read_ply`]).
-pub fn decode_ply(
-    bytes: &[u8],
-) -> std::result::Result<(PointCloud, Option<Vec<[u32; 3]>>), String> {
+pub fn decode_ply(bytes: &[u8]) -> std::result::Result<PlyContents, String> {
     let header = parse_header(bytes)?;
     let body_bytes = &bytes[header.body_start..];
     let mut body = match header.encoding {

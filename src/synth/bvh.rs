@@ -140,6 +140,8 @@ impl Bvh {
     }
 
     /// Best binned-SAH split (axis, centroid threshold), or `None` when a leaf is cheaper.
+    // `axis` indexes the centroid bounds and every centroid.
+    #[allow(clippy::needless_range_loop)]
     fn find_split(
         idx: &[u32],
         bounds: &[Aabb],
@@ -209,9 +211,7 @@ impl Bvh {
         let mut best = None;
         let mut stack = [0u32; 128];
         let mut sp = 0usize;
-        if self.nodes[0].bounds.hit(&o, &inv, t_max).is_none() {
-            return None;
-        }
+        self.nodes[0].bounds.hit(&o, &inv, t_max)?;
         let mut node = 0u32;
         loop {
             let n = &self.nodes[node as usize];

@@ -512,7 +512,9 @@ impl City {
         {
             let (ci, prims) = chunk;
             let base = ci * prims_per_chunk.max(1);
-            let per_prim: Vec<(Vec<[f64; 3]>, Vec<[u8; 3]>)> = prims
+            // Each primitive's sample points and colours.
+            type Samples = (Vec<[f64; 3]>, Vec<[u8; 3]>);
+            let per_prim: Vec<Samples> = prims
                 .par_iter()
                 .enumerate()
                 .map(|(k, pr)| {

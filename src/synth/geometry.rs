@@ -50,9 +50,9 @@ impl Aabb {
 
     /// Grows the box to contain `p`.
     pub fn grow(&mut self, p: [f64; 3]) {
-        for k in 0..3 {
-            self.min[k] = self.min[k].min(p[k]);
-            self.max[k] = self.max[k].max(p[k]);
+        for ((lo, hi), v) in self.min.iter_mut().zip(&mut self.max).zip(p) {
+            *lo = lo.min(v);
+            *hi = hi.max(v);
         }
     }
 

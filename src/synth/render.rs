@@ -184,9 +184,10 @@ impl City {
         }
         let l = opts.sun_direction;
         let ndl = n.dot(&l);
-        let lit = if ndl <= 0.0 {
-            0.0
-        } else if opts.shadows && self.occluded(&Ray::new(h.point + n * 1e-4, l), f64::INFINITY) {
+        // Facing away, or in a shadow (tested only for faces towards the sun).
+        let shadowed =
+            || opts.shadows && self.occluded(&Ray::new(h.point + n * 1e-4, l), f64::INFINITY);
+        let lit = if ndl <= 0.0 || shadowed() {
             0.0
         } else {
             ndl as f32

@@ -158,7 +158,7 @@ fn write_png(
 pub fn encode_depth_u16(depth_m: f32) -> u16 {
     if depth_m.is_finite() && depth_m > 0.0 {
         let v = (depth_m as f64 * 256.0).round();
-        if v >= 1.0 && v <= 65535.0 {
+        if (1.0..=65535.0).contains(&v) {
             return v as u16;
         }
     }

@@ -55,10 +55,9 @@ pub fn merge_voxel(acc: &mut Block, add: &Block, i: usize) {
     }
     let w = wa + wb;
     let f = (wa * decode_tsdf(acc.tsdf[i]) + wb * decode_tsdf(add.tsdf[i])) / w;
-    let mut color = [0u8; 3];
-    for k in 0..3 {
-        color[k] = ((wa * acc.color[i][k] as f32 + wb * add.color[i][k] as f32) / w).round() as u8;
-    }
+    let (ca, cb) = (acc.color[i], add.color[i]);
+    let color =
+        std::array::from_fn(|k| ((wa * ca[k] as f32 + wb * cb[k] as f32) / w).round() as u8);
     acc.tsdf[i] = encode_tsdf(f);
     acc.color[i] = color;
     acc.weight_omega[i] = (w as u32).min(MAX_WEIGHT as u32) as u8 | omega;

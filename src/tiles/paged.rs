@@ -26,6 +26,8 @@ use crate::store::{
 use std::collections::HashSet;
 use std::path::Path;
 
+// One per open map: the size of the largest variant does not matter.
+#[allow(clippy::large_enum_variant)]
 enum State {
     /// Fusing: blocks paged around the camera.
     Paging(Box<Pager>),

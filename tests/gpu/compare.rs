@@ -95,9 +95,9 @@ fn tv_gpu_matches_cpu_on_a_random_problem() {
     let moved = max_abs_diff(u_gpu, &initial.f);
     assert!(moved > 0.3, "u barely moved: {moved}");
     // Voxels outside Ω are untouched on both sides.
-    for g in 0..u_gpu.len() {
+    for (g, (u, f)) in u_gpu.iter().zip(&initial.f).enumerate() {
         if !gpu.in_omega(g) {
-            assert_eq!(u_gpu[g], initial.f[g]);
+            assert_eq!(u, f);
         }
     }
     let (e0, e_cpu, e_gpu) = (

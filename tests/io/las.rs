@@ -41,8 +41,8 @@ fn autzen_trim() {
     let colors = cloud.colors.as_ref().unwrap();
     assert_eq!(colors.len(), 110_000);
     let (xyz, rgb) = first_point_by_hand(&path);
-    for k in 0..3 {
-        assert!((cloud.points_m[0][k] - xyz[k]).abs() < 1e-9);
+    for (got, want) in cloud.points_m[0].iter().zip(xyz) {
+        assert!((got - want).abs() < 1e-9);
     }
     let shift = if rgb.iter().all(|&c| c <= 255) { 0 } else { 8 };
     assert_eq!(colors[0], rgb.map(|c| (c >> shift) as u8));
@@ -85,8 +85,8 @@ fn other_pdal_files() {
         let cloud = read_point_cloud(&path).unwrap();
         assert_eq!(cloud.len(), n, "{name}");
         let (xyz, _) = first_point_by_hand(&path);
-        for k in 0..3 {
-            assert!((cloud.points_m[0][k] - xyz[k]).abs() < 1e-9, "{name}");
+        for (got, want) in cloud.points_m[0].iter().zip(xyz) {
+            assert!((got - want).abs() < 1e-9, "{name}");
         }
         assert!(cloud
             .points_m

@@ -274,8 +274,8 @@ fn las_and_laz_exports_are_z_up_with_complete_headers_and_a_crs() {
         assert!(lines[1].starts_with("EXTRACTION denser"), "{out}");
         assert_eq!(lines[2], "1 1", "{out}");
         let first: Vec<f64> = lines[3].split(' ').map(|t| t.parse().unwrap()).collect();
-        for a in 0..3 {
-            assert!((first[a] - cloud.points_m[0][a]).abs() < 1e-6, "{out}");
+        for (got, want) in first.iter().zip(cloud.points_m[0]) {
+            assert!((got - want).abs() < 1e-6, "{out}");
         }
     }
     // PDAL, where the distribution ships it.

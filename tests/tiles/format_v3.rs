@@ -238,7 +238,7 @@ fn smooth_block(seed: u64, at: [i16; 3]) -> Box<Block> {
         s = s
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
-        if (s >> 60) % 4 == 0 {
+        if (s >> 60).is_multiple_of(4) {
             continue;
         }
         let (x, y, z) = (
