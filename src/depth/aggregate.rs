@@ -257,8 +257,9 @@ impl<'a, T> Nbrs<'a, T> {
 /// over the disparities computes every direction's `L_r` and their sum, which `out` receives.
 /// With `TOTAL` (the pass that comes second to a row) the other pass's sum `theirs` is added, so
 /// that `out` gets `S` of the pixel, and `min_d S` is returned beside the directions' minima
-/// (else `u16::MAX`). Separate slice arguments (not arrays of slices) let the compiler know that
-/// outputs and inputs do not overlap, so the loop vectorises without run-time overlap checks.
+/// (else `u16::MAX`). Inlined into an out-of-line wrapper that takes the outputs as separate
+/// slice arguments (not an array of slices), so that the compiler knows that outputs and inputs
+/// do not overlap and the loop vectorises without run-time overlap checks.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn path_steps4<const TOTAL: bool, T: Cell>(

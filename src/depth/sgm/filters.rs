@@ -267,12 +267,10 @@ pub fn remove_speckles_in_bands(
         all.runs.extend(band.runs);
         all.parent.extend(band.parent.iter().map(|&p| p + offset));
         all.size.extend(band.size);
-        {
-            // The band's first row against the previous band's last row.
-            let (row, prev) = (&data[y * w..(y + 1) * w], &data[(y - 1) * w..y * w]);
-            let above = std::mem::take(&mut all.last_ids);
-            all.join_rows(&below, &above, row, prev, connected);
-        }
+        // The band's first row against the previous band's last row.
+        let (row, prev) = (&data[y * w..(y + 1) * w], &data[(y - 1) * w..y * w]);
+        let above = std::mem::take(&mut all.last_ids);
+        all.join_rows(&below, &above, row, prev, connected);
         all.last_ids = band
             .last_ids
             .iter()
@@ -298,10 +296,11 @@ pub fn remove_speckles_in_bands(
         rest = tail;
     }
     chunks.into_par_iter().for_each(|(y0, band)| {
+        // The band's runs: from its first row (runs are in row order) to past its end.
         let start = runs.partition_point(|r| (r.0 as usize) < y0);
         let mut n = 0;
         for (i, &(y, x0, x1)) in runs.iter().enumerate().skip(start) {
-            let row = (y as usize).wrapping_sub(y0) * w;
+            let row = (y as usize - y0) * w;
             if row >= band.len() {
                 break;
             }
