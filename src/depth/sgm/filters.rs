@@ -259,11 +259,13 @@ pub fn remove_speckles_in_bands(
     for (b, band) in (1..).zip(labels) {
         let offset = all.runs.len() as u32;
         let y = first_row(b);
-        let below: Vec<u32> = band
-            .first_ids
-            .iter()
-            .map(|&id| if id == NONE { NONE } else { id + offset })
-            .collect();
+        // A row's run ids in the joined index space.
+        let shift = |ids: &[u32]| -> Vec<u32> {
+            ids.iter()
+                .map(|&id| if id == NONE { NONE } else { id + offset })
+                .collect()
+        };
+        let below = shift(&band.first_ids);
         all.runs.extend(band.runs);
         all.parent.extend(band.parent.iter().map(|&p| p + offset));
         all.size.extend(band.size);
@@ -271,11 +273,7 @@ pub fn remove_speckles_in_bands(
         let (row, prev) = (&data[y * w..(y + 1) * w], &data[(y - 1) * w..y * w]);
         let above = std::mem::take(&mut all.last_ids);
         all.join_rows(&below, &above, row, prev, connected);
-        all.last_ids = band
-            .last_ids
-            .iter()
-            .map(|&id| if id == NONE { NONE } else { id + offset })
-            .collect();
+        all.last_ids = shift(&band.last_ids);
     }
     // Whether each run's region is a speckle (roots found once, serially), then the runs
     // cleared band by band.
@@ -286,7 +284,6 @@ pub fn remove_speckles_in_bands(
         })
         .collect();
     let runs = &all.runs;
-    let removed = std::sync::atomic::AtomicUsize::new(0);
     let mut rest: &mut [f32] = &mut disparity.data;
     let mut chunks = Vec::with_capacity(bands);
     for b in 0..bands {
@@ -295,23 +292,25 @@ pub fn remove_speckles_in_bands(
         chunks.push((first_row(b), band));
         rest = tail;
     }
-    chunks.into_par_iter().for_each(|(y0, band)| {
-        // The band's runs: from its first row (runs are in row order) to past its end.
-        let start = runs.partition_point(|r| (r.0 as usize) < y0);
-        let mut n = 0;
-        for (i, &(y, x0, x1)) in runs.iter().enumerate().skip(start) {
-            let row = (y as usize - y0) * w;
-            if row >= band.len() {
-                break;
+    chunks
+        .into_par_iter()
+        .map(|(y0, band)| {
+            // The band's runs: from its first row (runs are in row order) to past its end.
+            let start = runs.partition_point(|r| (r.0 as usize) < y0);
+            let mut n = 0;
+            for (i, &(y, x0, x1)) in runs.iter().enumerate().skip(start) {
+                let row = (y as usize - y0) * w;
+                if row >= band.len() {
+                    break;
+                }
+                if small[i] {
+                    band[row + x0 as usize..row + x1 as usize].fill(f32::NAN);
+                    n += (x1 - x0) as usize;
+                }
             }
-            if small[i] {
-                band[row + x0 as usize..row + x1 as usize].fill(f32::NAN);
-                n += (x1 - x0) as usize;
-            }
-        }
-        removed.fetch_add(n, std::sync::atomic::Ordering::Relaxed);
-    });
-    removed.into_inner()
+            n
+        })
+        .sum()
 }
 
 /// "No run" in the per-pixel run ids of a row.

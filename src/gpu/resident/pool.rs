@@ -215,10 +215,7 @@ impl BlockPool {
         }
         ctx.queue.submit([encoder.finish()]);
         scope.pop("gathering blocks for readback")?;
-        // Straight into a typed vector (one copy).
-        let mut voxels: Vec<GpuVoxel> = bytemuck::zeroed_vec(slots.len() * VOXELS_PER_BLOCK);
-        ctx.read_back_into(&mut [(&gather, bytemuck::cast_slice_mut(&mut voxels))])?;
-        Ok(voxels)
+        ctx.read_back_as(&gather, slots.len() * VOXELS_PER_BLOCK)
     }
 }
 
