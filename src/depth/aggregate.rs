@@ -17,10 +17,11 @@
 //! With 5 paths (OpenCV's 3-way mode) the forward pass is the same, and the second pass carries
 //! the right→left path alone: it needs no previous row, so it follows the forward pass down the
 //! image, never claims a row, and adds its path to each stored row and selects it (the light
-//! pass takes all the selection work). Since it trails the forward pass closely, the stored rows
-//! then live in a ring of [`RING_ROWS`] rows that stays in the cache (the forward pass waits for
-//! the slot of row `y − RING_ROWS` to be consumed), not in a `w·h·D` buffer written to memory and
-//! read back. The forward pass never waits for a pass that has not started: when `rayon::join`
+//! pass takes the selection work; the forward pass computes the raw costs' window sums of the
+//! sub-pixel fit and stores them beside its path sums). Since it trails the forward pass
+//! closely, the stored rows then live in a ring of [`RING_ROWS`] rows that stays in the cache
+//! (the forward pass waits for the slot of row `y − RING_ROWS` to be consumed), not in a `w·h·D`
+//! buffer written to memory and read back. The forward pass never waits for a pass that has not started: when `rayon::join`
 //! runs the two closures one after the other, the forward pass finds the second one not begun at
 //! the first full ring and stores the remaining rows in place (`full_from`), as 8 paths always do.
 //!
@@ -31,7 +32,9 @@
 //! no waiting.
 //!
 //! The inner loops run over the disparities of one pixel (contiguous in the cost volume) and are
-//! compiled three times on x86-64 (AVX-512BW, AVX2, baseline), picked at run time.
+//! compiled three times on x86-64 (AVX-512BW, AVX2, baseline), picked at run time. The pass
+//! that comes first to a row runs the row's interior pixels in one call ([`path_row4`]); the
+//! other calls a kernel per pixel.
 
 use super::sgm::{CostVolume, SgmParams, SgmPaths, SubpixelFit};
 use crate::frame::Image;
@@ -422,6 +425,18 @@ trait Isa {
         ob: &mut [T],
         acc: &mut [u16],
     ) -> [u16; 2];
+    /// [`path_row4`]: `prev` is the previous row's path costs, given three times.
+    #[allow(clippy::too_many_arguments)]
+    fn row4<T: Cell>(
+        a: &Row4<'_>,
+        cost_row: &[u8],
+        prev: (&[T], &[T], &[T]),
+        prev_min: &[u16],
+        cur: &mut [T],
+        cur_min: &mut [u16],
+        h: (&mut [T], &mut [T]),
+        sums: &mut [u16],
+    ) -> u16;
     /// [`path_step_total`]: `(prev, prev_min, p1, p2)`, output, `theirs`, `total`.
     fn step1_total<T: Cell>(
         cost: &[u8],
@@ -433,7 +448,7 @@ trait Isa {
 }
 
 macro_rules! isa {
-    ($name:ident, $win:ident, $s4:ident, $s2:ident, $s1t:ident, $($feature:literal)?) => {
+    ($name:ident, $win:ident, $s4:ident, $r4:ident, $s2:ident, $s1t:ident, $($feature:literal)?) => {
         struct $name;
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
@@ -464,6 +479,24 @@ macro_rules! isa {
             out: &mut [u16],
         ) -> ([u16; 4], u16) {
             path_steps4::<TOTAL, T>(cost, prev, pmin, p1, p2, [oa, ob, oc, od], theirs, out)
+        }
+        $(#[target_feature(enable = $feature)])?
+        #[inline(never)]
+        #[allow(clippy::too_many_arguments)]
+        fn $r4<T: Cell>(
+            a: &Row4<'_>,
+            cost_row: &[u8],
+            prev_lo: &[T],
+            prev_mid: &[T],
+            prev_hi: &[T],
+            prev_min: &[u16],
+            cur: &mut [T],
+            cur_min: &mut [u16],
+            h0: &mut [T],
+            h1: &mut [T],
+            sums: &mut [u16],
+        ) -> u16 {
+            path_row4(a, cost_row, (prev_lo, prev_mid, prev_hi), prev_min, cur, cur_min, h0, h1, sums)
         }
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
@@ -535,6 +568,23 @@ macro_rules! isa {
                 }
             }
             #[inline(always)]
+            fn row4<T: Cell>(
+                a: &Row4<'_>,
+                cost_row: &[u8],
+                (lo, mid, hi): (&[T], &[T], &[T]),
+                prev_min: &[u16],
+                cur: &mut [T],
+                cur_min: &mut [u16],
+                (h0, h1): (&mut [T], &mut [T]),
+                sums: &mut [u16],
+            ) -> u16 {
+                // SAFETY: as above.
+                #[allow(unused_unsafe)]
+                unsafe {
+                    $r4(a, cost_row, lo, mid, hi, prev_min, cur, cur_min, h0, h1, sums)
+                }
+            }
+            #[inline(always)]
             fn steps2<T: Cell>(
                 cost: &[u8],
                 prev: (&[T], &[T]),
@@ -575,6 +625,7 @@ isa!(
     Baseline,
     winner_baseline,
     steps4_baseline,
+    row4_baseline,
     steps2_baseline,
     step1t_baseline,
 );
@@ -583,6 +634,7 @@ isa!(
     Avx2,
     winner_avx2,
     steps4_avx2,
+    row4_avx2,
     steps2_avx2,
     step1t_avx2,
     "avx2"
@@ -592,13 +644,16 @@ isa!(
     Avx512,
     winner_avx512,
     steps4_avx512,
+    row4_avx512,
     steps2_avx512,
     step1t_avx512,
     "avx512f,avx512bw,avx512vl,avx2"
 );
 
 mod pass;
+mod row;
 mod select;
 
 pub(crate) use pass::*;
+pub(crate) use row::*;
 pub(crate) use select::*;

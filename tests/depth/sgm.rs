@@ -303,26 +303,30 @@ fn reference_aggregation(
 
 /// The streamed two-pass aggregation (both passes, in any interleaving) equals eq. 13 summed
 /// direction by direction, bit for bit, and the matcher's fused selection equals selecting on
-/// that sum; for 8, 5 and 4 paths, u8 and u16 path storage (P2 ≤ 192 and P2 = 1500), and a
-/// disparity range starting below zero.
+/// that sum; for 8, 5 and 4 paths, u8 and u16 path storage (P2 ≤ 192 and P2 = 1500), a
+/// disparity range starting below zero, and sub-pixel windows of 5, 3 and none.
 #[test]
 fn streamed_aggregation_equals_direct_eq13() {
     use denser::depth::sgm::{aggregate_paths, select_disparities, SgmPaths};
     let (w, h) = (53, 37);
     let (left, right, _) = planar_pair(w, h, 6.0, 0.05, 0.02, 11);
-    for (paths, p2, dmin, nd) in [
-        (SgmPaths::Eight, 110, 0, 24),
-        (SgmPaths::Four, 110, 0, 24),
-        (SgmPaths::Eight, 1500, -3, 21),
-        (SgmPaths::Four, 1500, 2, 17),
-        (SgmPaths::Five, 110, 0, 24),
-        (SgmPaths::Five, 1500, -3, 21),
+    // (With 5 paths the forward pass computes the sub-pixel fit's window sums: windows of 5,
+    // 3 and none.)
+    for (paths, p2, dmin, nd, window) in [
+        (SgmPaths::Eight, 110, 0, 24, 5),
+        (SgmPaths::Four, 110, 0, 24, 5),
+        (SgmPaths::Eight, 1500, -3, 21, 5),
+        (SgmPaths::Four, 1500, 2, 17, 5),
+        (SgmPaths::Five, 110, 0, 24, 5),
+        (SgmPaths::Five, 1500, -3, 21, 3),
+        (SgmPaths::Five, 110, 1, 19, 0),
     ] {
         let params = SgmParams {
             num_disparities: nd,
             min_disparity_px: dmin,
             paths,
             p2,
+            subpixel_cost_window: window,
             ..SgmParams::default()
         };
         let m = SgmMatcher::new(params).unwrap();

@@ -42,6 +42,17 @@ impl<T> SharedRows<T> {
         // SAFETY: in bounds (asserted above and in `new`); exclusive by the caller's contract.
         unsafe { std::slice::from_raw_parts_mut(self.ptr.add(y * self.row_len), self.row_len) }
     }
+
+    /// Row `y`, to read.
+    ///
+    /// # Safety
+    /// No mutable reference to row `y` may be alive (the claim protocol, as for
+    /// [`SharedRows::row`]).
+    unsafe fn row_ref(&self, y: usize) -> &[T] {
+        assert!(y < self.rows);
+        // SAFETY: in bounds (asserted above and in `new`); no writer by the caller's contract.
+        unsafe { std::slice::from_raw_parts(self.ptr.add(y * self.row_len), self.row_len) }
+    }
 }
 
 /// Buffers of one pass.
@@ -86,6 +97,9 @@ impl<T: Cell> PathRows<T> {
 pub(crate) struct AggregateScratch {
     /// The first pass's four-path sums, row by row (`w·h·D`, each row written by one pass).
     partial: Vec<u16>,
+    /// With 5 paths, the raw costs' window sums of the sub-pixel fit, stored by the forward
+    /// pass beside its sums (same rows, same places).
+    window: Vec<u16>,
     passes: [PassScratch; 2],
 }
 
@@ -148,6 +162,10 @@ pub(super) struct Job<'a> {
     pub(super) finish: Finish,
     pub(super) claims: &'a [AtomicU8],
     pub(super) partial: SharedRows<u16>,
+    /// The sub-pixel window sums of the stored rows, when the forward pass computes them
+    /// (`window_radius > 0`).
+    pub(super) window: SharedRows<u16>,
+    pub(super) window_radius: usize,
     pub(super) places: RowPlaces<'a>,
     pub(super) disparity: SharedRows<f32>,
     pub(super) confidence: SharedRows<f32>,
@@ -267,7 +285,44 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
         } else {
             (&*lo, hi, &*lo_min, hi_min)
         };
+        // Whether the pixel at step `i` continues every path (the usual case).
+        let inside_at = |i: usize| {
+            let x = if forward { i } else { w - 1 - i } as isize;
+            i > 0
+                && (NR == 0
+                    || has_prev && dxs.iter().all(|&dx| (0..w as isize).contains(&(x + dx))))
+        };
+        // The first pass to a row with four paths runs its interior steps in one call
+        // ([`path_row4`]) when it reaches the first of them.
+        let interior = if first && NR == 3 && N == 4 && inside_at(1) {
+            1..(1..w).find(|&i| !inside_at(i)).unwrap_or(w)
+        } else {
+            0..0
+        };
         for i in 0..w {
+            if i == interior.start && !interior.is_empty() {
+                let (h0, h1) = horiz.split_at_mut(stride);
+                let a = Row4 {
+                    i0: interior.start,
+                    i1: interior.end,
+                    forward,
+                    w,
+                    nd,
+                    dxs: std::array::from_fn(|r| dxs.get(r).copied().unwrap_or(0)),
+                    img,
+                    img_prev,
+                    pen: &job.pen,
+                    hmin,
+                };
+                let prev_rows = (prev, prev, prev);
+                let h = (h0, h1);
+                hmin = I::row4(
+                    &a, cost_row, prev_rows, prev_min, cur_row, cur_min, h, stored,
+                );
+            }
+            if interior.contains(&i) {
+                continue;
+            }
             let x = if forward { i } else { w - 1 - i };
             let c = &cost_row[x * nd..(x + 1) * nd];
             if !first {
@@ -293,8 +348,7 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
             let sx = x * NR * stride;
             // Predecessors in the previous row, when every path continues (the usual case).
             let xps: [isize; NR] = std::array::from_fn(|r| x as isize + dxs[r]);
-            let inside =
-                i > 0 && (NR == 0 || has_prev && xps.iter().all(|&xp| xp >= 0 && xp < w as isize));
+            let inside = inside_at(i);
             let outs = &mut cur_row[sx..sx + NR * stride];
             // Direction r's predecessor in the previous row (inside the image).
             let pred = |r: usize| -> (&[T], u16) {
@@ -405,11 +459,24 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
             }
         }
         if first {
+            if job.window_radius > 0 {
+                // SAFETY: as for `stored`: row y's place is this pass's until it publishes
+                // STORED, and row y − 1's (another place: the ring has more than one slot) is
+                // only read, here and by the second pass.
+                let (prev, out) = unsafe {
+                    let prev = (step > 0).then(|| job.window.row_ref(job.places.slot(y - 1)));
+                    (prev, job.window.row(job.places.slot(y)))
+                };
+                window_sums_into(vol, y, job.window_radius, prev, out);
+            }
             job.claims[y].store(STORED, Ordering::Release);
         } else if job.finish == Finish::Select {
-            // SAFETY: only the second pass to reach row y writes its output row.
+            // SAFETY: only the second pass to reach row y writes its output row; the window
+            // sums of row y are read only, after STORED.
             let (disp, conf) = unsafe { (job.disparity.row(y), job.confidence.row(y)) };
-            select.finish(y, Some(vol), w, nd, job.params, disp, conf);
+            let window =
+                (job.window_radius > 0).then(|| unsafe { job.window.row_ref(job.places.slot(y)) });
+            select.finish(y, Some(vol), window, w, nd, job.params, disp, conf);
             if job.places.ring {
                 job.claims[y].store(CONSUMED, Ordering::Release);
             }
@@ -485,6 +552,18 @@ pub(super) fn run_passes(
     }
     let claims: Vec<AtomicU8> = (0..h).map(|_| AtomicU8::new(FREE)).collect();
     let dxs = predecessors(params.paths);
+    let ring = finish == Finish::Select && dxs[1].is_empty();
+    // With the ring, the forward pass computes the sub-pixel fit's window sums: the second
+    // pass, one path and the whole selection, was the longer one.
+    let window_radius = if ring {
+        (params.subpixel_cost_window / 2) as usize
+    } else {
+        0
+    };
+    let window = &mut scratch.window;
+    if window_radius > 0 && window.len() != n {
+        *window = vec![0u16; n];
+    }
     // The ring when the second pass selects right behind the forward pass (5 paths).
     let (full_from, started) = (AtomicUsize::new(h), AtomicBool::new(false));
     let job = Job {
@@ -496,8 +575,10 @@ pub(super) fn run_passes(
         finish,
         claims: &claims,
         partial: SharedRows::new(partial, w * nd, h),
+        window: SharedRows::new(window, w * nd, if window_radius > 0 { h } else { 0 }),
+        window_radius,
         places: RowPlaces {
-            ring: finish == Finish::Select && dxs[1].is_empty(),
+            ring,
             full_from: &full_from,
             started: &started,
         },

@@ -135,13 +135,17 @@ impl RowSelect {
     }
 
     /// Row `y` from the per-pixel winners: bounds, uniqueness, sub-pixel fit, left–right check,
-    /// confidence (the rules of [`select_disparities`]).
+    /// confidence (the rules of [`select_disparities`]). `window_sums`: the raw costs' window
+    /// sums of row `y` when the other pass computed them ([`window_sums_into`]), else they are
+    /// computed here.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn finish(
         &mut self,
         y: usize,
         raw: Option<&CostVolume>,
+        window_sums: Option<&[u16]>,
         w: usize,
         nd: usize,
         params: &SgmParams,
@@ -151,9 +155,10 @@ impl RowSelect {
         let dmin = params.min_disparity_px;
         let radius = (params.subpixel_cost_window / 2) as usize;
         let window = raw.filter(|_| radius > 0);
-        if let Some(vol) = window {
+        if let (Some(vol), None) = (window, window_sums) {
             self.window_sums(vol, y, radius);
         }
+        let colsum = window_sums.unwrap_or(&self.colsum);
         let uniq = params.uniqueness_ratio;
         for x in 0..w {
             disparity[x] = f32::NAN;
@@ -177,7 +182,7 @@ impl RowSelect {
                     Some(_) => {
                         let mut abc = [0u32; 3];
                         for xx in x.saturating_sub(radius)..(x + radius + 1).min(w) {
-                            let c = &self.colsum[xx * nd + bk - 1..][..3];
+                            let c = &colsum[xx * nd + bk - 1..][..3];
                             abc[0] += c[0] as u32;
                             abc[1] += c[1] as u32;
                             abc[2] += c[2] as u32;
@@ -300,6 +305,58 @@ static SLICES: [u16; 4096] = {
     a
 };
 
+/// The raw costs of the rows `[y − radius, y + radius]` (inside the image) summed per column
+/// and slice into `out`, from `prev`, the sums of row `y − 1`, when given (else directly): the
+/// forward pass's share of the sub-pixel fit with 5 paths, which it stores beside its path sums
+/// for the second pass. The same sums as [`RowSelect::window_sums`]. (Inlined into the pass,
+/// so compiled for its instruction set.)
+#[inline(always)]
+pub(super) fn window_sums_into(
+    vol: &CostVolume,
+    y: usize,
+    radius: usize,
+    prev: Option<&[u16]>,
+    out: &mut [u16],
+) {
+    let h = vol.height as usize;
+    let n = vol.width as usize * vol.num_disparities;
+    let row = |yy: usize| &vol.cost[yy * n..(yy + 1) * n];
+    let out = &mut out[..n];
+    match prev.filter(|_| y > 0) {
+        Some(prev) => {
+            let prev = &prev[..n];
+            let add = (y + radius < h).then(|| row(y + radius));
+            let sub = (y - 1).checked_sub(radius).map(row);
+            match (add, sub) {
+                (Some(a), Some(b)) => {
+                    for (((s, &p), &ca), &cb) in out.iter_mut().zip(prev).zip(a).zip(b) {
+                        *s = p.wrapping_add(ca as u16).wrapping_sub(cb as u16);
+                    }
+                }
+                (Some(a), None) => {
+                    for ((s, &p), &c) in out.iter_mut().zip(prev).zip(a) {
+                        *s = p.wrapping_add(c as u16);
+                    }
+                }
+                (None, Some(b)) => {
+                    for ((s, &p), &c) in out.iter_mut().zip(prev).zip(b) {
+                        *s = p.wrapping_sub(c as u16);
+                    }
+                }
+                (None, None) => out.copy_from_slice(prev),
+            }
+        }
+        None => {
+            out.fill(0);
+            for yy in y.saturating_sub(radius)..(y + radius + 1).min(h) {
+                for (s, &c) in out.iter_mut().zip(row(yy)) {
+                    *s += c as u16;
+                }
+            }
+        }
+    }
+}
+
 /// How many pixels ahead the second pass prefetches the first pass's sums.
 pub(super) const PREFETCH_PX: usize = 6;
 
@@ -383,7 +440,7 @@ pub(super) fn select_row(
         for x in 0..w {
             sel.pixel::<I>(&row[x * nd..(x + 1) * nd], x, w, params.min_disparity_px);
         }
-        sel.finish(y, raw, w, nd, params, drow, crow);
+        sel.finish(y, raw, None, w, nd, params, drow, crow);
     }
     #[cfg(target_arch = "x86_64")]
     {
