@@ -32,9 +32,11 @@
 //! no waiting.
 //!
 //! The inner loops run over the disparities of one pixel (contiguous in the cost volume) and are
-//! compiled three times on x86-64 (AVX-512BW, AVX2, baseline), picked at run time. The pass
-//! that comes first to a row runs the row's interior pixels in one call ([`path_row4`]); the
-//! other calls a kernel per pixel.
+//! compiled three times on x86-64 (AVX-512BW, AVX2, baseline), picked at run time. A row's
+//! interior pixels (those that continue every path) run in one call: [`path_row4`] for the pass
+//! that comes first to the row, [`path_row_select`] for the second with its selection. Path
+//! starts at the image's sides, and the second pass when it only sums (for
+//! [`aggregate_paths`]), call a kernel per pixel.
 
 use super::sgm::{CostVolume, SgmParams, SgmPaths, SubpixelFit};
 use crate::frame::Image;
@@ -399,9 +401,9 @@ type Steps4Args<'a, T> = (
     &'a mut [u16],
 );
 
-/// The pixel kernels compiled for one instruction set. They stay out of line: as separate
-/// functions their slice arguments are known not to overlap, so the loops vectorise (inlined
-/// into the pass, with the slices taken from shared buffers, they did not).
+/// The pixel and row kernels compiled for one instruction set. They stay out of line: as
+/// separate functions their slice arguments are known not to overlap, so the loops vectorise
+/// (inlined into the pass, with the slices taken from shared buffers, they did not).
 trait Isa {
     /// [`winner`].
     fn winner(
@@ -413,7 +415,6 @@ trait Isa {
         dmin: i32,
     ) -> (usize, u16);
     fn steps4<T: Cell>(cost: &[u8], a: Steps4Args<'_, T>) -> [u16; 4];
-    fn steps4_total<T: Cell>(cost: &[u8], a: Steps4Args<'_, T>, theirs: &[u16]) -> ([u16; 4], u16);
     #[allow(clippy::too_many_arguments)]
     fn steps2<T: Cell>(
         cost: &[u8],
@@ -437,18 +438,24 @@ trait Isa {
         h: (&mut [T], &mut [T]),
         sums: &mut [u16],
     ) -> u16;
-    /// [`path_step_total`]: `(prev, prev_min, p1, p2)`, output, `theirs`, `total`.
-    fn step1_total<T: Cell>(
-        cost: &[u8],
-        prev: (&[T], u16, u16, u16),
-        out: &mut [T],
+    /// [`path_row_select`].
+    #[allow(clippy::too_many_arguments)]
+    fn row_select<const NR: usize, T: Cell>(
+        a: &Row4<'_>,
+        cost_row: &[u8],
+        prev: (&[T], &[T], &[T]),
+        prev_min: &[u16],
+        cur: &mut [T],
+        cur_min: &mut [u16],
+        h: (&mut [T], &mut [T]),
         theirs: &[u16],
-        total: &mut [u16],
-    ) -> (u16, u16);
+        own: &mut [u16],
+        select: &mut RowSelect,
+    ) -> u16;
 }
 
 macro_rules! isa {
-    ($name:ident, $win:ident, $s4:ident, $r4:ident, $s2:ident, $s1t:ident, $($feature:literal)?) => {
+    ($name:ident, $win:ident, $s4:ident, $r4:ident, $rs:ident, $s2:ident, $($feature:literal)?) => {
         struct $name;
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
@@ -465,7 +472,7 @@ macro_rules! isa {
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
         #[allow(clippy::too_many_arguments)]
-        fn $s4<const TOTAL: bool, T: Cell>(
+        fn $s4<T: Cell>(
             cost: &[u8],
             prev: [Nbrs<'_, T>; 4],
             pmin: [u16; 4],
@@ -475,10 +482,9 @@ macro_rules! isa {
             ob: &mut [T],
             oc: &mut [T],
             od: &mut [T],
-            theirs: &[u16],
             out: &mut [u16],
-        ) -> ([u16; 4], u16) {
-            path_steps4::<TOTAL, T>(cost, prev, pmin, p1, p2, [oa, ob, oc, od], theirs, out)
+        ) -> [u16; 4] {
+            path_steps4::<false, T>(cost, prev, pmin, p1, p2, [oa, ob, oc, od], &[], out).0
         }
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
@@ -501,6 +507,29 @@ macro_rules! isa {
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
         #[allow(clippy::too_many_arguments)]
+        fn $rs<const NR: usize, T: Cell>(
+            a: &Row4<'_>,
+            cost_row: &[u8],
+            prev_lo: &[T],
+            prev_mid: &[T],
+            prev_hi: &[T],
+            prev_min: &[u16],
+            cur: &mut [T],
+            cur_min: &mut [u16],
+            h0: &mut [T],
+            h1: &mut [T],
+            theirs: &[u16],
+            own: &mut [u16],
+            select: &mut RowSelect,
+        ) -> u16 {
+            let prev = (prev_lo, prev_mid, prev_hi);
+            path_row_select::<NR, T, $name>(
+                a, cost_row, prev, prev_min, cur, cur_min, h0, h1, theirs, own, select,
+            )
+        }
+        $(#[target_feature(enable = $feature)])?
+        #[inline(never)]
+        #[allow(clippy::too_many_arguments)]
         fn $s2<T: Cell>(
             cost: &[u8],
             prev: [Nbrs<'_, T>; 2],
@@ -512,17 +541,6 @@ macro_rules! isa {
             acc: &mut [u16],
         ) -> [u16; 2] {
             path_steps2(cost, prev, prev_min, p1, p2, oa, ob, acc)
-        }
-        $(#[target_feature(enable = $feature)])?
-        #[inline(never)]
-        fn $s1t<T: Cell>(
-            cost: &[u8],
-            (prev, prev_min, p1, p2): (Nbrs<'_, T>, u16, u16, u16),
-            out: &mut [T],
-            theirs: &[u16],
-            total: &mut [u16],
-        ) -> (u16, u16) {
-            path_step_total(cost, prev, prev_min, p1, p2, out, theirs, total)
         }
         impl Isa for $name {
             #[inline(always)]
@@ -550,21 +568,7 @@ macro_rules! isa {
                 // it.
                 #[allow(unused_unsafe)]
                 unsafe {
-                    $s4::<false, T>(cost, prev, pmin, p1, p2, oa, ob, oc, od, &[], acc).0
-                }
-            }
-            #[inline(always)]
-            fn steps4_total<T: Cell>(
-                cost: &[u8],
-                a: Steps4Args<'_, T>,
-                theirs: &[u16],
-            ) -> ([u16; 4], u16) {
-                let ((pa, pb, pc, pd), pmin, p1, p2, [oa, ob, oc, od], total) = a;
-                let prev = Nbrs::of4((pa, pb, pc, pd), cost.len());
-                // SAFETY: as above.
-                #[allow(unused_unsafe)]
-                unsafe {
-                    $s4::<true, T>(cost, prev, pmin, p1, p2, oa, ob, oc, od, theirs, total)
+                    $s4::<T>(cost, prev, pmin, p1, p2, oa, ob, oc, od, acc)
                 }
             }
             #[inline(always)]
@@ -585,6 +589,28 @@ macro_rules! isa {
                 }
             }
             #[inline(always)]
+            fn row_select<const NR: usize, T: Cell>(
+                a: &Row4<'_>,
+                cost_row: &[u8],
+                (lo, mid, hi): (&[T], &[T], &[T]),
+                prev_min: &[u16],
+                cur: &mut [T],
+                cur_min: &mut [u16],
+                (h0, h1): (&mut [T], &mut [T]),
+                theirs: &[u16],
+                own: &mut [u16],
+                select: &mut RowSelect,
+            ) -> u16 {
+                // SAFETY: as above.
+                #[allow(unused_unsafe)]
+                unsafe {
+                    $rs::<NR, T>(
+                        a, cost_row, lo, mid, hi, prev_min, cur, cur_min, h0, h1, theirs, own,
+                        select,
+                    )
+                }
+            }
+            #[inline(always)]
             fn steps2<T: Cell>(
                 cost: &[u8],
                 prev: (&[T], &[T]),
@@ -602,21 +628,6 @@ macro_rules! isa {
                     $s2(cost, prev, prev_min, p1, p2, oa, ob, acc)
                 }
             }
-            #[inline(always)]
-            fn step1_total<T: Cell>(
-                cost: &[u8],
-                prev: (&[T], u16, u16, u16),
-                out: &mut [T],
-                theirs: &[u16],
-                total: &mut [u16],
-            ) -> (u16, u16) {
-                let prev = (Nbrs::of(prev.0, cost.len()), prev.1, prev.2, prev.3);
-                // SAFETY: as above.
-                #[allow(unused_unsafe)]
-                unsafe {
-                    $s1t(cost, prev, out, theirs, total)
-                }
-            }
         }
     };
 }
@@ -626,8 +637,8 @@ isa!(
     winner_baseline,
     steps4_baseline,
     row4_baseline,
+    row_select_baseline,
     steps2_baseline,
-    step1t_baseline,
 );
 #[cfg(target_arch = "x86_64")]
 isa!(
@@ -635,8 +646,8 @@ isa!(
     winner_avx2,
     steps4_avx2,
     row4_avx2,
+    row_select_avx2,
     steps2_avx2,
-    step1t_avx2,
     "avx2"
 );
 #[cfg(target_arch = "x86_64")]
@@ -645,8 +656,8 @@ isa!(
     winner_avx512,
     steps4_avx512,
     row4_avx512,
+    row_select_avx512,
     steps2_avx512,
-    step1t_avx512,
     "avx512f,avx512bw,avx512vl,avx2"
 );
 
@@ -655,5 +666,5 @@ mod row;
 mod select;
 
 pub(crate) use pass::*;
-pub(crate) use row::*;
+use row::*;
 pub(crate) use select::*;

@@ -292,9 +292,10 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                 && (NR == 0
                     || has_prev && dxs.iter().all(|&dx| (0..w as isize).contains(&(x + dx))))
         };
-        // The first pass to a row with four paths runs its interior steps in one call
-        // ([`path_row4`]) when it reaches the first of them.
-        let interior = if first && NR == 3 && N == 4 && inside_at(1) {
+        // The interior steps run in one call when the pass reaches the first of them: the first
+        // pass to a row with four paths ([`path_row4`]), the second with its fused selection
+        // ([`path_row_select`]).
+        let interior = if (first && NR == 3 && N == 4 || fused) && inside_at(1) {
             1..(1..w).find(|&i| !inside_at(i)).unwrap_or(w)
         } else {
             0..0
@@ -313,12 +314,20 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                     img_prev,
                     pen: &job.pen,
                     hmin,
+                    dmin: job.params.min_disparity_px,
                 };
                 let prev_rows = (prev, prev, prev);
                 let h = (h0, h1);
-                hmin = I::row4(
-                    &a, cost_row, prev_rows, prev_min, cur_row, cur_min, h, stored,
-                );
+                hmin = if first {
+                    I::row4(
+                        &a, cost_row, prev_rows, prev_min, cur_row, cur_min, h, stored,
+                    )
+                } else {
+                    let own = &mut own[..nd];
+                    I::row_select::<NR, T>(
+                        &a, cost_row, prev_rows, prev_min, cur_row, cur_min, h, stored, own, select,
+                    )
+                };
             }
             if interior.contains(&i) {
                 continue;
@@ -337,11 +346,11 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                     prefetch(&stored[ahead * nd..(ahead + 1) * nd]);
                 }
             }
-            // Where the pass's sum goes (the stored row when first), and the other pass's sum.
-            let (acc, theirs): (&mut [u16], &[u16]) = if first {
-                (&mut stored[x * nd..(x + 1) * nd], &[])
+            // Where the pass's sum goes: the stored row when first, else its own.
+            let acc: &mut [u16] = if first {
+                &mut stored[x * nd..(x + 1) * nd]
             } else {
-                (&mut own[..nd], &stored[x * nd..(x + 1) * nd])
+                &mut own[..nd]
             };
             let (h0, h1) = horiz.split_at_mut(stride);
             let (hprev, hout) = if i % 2 == 0 { (&*h1, h0) } else { (&*h0, h1) };
@@ -370,29 +379,10 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                     prevs[r + 1] = pv;
                     pmin[r + 1] = pm;
                 }
-                let m: [u16; N] = if fused && N == 1 {
-                    let (m, best) =
-                        I::step1_total(c, (hprev, pmin[0], p1, p2[0]), hout, theirs, acc);
-                    let total = &own[..nd];
-                    select.pixel_with_min::<I>(total, best, x, w, job.params.min_disparity_px);
-                    std::array::from_fn(|_| m)
-                } else if N == 1 {
+                // (The fused steps of the second pass run in `path_row_select`.)
+                let m: [u16; N] = if N == 1 {
                     let m = path_step::<true, T>(c, hprev, pmin[0], p1, p2[0], hout, acc);
                     std::array::from_fn(|_| m)
-                } else if fused {
-                    // Second to the row: S of the pixel and its winner at once.
-                    let (o1, rest) = outs.split_at_mut(stride);
-                    let (o2, o3) = rest.split_at_mut(stride);
-                    let prevs = (prevs[0], prevs[1], prevs[2], prevs[3]);
-                    let (pm, p2) = (
-                        [pmin[0], pmin[1], pmin[2], pmin[3]],
-                        [p2[0], p2[1], p2[2], p2[3]],
-                    );
-                    let (m, best) =
-                        I::steps4_total(c, (prevs, pm, p1, p2, [hout, o1, o2, o3], acc), theirs);
-                    let total = &own[..nd];
-                    select.pixel_with_min::<I>(total, best, x, w, job.params.min_disparity_px);
-                    std::array::from_fn(|r| m[r])
                 } else if N == 4 {
                     let (o1, rest) = outs.split_at_mut(stride);
                     let (o2, o3) = rest.split_at_mut(stride);
@@ -441,7 +431,7 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                 }
                 cur_min[x * NR..(x + 1) * NR].copy_from_slice(&m);
             }
-            if !(first || inside && fused) {
+            if !first {
                 let theirs = &mut stored[x * nd..(x + 1) * nd];
                 match job.finish {
                     Finish::Sum => {
