@@ -3,7 +3,9 @@
 //!
 //! Run: `cargo run --release --example stereo_stages -- LEFT RIGHT [RUNS] [NUM_DISPARITIES]`
 //! (default: KITTI 00 frame 0 from ../shared/data, 9 runs, 128 disparities). `PATHS=4|5|8`
-//! picks the SGM aggregation directions; `ONLY=sgm|tgv` times one matcher only.
+//! picks the SGM aggregation directions; `ONLY=sgm|tgv` times one matcher only;
+//! `LR_MAX_DIFF=2 UNIQUENESS=0` times the looser selection of `denser stereo --sgm-lr-max-diff 2
+//! --sgm-uniqueness 0`.
 use denser::depth::census::census_transform;
 use denser::depth::sgm::{
     aggregate_paths, median_filter_3x3, remove_speckles, select_disparities, CostVolume,
@@ -69,11 +71,25 @@ fn main() {
         _ => SgmParams::default().paths,
     };
     println!("{paths:?} paths");
+    // LR_MAX_DIFF=N|off and UNIQUENESS=r: the looser selection that `denser stereo` offers
+    // for benchmarks counting missing pixels (default: the library's).
+    let defaults = SgmParams::default();
+    let lr_max_diff_px = match std::env::var("LR_MAX_DIFF").as_deref() {
+        Ok("off") => None,
+        Ok(v) => Some(v.parse().expect("LR_MAX_DIFF: pixels or off")),
+        Err(_) => defaults.lr_max_diff_px,
+    };
+    let uniqueness_ratio = std::env::var("UNIQUENESS")
+        .map(|v| v.parse().expect("UNIQUENESS: a ratio"))
+        .unwrap_or(defaults.uniqueness_ratio);
     let sp = SgmParams {
         num_disparities: nd,
         paths,
-        ..SgmParams::default()
+        lr_max_diff_px,
+        uniqueness_ratio,
+        ..defaults
     };
+    println!("LR check {lr_max_diff_px:?} px, uniqueness {uniqueness_ratio}");
     let sgm = SgmMatcher::new(sp).expect("parameters");
     // ONLY=sgm|tgv: one estimate and nothing else (for instruction counts under callgrind).
     match std::env::var("ONLY").as_deref() {

@@ -521,10 +521,13 @@ macro_rules! isa {
             theirs: &[u16],
             own: &mut [u16],
             select: &mut RowSelect,
+            right_cost: &mut [u16],
+            right_k: &mut [u16],
         ) -> u16 {
             let prev = (prev_lo, prev_mid, prev_hi);
-            path_row_select::<NR, T, $name>(
-                a, cost_row, prev, prev_min, cur, cur_min, h0, h1, theirs, own, select,
+            let right = (right_cost, right_k);
+            path_row_select::<NR, T>(
+                a, cost_row, prev, prev_min, cur, cur_min, h0, h1, theirs, own, select, right,
             )
         }
         $(#[target_feature(enable = $feature)])?
@@ -601,14 +604,21 @@ macro_rules! isa {
                 own: &mut [u16],
                 select: &mut RowSelect,
             ) -> u16 {
+                // The right image's winners go in as arguments of their own (known not to
+                // overlap the other buffers, for the winner's vectorised update).
+                let mut right_cost = std::mem::take(&mut select.right_cost);
+                let mut right_k = std::mem::take(&mut select.right_k);
                 // SAFETY: as above.
                 #[allow(unused_unsafe)]
-                unsafe {
+                let hmin = unsafe {
                     $rs::<NR, T>(
                         a, cost_row, lo, mid, hi, prev_min, cur, cur_min, h0, h1, theirs, own,
-                        select,
+                        select, &mut right_cost, &mut right_k,
                     )
-                }
+                };
+                select.right_cost = right_cost;
+                select.right_k = right_k;
+                hmin
             }
             #[inline(always)]
             fn steps2<T: Cell>(

@@ -159,7 +159,7 @@ fn pixel4<T: Cell>(
 /// in [`path_row4`]; `prev_*`, `prev_min`, `cur` and `cur_min` are empty when `NR` is 0.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-pub(super) fn path_row_select<const NR: usize, T: Cell, I: Isa>(
+pub(super) fn path_row_select<const NR: usize, T: Cell>(
     a: &Row4<'_>,
     cost_row: &[u8],
     prev: (&[T], &[T], &[T]),
@@ -171,15 +171,28 @@ pub(super) fn path_row_select<const NR: usize, T: Cell, I: Isa>(
     theirs: &[u16],
     own: &mut [u16],
     select: &mut RowSelect,
+    (right_cost, right_k): (&mut [u16], &mut [u16]),
 ) -> u16 {
     let mut hmin = a.hmin;
     let mut i = a.i0;
     // (Spelled out, not a closure: the closure of the first version stayed out of line.)
     macro_rules! step {
         ($i:expr, $hprev:expr, $hout:expr) => {
-            hmin = pixel_select::<NR, T, I>(
-                a, $i, hmin, cost_row, prev, prev_min, cur, cur_min, $hprev, $hout, theirs, own,
+            hmin = pixel_select::<NR, T>(
+                a,
+                $i,
+                hmin,
+                cost_row,
+                prev,
+                prev_min,
+                cur,
+                cur_min,
+                $hprev,
+                $hout,
+                theirs,
+                own,
                 select,
+                (&mut *right_cost, &mut *right_k),
             )
         };
     }
@@ -201,7 +214,7 @@ pub(super) fn path_row_select<const NR: usize, T: Cell, I: Isa>(
 /// One pixel of [`path_row_select`]; returns the horizontal path's new minimum.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn pixel_select<const NR: usize, T: Cell, I: Isa>(
+fn pixel_select<const NR: usize, T: Cell>(
     a: &Row4<'_>,
     i: usize,
     hmin: u16,
@@ -215,6 +228,7 @@ fn pixel_select<const NR: usize, T: Cell, I: Isa>(
     theirs_row: &[u16],
     own: &mut [u16],
     select: &mut RowSelect,
+    (right_cost, right_k): (&mut [u16], &mut [u16]),
 ) -> u16 {
     let (w, nd) = (a.w, a.nd);
     let stride = nd + 2;
@@ -238,7 +252,8 @@ fn pixel_select<const NR: usize, T: Cell, I: Isa>(
     if NR == 0 {
         let prev = Nbrs::of(hprev, nd);
         let (m, best) = path_step_total::<T>(cost, prev, hmin, pen.p1, p2h, hout, theirs, own);
-        select.pixel_with_min::<I>(&own[..nd], best, x, w, dmin);
+        let (bk, second) = winner(&own[..nd], best, right_cost, right_k, x, w, dmin);
+        select.record(&own[..nd], best, bk, second, x);
         return m;
     }
     let xp = a.dxs.map(|dx| (x as isize + dx) as usize);
@@ -268,7 +283,8 @@ fn pixel_select<const NR: usize, T: Cell, I: Isa>(
     let (o2, o3) = rest.split_at_mut(stride);
     let outs = [hout, o1, o2, o3];
     let (m, best) = path_steps4::<true, T>(cost, prevs, pmin, pen.p1, p2, outs, theirs, own);
-    select.pixel_with_min::<I>(&own[..nd], best, x, w, dmin);
+    let (bk, second) = winner(&own[..nd], best, right_cost, right_k, x, w, dmin);
+    select.record(&own[..nd], best, bk, second, x);
     cur_min[x * NR..(x + 1) * NR].copy_from_slice(&m[1..]);
     m[0]
 }

@@ -70,6 +70,13 @@ impl RowSelect {
     ) {
         let right = (&mut self.right_cost[..], &mut self.right_k[..]);
         let (bk, second) = I::winner(total, best, right, x, w, dmin);
+        self.record(total, best, bk, second, x);
+    }
+
+    /// Keeps pixel `x`'s winner `bk` (cost `best`), its runner-up cost `second` and its
+    /// neighbours' costs in `total` ([`winner`]'s results).
+    #[inline(always)]
+    pub(super) fn record(&mut self, total: &[u16], best: u16, bk: usize, second: u16, x: usize) {
         let nd = total.len();
         self.best_k[x] = bk as u32;
         self.best[x] = best;
