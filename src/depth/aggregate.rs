@@ -21,9 +21,10 @@
 //! sub-pixel fit and stores them beside its path sums). Since it trails the forward pass
 //! closely, the stored rows then live in a ring of [`RING_ROWS`] rows that stays in the cache
 //! (the forward pass waits for the slot of row `y − RING_ROWS` to be consumed), not in a `w·h·D`
-//! buffer written to memory and read back. The forward pass never waits for a pass that has not started: when `rayon::join`
-//! runs the two closures one after the other, the forward pass finds the second one not begun at
-//! the first full ring and stores the remaining rows in place (`full_from`), as 8 paths always do.
+//! buffer written to memory and read back. The forward pass never waits long for a pass that has not started: when `rayon::join`
+//! runs the two closures one after the other (one worker, or the other one busy for longer than
+//! [`START_WAIT`]), the forward pass finds the second one not begun at the first full ring and
+//! stores the remaining rows in place (`full_from`), as 8 paths always do.
 //!
 //! Sums of integers do not depend on the order of addition, so the result is bit-identical to
 //! summing the paths one after the other (`tests/depth/sgm.rs` checks it against a direct

@@ -131,7 +131,8 @@ impl RowPlaces<'_> {
     }
 
     /// The forward pass, before it stores row `y`: waits until the row that last used `y`'s ring
-    /// slot is consumed, or, when the second pass has not started, stores from `y` on in place.
+    /// slot is consumed, or, when the second pass has not started (within [`START_WAIT`], and at
+    /// once without a second worker), stores from `y` on in place.
     fn make_room(&self, claims: &[AtomicU8], y: usize) {
         if !self.ring || y < RING_ROWS || y >= self.full_from.load(Ordering::Relaxed) {
             return;
@@ -140,7 +141,9 @@ impl RowPlaces<'_> {
         if before.load(Ordering::Acquire) == CONSUMED {
             return;
         }
-        if !self.started.load(Ordering::Acquire) {
+        if !self.started.load(Ordering::Acquire)
+            && !(rayon::current_num_threads() > 1 && wait_until(self.started, START_WAIT))
+        {
             // Published to the second pass by the release store of row y's STORED.
             self.full_from.store(y, Ordering::Relaxed);
             return;
@@ -148,6 +151,31 @@ impl RowPlaces<'_> {
         // The second pass is running and needs no row after y − 1: it gets there.
         wait_for(before, CONSUMED);
     }
+}
+
+/// How long the forward pass waits at the first full ring for a second pass that has not
+/// started. A worker that wakes late (a loaded machine: 1.5 ms was seen) would otherwise send
+/// every later row through memory instead of the ring: 28 → 50–130 ms for a KITTI pair. When
+/// no other worker takes the second pass in this time, it runs after the forward pass, on the
+/// same thread, and the rows go in place.
+const START_WAIT: std::time::Duration = std::time::Duration::from_millis(4);
+
+/// Waits until `flag` is set (acquire) or `timeout` has passed; whether it was set.
+fn wait_until(flag: &AtomicBool, timeout: std::time::Duration) -> bool {
+    let t0 = std::time::Instant::now();
+    let mut spins = 0u32;
+    while !flag.load(Ordering::Acquire) {
+        if t0.elapsed() > timeout {
+            return false;
+        }
+        if spins < 256 {
+            std::hint::spin_loop();
+            spins += 1;
+        } else {
+            std::thread::yield_now();
+        }
+    }
+    true
 }
 
 /// Inputs of both passes.
