@@ -141,9 +141,9 @@ impl RowPlaces<'_> {
         if before.load(Ordering::Acquire) == CONSUMED {
             return;
         }
-        if !self.started.load(Ordering::Acquire)
-            && !(rayon::current_num_threads() > 1 && wait_until(self.started, START_WAIT))
-        {
+        let started = self.started.load(Ordering::Acquire)
+            || rayon::current_num_threads() > 1 && wait_until(self.started, START_WAIT);
+        if !started {
             // Published to the second pass by the release store of row y's STORED.
             self.full_from.store(y, Ordering::Relaxed);
             return;
