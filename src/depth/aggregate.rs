@@ -430,7 +430,7 @@ trait Isa {
     /// [`path_row4`]: `prev` is the previous row's path costs, given three times.
     #[allow(clippy::too_many_arguments)]
     fn row4<T: Cell>(
-        a: &Row4<'_>,
+        a: &RowSteps<'_>,
         cost_row: &[u8],
         prev: (&[T], &[T], &[T]),
         prev_min: &[u16],
@@ -442,7 +442,7 @@ trait Isa {
     /// [`path_row_select`].
     #[allow(clippy::too_many_arguments)]
     fn row_select<const NR: usize, T: Cell>(
-        a: &Row4<'_>,
+        a: &RowSteps<'_>,
         cost_row: &[u8],
         prev: (&[T], &[T], &[T]),
         prev_min: &[u16],
@@ -491,7 +491,7 @@ macro_rules! isa {
         #[inline(never)]
         #[allow(clippy::too_many_arguments)]
         fn $r4<T: Cell>(
-            a: &Row4<'_>,
+            a: &RowSteps<'_>,
             cost_row: &[u8],
             prev_lo: &[T],
             prev_mid: &[T],
@@ -509,7 +509,7 @@ macro_rules! isa {
         #[inline(never)]
         #[allow(clippy::too_many_arguments)]
         fn $rs<const NR: usize, T: Cell>(
-            a: &Row4<'_>,
+            a: &RowSteps<'_>,
             cost_row: &[u8],
             prev_lo: &[T],
             prev_mid: &[T],
@@ -577,7 +577,7 @@ macro_rules! isa {
             }
             #[inline(always)]
             fn row4<T: Cell>(
-                a: &Row4<'_>,
+                a: &RowSteps<'_>,
                 cost_row: &[u8],
                 (lo, mid, hi): (&[T], &[T], &[T]),
                 prev_min: &[u16],
@@ -594,7 +594,7 @@ macro_rules! isa {
             }
             #[inline(always)]
             fn row_select<const NR: usize, T: Cell>(
-                a: &Row4<'_>,
+                a: &RowSteps<'_>,
                 cost_row: &[u8],
                 (lo, mid, hi): (&[T], &[T], &[T]),
                 prev_min: &[u16],

@@ -331,7 +331,7 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
         for i in 0..w {
             if i == interior.start && !interior.is_empty() {
                 let (h0, h1) = horiz.split_at_mut(stride);
-                let a = Row4 {
+                let a = RowSteps {
                     i0: interior.start,
                     i1: interior.end,
                     forward,
