@@ -373,6 +373,53 @@ fn streamed_aggregation_equals_direct_eq13() {
     }
 }
 
+/// The streamed matcher on images too small for the row kernels' usual shapes (1 to 4 columns,
+/// rows fewer than the 5-path ring's), against selecting on the directly aggregated `S`: every
+/// path mode, 1 and 2 threads.
+#[test]
+fn streamed_matcher_equals_direct_on_tiny_images() {
+    use denser::depth::sgm::{select_disparities, SgmPaths};
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let pools: Vec<_> = [1, 2]
+        .map(|n| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(n)
+                .build()
+                .unwrap()
+        })
+        .into();
+    for (w, h) in [(1, 1), (2, 3), (3, 2), (4, 5), (3, 11), (9, 1), (5, 9)] {
+        let (left, right, _) = planar_pair(w, h, 1.0, 0.05, 0.02, 7 + w as u64);
+        for paths in [SgmPaths::Eight, SgmPaths::Five, SgmPaths::Four] {
+            let params = SgmParams {
+                num_disparities: 4,
+                min_disparity_px: -1,
+                paths,
+                median_filter: false,
+                speckle_max_size_px: 0,
+                ..SgmParams::default()
+            };
+            let m = SgmMatcher::new(params).unwrap();
+            let volume = m.cost_volume(&left, &right).unwrap();
+            let direct = reference_aggregation(&volume, &left, &params);
+            let (d, c) = select_disparities(&direct, Some(&volume), w, h, &params).unwrap();
+            for pool in &pools {
+                let fused = pool.install(|| m.estimate(&left, &right).unwrap());
+                let case = format!(
+                    "{w}×{h}, {paths:?}, {} thread(s)",
+                    pool.current_num_threads()
+                );
+                assert_eq!(bits(&fused.disparity_px.data), bits(&d.data), "{case}");
+                assert_eq!(
+                    bits(&fused.confidence.unwrap().data),
+                    bits(&c.data),
+                    "{case}"
+                );
+            }
+        }
+    }
+}
+
 /// The cost volume against its definition, pixel by pixel and slice by slice: `max_cost`
 /// where the right pixel is outside the image, else the Hamming distance of the two
 /// signatures; one- and two-word signatures, search ranges starting left of, at and right
