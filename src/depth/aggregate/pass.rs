@@ -315,10 +315,11 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
         };
         // Whether the pixel at step `i` continues every path (the usual case).
         let inside_at = |i: usize| {
+            if i == 0 || i >= w {
+                return false;
+            }
             let x = if forward { i } else { w - 1 - i } as isize;
-            i > 0
-                && (NR == 0
-                    || has_prev && dxs.iter().all(|&dx| (0..w as isize).contains(&(x + dx))))
+            NR == 0 || has_prev && dxs.iter().all(|&dx| (0..w as isize).contains(&(x + dx)))
         };
         // The interior steps run in one call when the pass reaches the first of them: the first
         // pass to a row with four paths ([`path_row4`]), the second with its fused selection
