@@ -427,13 +427,10 @@ trait Isa {
         ob: &mut [T],
         acc: &mut [u16],
     ) -> [u16; 2];
-    /// [`path_row4`]: `prev` is the previous row's path costs, given three times.
+    /// [`path_row4`].
     #[allow(clippy::too_many_arguments)]
     fn row4<T: Cell>(
-        a: &RowSteps<'_>,
-        cost_row: &[u8],
-        prev: (&[T], &[T], &[T]),
-        prev_min: &[u16],
+        a: &RowSteps<'_, T>,
         cur: &mut [T],
         cur_min: &mut [u16],
         h: (&mut [T], &mut [T]),
@@ -442,10 +439,7 @@ trait Isa {
     /// [`path_row_select`].
     #[allow(clippy::too_many_arguments)]
     fn row_select<const NR: usize, T: Cell>(
-        a: &RowSteps<'_>,
-        cost_row: &[u8],
-        prev: (&[T], &[T], &[T]),
-        prev_min: &[u16],
+        a: &RowSteps<'_, T>,
         cur: &mut [T],
         cur_min: &mut [u16],
         h: (&mut [T], &mut [T]),
@@ -491,30 +485,20 @@ macro_rules! isa {
         #[inline(never)]
         #[allow(clippy::too_many_arguments)]
         fn $r4<T: Cell>(
-            a: &RowSteps<'_>,
-            cost_row: &[u8],
-            prev_lo: &[T],
-            prev_mid: &[T],
-            prev_hi: &[T],
-            prev_min: &[u16],
+            a: &RowSteps<'_, T>,
             cur: &mut [T],
             cur_min: &mut [u16],
             h0: &mut [T],
             h1: &mut [T],
             sums: &mut [u16],
         ) -> u16 {
-            path_row4(a, cost_row, (prev_lo, prev_mid, prev_hi), prev_min, cur, cur_min, h0, h1, sums)
+            path_row4(a, cur, cur_min, h0, h1, sums)
         }
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
         #[allow(clippy::too_many_arguments)]
         fn $rs<const NR: usize, T: Cell>(
-            a: &RowSteps<'_>,
-            cost_row: &[u8],
-            prev_lo: &[T],
-            prev_mid: &[T],
-            prev_hi: &[T],
-            prev_min: &[u16],
+            a: &RowSteps<'_, T>,
             cur: &mut [T],
             cur_min: &mut [u16],
             h0: &mut [T],
@@ -525,11 +509,8 @@ macro_rules! isa {
             right_cost: &mut [u16],
             right_k: &mut [u16],
         ) -> u16 {
-            let prev = (prev_lo, prev_mid, prev_hi);
             let right = (right_cost, right_k);
-            path_row_select::<NR, T>(
-                a, cost_row, prev, prev_min, cur, cur_min, h0, h1, theirs, own, select, right,
-            )
+            path_row_select::<NR, T>(a, cur, cur_min, h0, h1, theirs, own, select, right)
         }
         $(#[target_feature(enable = $feature)])?
         #[inline(never)]
@@ -577,10 +558,7 @@ macro_rules! isa {
             }
             #[inline(always)]
             fn row4<T: Cell>(
-                a: &RowSteps<'_>,
-                cost_row: &[u8],
-                (lo, mid, hi): (&[T], &[T], &[T]),
-                prev_min: &[u16],
+                a: &RowSteps<'_, T>,
                 cur: &mut [T],
                 cur_min: &mut [u16],
                 (h0, h1): (&mut [T], &mut [T]),
@@ -589,15 +567,12 @@ macro_rules! isa {
                 // SAFETY: as above.
                 #[allow(unused_unsafe)]
                 unsafe {
-                    $r4(a, cost_row, lo, mid, hi, prev_min, cur, cur_min, h0, h1, sums)
+                    $r4(a, cur, cur_min, h0, h1, sums)
                 }
             }
             #[inline(always)]
             fn row_select<const NR: usize, T: Cell>(
-                a: &RowSteps<'_>,
-                cost_row: &[u8],
-                (lo, mid, hi): (&[T], &[T], &[T]),
-                prev_min: &[u16],
+                a: &RowSteps<'_, T>,
                 cur: &mut [T],
                 cur_min: &mut [u16],
                 (h0, h1): (&mut [T], &mut [T]),
@@ -613,8 +588,8 @@ macro_rules! isa {
                 #[allow(unused_unsafe)]
                 let hmin = unsafe {
                     $rs::<NR, T>(
-                        a, cost_row, lo, mid, hi, prev_min, cur, cur_min, h0, h1, theirs, own,
-                        select, &mut right_cost, &mut right_k,
+                        a, cur, cur_min, h0, h1, theirs, own, select, &mut right_cost,
+                        &mut right_k,
                     )
                 };
                 select.right_cost = right_cost;

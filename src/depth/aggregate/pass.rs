@@ -344,18 +344,16 @@ pub(super) fn run_pass_n<const NR: usize, const N: usize, T: Cell, I: Isa>(
                     pen: &job.pen,
                     hmin,
                     dmin: job.params.min_disparity_px,
+                    cost_row,
+                    prev: (prev, prev, prev),
+                    prev_min,
                 };
-                let prev_rows = (prev, prev, prev);
                 let h = (h0, h1);
                 hmin = if first {
-                    I::row4(
-                        &a, cost_row, prev_rows, prev_min, cur_row, cur_min, h, stored,
-                    )
+                    I::row4(&a, cur_row, cur_min, h, stored)
                 } else {
                     let own = &mut own[..nd];
-                    I::row_select::<NR, T>(
-                        &a, cost_row, prev_rows, prev_min, cur_row, cur_min, h, stored, own, select,
-                    )
+                    I::row_select::<NR, T>(&a, cur_row, cur_min, h, stored, own, select)
                 };
             }
             if interior.contains(&i) {

@@ -37,7 +37,7 @@ macro_rules! alternate_steps {
 
 /// What the row kernels read besides the buffers.
 #[derive(Clone, Copy)]
-pub(super) struct RowSteps<'a> {
+pub(super) struct RowSteps<'a, T> {
     /// Steps `[i0, i1)` of the row: pixel `x = i` (left to right) or `w − 1 − i`.
     pub(super) i0: usize,
     pub(super) i1: usize,
@@ -55,21 +55,26 @@ pub(super) struct RowSteps<'a> {
     pub(super) hmin: u16,
     /// Disparity of slice 0 (for the right image's winners).
     pub(super) dmin: i32,
+    /// The row's raw costs (`[x][D]`).
+    pub(super) cost_row: &'a [u8],
+    /// The previous row's path costs (`[x][dir][D + 2]`), the same slice three times: read as
+    /// the neighbour views `d − 1`, `d`, `d + 1` (reached through three fields, the compiler
+    /// does not rebuild two of them from the third with lane shuffles). Empty when the pass
+    /// carries the horizontal path only.
+    pub(super) prev: (&'a [T], &'a [T], &'a [T]),
+    /// Their minima (`[x][dir]`).
+    pub(super) prev_min: &'a [u16],
 }
 
 /// The four-path step ([`path_steps4`]) of every pixel of `a`'s steps, all of which continue
-/// every path (interior pixels of a row after the first). `prev`: the previous row's path
-/// costs (`[x][dir][D + 2]`, the same slice three times, read as the three neighbour views) and
-/// minima; `cur`, `cur_min`: this row's; `h0`, `h1`: the horizontal path at even and odd steps
+/// every path (interior pixels of a row after the first). `cur`, `cur_min`: this row's path
+/// costs and minima (laid out as `a.prev`, `a.prev_min`); `h0`, `h1`: the horizontal path at even and odd steps
 /// (step `i` reads the other one); `sums`: the row's four-path sums (`[x][D]`). Returns the
 /// horizontal path's minimum at the last step.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(super) fn path_row4<T: Cell>(
-    a: &RowSteps<'_>,
-    cost_row: &[u8],
-    prev: (&[T], &[T], &[T]),
-    prev_min: &[u16],
+    a: &RowSteps<'_, T>,
     cur: &mut [T],
     cur_min: &mut [u16],
     h0: &mut [T],
@@ -79,9 +84,7 @@ pub(super) fn path_row4<T: Cell>(
     let mut hmin = a.hmin;
     macro_rules! step {
         ($i:expr, $hprev:expr, $hout:expr) => {
-            hmin = pixel4(
-                a, $i, hmin, cost_row, prev, prev_min, cur, cur_min, $hprev, $hout, sums,
-            )
+            hmin = pixel4(a, $i, hmin, cur, cur_min, $hprev, $hout, sums)
         };
     }
     alternate_steps!(a, h0, h1, step);
@@ -93,12 +96,9 @@ pub(super) fn path_row4<T: Cell>(
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn pixel4<T: Cell>(
-    a: &RowSteps<'_>,
+    a: &RowSteps<'_, T>,
     i: usize,
     hmin: u16,
-    cost_row: &[u8],
-    prev: (&[T], &[T], &[T]),
-    prev_min: &[u16],
     cur: &mut [T],
     cur_min: &mut [u16],
     hprev: &[T],
@@ -107,9 +107,9 @@ fn pixel4<T: Cell>(
 ) -> u16 {
     let nd = a.nd;
     let (x, xn) = a.pixel(i);
-    let (prevs, pmin, p2, outs) = four_paths(a, x, xn, hmin, hprev, hout, prev, prev_min, cur);
+    let (prevs, pmin, p2, outs) = four_paths(a, x, xn, hmin, hprev, hout, cur);
     let sum = &mut sums[x * nd..(x + 1) * nd];
-    let cost = &cost_row[x * nd..(x + 1) * nd];
+    let cost = &a.cost_row[x * nd..(x + 1) * nd];
     let (m, _) = path_steps4::<false, T>(cost, prevs, pmin, a.pen.p1, p2, outs, &[], sum);
     cur_min[x * 3..(x + 1) * 3].copy_from_slice(&m[1..]);
     m[0]
@@ -118,14 +118,11 @@ fn pixel4<T: Cell>(
 /// The second pass's row kernel: the `NR + 1` paths of every interior pixel of a row (`NR` = 3,
 /// or 0: the lone right→left path of 5 paths), each pixel's `S` (its paths plus `theirs`, the
 /// first pass's sums of the row, `[x][D]`) in `own`, and its winner ([`RowSelect`]). Buffers as
-/// in [`path_row4`]; `prev_*`, `prev_min`, `cur` and `cur_min` are empty when `NR` is 0.
+/// in [`path_row4`]; `cur` and `cur_min` are empty when `NR` is 0.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(super) fn path_row_select<const NR: usize, T: Cell>(
-    a: &RowSteps<'_>,
-    cost_row: &[u8],
-    prev: (&[T], &[T], &[T]),
-    prev_min: &[u16],
+    a: &RowSteps<'_, T>,
     cur: &mut [T],
     cur_min: &mut [u16],
     h0: &mut [T],
@@ -142,9 +139,6 @@ pub(super) fn path_row_select<const NR: usize, T: Cell>(
                 a,
                 $i,
                 hmin,
-                cost_row,
-                prev,
-                prev_min,
                 cur,
                 cur_min,
                 $hprev,
@@ -164,12 +158,9 @@ pub(super) fn path_row_select<const NR: usize, T: Cell>(
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn pixel_select<const NR: usize, T: Cell>(
-    a: &RowSteps<'_>,
+    a: &RowSteps<'_, T>,
     i: usize,
     hmin: u16,
-    cost_row: &[u8],
-    prev: (&[T], &[T], &[T]),
-    prev_min: &[u16],
     cur: &mut [T],
     cur_min: &mut [u16],
     hprev: &[T],
@@ -191,7 +182,7 @@ fn pixel_select<const NR: usize, T: Cell>(
     if ahead < w {
         prefetch(&theirs_row[ahead * nd..(ahead + 1) * nd]);
     }
-    let cost = &cost_row[x * nd..(x + 1) * nd];
+    let cost = &a.cost_row[x * nd..(x + 1) * nd];
     let theirs = &theirs_row[x * nd..(x + 1) * nd];
     let (pen, dmin) = (a.pen, a.dmin);
     if NR == 0 {
@@ -202,7 +193,7 @@ fn pixel_select<const NR: usize, T: Cell>(
         select.record(&own[..nd], best, bk, second, x);
         return m;
     }
-    let (prevs, pmin, p2, outs) = four_paths(a, x, xn, hmin, hprev, hout, prev, prev_min, cur);
+    let (prevs, pmin, p2, outs) = four_paths(a, x, xn, hmin, hprev, hout, cur);
     let (m, best) = path_steps4::<true, T>(cost, prevs, pmin, pen.p1, p2, outs, theirs, own);
     let (bk, second) = winner(&own[..nd], best, right_cost, right_k, x, w, dmin);
     select.record(&own[..nd], best, bk, second, x);
@@ -210,7 +201,7 @@ fn pixel_select<const NR: usize, T: Cell>(
     m[0]
 }
 
-impl RowSteps<'_> {
+impl<T> RowSteps<'_, T> {
     /// The pixel of step `i` and the one before it on the row.
     #[inline(always)]
     fn pixel(&self, i: usize) -> (usize, usize) {
@@ -228,17 +219,16 @@ impl RowSteps<'_> {
 #[inline(always)]
 #[allow(clippy::too_many_arguments, clippy::type_complexity)]
 fn four_paths<'p, 'o, T: Cell>(
-    a: &RowSteps<'_>,
+    a: &RowSteps<'p, T>,
     x: usize,
     xn: usize,
     hmin: u16,
     hprev: &'p [T],
     hout: &'o mut [T],
-    (prev_lo, prev_mid, prev_hi): (&'p [T], &'p [T], &'p [T]),
-    prev_min: &[u16],
     cur: &'o mut [T],
 ) -> ([Nbrs<'p, T>; 4], [u16; 4], [u16; 4], [&'o mut [T]; 4]) {
     const NR: usize = 3;
+    let ((prev_lo, prev_mid, prev_hi), prev_min) = (a.prev, a.prev_min);
     let nd = a.nd;
     let stride = nd + 2;
     let xp = a.dxs.map(|dx| (x as isize + dx) as usize);
