@@ -6,10 +6,11 @@
 //! Called once per pixel, the four-path kernel took its 24 predecessor views, 4 outputs and the
 //! penalties as arguments, built on the stack for every call: ~45 stores per pixel, where
 //! `perf` found half of the pass's own samples. Here the views are made inside the loop from
-//! the row's buffers, which come in as separate arguments, so that the compiler still knows
-//! that outputs and inputs do not overlap (the loop vectorises without run-time checks) and
-//! still sees the slices `d − 1`, `d`, `d + 1` of a predecessor as unrelated (plain loads, no
-//! lane shuffles: the previous row arrives as three arguments that are the same slice).
+//! the row's buffers: the written ones come in as separate arguments, so that the compiler
+//! still knows that outputs and inputs do not overlap (the loop vectorises without run-time
+//! checks), and the previous row comes as three fields of [`RowSteps`] that hold the same
+//! slice, so that it still sees the slices `d − 1`, `d`, `d + 1` of a predecessor as unrelated
+//! (plain loads, no lane shuffles).
 
 #[allow(unused_imports)]
 use super::*;
