@@ -1,11 +1,10 @@
 //! Projective fusion of depth maps (the paper's update, with colour).
 
+use super::depth_block::{fuse_block, BlockKernel, FramePixels};
 use super::traverse::traverse_cells;
 use super::FusionStats;
 use crate::frame::DepthFrame;
-use crate::grid::{
-    BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
-};
+use crate::grid::{BlockIndex, GridParams, Layer, TouchedBlocks};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 use std::collections::HashSet;
@@ -84,7 +83,7 @@ pub fn depth_frame_blocks(
     let tiles_x = w.div_ceil(BAND_TILE_PX);
     let mut keys: Vec<u64> = (0..h.div_ceil(BAND_TILE_PX))
         .into_par_iter()
-        .fold(Vec::new, |mut out, ty| {
+        .fold(Listed::new, |mut out, ty| {
             let mut depths: Vec<f32> = Vec::with_capacity(BAND_TILE_PX * BAND_TILE_PX);
             let v0 = ty * BAND_TILE_PX;
             let v1 = (v0 + BAND_TILE_PX).min(h) - 1;
@@ -99,6 +98,7 @@ pub fn depth_frame_blocks(
             }
             out
         })
+        .map(|listed| listed.keys)
         .reduce(Vec::new, |mut x, mut y| {
             x.append(&mut y);
             x
@@ -137,7 +137,7 @@ struct TileLister<'a> {
 /// more than 2μ; a tile whose depths (within one range) spread over more than μ/2 (a surface
 /// seen at a grazing angle) is split into quadrants, down to 2×2 pixels, so that the slice
 /// stays close to the union of its pixels' band segments.
-fn tile_blocks(tile: Tile, l: &TileLister, depths: &mut Vec<f32>, out: &mut Vec<u64>) {
+fn tile_blocks(tile: Tile, l: &TileLister, depths: &mut Vec<f32>, out: &mut Listed) {
     depths.clear();
     for v in tile.v[0]..=tile.v[1] {
         let row = &l.data[v * l.width..];
@@ -206,13 +206,35 @@ struct SliceGeometry {
     block_m: f64,
 }
 
-/// How many of the last listed blocks [`SliceGeometry::blocks_of_slice`] checks for repeats.
-const RECENT: usize = 24;
+/// Slots of [`Listed::seen`] (a power of two).
+const SEEN_SLOTS: usize = 1024;
+
+/// The blocks one worker listed (packed, unsorted, with some repeats), and a direct-mapped
+/// cache of listed keys: neighbouring tiles meet mostly the same blocks, and a candidate found
+/// in the cache is skipped before its geometric test.
+struct Listed {
+    keys: Vec<u64>,
+    /// `u64::MAX` (which no packed index equals) or a key in `keys`.
+    seen: Box<[u64; SEEN_SLOTS]>,
+}
+
+impl Listed {
+    fn new() -> Self {
+        Listed {
+            keys: Vec::new(),
+            seen: Box::new([u64::MAX; SEEN_SLOTS]),
+        }
+    }
+
+    fn slot(key: u64) -> usize {
+        (key.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - SEEN_SLOTS.trailing_zeros())) as usize
+    }
+}
 
 impl SliceGeometry {
     /// Pushes (packed, unsorted, with repeats) the blocks meeting the frustum slice
     /// `{x/z ∈ [a0, a1], y/z ∈ [b0, b1], z ∈ [z0, z1]}` (camera frame).
-    fn blocks_of_slice(&self, a: [f64; 2], b: [f64; 2], z0: f64, z1: f64, out: &mut Vec<u64>) {
+    fn blocks_of_slice(&self, a: [f64; 2], b: [f64; 2], z0: f64, z1: f64, out: &mut Listed) {
         const MARGIN_M: f64 = 1e-6;
         let r = &self.rot;
         let to_world = |c: Vector3<f64>| r * c;
@@ -229,6 +251,9 @@ impl SliceGeometry {
         let reach = |n: &Vector3<f64>| half * (n.x.abs() + n.y.abs() + n.z.abs());
         let side_reach = sides.map(|n| reach(&n));
         let view_reach = reach(&view);
+        // The slice's four edge rays (z = 1), world frame: a corner at depth z is origin + z·ray.
+        let rays =
+            [(0, 0), (0, 1), (1, 0), (1, 1)].map(|(i, j)| to_world(Vector3::new(a[i], b[j], 1.0)));
         let pieces = ((z1 - z0) / self.block_m).ceil().max(1.0) as usize;
         let dz = (z1 - z0) / pieces as f64;
         for p in 0..pieces {
@@ -237,13 +262,11 @@ impl SliceGeometry {
             let mut lo = [f64::INFINITY; 3];
             let mut hi = [f64::NEG_INFINITY; 3];
             for z in [za, zb] {
-                for x in a {
-                    for y in b {
-                        let c = to_world(Vector3::new(x * z, y * z, z)) + self.origin;
-                        for k in 0..3 {
-                            lo[k] = lo[k].min(c[k]);
-                            hi[k] = hi[k].max(c[k]);
-                        }
+                for ray in &rays {
+                    for k in 0..3 {
+                        let c = self.origin[k] + z * ray[k];
+                        lo[k] = lo[k].min(c);
+                        hi[k] = hi[k].max(c);
                     }
                 }
             }
@@ -252,6 +275,12 @@ impl SliceGeometry {
             for bx in first[0]..=last[0] {
                 for by in first[1]..=last[1] {
                     for bz in first[2]..=last[2] {
+                        let key = BlockIndex([bx as i32, by as i32, bz as i32]).pack();
+                        // Listed already (neighbouring tiles list mostly the same blocks).
+                        let slot = Listed::slot(key);
+                        if out.seen[slot] == key {
+                            continue;
+                        }
                         let centre = Vector3::new(
                             (bx as f64 + 0.5) * self.block_m,
                             (by as f64 + 0.5) * self.block_m,
@@ -264,10 +293,9 @@ impl SliceGeometry {
                                 .iter()
                                 .zip(&side_reach)
                                 .all(|(n, r)| n.dot(&centre) + r >= -MARGIN_M);
-                        let key = BlockIndex([bx as i32, by as i32, bz as i32]).pack();
-                        // Neighbouring tiles list mostly the same blocks: skip recent repeats.
-                        if inside && !out[out.len().saturating_sub(RECENT)..].contains(&key) {
-                            out.push(key);
+                        if inside {
+                            out.seen[slot] = key;
+                            out.keys.push(key);
                         }
                     }
                 }
@@ -395,15 +423,15 @@ pub fn visible_blocks_in(layer: &Layer, frustum: &ViewFrustum) -> TouchedBlocks 
     let grid = layer.params();
     let half = 0.5 * grid.block_size_m();
     let radius = half * 3f64.sqrt();
-    let mut v: Vec<BlockIndex> = layer
-        .iter_unsorted()
-        .map(|(i, _)| *i)
+    let all: Vec<BlockIndex> = layer.iter_unsorted().map(|(i, _)| *i).collect();
+    let mut v: Vec<BlockIndex> = all
+        .into_par_iter()
         .filter(|i| {
             let o = grid.block_origin(*i);
             frustum.meets_sphere([o[0] + half, o[1] + half, o[2] + half], radius)
         })
         .collect();
-    v.sort_unstable();
+    v.par_sort_unstable();
     v
 }
 
@@ -515,85 +543,6 @@ impl DepthPlan {
     }
 }
 
-/// A voxel that projects outside the image or lies behind the camera.
-const OUTSIDE: u32 = u32::MAX;
-
-/// The f32 projection quantities of [`DepthGeometry`] as [`project_block`] reads them.
-#[derive(Clone, Copy)]
-struct ProjectionView {
-    axis: [[f32; 3]; 3],
-    fx: f32,
-    fy: f32,
-    cx: f32,
-    cy: f32,
-    width: u32,
-    height: u32,
-}
-
-impl ProjectionView {
-    fn new(g: &DepthGeometry) -> Self {
-        ProjectionView {
-            axis: g.axis_m.map(|a| [a.x, a.y, a.z]),
-            fx: g.fx,
-            fy: g.fy,
-            cx: g.cx,
-            cy: g.cy,
-            width: g.width,
-            height: g.height,
-        }
-    }
-}
-
-/// `⌊x + ½⌋` exactly, as the f64 `round_i64(x as f64)` the loop used before and the kernels'
-/// `round_half_up` (`shaders/shared/rounding.wgsl`): `x − ⌊x⌋` is exact in f32, `x + 0.5` is not.
-#[inline(always)]
-fn round_half_up(x: f32) -> f32 {
-    let fl = x.floor();
-    fl + if x - fl >= 0.5 { 1.0 } else { 0.0 }
-}
-
-/// Projects the 512 voxel centres of a block (camera-frame centre of voxel (0, 0, 0) at
-/// `base`) into the image: `pix[i]` the pixel of voxel `i` or [`OUTSIDE`], `z_m[i]` its depth.
-/// One straight loop that vectorises (the f32 operations of the GPU twin in
-/// `shaders/shared/fuse_common.wgsl`, in the same order).
-#[multiversion::multiversion(targets(
-    "x86_64+avx512f+avx512bw+avx512vl+avx2+avx+sse4.1",
-    "x86_64+avx2+avx+sse4.1",
-    "x86_64+sse4.1"
-))]
-fn project_block(
-    view: &ProjectionView,
-    base: [f32; 3],
-    pix: &mut [u32; VOXELS_PER_BLOCK],
-    z_m: &mut [f32; VOXELS_PER_BLOCK],
-) {
-    let [ax, ay, az] = view.axis;
-    let (w, h) = (view.width as f32, view.height as f32);
-    for i in 0..VOXELS_PER_BLOCK {
-        let x = (i % VOXELS_PER_SIDE) as f32;
-        let y = ((i / VOXELS_PER_SIDE) % VOXELS_PER_SIDE) as f32;
-        let z = (i / (VOXELS_PER_SIDE * VOXELS_PER_SIDE)) as f32;
-        // row = base + a_y·y + a_z·z, p = row + a_x·x (per component, this order).
-        let p = [0, 1, 2].map(|k| base[k] + ay[k] * y + az[k] * z + ax[k] * x);
-        let inv_z = 1.0 / p[2];
-        let u = round_half_up(view.fx * p[0] * inv_z + view.cx);
-        let v = round_half_up(view.fy * p[1] * inv_z + view.cy);
-        let inside = p[2] > 0.0 && u >= 0.0 && v >= 0.0 && u < w && v < h;
-        pix[i] = if inside {
-            v as u32 * view.width + u as u32
-        } else {
-            OUTSIDE
-        };
-        z_m[i] = p[2];
-    }
-}
-
-/// A block with at least this many voxels to update is updated in one vectorised sweep over
-/// all its voxels ([`crate::grid::Block::fuse_masked`]), one with fewer voxel by voxel
-/// ([`crate::grid::Block::fuse`]); the bits are the same either way. 128 of 512 measured
-/// faster than 1 (always the sweep) on a synthetic street at 5 and 10 cm (`docs/bench/speed.md`).
-const VECTOR_UPDATE_MIN_VOXELS: usize = 128;
-
 /// Fuses one depth frame into `layer`: the blocks crossed by this frame's truncation band plus the
 /// allocated blocks in view. Returns the touched blocks (sorted) and work counters.
 pub fn integrate_depth(
@@ -616,56 +565,16 @@ pub fn integrate_depth_plan(
     let blocks = plan.blocks(layer);
     let mut taken = layer.take_blocks(&blocks);
     let g = &plan.geometry;
-    let mu = g.truncation_m;
-    let inv_mu = 1.0 / mu;
-    let depth = &frame.depth_m.data;
-    let color = if params.use_color {
-        frame.color.as_ref()
-    } else {
-        None
-    };
-    let view = ProjectionView::new(g);
-    let updates: usize = taken
-        .par_iter_mut()
-        .map(|(index, block)| {
-            let base = g.block_base(&grid, *index);
-            let mut pix = [0u32; VOXELS_PER_BLOCK];
-            let mut z_m = [0f32; VOXELS_PER_BLOCK];
-            project_block(&view, [base.x, base.y, base.z], &mut pix, &mut z_m);
-            // The voxels to update and their values, then one vectorised update of the block.
-            let mut update = [false; VOXELS_PER_BLOCK];
-            let mut t = [0f32; VOXELS_PER_BLOCK];
-            let mut rgb = [[0u8; 3]; VOXELS_PER_BLOCK];
-            let mut n = 0usize;
-            for (vi, (&p, &z)) in pix.iter().zip(&z_m).enumerate() {
-                if p == OUTSIDE {
-                    continue;
-                }
-                let d = depth[p as usize];
-                if !usable(d, params) {
-                    continue;
-                }
-                let sdf = d - z;
-                if sdf < -mu {
-                    continue;
-                }
-                update[vi] = true;
-                t[vi] = sdf.min(mu) * inv_mu;
-                if let Some(c) = color {
-                    rgb[vi] = c.data[p as usize];
-                }
-                n += 1;
-            }
-            if n >= VECTOR_UPDATE_MIN_VOXELS {
-                block.fuse_masked(&update, &t, color.map(|_| &rgb));
-            } else {
-                for vi in (0..VOXELS_PER_BLOCK).filter(|&vi| update[vi]) {
-                    block.fuse(vi, t[vi], color.map(|_| rgb[vi]));
-                }
-            }
-            n
-        })
-        .sum();
+    let kernel = BlockKernel::new(g);
+    let updates: usize = FramePixels::with(frame, params, |pixels| {
+        taken
+            .par_iter_mut()
+            .map(|(index, block)| {
+                let base = g.block_base(&grid, *index);
+                fuse_block(&kernel, [base.x, base.y, base.z], pixels, block)
+            })
+            .sum()
+    });
     let touched = layer.put_blocks_observed(taken);
     let stats = FusionStats {
         blocks: touched.len(),

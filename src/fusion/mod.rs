@@ -19,6 +19,7 @@
 //! Neither integrator carves free space outside the band (blocks are allocated only near surfaces).
 
 mod depth;
+mod depth_block;
 mod depth_gpu;
 mod lidar;
 mod lidar_gpu;

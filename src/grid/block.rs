@@ -31,6 +31,24 @@ pub fn round_half_away(x: f32) -> i32 {
     t + (frac >= 0.5) as i32 - (frac <= -0.5) as i32
 }
 
+/// [`round_half_away`] for `|x| ≤ 2²²` and NaN (0), in operations the compiler vectorises: the
+/// saturating `f32 as i32` of `round_half_away` becomes one scalar conversion per lane in a
+/// vectorised loop. `x + 1.5·2²³` rounds `x` to the nearest integer, ties to even, and its low
+/// mantissa bits are that integer; a tie then moves away from zero. Every value the running
+/// means round (TSDF codes within ±32767, colour channels within 0..=255) is in range.
+#[inline(always)]
+fn round_half_away_small(x: f32) -> i32 {
+    const MAGIC: f32 = 12_582_912.0; // 1.5·2²³
+    let even = (x + MAGIC).to_bits() as i32 - MAGIC.to_bits() as i32;
+    let d = x - even as f32;
+    let away = even + ((d == 0.5) & (x > 0.0)) as i32 - ((d == -0.5) & (x < 0.0)) as i32;
+    if x.is_nan() {
+        0
+    } else {
+        away
+    }
+}
+
 /// The normalised TSDF value of a quantised one.
 #[inline]
 pub fn decode_tsdf(q: i16) -> f32 {
@@ -155,33 +173,6 @@ impl Block {
         self.store_fused(i, tsdf, w | OMEGA_BIT, color);
     }
 
-    /// [`Block::fuse`] of every voxel `i` with `update[i]`, with `tsdf_normalized[i]` and (when
-    /// given) `colors[i]`, in one vectorised sweep over the block. Bit-identical to calling
-    /// `fuse` voxel by voxel: the same `f32` operations in the same order, lane by lane (the
-    /// grey shortcut of `fuse` gives the bits of its three-channel mean).
-    pub fn fuse_masked(
-        &mut self,
-        update: &[bool; VOXELS_PER_BLOCK],
-        tsdf_normalized: &[f32; VOXELS_PER_BLOCK],
-        colors: Option<&[[u8; 3]; VOXELS_PER_BLOCK]>,
-    ) {
-        fuse_lanes(
-            update,
-            tsdf_normalized,
-            colors,
-            &mut self.tsdf,
-            &mut self.weight_omega,
-            &mut self.color,
-        );
-        if let Some(u) = self.regularized.as_mut() {
-            for ((u, &t), &up) in u.iter_mut().zip(&self.tsdf).zip(update) {
-                if up {
-                    *u = t;
-                }
-            }
-        }
-    }
-
     /// Stores the result of fusing voxel `i` (by [`Block::fuse`], or read back from a GPU kernel
     /// that runs its twin): quantised TSDF, weight with the Ω bit, colour. The raw field changed,
     /// so a stored regularised value follows it (it no longer matches the data; the next
@@ -208,53 +199,50 @@ impl Block {
 
 /// The running mean of a voxel's TSDF after one more observation `t` (normalised), from
 /// `w_old` observations averaging to quantised `q`: the one formula of [`Block::fuse`] and
-/// [`Block::fuse_masked`] (the WGSL twin is `fuse_packed` in `shaders/shared/voxel_fuse.wgsl`).
+/// [`fused_lane`] (the WGSL twin is `fuse_packed` in `shaders/shared/voxel_fuse.wgsl`).
 #[inline(always)]
 fn mean_tsdf(t: f32, w_old: f32, q: i16) -> i16 {
-    encode_tsdf((t + w_old * decode_tsdf(q)) / (w_old + 1.0))
+    // `encode_tsdf`, with the rounding the compiler vectorises.
+    let f = (t + w_old * decode_tsdf(q)) / (w_old + 1.0);
+    round_half_away_small(f.clamp(-1.0, 1.0) * TSDF_SCALE) as i16
 }
 
 /// The running mean of one colour channel after one more observation `c`, from `w_old`
 /// observations averaging to `old`.
 #[inline(always)]
 fn mean_channel(c: u8, w_old: f32, old: u8) -> u8 {
-    round_half_away((c as f32 + w_old * old as f32) / (w_old + 1.0)) as u8
+    round_half_away_small((c as f32 + w_old * old as f32) / (w_old + 1.0)) as u8
 }
 
-/// The lanes of [`Block::fuse_masked`] (a loop the compiler vectorises; compiled for AVX-512,
-/// AVX2 and the baseline, picked at run time).
-#[multiversion::multiversion(targets(
-    "x86_64+avx512f+avx512bw+avx512vl+avx2+avx+sse4.1",
-    "x86_64+avx2+avx+sse4.1",
-    "x86_64+sse4.1"
-))]
-fn fuse_lanes(
-    update: &[bool; VOXELS_PER_BLOCK],
-    tsdf_normalized: &[f32; VOXELS_PER_BLOCK],
-    colors: Option<&[[u8; 3]; VOXELS_PER_BLOCK]>,
-    tsdf: &mut [i16; VOXELS_PER_BLOCK],
-    weight_omega: &mut [u8; VOXELS_PER_BLOCK],
-    color: &mut [[u8; 3]; VOXELS_PER_BLOCK],
+/// One lane of a vectorised update: a voxel's fields after one more observation (normalised
+/// TSDF `t`, colour `c`; `None` keeps the colour) when `up`, unchanged otherwise. The arithmetic
+/// of [`Block::fuse`], written branch-free for a loop that runs it lane by lane: the depth
+/// kernel (`src/fusion/depth_block.rs`, whose test checks it against `fuse`).
+#[inline(always)]
+pub(crate) fn fused_lane(
+    up: bool,
+    t: f32,
+    c: Option<[u8; 3]>,
+    tsdf: &mut i16,
+    weight_omega: &mut u8,
+    color: &mut [u8; 3],
 ) {
-    for i in 0..VOXELS_PER_BLOCK {
-        let w_raw = weight_omega[i] & !OMEGA_BIT;
-        let w_old = w_raw as f32;
-        let f = mean_tsdf(tsdf_normalized[i], w_old, tsdf[i]);
-        let w = (w_raw + 1).min(MAX_WEIGHT) | OMEGA_BIT;
-        let up = update[i];
-        tsdf[i] = if up { f } else { tsdf[i] };
-        weight_omega[i] = if up { w } else { weight_omega[i] };
-        if let Some(colors) = colors {
-            let (c, old) = (colors[i], color[i]);
-            // Spelled out: `[0, 1, 2].map(…)` here kept the loop from vectorising (street, 5 cm:
-            // 66–68 → 81–84 ms per frame).
-            let mixed = [
-                mean_channel(c[0], w_old, old[0]),
-                mean_channel(c[1], w_old, old[1]),
-                mean_channel(c[2], w_old, old[2]),
-            ];
-            color[i] = if up { mixed } else { old };
-        }
+    let w_raw = *weight_omega & !OMEGA_BIT;
+    let w_old = w_raw as f32;
+    let f = mean_tsdf(t, w_old, *tsdf);
+    let w = (w_raw + 1).min(MAX_WEIGHT) | OMEGA_BIT;
+    *tsdf = if up { f } else { *tsdf };
+    *weight_omega = if up { w } else { *weight_omega };
+    if let Some(c) = c {
+        let old = *color;
+        // Spelled out: `[0, 1, 2].map(…)` here kept the loop from vectorising (street, 5 cm:
+        // 66–68 → 81–84 ms per frame).
+        let mixed = [
+            mean_channel(c[0], w_old, old[0]),
+            mean_channel(c[1], w_old, old[1]),
+            mean_channel(c[2], w_old, old[2]),
+        ];
+        *color = if up { mixed } else { old };
     }
 }
 
@@ -273,52 +261,6 @@ mod tests {
         assert!(b.omega(3));
         assert_eq!(b.color[3], [60, 0, 255]);
         assert!(!b.omega(4));
-    }
-
-    #[test]
-    fn fuse_masked_equals_fuse_voxel_by_voxel() {
-        // Random updates over random blocks: colours and greys, weights up to saturation, with
-        // and without u, with and without colours.
-        let mut rng = crate::synth::rng::Rng::new(5, 0);
-        for round in 0..40 {
-            let mut a = Block::default();
-            for i in 0..VOXELS_PER_BLOCK {
-                let w = (rng.f64() * 130.0) as u8;
-                a.weight_omega[i] = w.min(MAX_WEIGHT) | if rng.f64() < 0.5 { OMEGA_BIT } else { 0 };
-                a.tsdf[i] = encode_tsdf(rng.f64() as f32 * 2.0 - 1.0);
-                let g = (rng.f64() * 255.0) as u8;
-                a.color[i] = if rng.f64() < 0.3 {
-                    [g; 3]
-                } else {
-                    [g, (rng.f64() * 255.0) as u8, (rng.f64() * 255.0) as u8]
-                };
-            }
-            if round % 3 == 0 {
-                a.regularized = Some(Box::new(a.tsdf));
-            }
-            let mut update = [false; VOXELS_PER_BLOCK];
-            let mut t = [0f32; VOXELS_PER_BLOCK];
-            let mut c = [[0u8; 3]; VOXELS_PER_BLOCK];
-            for i in 0..VOXELS_PER_BLOCK {
-                update[i] = rng.f64() < 0.6;
-                t[i] = [1.0, -1.0, 0.0, 0.5][i % 4] * (rng.f64() as f32);
-                let g = (rng.f64() * 255.0) as u8;
-                c[i] = if rng.f64() < 0.5 {
-                    [g; 3]
-                } else {
-                    [g, 255 - g, g / 2]
-                };
-            }
-            let with_color = round % 2 == 0;
-            let mut b = a.clone();
-            for i in 0..VOXELS_PER_BLOCK {
-                if update[i] {
-                    a.fuse(i, t[i], with_color.then_some(c[i]));
-                }
-            }
-            b.fuse_masked(&update, &t, with_color.then_some(&c));
-            assert!(a == b, "round {round}");
-        }
     }
 
     #[test]
@@ -348,8 +290,25 @@ mod tests {
             }
             values.push((state >> 40) as f32 / 256.0 - 32768.0);
         }
+        // Every tie and its neighbours in the running means' range, exhaustively at ½ steps.
+        values.extend((-2 * 32768..=2 * 32768).map(|i| i as f32 * 0.5));
+        values.extend([4_194_304.0, -4_194_304.0, 4_194_303.5, -4_194_303.5]);
         for x in values {
             assert_eq!(round_half_away(x), x.round() as i32, "{x}");
+            if !(x.abs() > 4_194_304.0) {
+                assert_eq!(round_half_away_small(x), round_half_away(x), "{x}");
+                let (below, above) = (x.next_down(), x.next_up());
+                assert_eq!(
+                    round_half_away_small(below),
+                    below.round() as i32,
+                    "{below}"
+                );
+                assert_eq!(
+                    round_half_away_small(above),
+                    above.round() as i32,
+                    "{above}"
+                );
+            }
         }
     }
 

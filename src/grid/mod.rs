@@ -16,6 +16,7 @@ mod index;
 mod layer;
 mod residency;
 
+pub(crate) use block::fused_lane;
 pub use block::{decode_tsdf, encode_tsdf, Block, Voxel, MAX_WEIGHT, OMEGA_BIT};
 pub use index::{
     floor_i64, linear_index, local_coords, round_i64, BlockIndex, GridParams, VoxelIndex,
