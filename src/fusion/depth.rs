@@ -535,10 +535,24 @@ impl DepthPlan {
 
     /// The blocks fusion updates: the band plus the allocated blocks of `layer` in view, sorted.
     pub fn blocks(&self, layer: &Layer) -> TouchedBlocks {
-        let mut blocks = self.band.clone();
-        blocks.extend(visible_blocks_in(layer, &self.frustum));
-        blocks.sort_unstable();
-        blocks.dedup();
+        // Both lists are sorted: merged in one pass.
+        let visible = visible_blocks_in(layer, &self.frustum);
+        let mut blocks = Vec::with_capacity(self.band.len() + visible.len());
+        let (mut a, mut b) = (self.band.iter().peekable(), visible.iter().peekable());
+        loop {
+            let next = match (a.peek(), b.peek()) {
+                (Some(&&x), Some(&&y)) if x < y => a.next(),
+                (Some(&&x), Some(&&y)) if y < x => b.next(),
+                (Some(_), Some(_)) => {
+                    b.next();
+                    a.next()
+                }
+                (Some(_), None) => a.next(),
+                (None, Some(_)) => b.next(),
+                (None, None) => break,
+            };
+            blocks.extend(next);
+        }
         blocks
     }
 }
@@ -566,19 +580,20 @@ pub fn integrate_depth_plan(
     let mut taken = layer.take_blocks(&blocks);
     let g = &plan.geometry;
     let kernel = BlockKernel::new(g);
-    let updates: usize = FramePixels::with(frame, params, |pixels| {
+    let updates: Vec<usize> = FramePixels::with(frame, params, |pixels| {
         taken
             .par_iter_mut()
             .map(|(index, block)| {
                 let base = g.block_base(&grid, *index);
                 fuse_block(&kernel, [base.x, base.y, base.z], pixels, block)
             })
-            .sum()
+            .collect()
     });
-    let touched = layer.put_blocks_observed(taken);
+    // A block with an update has a voxel in Ω: only the others are scanned.
+    let touched = layer.put_blocks_observed_unless(taken, |k| updates[k] > 0);
     let stats = FusionStats {
         blocks: touched.len(),
-        voxel_updates: updates,
+        voxel_updates: updates.iter().sum(),
         measurements: plan.measurements,
     };
     (touched, stats)

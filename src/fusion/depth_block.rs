@@ -62,13 +62,21 @@ impl FramePixels {
             .enumerate()
             .for_each(|(chunk, out)| {
                 let pixels = chunk * PREPARE_CHUNK..chunk * PREPARE_CHUNK + out.len();
-                let d = &src[pixels.clone()];
-                for (o, &d) in out.iter_mut().zip(d) {
-                    *o = if usable(d, params) { d } else { f32::NAN }.to_bits() as u64;
-                }
-                if let Some(c) = color {
-                    for (o, &c) in out.iter_mut().zip(&c.data[pixels.clone()]) {
-                        *o |= (pack_rgb(c) as u64) << 32;
+                let depth = |d: f32| if usable(d, params) { d } else { f32::NAN }.to_bits() as u64;
+                match color {
+                    Some(c) => {
+                        for ((o, &d), &c) in out
+                            .iter_mut()
+                            .zip(&src[pixels.clone()])
+                            .zip(&c.data[pixels])
+                        {
+                            *o = depth(d) | (pack_rgb(c) as u64) << 32;
+                        }
+                    }
+                    None => {
+                        for (o, &d) in out.iter_mut().zip(&src[pixels]) {
+                            *o = depth(d);
+                        }
                     }
                 }
             });
