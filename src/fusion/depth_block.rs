@@ -204,7 +204,10 @@ fn fuse_lanes<const COLOR: bool>(
         let u = round_half_up(k.fx * p[0] * inv_z + k.cx);
         let v = round_half_up(k.fy * p[1] * inv_z + k.cy);
         let inside = (p[2] > 0.0) & (u >= 0.0) & (v >= 0.0) & (u < w) & (v < h);
-        let index = small_int(v) * k.width + small_int(u);
+        // Wrapping: a lane outside the image may hold any number (its index is not used).
+        let index = small_int(v)
+            .wrapping_mul(k.width)
+            .wrapping_add(small_int(u));
         pixel[i] = if inside { index } else { outside };
         z_m[i] = p[2];
     }
@@ -301,12 +304,13 @@ mod tests {
 
     #[test]
     fn block_kernel_equals_voxel_by_voxel_fusion() {
-        // A 64×48 camera, tilted, looking at depths around 3 m with holes (NaN, 0, beyond the
+        // A 640×48 camera, tilted, looking at depths around 3 m with holes (NaN, 0, beyond the
         // range), over a box of blocks in front of, around and behind the camera, whose voxels
         // hold random earlier observations (some blocks with u): every kernel result must be
-        // the reference's, bit for bit, with colour, without, and with greys.
+        // the reference's, bit for bit, with colour, without, and with greys. (A row of 640
+        // pixels makes a lane outside the image overflow `u32` in its index, as real frames do.)
         let mut rng = Rng::new(14, 2);
-        let (w, h) = (64u32, 48u32);
+        let (w, h) = (640u32, 48u32);
         let grid = GridParams {
             voxel_size_m: 0.1,
             truncation_m: 0.4,
@@ -334,9 +338,9 @@ mod tests {
                 .collect();
             let frame = DepthFrame {
                 intrinsics: PinholeIntrinsics {
-                    fx: 50.0,
+                    fx: 500.0,
                     fy: 52.0,
-                    cx: 31.7,
+                    cx: 319.7,
                     cy: 23.2,
                     width: w,
                     height: h,
