@@ -43,10 +43,21 @@ impl FramePixels {
                 std::cell::RefCell::new(FramePixels { packed: Vec::new(), color: false })
             };
         }
-        PIXELS.with(|cell| {
-            let mut pixels = cell.borrow_mut();
-            pixels.fill(frame, params);
-            f(&pixels)
+        PIXELS.with(|cell| match cell.try_borrow_mut() {
+            Ok(mut pixels) => {
+                pixels.fill(frame, params);
+                f(&pixels)
+            }
+            // Re-entered on this thread (a rayon worker that, waiting inside `f`, took up
+            // another frame's fusion): that frame gets buffers of its own.
+            Err(_) => {
+                let mut pixels = FramePixels {
+                    packed: Vec::new(),
+                    color: false,
+                };
+                pixels.fill(frame, params);
+                f(&pixels)
+            }
         })
     }
 
@@ -300,6 +311,44 @@ mod tests {
             n += 1;
         }
         n
+    }
+
+    #[test]
+    fn frame_pixels_nest() {
+        // A thread that fuses a second frame while it holds the first's pixels (a rayon worker
+        // can, while it waits) gets that frame's pixels, and the first's stay as they were.
+        let frame = |d: f32| DepthFrame {
+            intrinsics: PinholeIntrinsics {
+                fx: 1.0,
+                fy: 1.0,
+                cx: 0.0,
+                cy: 0.0,
+                width: 2,
+                height: 1,
+            },
+            world_from_camera: Isometry3::identity(),
+            depth_m: Image {
+                width: 2,
+                height: 1,
+                data: vec![d, f32::NAN],
+            },
+            color: None,
+        };
+        let params = DepthFusionParams::default();
+        let depth = |p: &FramePixels| {
+            p.packed
+                .iter()
+                .map(|&w| f32::from_bits(w as u32))
+                .collect::<Vec<_>>()
+        };
+        FramePixels::with(&frame(1.5), &params, |outer| {
+            FramePixels::with(&frame(2.5), &params, |inner| {
+                assert_eq!(depth(inner)[0], 2.5);
+                assert!(depth(inner)[1].is_nan() && depth(inner)[2].is_nan());
+            });
+            assert_eq!(depth(outer)[0], 1.5);
+            assert_eq!(outer.packed.len(), 3);
+        });
     }
 
     #[test]
