@@ -1,6 +1,6 @@
 //! Projective fusion of depth maps (the paper's update, with colour).
 
-use super::depth_block::{fuse_block, BlockKernel, FramePixels};
+use super::depth_block::{fuse_block, FramePixels};
 use super::traverse::traverse_cells;
 use super::FusionStats;
 use crate::frame::DepthFrame;
@@ -579,13 +579,12 @@ pub fn integrate_depth_plan(
     let blocks = plan.blocks(layer);
     let mut taken = layer.take_blocks(&blocks);
     let g = &plan.geometry;
-    let kernel = BlockKernel::new(g);
     let updates: Vec<usize> = FramePixels::with(frame, params, |pixels| {
         taken
             .par_iter_mut()
             .map(|(index, block)| {
                 let base = g.block_base(&grid, *index);
-                fuse_block(&kernel, [base.x, base.y, base.z], pixels, block)
+                fuse_block(g, [base.x, base.y, base.z], pixels, block)
             })
             .collect()
     });

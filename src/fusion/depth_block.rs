@@ -12,6 +12,7 @@
 
 use super::depth::{usable, DepthFusionParams, DepthGeometry};
 use crate::frame::DepthFrame;
+use crate::gpu::layout::pack_rgb;
 use crate::grid::{fused_lane, Block, VOXELS_PER_BLOCK, VOXELS_PER_SIDE};
 use rayon::prelude::*;
 
@@ -30,6 +31,13 @@ pub(super) struct FramePixels {
 const PREPARE_CHUNK: usize = 1 << 14;
 
 impl FramePixels {
+    const fn empty() -> Self {
+        FramePixels {
+            packed: Vec::new(),
+            color: false,
+        }
+    }
+
     /// Runs `f` on the pixels of `frame`, with colour when `params.use_color` and the frame has
     /// it. The buffers are the calling thread's, kept between frames (a frame's are as large as
     /// its image; allocating them afresh cost a page fault per 4 KiB every frame).
@@ -40,7 +48,7 @@ impl FramePixels {
     ) -> R {
         thread_local! {
             static PIXELS: std::cell::RefCell<FramePixels> = const {
-                std::cell::RefCell::new(FramePixels { packed: Vec::new(), color: false })
+                std::cell::RefCell::new(FramePixels::empty())
             };
         }
         PIXELS.with(|cell| match cell.try_borrow_mut() {
@@ -51,10 +59,7 @@ impl FramePixels {
             // Re-entered on this thread (a rayon worker that, waiting inside `f`, took up
             // another frame's fusion): that frame gets buffers of its own.
             Err(_) => {
-                let mut pixels = FramePixels {
-                    packed: Vec::new(),
-                    color: false,
-                };
+                let mut pixels = FramePixels::empty();
                 pixels.fill(frame, params);
                 f(&pixels)
             }
@@ -92,46 +97,6 @@ impl FramePixels {
                 }
             });
     }
-
-    /// Whether colour is fused.
-    fn has_color(&self) -> bool {
-        self.color
-    }
-}
-
-#[inline(always)]
-fn pack_rgb(c: [u8; 3]) -> u32 {
-    c[0] as u32 | (c[1] as u32) << 8 | (c[2] as u32) << 16
-}
-
-/// The f32 projection quantities of [`DepthGeometry`] as [`fuse_block`] reads them, with `μ`.
-#[derive(Clone, Copy)]
-pub(super) struct BlockKernel {
-    axis: [[f32; 3]; 3],
-    fx: f32,
-    fy: f32,
-    cx: f32,
-    cy: f32,
-    width: u32,
-    height: u32,
-    mu: f32,
-    inv_mu: f32,
-}
-
-impl BlockKernel {
-    pub(super) fn new(g: &DepthGeometry) -> Self {
-        BlockKernel {
-            axis: g.axis_m.map(|a| [a.x, a.y, a.z]),
-            fx: g.fx,
-            fy: g.fy,
-            cx: g.cx,
-            cy: g.cy,
-            width: g.width,
-            height: g.height,
-            mu: g.truncation_m,
-            inv_mu: 1.0 / g.truncation_m,
-        }
-    }
 }
 
 /// `⌊x + ½⌋` exactly, as the f64 `round_i64(x as f64)` the loop used before and the kernels'
@@ -155,13 +120,13 @@ fn small_int(x: f32) -> u32 {
 /// `min(d − z, μ)/μ` and of the pixel's colour ([`crate::grid::Block::fuse`]'s arithmetic).
 /// Returns the number of voxels updated.
 pub(super) fn fuse_block(
-    k: &BlockKernel,
+    k: &DepthGeometry,
     base: [f32; 3],
     pixels: &FramePixels,
     block: &mut Block,
 ) -> usize {
     let mut update = [false; VOXELS_PER_BLOCK];
-    let n = if pixels.has_color() {
+    let n = if pixels.color {
         fuse_lanes::<true>(k, base, pixels, block, &mut update)
     } else {
         fuse_lanes::<false>(k, base, pixels, block, &mut update)
@@ -185,14 +150,16 @@ pub(super) fn fuse_block(
     "x86_64+sse4.1"
 ))]
 fn fuse_lanes<const COLOR: bool>(
-    k: &BlockKernel,
+    k: &DepthGeometry,
     base: [f32; 3],
     pixels: &FramePixels,
     block: &mut Block,
     update: &mut [bool; VOXELS_PER_BLOCK],
 ) -> usize {
-    let [ax, ay, az] = k.axis;
+    let [ax, ay, az] = k.axis_m;
+    let (ax, ay, az) = ([ax.x, ax.y, ax.z], [ay.x, ay.y, ay.z], [az.x, az.y, az.z]);
     let (w, h) = (k.width as f32, k.height as f32);
+    let (mu, inv_mu) = (k.truncation_m, 1.0 / k.truncation_m);
     let packed = &pixels.packed[..];
     // The trailing pixel, read by voxels outside the image.
     let outside = (packed.len() - 1) as u32;
@@ -234,7 +201,7 @@ fn fuse_lanes<const COLOR: bool>(
     }
     // Most blocks in view have some voxel to update; those that have none are not written.
     let n = (0..VOXELS_PER_BLOCK)
-        .filter(|&i| d_m[i] - z_m[i] >= -k.mu)
+        .filter(|&i| d_m[i] - z_m[i] >= -mu)
         .count();
     if n == 0 {
         return 0;
@@ -249,8 +216,8 @@ fn fuse_lanes<const COLOR: bool>(
     for i in 0..VOXELS_PER_BLOCK {
         let sdf = d_m[i] - z_m[i];
         // NaN (unusable pixel, or outside) fails the comparison.
-        let up = sdf >= -k.mu;
-        let t = sdf.min(k.mu) * k.inv_mu;
+        let up = sdf >= -mu;
+        let t = sdf.min(mu) * inv_mu;
         let ci = c[i];
         let rgb = COLOR.then_some([ci as u8, (ci >> 8) as u8, (ci >> 16) as u8]);
         fused_lane(
@@ -278,7 +245,7 @@ mod tests {
     /// The definition: each voxel projected on its own, with branches, and fused by
     /// [`Block::fuse`] from the frame as given (the usable test per pixel, colour as `[u8; 3]`).
     fn reference(
-        k: &BlockKernel,
+        k: &DepthGeometry,
         base: [f32; 3],
         frame: &DepthFrame,
         params: &DepthFusionParams,
@@ -290,7 +257,8 @@ mod tests {
             let x = (i % 8) as f32;
             let y = ((i / 8) % 8) as f32;
             let z = (i / 64) as f32;
-            let [ax, ay, az] = k.axis;
+            let [ax, ay, az] = k.axis_m.map(|a| [a.x, a.y, a.z]);
+            let (mu, inv_mu) = (k.truncation_m, 1.0 / k.truncation_m);
             let p: [f32; 3] = std::array::from_fn(|c| base[c] + ay[c] * y + az[c] * z + ax[c] * x);
             if p[2] <= 0.0 {
                 continue;
@@ -303,10 +271,10 @@ mod tests {
             }
             let pixel = v as usize * k.width as usize + u as usize;
             let d = frame.depth_m.data[pixel];
-            if !usable(d, params) || d - p[2] < -k.mu {
+            if !usable(d, params) || d - p[2] < -mu {
                 continue;
             }
-            let t = (d - p[2]).min(k.mu) * k.inv_mu;
+            let t = (d - p[2]).min(mu) * inv_mu;
             block.fuse(i, t, color.map(|c| c.data[pixel]));
             n += 1;
         }
@@ -418,7 +386,6 @@ mod tests {
                 ..DepthFusionParams::default()
             };
             let g = DepthGeometry::new(&grid, &frame);
-            let kernel = BlockKernel::new(&g);
             FramePixels::with(&frame, &params, |pixels| {
                 for (bi, index) in (-4..4)
                     .flat_map(|x| (-4..4).flat_map(move |y| (-2..7).map(move |z| [x, y, z])))
@@ -443,8 +410,8 @@ mod tests {
                     let mut b = a.clone();
                     let base = g.block_base(&grid, index);
                     let base = [base.x, base.y, base.z];
-                    let n_ref = reference(&kernel, base, &frame, &params, &mut a);
-                    let n = fuse_block(&kernel, base, pixels, &mut b);
+                    let n_ref = reference(&g, base, &frame, &params, &mut a);
+                    let n = fuse_block(&g, base, pixels, &mut b);
                     assert_eq!(n, n_ref, "round {round}, block {index:?}");
                     assert!(a == b, "round {round}, block {index:?}");
                     counts.0 += n;
