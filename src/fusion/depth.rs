@@ -56,18 +56,27 @@ pub fn depth_frame_blocks(
     frame: &DepthFrame,
     params: &DepthFusionParams,
 ) -> TouchedBlocks {
+    list_band(grid, frame, params).0
+}
+
+/// [`depth_frame_blocks`], and the number of usable pixels (counted on the way).
+fn list_band(
+    grid: &GridParams,
+    frame: &DepthFrame,
+    params: &DepthFusionParams,
+) -> (TouchedBlocks, usize) {
     let k = &frame.intrinsics;
     let (w, h) = (frame.depth_m.width as usize, frame.depth_m.height as usize);
     let mu = grid.truncation_m as f64;
-    let block = grid.block_size_m();
+    let rot = frame
+        .world_from_camera
+        .rotation
+        .to_rotation_matrix()
+        .into_inner();
     let slices = SliceGeometry {
-        rot: frame
-            .world_from_camera
-            .rotation
-            .to_rotation_matrix()
-            .into_inner(),
+        columns: [rot.column(0), rot.column(1), rot.column(2)].map(|c| c.into_owned()),
         origin: frame.world_from_camera.translation.vector,
-        block_m: block,
+        block_m: grid.block_size_m(),
     };
     let tiles = TileLister {
         data: &frame.depth_m.data,
@@ -81,10 +90,9 @@ pub fn depth_frame_blocks(
         slices,
     };
     let tiles_x = w.div_ceil(BAND_TILE_PX);
-    let mut keys: Vec<u64> = (0..h.div_ceil(BAND_TILE_PX))
+    let (mut keys, usable_pixels) = (0..h.div_ceil(BAND_TILE_PX))
         .into_par_iter()
         .fold(Listed::new, |mut out, ty| {
-            let mut depths: Vec<f32> = Vec::with_capacity(BAND_TILE_PX * BAND_TILE_PX);
             let v0 = ty * BAND_TILE_PX;
             let v1 = (v0 + BAND_TILE_PX).min(h) - 1;
             for tx in 0..tiles_x {
@@ -94,20 +102,25 @@ pub fn depth_frame_blocks(
                     u: [u0, u1],
                     v: [v0, v1],
                 };
-                tile_blocks(tile, &tiles, &mut depths, &mut out);
+                let range = tiles.range(tile);
+                out.usable_pixels += range.count;
+                tile_blocks(tile, range, &tiles, &mut out);
             }
             out
         })
-        .map(|listed| listed.keys)
-        .reduce(Vec::new, |mut x, mut y| {
-            x.append(&mut y);
-            x
-        });
+        .map(|listed| (listed.keys, listed.usable_pixels))
+        .reduce(
+            || (Vec::new(), 0),
+            |(mut x, nx), (mut y, ny)| {
+                x.append(&mut y);
+                (x, nx + ny)
+            },
+        );
+    // Sort keys are in the blocks' order: one sort of integers.
     keys.par_sort_unstable();
     keys.dedup();
-    let mut all: Vec<BlockIndex> = keys.into_iter().map(BlockIndex::unpack).collect();
-    all.par_sort_unstable();
-    all
+    let blocks = keys.into_iter().map(BlockIndex::from_sort_key).collect();
+    (blocks, usable_pixels)
 }
 
 /// A tile whose depths (within one range) spread over more than this many μ is split.
@@ -133,74 +146,138 @@ struct TileLister<'a> {
     slices: SliceGeometry,
 }
 
-/// Lists the blocks of one tile into `out`: its usable depths, split into ranges at gaps of
-/// more than 2μ; a tile whose depths (within one range) spread over more than μ/2 (a surface
-/// seen at a grazing angle) is split into quadrants, down to 2×2 pixels, so that the slice
-/// stays close to the union of its pixels' band segments.
-fn tile_blocks(tile: Tile, l: &TileLister, depths: &mut Vec<f32>, out: &mut Listed) {
-    depths.clear();
-    for v in tile.v[0]..=tile.v[1] {
-        let row = &l.data[v * l.width..];
-        depths.extend(
-            row[tile.u[0]..=tile.u[1]]
-                .iter()
-                .filter(|&&d| usable(d, l.params)),
-        );
-    }
-    if depths.is_empty() {
-        return;
-    }
-    let (lo, hi) = depths
-        .iter()
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &d| {
-            (lo.min(d), hi.max(d))
-        });
-    let mut ranges: Vec<(f64, f64)> = Vec::new();
-    if (hi - lo) as f64 <= 2.0 * l.mu {
-        // No gap of more than 2μ can fit: one range, no sort.
-        ranges.push((lo as f64, hi as f64));
-    } else {
-        depths.sort_unstable_by(f32::total_cmp);
-        let mut start = 0;
-        for i in 1..=depths.len() {
-            if i == depths.len() || (depths[i] - depths[i - 1]) as f64 > 2.0 * l.mu {
-                ranges.push((depths[start] as f64, depths[i - 1] as f64));
-                start = i;
+/// A tile's usable depths: how many, the least and the greatest.
+#[derive(Clone, Copy)]
+struct TileRange {
+    count: usize,
+    lo: f32,
+    hi: f32,
+}
+
+impl TileLister<'_> {
+    /// The usable depths of `tile`.
+    #[inline]
+    fn range(&self, tile: Tile) -> TileRange {
+        let mut r = TileRange {
+            count: 0,
+            lo: f32::INFINITY,
+            hi: f32::NEG_INFINITY,
+        };
+        let (min_m, max_m) = (self.params.min_depth_m, self.params.max_depth_m);
+        let usable = |d: f32| d.is_finite() & (d >= min_m) & (d <= max_m);
+        for v in tile.v[0]..=tile.v[1] {
+            let row = v * self.width;
+            let row = &self.data[row + tile.u[0]..=row + tile.u[1]];
+            if let Ok(full) = <&[f32; BAND_TILE_PX]>::try_from(row) {
+                // A full tile's row, lane-wise as one vector (usable depths are finite, so
+                // the selects are the minimum and maximum).
+                let ok = full.map(usable);
+                r.count += ok.iter().filter(|&&k| k).count();
+                let lo = std::array::from_fn::<f32, BAND_TILE_PX, _>(|i| {
+                    if ok[i] {
+                        full[i]
+                    } else {
+                        f32::INFINITY
+                    }
+                });
+                let hi = std::array::from_fn::<f32, BAND_TILE_PX, _>(|i| {
+                    if ok[i] {
+                        full[i]
+                    } else {
+                        f32::NEG_INFINITY
+                    }
+                });
+                r.lo = lo.iter().fold(r.lo, |a, &b| if b < a { b } else { a });
+                r.hi = hi.iter().fold(r.hi, |a, &b| if b > a { b } else { a });
+            } else {
+                for &d in row {
+                    if usable(d) {
+                        r.count += 1;
+                        r.lo = r.lo.min(d);
+                        r.hi = r.hi.max(d);
+                    }
+                }
             }
         }
+        r
+    }
+
+    /// The usable depths of `tile`, sorted, into `depths`.
+    fn sorted_depths(&self, tile: Tile, depths: &mut Vec<f32>) {
+        depths.clear();
+        for v in tile.v[0]..=tile.v[1] {
+            let row = v * self.width;
+            depths.extend(
+                self.data[row + tile.u[0]..=row + tile.u[1]]
+                    .iter()
+                    .filter(|&&d| usable(d, self.params)),
+            );
+        }
+        depths.sort_unstable_by(f32::total_cmp);
+    }
+}
+
+/// Lists the blocks of one tile (whose usable depths are `range`) into `out`: its usable
+/// depths, split into ranges at gaps of more than 2μ; a tile whose depths (within one range)
+/// spread over more than μ/2 (a surface seen at a grazing angle) is split into quadrants, down
+/// to 2×2 pixels, so that the slice stays close to the union of its pixels' band segments.
+fn tile_blocks(tile: Tile, range: TileRange, l: &TileLister, out: &mut Listed) {
+    if range.count == 0 {
+        return;
     }
     let smallest = tile.u[1] - tile.u[0] < 2 && tile.v[1] - tile.v[0] < 2;
-    if !smallest && ranges.iter().any(|(lo, hi)| hi - lo > SPLIT_SPREAD * l.mu) {
+    let split_spread = SPLIT_SPREAD * l.mu;
+    let split = |out: &mut Listed| {
         let um = (tile.u[0] + tile.u[1]) / 2;
         let vm = (tile.v[0] + tile.v[1]) / 2;
         for u in [[tile.u[0], um], [um + 1, tile.u[1]]] {
             for v in [[tile.v[0], vm], [vm + 1, tile.v[1]]] {
                 if u[0] <= u[1] && v[0] <= v[1] {
-                    tile_blocks(Tile { u, v }, l, depths, out);
+                    let quadrant = Tile { u, v };
+                    tile_blocks(quadrant, l.range(quadrant), l, out);
                 }
             }
         }
+    };
+    let (lo, hi) = (range.lo, range.hi);
+    if (hi - lo) as f64 <= 2.0 * l.mu {
+        // No gap of more than 2μ can fit: one range, no sort.
+        if !smallest && hi as f64 - lo as f64 > split_spread {
+            split(out);
+        } else {
+            l.slices.tile_slice(tile, l, lo as f64, hi as f64, out);
+        }
         return;
     }
-    // Lateral bounds: the rays through the tile's pixel centres (z = 1).
-    let a = [
-        (tile.u[0] as f64 - l.cx) / l.fx,
-        (tile.u[1] as f64 - l.cx) / l.fx,
-    ];
-    let b = [
-        (tile.v[0] as f64 - l.cy) / l.fy,
-        (tile.v[1] as f64 - l.cy) / l.fy,
-    ];
-    for (lo, hi) in ranges {
-        l.slices
-            .blocks_of_slice(a, b, (lo - l.mu).max(0.0), hi + l.mu, out);
+    // Ranges of the sorted depths, split at gaps of more than 2μ.
+    let mut depths = std::mem::take(&mut out.depths);
+    l.sorted_depths(tile, &mut depths);
+    let ranges = || {
+        let gaps = depths
+            .windows(2)
+            .enumerate()
+            .filter(|(_, p)| (p[1] - p[0]) as f64 > 2.0 * l.mu)
+            .map(|(i, _)| i + 1);
+        std::iter::once(0)
+            .chain(gaps.clone())
+            .zip(gaps.chain(std::iter::once(depths.len())))
+            .map(|(start, end)| (depths[start] as f64, depths[end - 1] as f64))
+    };
+    if !smallest && ranges().any(|(lo, hi)| hi - lo > split_spread) {
+        out.depths = depths;
+        split(out);
+        return;
     }
+    for (lo, hi) in ranges() {
+        l.slices.tile_slice(tile, l, lo, hi, out);
+    }
+    out.depths = depths;
 }
 
 /// A frame's pose as [`depth_frame_blocks`] uses it.
 struct SliceGeometry {
-    /// World from camera rotation.
-    rot: nalgebra::Matrix3<f64>,
+    /// Columns of the world from camera rotation: the camera's x, y and z axes, world frame.
+    columns: [Vector3<f64>; 3],
     /// Camera centre, world frame, metres.
     origin: Vector3<f64>,
     block_m: f64,
@@ -209,13 +286,16 @@ struct SliceGeometry {
 /// Slots of [`Listed::seen`] (a power of two).
 const SEEN_SLOTS: usize = 1024;
 
-/// The blocks one worker listed (packed, unsorted, with some repeats), and a direct-mapped
-/// cache of listed keys: neighbouring tiles meet mostly the same blocks, and a candidate found
-/// in the cache is skipped before its geometric test.
+/// What one worker listed: blocks (as [`BlockIndex::sort_key`]s, unsorted, with some repeats),
+/// a direct-mapped cache of listed keys (neighbouring tiles meet mostly the same blocks, and a
+/// candidate found in the cache is skipped before its geometric test), the usable pixels of
+/// its tiles, and a buffer for a tile's sorted depths.
 struct Listed {
     keys: Vec<u64>,
-    /// `u64::MAX` (which no packed index equals) or a key in `keys`.
+    /// `u64::MAX` (which no key equals) or a key in `keys`.
     seen: Box<[u64; SEEN_SLOTS]>,
+    usable_pixels: usize,
+    depths: Vec<f32>,
 }
 
 impl Listed {
@@ -223,6 +303,8 @@ impl Listed {
         Listed {
             keys: Vec::new(),
             seen: Box::new([u64::MAX; SEEN_SLOTS]),
+            usable_pixels: 0,
+            depths: Vec::with_capacity(BAND_TILE_PX * BAND_TILE_PX),
         }
     }
 
@@ -232,28 +314,50 @@ impl Listed {
 }
 
 impl SliceGeometry {
-    /// Pushes (packed, unsorted, with repeats) the blocks meeting the frustum slice
+    /// Lists the blocks of the band of `tile` whose depths span `[lo, hi]`: the frustum slice
+    /// through its pixel centres between `max(lo − μ, 0)` and `hi + μ`.
+    fn tile_slice(&self, tile: Tile, l: &TileLister, lo: f64, hi: f64, out: &mut Listed) {
+        // Lateral bounds: the rays through the tile's pixel centres (z = 1).
+        let a = [
+            (tile.u[0] as f64 - l.cx) / l.fx,
+            (tile.u[1] as f64 - l.cx) / l.fx,
+        ];
+        let b = [
+            (tile.v[0] as f64 - l.cy) / l.fy,
+            (tile.v[1] as f64 - l.cy) / l.fy,
+        ];
+        self.blocks_of_slice(a, b, (lo - l.mu).max(0.0), hi + l.mu, out);
+    }
+
+    /// Pushes (unsorted, with repeats) the blocks meeting the frustum slice
     /// `{x/z ∈ [a0, a1], y/z ∈ [b0, b1], z ∈ [z0, z1]}` (camera frame).
     fn blocks_of_slice(&self, a: [f64; 2], b: [f64; 2], z0: f64, z1: f64, out: &mut Listed) {
         const MARGIN_M: f64 = 1e-6;
-        let r = &self.rot;
-        let to_world = |c: Vector3<f64>| r * c;
+        // Camera-frame vectors rotated to the world as sums of the rotation's columns, in the
+        // order of the matrix product (c₀·v₀ + c₁·v₁) + c₂·v₂, without its products by 0 and 1.
+        let [cx, cy, cz] = &self.columns;
         // Side planes through the camera centre, inward normals (camera: x − a0·z ≥ 0, …).
         let sides = [
-            Vector3::new(1.0, 0.0, -a[0]),
-            Vector3::new(-1.0, 0.0, a[1]),
-            Vector3::new(0.0, 1.0, -b[0]),
-            Vector3::new(0.0, -1.0, b[1]),
-        ]
-        .map(to_world);
-        let view = to_world(Vector3::z());
+            cx + cz * -a[0],
+            -cx + cz * a[1],
+            cy + cz * -b[0],
+            -cy + cz * b[1],
+        ];
+        let view = *cz;
         let half = 0.5 * self.block_m;
         let reach = |n: &Vector3<f64>| half * (n.x.abs() + n.y.abs() + n.z.abs());
-        let side_reach = sides.map(|n| reach(&n));
+        // Written out: `array::map` with a closure is not inlined here.
+        let side_reach = [
+            reach(&sides[0]),
+            reach(&sides[1]),
+            reach(&sides[2]),
+            reach(&sides[3]),
+        ];
         let view_reach = reach(&view);
         // The slice's four edge rays (z = 1), world frame: a corner at depth z is origin + z·ray.
-        let rays =
-            [(0, 0), (0, 1), (1, 0), (1, 1)].map(|(i, j)| to_world(Vector3::new(a[i], b[j], 1.0)));
+        let ray = |i: usize, j: usize| (cx * a[i] + cy * b[j]) + cz;
+        let rays = [ray(0, 0), ray(0, 1), ray(1, 0), ray(1, 1)];
+        let inv_block = 1.0 / self.block_m;
         let pieces = ((z1 - z0) / self.block_m).ceil().max(1.0) as usize;
         let dz = (z1 - z0) / pieces as f64;
         for p in 0..pieces {
@@ -270,12 +374,16 @@ impl SliceGeometry {
                     }
                 }
             }
-            let first = lo.map(|v| crate::grid::floor_i64((v - MARGIN_M) / self.block_m));
-            let last = hi.map(|v| crate::grid::floor_i64((v + MARGIN_M) / self.block_m));
-            for bx in first[0]..=last[0] {
-                for by in first[1]..=last[1] {
-                    for bz in first[2]..=last[2] {
-                        let key = BlockIndex([bx as i32, by as i32, bz as i32]).pack();
+            let (mut first, mut end) = ([0i64; 3], [0i64; 3]);
+            for k in 0..3 {
+                first[k] = floor_div(lo[k] - MARGIN_M, self.block_m, inv_block);
+                end[k] = floor_div(hi[k] + MARGIN_M, self.block_m, inv_block) + 1;
+            }
+            // Exclusive ranges: an inclusive one tests for its last step on every iteration.
+            for bx in first[0]..end[0] {
+                for by in first[1]..end[1] {
+                    for bz in first[2]..end[2] {
+                        let key = BlockIndex([bx as i32, by as i32, bz as i32]).sort_key();
                         // Listed already (neighbouring tiles list mostly the same blocks).
                         let slot = Listed::slot(key);
                         if out.seen[slot] == key {
@@ -301,6 +409,23 @@ impl SliceGeometry {
                 }
             }
         }
+    }
+}
+
+/// `⌊x / b⌋` (of the rounded quotient, as `floor_i64(x / b)`) for `b > 0` and `inv_b = 1/b`: a
+/// multiplication, and the division only where the product lies so close to an integer (within
+/// 10⁻¹⁵·(|q| + 1), more than its error against the quotient) that the two could floor apart.
+#[inline(always)]
+fn floor_div(x: f64, b: f64, inv_b: f64) -> i64 {
+    let q = x * inv_b;
+    let f = crate::grid::floor_i64(q);
+    // Exact: q and its floor are within one of each other.
+    let frac = q - f as f64;
+    let tolerance = 1e-15 * (q.abs() + 1.0);
+    if frac > tolerance && frac < 1.0 - tolerance {
+        f
+    } else {
+        crate::grid::floor_i64(x / b)
     }
 }
 
@@ -516,18 +641,13 @@ impl DepthPlan {
     /// Lists the band of `frame` on `grid` and its geometry.
     pub fn new(grid: &GridParams, frame: &DepthFrame, params: &DepthFusionParams) -> Self {
         let t = std::time::Instant::now();
-        let band = depth_frame_blocks(grid, frame, params);
+        let (band, measurements) = list_band(grid, frame, params);
         let listing_s = t.elapsed().as_secs_f64();
         DepthPlan {
             band,
             frustum: ViewFrustum::new(frame, params, grid.truncation_m as f64),
             geometry: DepthGeometry::new(grid, frame),
-            measurements: frame
-                .depth_m
-                .data
-                .iter()
-                .filter(|&&d| usable(d, params))
-                .count(),
+            measurements,
             camera_m: frame.world_from_camera.translation.vector.into(),
             listing_s,
         }
@@ -569,6 +689,11 @@ pub fn integrate_depth(
 }
 
 /// [`integrate_depth`] from a plan already made ([`DepthPlan::new`] on this layer's grid).
+///
+/// Fuses the blocks of [`DepthPlan::blocks`] (the band, allocated where missing, and the
+/// allocated blocks in view) where they lie, in one parallel pass ([`Layer::update_in_place`]);
+/// a block left with no voxel in Ω (allocated for a band whose voxels all fell outside the
+/// image, say) is dropped.
 pub fn integrate_depth_plan(
     layer: &mut Layer,
     frame: &DepthFrame,
@@ -576,24 +701,54 @@ pub fn integrate_depth_plan(
     plan: &DepthPlan,
 ) -> (TouchedBlocks, FusionStats) {
     let grid = layer.params();
-    let blocks = plan.blocks(layer);
-    let mut taken = layer.take_blocks(&blocks);
+    let half = 0.5 * grid.block_size_m();
+    let radius = half * 3f64.sqrt();
+    let in_view = |i: &BlockIndex| {
+        let o = grid.block_origin(*i);
+        plan.frustum
+            .meets_sphere([o[0] + half, o[1] + half, o[2] + half], radius)
+    };
     let g = &plan.geometry;
-    let updates: Vec<usize> = FramePixels::with(frame, params, |pixels| {
-        taken
-            .par_iter_mut()
-            .map(|(index, block)| {
-                let base = g.block_base(&grid, *index);
-                fuse_block(g, [base.x, base.y, base.z], pixels, block)
-            })
-            .collect()
+    let fused = FramePixels::with(frame, params, |pixels| {
+        layer.update_in_place(&plan.band, in_view, |index, block| {
+            let base = g.block_base(&grid, *index);
+            let n = fuse_block(g, [base.x, base.y, base.z], pixels, block);
+            // An updated block has a voxel in Ω.
+            (n, n > 0 || block.observed())
+        })
     });
-    // A block with an update has a voxel in Ω: only the others are scanned.
-    let touched = layer.put_blocks_observed_unless(taken, |k| updates[k] > 0);
+    let voxel_updates = fused.iter().map(|(_, n, _)| n).sum();
+    let touched: TouchedBlocks = fused
+        .into_iter()
+        .filter(|(_, _, kept)| *kept)
+        .map(|(i, _, _)| i)
+        .collect();
     let stats = FusionStats {
         blocks: touched.len(),
-        voxel_updates: updates.iter().sum(),
+        voxel_updates,
         measurements: plan.measurements,
     };
     (touched, stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::floor_div;
+    use proptest::prelude::*;
+
+    proptest! {
+        #[test]
+        fn floor_div_is_the_floor_of_the_quotient(
+            x in -1e6f64..1e6,
+            b in prop::sample::select(vec![0.8, 0.4, 0.2, 0.1, 0.05 * 8.0, 0.3, 1.0 / 3.0]),
+            k in -200_000i64..200_000,
+            ulps in -3i64..=3,
+        ) {
+            let exact = |x: f64| crate::grid::floor_i64(x / b);
+            prop_assert_eq!(floor_div(x, b, 1.0 / b), exact(x));
+            // Near multiples of b, where the product and the quotient can floor apart.
+            let near = f64::from_bits(((k as f64 * b).to_bits() as i64 + ulps) as u64);
+            prop_assert_eq!(floor_div(near, b, 1.0 / b), exact(near));
+        }
+    }
 }

@@ -125,21 +125,11 @@ pub(super) fn fuse_block(
     pixels: &FramePixels,
     block: &mut Block,
 ) -> usize {
-    let mut update = [false; VOXELS_PER_BLOCK];
-    let n = if pixels.color {
-        fuse_lanes::<true>(k, base, pixels, block, &mut update)
+    if pixels.color {
+        fuse_lanes::<true>(k, base, pixels, block)
     } else {
-        fuse_lanes::<false>(k, base, pixels, block, &mut update)
-    };
-    if let Some(u) = block.regularized.as_mut() {
-        // The raw field changed, so the regularised value follows it (`Block::store_fused`).
-        for ((u, &t), &up) in u.iter_mut().zip(&block.tsdf).zip(&update) {
-            if up {
-                *u = t;
-            }
-        }
+        fuse_lanes::<false>(k, base, pixels, block)
     }
-    n
 }
 
 /// The loop of [`fuse_block`]: lane `i` is voxel `i` (x + 8y + 64z). Compiled for AVX-512,
@@ -154,7 +144,6 @@ fn fuse_lanes<const COLOR: bool>(
     base: [f32; 3],
     pixels: &FramePixels,
     block: &mut Block,
-    update: &mut [bool; VOXELS_PER_BLOCK],
 ) -> usize {
     let [ax, ay, az] = k.axis_m;
     let (ax, ay, az) = ([ax.x, ax.y, ax.z], [ay.x, ay.y, ay.z], [az.x, az.y, az.z]);
@@ -211,7 +200,7 @@ fn fuse_lanes<const COLOR: bool>(
         tsdf,
         weight_omega,
         color,
-        ..
+        regularized,
     } = block;
     for i in 0..VOXELS_PER_BLOCK {
         let sdf = d_m[i] - z_m[i];
@@ -228,7 +217,14 @@ fn fuse_lanes<const COLOR: bool>(
             &mut weight_omega[i],
             &mut color[i],
         );
-        update[i] = up;
+    }
+    if let Some(u) = regularized {
+        // The raw field changed, so the regularised value follows it (`Block::store_fused`).
+        for i in 0..VOXELS_PER_BLOCK {
+            if d_m[i] - z_m[i] >= -mu {
+                u[i] = tsdf[i];
+            }
+        }
     }
     n
 }

@@ -139,6 +139,13 @@ impl Block {
         }
     }
 
+    /// Whether some voxel is in Ω.
+    pub fn observed(&self) -> bool {
+        // An OR over all 512 bytes (vectorised) rather than `any`, which stops early but tests
+        // byte by byte.
+        self.weight_omega.iter().fold(0, |acc, &w| acc | w) & OMEGA_BIT != 0
+    }
+
     /// Number of voxels in Ω.
     pub fn observed_count(&self) -> usize {
         self.weight_omega

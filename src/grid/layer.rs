@@ -150,16 +150,78 @@ impl Layer {
     ) -> Vec<BlockIndex> {
         let mut kept = Vec::with_capacity(blocks.len());
         for (k, (i, b)) in blocks.into_iter().enumerate() {
-            // An OR over all 512 bytes (vectorised) rather than `any`, which stops early but
-            // tests byte by byte.
-            if known_observed(k)
-                || b.weight_omega.iter().fold(0, |acc, &w| acc | w) & super::OMEGA_BIT != 0
-            {
+            if known_observed(k) || b.observed() {
                 kept.push(i);
                 self.blocks.insert(i, b);
             }
         }
         kept
+    }
+
+    /// Updates, in parallel and in place (no check-out and check-in through the hash map),
+    /// the blocks at the sorted indices `required` (allocating those missing, empty) and every
+    /// other allocated block `select` picks; in the blocks' order, so that neighbouring blocks
+    /// come one after the other, as a stage reading an image or a volume per block wants.
+    /// `update` returns a result and whether to keep the block: a block not kept is dropped.
+    /// Returns the updated indices, sorted, with the results and whether each was kept.
+    pub fn update_in_place<R: Send>(
+        &mut self,
+        required: &[BlockIndex],
+        select: impl Fn(&BlockIndex) -> bool + Sync,
+        update: impl Fn(&BlockIndex, &mut Block) -> (R, bool) + Sync,
+    ) -> Vec<(BlockIndex, R, bool)> {
+        use rayon::prelude::*;
+        let required_set = SortedSet::new(required);
+        // The allocated blocks to update, by sort key.
+        let mut picked: Vec<(u64, &mut Block)> = self
+            .blocks
+            .par_iter_mut()
+            .filter(|(i, _)| select(i) || required_set.contains(i))
+            .map(|(i, b)| (i.sort_key(), &mut **b))
+            .collect();
+        picked.par_sort_unstable_by_key(|&(key, _)| key);
+        // The required blocks not allocated: the sorted lists merged.
+        let mut fresh: Vec<(u64, Box<Block>)> = Vec::new();
+        let mut p = picked.iter().map(|(key, _)| *key).peekable();
+        for key in required.iter().map(BlockIndex::sort_key) {
+            while p.next_if(|&k| k < key).is_some() {}
+            if p.next_if_eq(&key).is_none() {
+                fresh.push((key, Block::new_boxed()));
+            }
+        }
+        // Both, in one sorted list (`true`: fresh).
+        let mut all: Vec<(u64, bool, &mut Block)> = Vec::with_capacity(picked.len() + fresh.len());
+        let mut f = fresh.iter_mut().peekable();
+        for (key, b) in picked {
+            while let Some((k, nb)) = f.next_if(|(k, _)| *k < key) {
+                all.push((*k, true, &mut **nb));
+            }
+            all.push((key, false, b));
+        }
+        all.extend(f.map(|(k, nb)| (*k, true, &mut **nb)));
+        let results: Vec<(BlockIndex, R, bool, bool)> = all
+            .into_par_iter()
+            .map(|(key, is_fresh, b)| {
+                let i = BlockIndex::from_sort_key(key);
+                let (r, keep) = update(&i, b);
+                (i, r, keep, is_fresh)
+            })
+            .collect();
+        let mut fresh = fresh.into_iter();
+        results
+            .into_iter()
+            .map(|(i, r, keep, is_fresh)| {
+                if is_fresh {
+                    let (_, b) = fresh.next().expect("one fresh block per fresh result");
+                    if keep {
+                        self.blocks.insert(i, b);
+                    }
+                } else if !keep {
+                    self.blocks.remove(&i);
+                }
+                (i, r, keep)
+            })
+            .collect()
     }
 
     /// Removes and returns one block.
@@ -195,6 +257,37 @@ impl Layer {
     }
 }
 
+/// Membership in a sorted list of blocks: a 2¹⁸-bit filter of their keys' hashes, and a
+/// binary search where the filter holds.
+struct SortedSet<'a> {
+    sorted: &'a [BlockIndex],
+    bits: Vec<u64>,
+}
+
+impl<'a> SortedSet<'a> {
+    const BITS_LOG2: u32 = 18;
+
+    fn new(sorted: &'a [BlockIndex]) -> Self {
+        let mut bits = vec![0u64; 1 << (Self::BITS_LOG2 - 6)];
+        for i in sorted {
+            let h = Self::hash(i);
+            bits[h >> 6] |= 1 << (h & 63);
+        }
+        SortedSet { sorted, bits }
+    }
+
+    #[inline]
+    fn hash(i: &BlockIndex) -> usize {
+        (i.sort_key().wrapping_mul(0x9E37_79B9_7F4A_7C15) >> (64 - Self::BITS_LOG2)) as usize
+    }
+
+    #[inline]
+    fn contains(&self, i: &BlockIndex) -> bool {
+        let h = Self::hash(i);
+        self.bits[h >> 6] & (1 << (h & 63)) != 0 && self.sorted.binary_search(i).is_ok()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -212,6 +305,68 @@ mod tests {
             }
         }
         assert_eq!(seen.len(), 16 * 16 * 16);
+    }
+
+    #[test]
+    fn update_in_place_allocates_selects_and_drops() {
+        let mut layer = Layer::new(GridParams {
+            voxel_size_m: 0.1,
+            truncation_m: 1.0,
+        });
+        // Allocated: (0,0,0) … (9,0,0), voxel 0 of each holding the block's x as its weight.
+        for x in 0..10 {
+            let b = layer.get_or_allocate(BlockIndex([x, 0, 0]));
+            b.weight_omega[0] = x as u8;
+        }
+        // Required: two allocated, three not (one of which is then not kept).
+        let required = [
+            BlockIndex([-3, 5, 1]),
+            BlockIndex([2, 0, 0]),
+            BlockIndex([4, -1, 0]),
+            BlockIndex([7, 0, 0]),
+            BlockIndex([11, 0, 0]),
+        ];
+        let calls = std::sync::atomic::AtomicUsize::new(0);
+        let out = layer.update_in_place(
+            &required,
+            |i| i.0[0] >= 5 && i.0[1] == 0,
+            |i, b| {
+                calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let before = b.weight_omega[0];
+                b.weight_omega[1] = 1;
+                // Drop (7,0,0), which was allocated, and (4,-1,0), which was not.
+                (
+                    before,
+                    *i != BlockIndex([7, 0, 0]) && *i != BlockIndex([4, -1, 0]),
+                )
+            },
+        );
+        let expected: Vec<BlockIndex> = [[-3, 5, 1], [2, 0, 0], [4, -1, 0]]
+            .into_iter()
+            .chain((5..10).map(|x| [x, 0, 0]))
+            .chain([[11, 0, 0]])
+            .map(BlockIndex)
+            .collect();
+        assert_eq!(out.iter().map(|r| r.0).collect::<Vec<_>>(), expected);
+        assert_eq!(calls.into_inner(), expected.len());
+        for (i, before, kept) in &out {
+            // Allocated blocks were updated where they lay; fresh ones started empty.
+            let x = i.0[0];
+            let allocated = (0..10).contains(&x) && i.0[1] == 0;
+            assert_eq!(*before, if allocated { x as u8 } else { 0 }, "{i:?}");
+            assert_eq!(*kept, layer.contains(i), "{i:?}");
+            if *kept {
+                assert_eq!(layer.get(i).unwrap().weight_omega[1], 1);
+            }
+        }
+        assert!(!layer.contains(&BlockIndex([7, 0, 0])));
+        assert!(!layer.contains(&BlockIndex([4, -1, 0])));
+        // Untouched blocks are as they were.
+        assert_eq!(
+            layer.get(&BlockIndex([3, 0, 0])).unwrap().weight_omega[1],
+            0
+        );
+        assert_eq!(layer.block_count(), 10 - 1 + 2);
     }
 
     #[test]
