@@ -56,15 +56,18 @@ pub fn depth_frame_blocks(
     frame: &DepthFrame,
     params: &DepthFusionParams,
 ) -> TouchedBlocks {
-    list_band(grid, frame, params).0
+    list_band(grid, frame, params, true).blocks
 }
 
-/// [`depth_frame_blocks`], and the number of usable pixels (counted on the way).
+/// [`depth_frame_blocks`], with the number of usable pixels (counted on the way). `skip_listed`:
+/// whether a slice whose blocks are all listed already is skipped (always, but for the test
+/// that checks the skip changes nothing).
 fn list_band(
     grid: &GridParams,
     frame: &DepthFrame,
     params: &DepthFusionParams,
-) -> (TouchedBlocks, usize) {
+    skip_listed: bool,
+) -> BandListing {
     let k = &frame.intrinsics;
     let (w, h) = (frame.depth_m.width as usize, frame.depth_m.height as usize);
     let mu = grid.truncation_m as f64;
@@ -90,37 +93,51 @@ fn list_band(
         slices,
     };
     let tiles_x = w.div_ceil(BAND_TILE_PX);
-    let (mut keys, usable_pixels) = (0..h.div_ceil(BAND_TILE_PX))
+    let (mut keys, usable_pixels, skipped_slices) = (0..h.div_ceil(BAND_TILE_PX))
         .into_par_iter()
-        .fold(Listed::new, |mut out, ty| {
-            let v0 = ty * BAND_TILE_PX;
-            let v1 = (v0 + BAND_TILE_PX).min(h) - 1;
-            for tx in 0..tiles_x {
-                let u0 = tx * BAND_TILE_PX;
-                let u1 = (u0 + BAND_TILE_PX).min(w) - 1;
-                let tile = Tile {
-                    u: [u0, u1],
-                    v: [v0, v1],
-                };
-                let range = tiles.range(tile);
-                out.usable_pixels += range.count;
-                tile_blocks(tile, range, &tiles, &mut out);
-            }
-            out
-        })
-        .map(|listed| (listed.keys, listed.usable_pixels))
+        .fold(
+            || Listed::new(skip_listed),
+            |mut out, ty| {
+                let v0 = ty * BAND_TILE_PX;
+                let v1 = (v0 + BAND_TILE_PX).min(h) - 1;
+                for tx in 0..tiles_x {
+                    let u0 = tx * BAND_TILE_PX;
+                    let u1 = (u0 + BAND_TILE_PX).min(w) - 1;
+                    let tile = Tile {
+                        u: [u0, u1],
+                        v: [v0, v1],
+                    };
+                    let range = tiles.range(tile);
+                    out.usable_pixels += range.count;
+                    tile_blocks(tile, range, &tiles, &mut out);
+                }
+                out
+            },
+        )
+        .map(|listed| (listed.keys, listed.usable_pixels, listed.skipped))
         .reduce(
-            || (Vec::new(), 0),
-            |(mut x, nx), (mut y, ny)| {
+            || (Vec::new(), 0, 0),
+            |(mut x, nx, sx), (mut y, ny, sy)| {
                 x.append(&mut y);
-                (x, nx + ny)
+                (x, nx + ny, sx + sy)
             },
         );
     // Sort keys are in the blocks' order: one sort of integers.
     keys.par_sort_unstable();
     keys.dedup();
-    let blocks = keys.into_iter().map(BlockIndex::from_sort_key).collect();
-    (blocks, usable_pixels)
+    BandListing {
+        blocks: keys.into_iter().map(BlockIndex::from_sort_key).collect(),
+        usable_pixels,
+        skipped_slices,
+    }
+}
+
+/// What [`list_band`] found.
+struct BandListing {
+    blocks: TouchedBlocks,
+    usable_pixels: usize,
+    /// Slices skipped because their blocks were all listed already.
+    skipped_slices: usize,
 }
 
 /// A tile whose depths (within one range) spread over more than this many μ is split.
@@ -286,6 +303,10 @@ struct SliceGeometry {
 /// Slots of [`Listed::seen`] (a power of two).
 const SEEN_SLOTS: usize = 1024;
 
+/// A slice whose corners' box holds more blocks than this is not checked for being listed
+/// already (the check would cost more than it saves).
+const SKIP_BOX_BLOCKS: i64 = 64;
+
 /// What one worker listed: blocks (as [`BlockIndex::sort_key`]s, unsorted, with some repeats),
 /// a direct-mapped cache of listed keys (neighbouring tiles meet mostly the same blocks, and a
 /// candidate found in the cache is skipped before its geometric test), the usable pixels of
@@ -296,15 +317,21 @@ struct Listed {
     seen: Box<[u64; SEEN_SLOTS]>,
     usable_pixels: usize,
     depths: Vec<f32>,
+    /// Whether slices whose blocks are all listed already are skipped.
+    skip_listed: bool,
+    /// Slices skipped so.
+    skipped: usize,
 }
 
 impl Listed {
-    fn new() -> Self {
+    fn new(skip_listed: bool) -> Self {
         Listed {
             keys: Vec::new(),
             seen: Box::new([u64::MAX; SEEN_SLOTS]),
             usable_pixels: 0,
             depths: Vec::with_capacity(BAND_TILE_PX * BAND_TILE_PX),
+            skip_listed,
+            skipped: 0,
         }
     }
 
@@ -327,6 +354,48 @@ impl SliceGeometry {
             (tile.v[1] as f64 - l.cy) / l.fy,
         ];
         self.blocks_of_slice(a, b, (lo - l.mu).max(0.0), hi + l.mu, out);
+    }
+
+    /// The blocks `first .. end` (per axis) of the box around the corners at depths `za` and
+    /// `zb` on `rays`, widened by `margin_m`.
+    #[inline]
+    fn corner_box(
+        &self,
+        rays: &[Vector3<f64>; 4],
+        za: f64,
+        zb: f64,
+        margin_m: f64,
+        inv_block: f64,
+    ) -> ([i64; 3], [i64; 3]) {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for z in [za, zb] {
+            for ray in rays {
+                for k in 0..3 {
+                    let c = self.origin[k] + z * ray[k];
+                    lo[k] = lo[k].min(c);
+                    hi[k] = hi[k].max(c);
+                }
+            }
+        }
+        let (mut first, mut end) = ([0i64; 3], [0i64; 3]);
+        for k in 0..3 {
+            first[k] = floor_div(lo[k] - margin_m, self.block_m, inv_block);
+            end[k] = floor_div(hi[k] + margin_m, self.block_m, inv_block) + 1;
+        }
+        (first, end)
+    }
+
+    /// Whether [`Listed::seen`] holds every block of the box `first .. end`.
+    fn all_listed(first: [i64; 3], end: [i64; 3], out: &Listed) -> bool {
+        (first[0]..end[0]).all(|bx| {
+            (first[1]..end[1]).all(|by| {
+                (first[2]..end[2]).all(|bz| {
+                    let key = BlockIndex([bx as i32, by as i32, bz as i32]).sort_key();
+                    out.seen[Listed::slot(key)] == key
+                })
+            })
+        })
     }
 
     /// Pushes (unsorted, with repeats) the blocks meeting the frustum slice
@@ -359,26 +428,23 @@ impl SliceGeometry {
         let rays = [ray(0, 0), ray(0, 1), ray(1, 0), ray(1, 1)];
         let inv_block = 1.0 / self.block_m;
         let pieces = ((z1 - z0) / self.block_m).ceil().max(1.0) as usize;
+        // Every block a piece can list lies in the box of the slice's eight corners (widened
+        // by two margins more, against the rounding of the pieces' corners). When the cache
+        // holds all of that box's blocks, they are listed already: nothing to do. (With one
+        // piece, the check would cost as much as the piece.)
+        if pieces > 1 && out.skip_listed {
+            let (first, end) = self.corner_box(&rays, z0, z1, 3.0 * MARGIN_M, inv_block);
+            let count = (0..3).map(|k| (end[k] - first[k]).max(0)).product::<i64>();
+            if count <= SKIP_BOX_BLOCKS && Self::all_listed(first, end, out) {
+                out.skipped += 1;
+                return;
+            }
+        }
         let dz = (z1 - z0) / pieces as f64;
         for p in 0..pieces {
             let za = z0 + dz * p as f64;
             let zb = if p + 1 == pieces { z1 } else { za + dz };
-            let mut lo = [f64::INFINITY; 3];
-            let mut hi = [f64::NEG_INFINITY; 3];
-            for z in [za, zb] {
-                for ray in &rays {
-                    for k in 0..3 {
-                        let c = self.origin[k] + z * ray[k];
-                        lo[k] = lo[k].min(c);
-                        hi[k] = hi[k].max(c);
-                    }
-                }
-            }
-            let (mut first, mut end) = ([0i64; 3], [0i64; 3]);
-            for k in 0..3 {
-                first[k] = floor_div(lo[k] - MARGIN_M, self.block_m, inv_block);
-                end[k] = floor_div(hi[k] + MARGIN_M, self.block_m, inv_block) + 1;
-            }
+            let (first, end) = self.corner_box(&rays, za, zb, MARGIN_M, inv_block);
             // Exclusive ranges: an inclusive one tests for its last step on every iteration.
             for bx in first[0]..end[0] {
                 for by in first[1]..end[1] {
@@ -641,7 +707,12 @@ impl DepthPlan {
     /// Lists the band of `frame` on `grid` and its geometry.
     pub fn new(grid: &GridParams, frame: &DepthFrame, params: &DepthFusionParams) -> Self {
         let t = std::time::Instant::now();
-        let (band, measurements) = list_band(grid, frame, params);
+        let BandListing {
+            blocks: band,
+            usable_pixels: measurements,
+            skipped_slices,
+        } = list_band(grid, frame, params, true);
+        tracing::trace!(blocks = band.len(), skipped_slices, "band listed");
         let listing_s = t.elapsed().as_secs_f64();
         DepthPlan {
             band,
@@ -733,8 +804,75 @@ pub fn integrate_depth_plan(
 
 #[cfg(test)]
 mod tests {
-    use super::floor_div;
+    use super::*;
+    use crate::camera::PinholeIntrinsics;
+    use crate::frame::Image;
     use proptest::prelude::*;
+
+    #[test]
+    fn skipping_listed_slices_lists_the_same_blocks() {
+        // A tilted camera over a floor seen at grazing angles, a box in front of a wall
+        // (discontinuities inside tiles) and holes: the listing with the skip must be the
+        // listing without it, and the skip must have happened.
+        let (w, h) = (320u32, 240u32);
+        let k = PinholeIntrinsics {
+            fx: 260.0,
+            fy: 260.0,
+            cx: 160.0,
+            cy: 120.0,
+            width: w,
+            height: h,
+        };
+        let data = (0..w * h)
+            .map(|p| {
+                let (u, v) = ((p % w) as f32, (p / w) as f32);
+                match () {
+                    _ if (u as u32 + 3 * v as u32) % 97 == 0 => f32::NAN,
+                    _ if (100.0..180.0).contains(&u) && (60.0..150.0).contains(&v) => {
+                        2.0 + 0.003 * u
+                    }
+                    // The floor: depth grows without bound towards the horizon (row 120).
+                    _ if v > 125.0 => (1.5 * 260.0 / (v - 120.0)).min(30.0),
+                    _ => 6.0 + 0.01 * u,
+                }
+            })
+            .collect();
+        let pose = nalgebra::Isometry3::new(
+            nalgebra::Vector3::new(0.3, -1.2, 0.7),
+            nalgebra::Vector3::new(0.2, 0.1, 0.05),
+        );
+        let frame = DepthFrame {
+            intrinsics: k,
+            world_from_camera: pose,
+            depth_m: Image {
+                width: w,
+                height: h,
+                data,
+            },
+            color: None,
+        };
+        let params = DepthFusionParams::default();
+        for (voxel, mu) in [(0.1f32, 0.8f32), (0.05, 0.4), (0.05, 0.2)] {
+            let grid = GridParams {
+                voxel_size_m: voxel,
+                truncation_m: mu,
+            };
+            let with = list_band(&grid, &frame, &params, true);
+            let without = list_band(&grid, &frame, &params, false);
+            assert!(with.blocks.len() > 100);
+            assert_eq!(with.blocks, without.blocks, "voxel {voxel} m, μ {mu} m");
+            assert_eq!(with.usable_pixels, without.usable_pixels);
+            assert_eq!(without.skipped_slices, 0);
+            assert!(with.skipped_slices > 100, "{} skipped", with.skipped_slices);
+            let usable = frame
+                .depth_m
+                .data
+                .iter()
+                .filter(|&&d| usable(d, &params))
+                .count();
+            assert_eq!(with.usable_pixels, usable);
+        }
+    }
 
     proptest! {
         #[test]
