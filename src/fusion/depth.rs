@@ -827,7 +827,7 @@ mod tests {
             .map(|p| {
                 let (u, v) = ((p % w) as f32, (p / w) as f32);
                 match () {
-                    _ if (u as u32 + 3 * v as u32) % 97 == 0 => f32::NAN,
+                    _ if (u as u32 + 3 * v as u32).is_multiple_of(97) => f32::NAN,
                     _ if (100.0..180.0).contains(&u) && (60.0..150.0).contains(&v) => {
                         2.0 + 0.003 * u
                     }
