@@ -595,6 +595,15 @@ impl ViewFrustum {
         }
         self.sides.iter().all(|n| n.dot(&c.coords) > -radius_m)
     }
+
+    /// Whether block `i`'s bounding sphere passes [`ViewFrustum::meets_sphere`]: the test that
+    /// puts an allocated block in view.
+    #[inline]
+    pub fn meets_block(&self, grid: &GridParams, i: BlockIndex) -> bool {
+        let half = 0.5 * grid.block_size_m();
+        let o = grid.block_origin(i);
+        self.meets_sphere([o[0] + half, o[1] + half, o[2] + half], half * 3f64.sqrt())
+    }
 }
 
 /// Allocated blocks of `layer` whose bounding sphere meets the camera frustum up to
@@ -612,15 +621,10 @@ pub fn visible_blocks(
 /// [`visible_blocks`] for a frustum already built.
 pub fn visible_blocks_in(layer: &Layer, frustum: &ViewFrustum) -> TouchedBlocks {
     let grid = layer.params();
-    let half = 0.5 * grid.block_size_m();
-    let radius = half * 3f64.sqrt();
     let all: Vec<BlockIndex> = layer.iter_unsorted().map(|(i, _)| *i).collect();
     let mut v: Vec<BlockIndex> = all
         .into_par_iter()
-        .filter(|i| {
-            let o = grid.block_origin(*i);
-            frustum.meets_sphere([o[0] + half, o[1] + half, o[2] + half], radius)
-        })
+        .filter(|i| frustum.meets_block(&grid, *i))
         .collect();
     v.par_sort_unstable();
     v
@@ -772,13 +776,7 @@ pub fn integrate_depth_plan(
     plan: &DepthPlan,
 ) -> (TouchedBlocks, FusionStats) {
     let grid = layer.params();
-    let half = 0.5 * grid.block_size_m();
-    let radius = half * 3f64.sqrt();
-    let in_view = |i: &BlockIndex| {
-        let o = grid.block_origin(*i);
-        plan.frustum
-            .meets_sphere([o[0] + half, o[1] + half, o[2] + half], radius)
-    };
+    let in_view = |i: &BlockIndex| plan.frustum.meets_block(&grid, *i);
     let g = &plan.geometry;
     let fused = FramePixels::with(frame, params, |pixels| {
         layer.update_in_place(&plan.band, in_view, |index, block| {

@@ -159,9 +159,10 @@ impl Layer {
     }
 
     /// Updates, in parallel and in place (no check-out and check-in through the hash map),
-    /// the blocks at the sorted indices `required` (allocating those missing, empty) and every
-    /// other allocated block `select` picks; in the blocks' order, so that neighbouring blocks
-    /// come one after the other, as a stage reading an image or a volume per block wants.
+    /// the blocks at the indices `required` (sorted, without repeats; allocating those
+    /// missing, empty) and every other allocated block `select` picks; in the blocks' order,
+    /// so that neighbouring blocks come one after the other, as a stage reading an image or a
+    /// volume per block wants.
     /// `update` returns a result and whether to keep the block: a block not kept is dropped.
     /// Returns the updated indices, sorted, with the results and whether each was kept.
     pub fn update_in_place<R: Send>(
@@ -171,6 +172,10 @@ impl Layer {
         update: impl Fn(&BlockIndex, &mut Block) -> (R, bool) + Sync,
     ) -> Vec<(BlockIndex, R, bool)> {
         use rayon::prelude::*;
+        debug_assert!(
+            required.windows(2).all(|w| w[0] < w[1]),
+            "required: sorted, no repeats"
+        );
         let required_set = SortedSet::new(required);
         // The allocated blocks to update, by sort key.
         let mut picked: Vec<(u64, &mut Block)> = self
