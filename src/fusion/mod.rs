@@ -18,6 +18,7 @@
 //! position along the ray, and only voxels the ray traverses inside the band are updated.
 //! Neither integrator carves free space outside the band (blocks are allocated only near surfaces).
 
+mod band;
 mod depth;
 mod depth_block;
 mod depth_gpu;
@@ -25,10 +26,10 @@ mod lidar;
 mod lidar_gpu;
 pub mod traverse;
 
+pub use band::{depth_frame_blocks, depth_frame_blocks_exact, BAND_TILE_PX};
 pub use depth::{
-    depth_frame_blocks, depth_frame_blocks_exact, integrate_depth, integrate_depth_plan,
-    visible_blocks, visible_blocks_in, DepthFusionParams, DepthGeometry, DepthPlan, ViewFrustum,
-    BAND_TILE_PX,
+    integrate_depth, integrate_depth_plan, visible_blocks, visible_blocks_in, DepthFusionParams,
+    DepthGeometry, DepthPlan, ViewFrustum,
 };
 pub use depth_gpu::{integrate_depth_gpu, integrate_depth_resident};
 pub(crate) use lidar::band_m;
