@@ -153,8 +153,7 @@ impl TileLister<'_> {
             lo: f32::INFINITY,
             hi: f32::NEG_INFINITY,
         };
-        let (min_m, max_m) = (self.params.min_depth_m, self.params.max_depth_m);
-        let usable = |d: f32| d.is_finite() & (d >= min_m) & (d <= max_m);
+        let usable = |d: f32| usable(d, self.params);
         for v in tile.v[0]..=tile.v[1] {
             let row = v * self.width;
             let row = &self.data[row + tile.u[0]..=row + tile.u[1]];
@@ -528,7 +527,6 @@ mod tests {
     use super::*;
     use crate::camera::PinholeIntrinsics;
     use crate::frame::Image;
-    use crate::fusion::depth::usable;
     use proptest::prelude::*;
 
     #[test]

@@ -137,20 +137,9 @@ impl Layer {
         &mut self,
         blocks: Vec<(BlockIndex, Box<Block>)>,
     ) -> Vec<BlockIndex> {
-        self.put_blocks_observed_unless(blocks, |_| false)
-    }
-
-    /// [`Layer::put_blocks_observed`] where the caller knows that the `k`-th block has a voxel
-    /// in Ω when `known_observed(k)` (fusion updated one of its voxels), so only the others are
-    /// scanned.
-    pub fn put_blocks_observed_unless(
-        &mut self,
-        blocks: Vec<(BlockIndex, Box<Block>)>,
-        known_observed: impl Fn(usize) -> bool,
-    ) -> Vec<BlockIndex> {
         let mut kept = Vec::with_capacity(blocks.len());
-        for (k, (i, b)) in blocks.into_iter().enumerate() {
-            if known_observed(k) || b.observed() {
+        for (i, b) in blocks {
+            if b.observed() {
                 kept.push(i);
                 self.blocks.insert(i, b);
             }
