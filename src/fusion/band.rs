@@ -148,47 +148,7 @@ impl TileLister<'_> {
     /// The usable depths of `tile`.
     #[inline]
     fn range(&self, tile: Tile) -> TileRange {
-        let mut r = TileRange {
-            count: 0,
-            lo: f32::INFINITY,
-            hi: f32::NEG_INFINITY,
-        };
-        let usable = |d: f32| usable(d, self.params);
-        for v in tile.v[0]..=tile.v[1] {
-            let row = v * self.width;
-            let row = &self.data[row + tile.u[0]..=row + tile.u[1]];
-            if let Ok(full) = <&[f32; BAND_TILE_PX]>::try_from(row) {
-                // A full tile's row, lane-wise as one vector (usable depths are finite, so
-                // the selects are the minimum and maximum).
-                let ok = full.map(usable);
-                r.count += ok.iter().filter(|&&k| k).count();
-                let lo = std::array::from_fn::<f32, BAND_TILE_PX, _>(|i| {
-                    if ok[i] {
-                        full[i]
-                    } else {
-                        f32::INFINITY
-                    }
-                });
-                let hi = std::array::from_fn::<f32, BAND_TILE_PX, _>(|i| {
-                    if ok[i] {
-                        full[i]
-                    } else {
-                        f32::NEG_INFINITY
-                    }
-                });
-                r.lo = lo.iter().fold(r.lo, |a, &b| if b < a { b } else { a });
-                r.hi = hi.iter().fold(r.hi, |a, &b| if b > a { b } else { a });
-            } else {
-                for &d in row {
-                    if usable(d) {
-                        r.count += 1;
-                        r.lo = r.lo.min(d);
-                        r.hi = r.hi.max(d);
-                    }
-                }
-            }
-        }
-        r
+        tile_range(self.data, self.width, tile, self.params)
     }
 
     /// The usable depths of `tile`, sorted, into `depths`.
@@ -204,6 +164,57 @@ impl TileLister<'_> {
         }
         depths.sort_unstable_by(f32::total_cmp);
     }
+}
+
+/// The usable depths of `tile` in the image `data` of rows `width` pixels long. Compiled for
+/// AVX-512, AVX2 and the baseline, picked at run time (a full tile's row is one vector).
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512vl+avx2+avx+sse4.1",
+    "x86_64+avx2+avx+sse4.1",
+    "x86_64+sse4.1"
+))]
+fn tile_range(data: &[f32], width: usize, tile: Tile, params: &DepthFusionParams) -> TileRange {
+    let mut r = TileRange {
+        count: 0,
+        lo: f32::INFINITY,
+        hi: f32::NEG_INFINITY,
+    };
+    let usable = |d: f32| usable(d, params);
+    for v in tile.v[0]..=tile.v[1] {
+        let row = v * width;
+        let row = &data[row + tile.u[0]..=row + tile.u[1]];
+        if let Ok(full) = <&[f32; BAND_TILE_PX]>::try_from(row) {
+            // A full tile's row, lane-wise as one vector (usable depths are finite, so
+            // the selects are the minimum and maximum).
+            let ok = full.map(usable);
+            r.count += ok.iter().filter(|&&k| k).count();
+            let lo = std::array::from_fn::<f32, BAND_TILE_PX, _>(|i| {
+                if ok[i] {
+                    full[i]
+                } else {
+                    f32::INFINITY
+                }
+            });
+            let hi = std::array::from_fn::<f32, BAND_TILE_PX, _>(|i| {
+                if ok[i] {
+                    full[i]
+                } else {
+                    f32::NEG_INFINITY
+                }
+            });
+            r.lo = lo.iter().fold(r.lo, |a, &b| if b < a { b } else { a });
+            r.hi = hi.iter().fold(r.hi, |a, &b| if b > a { b } else { a });
+        } else {
+            for &d in row {
+                if usable(d) {
+                    r.count += 1;
+                    r.lo = r.lo.min(d);
+                    r.hi = r.hi.max(d);
+                }
+            }
+        }
+    }
+    r
 }
 
 /// Lists the blocks of one tile (whose usable depths are `range`) into `out`: its usable
@@ -328,32 +339,30 @@ impl SliceGeometry {
         self.blocks_of_slice(a, b, (lo - l.mu).max(0.0), hi + l.mu, out);
     }
 
-    /// The blocks `first .. end` (per axis) of the box around the corners at depths `za` and
-    /// `zb` on `rays`, widened by `margin_m`.
+    /// The blocks `first .. end` (per axis) of the box around the slice's corners at depths `za`
+    /// and `zb` (`0 ≤ za ≤ zb`), widened by `margin_m`; `rays` bounds its edge rays per axis.
+    ///
+    /// The same box as the eight corners `origin + z·ray` give one by one: for `z ≥ 0`, the
+    /// rounded `z·r` and `origin + z·r` do not decrease with `r`, so the least (greatest) corner
+    /// coordinate at a depth is the one of the least (greatest) ray component.
     #[inline]
     fn corner_box(
         &self,
-        rays: &[Vector3<f64>; 4],
+        rays: &RayBounds,
         za: f64,
         zb: f64,
         margin_m: f64,
         inv_block: f64,
     ) -> ([i64; 3], [i64; 3]) {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for z in [za, zb] {
-            for ray in rays {
-                for k in 0..3 {
-                    let c = self.origin[k] + z * ray[k];
-                    lo[k] = lo[k].min(c);
-                    hi[k] = hi[k].max(c);
-                }
-            }
-        }
         let (mut first, mut end) = ([0i64; 3], [0i64; 3]);
         for k in 0..3 {
-            first[k] = floor_div(lo[k] - margin_m, self.block_m, inv_block);
-            end[k] = floor_div(hi[k] + margin_m, self.block_m, inv_block) + 1;
+            let o = self.origin[k];
+            let (lo_a, lo_b) = (o + za * rays.lo[k], o + zb * rays.lo[k]);
+            let (hi_a, hi_b) = (o + za * rays.hi[k], o + zb * rays.hi[k]);
+            let lo = if lo_b < lo_a { lo_b } else { lo_a };
+            let hi = if hi_b > hi_a { hi_b } else { hi_a };
+            first[k] = floor_div(lo - margin_m, self.block_m, inv_block);
+            end[k] = floor_div(hi + margin_m, self.block_m, inv_block) + 1;
         }
         (first, end)
     }
@@ -397,7 +406,7 @@ impl SliceGeometry {
         let view_reach = reach(&view);
         // The slice's four edge rays (z = 1), world frame: a corner at depth z is origin + z·ray.
         let ray = |i: usize, j: usize| (cx * a[i] + cy * b[j]) + cz;
-        let rays = [ray(0, 0), ray(0, 1), ray(1, 0), ray(1, 1)];
+        let rays = RayBounds::of(&[ray(0, 0), ray(0, 1), ray(1, 0), ray(1, 1)]);
         let inv_block = 1.0 / self.block_m;
         let pieces = ((z1 - z0) / self.block_m).ceil().max(1.0) as usize;
         // Every block a piece can list lies in the box of the slice's eight corners (widened
@@ -447,6 +456,29 @@ impl SliceGeometry {
                 }
             }
         }
+    }
+}
+
+/// The least and greatest components, per axis, of a slice's four edge rays (world frame).
+struct RayBounds {
+    lo: [f64; 3],
+    hi: [f64; 3],
+}
+
+impl RayBounds {
+    #[inline]
+    fn of(rays: &[Vector3<f64>; 4]) -> Self {
+        let mut b = RayBounds {
+            lo: [f64::INFINITY; 3],
+            hi: [f64::NEG_INFINITY; 3],
+        };
+        for ray in rays {
+            for k in 0..3 {
+                b.lo[k] = b.lo[k].min(ray[k]);
+                b.hi[k] = b.hi[k].max(ray[k]);
+            }
+        }
+        b
     }
 }
 
@@ -595,6 +627,41 @@ mod tests {
     }
 
     proptest! {
+        #[test]
+        fn corner_box_is_the_box_of_the_eight_corners(
+            origin in prop::array::uniform3(-1e4f64..1e4),
+            rays in prop::array::uniform4(prop::array::uniform3(-2.0f64..2.0)),
+            za in 0.0f64..60.0,
+            depth in 0.0f64..5.0,
+            zero in any::<bool>(),
+            block_m in prop::sample::select(vec![0.8, 0.4, 0.2, 0.1, 1.0 / 3.0]),
+        ) {
+            // The corners one by one, as `origin + z·ray` (the listing before the ray bounds).
+            let za = if zero { 0.0 } else { za };
+            let zb = za + depth;
+            let rays = rays.map(Vector3::from);
+            let g = SliceGeometry {
+                columns: [Vector3::x(), Vector3::y(), Vector3::z()],
+                origin: Vector3::from(origin),
+                block_m,
+            };
+            let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+            for z in [za, zb] {
+                for ray in &rays {
+                    for k in 0..3 {
+                        let c = g.origin[k] + z * ray[k];
+                        lo[k] = lo[k].min(c);
+                        hi[k] = hi[k].max(c);
+                    }
+                }
+            }
+            let margin_m = 1e-6;
+            let first = lo.map(|x| crate::grid::floor_i64((x - margin_m) / block_m));
+            let end = hi.map(|x| crate::grid::floor_i64((x + margin_m) / block_m) + 1);
+            let got = g.corner_box(&RayBounds::of(&rays), za, zb, margin_m, 1.0 / block_m);
+            prop_assert_eq!(got, (first, end));
+        }
+
         #[test]
         fn floor_div_is_the_floor_of_the_quotient(
             x in -1e6f64..1e6,

@@ -30,8 +30,8 @@ impl Default for DepthFusionParams {
 }
 
 /// Whether a depth is used: finite and within `[min_depth_m, max_depth_m]` (shared with the GPU
-/// twin, `src/gpu/fuse.rs`).
-#[inline]
+/// twin, `src/gpu/fuse.rs`). Always inlined, also into the kernels compiled for wider vectors.
+#[inline(always)]
 pub(crate) fn usable(d: f32, p: &DepthFusionParams) -> bool {
     d.is_finite() && d >= p.min_depth_m && d <= p.max_depth_m
 }

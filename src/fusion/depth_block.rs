@@ -78,24 +78,39 @@ impl FramePixels {
             .enumerate()
             .for_each(|(chunk, out)| {
                 let pixels = chunk * PREPARE_CHUNK..chunk * PREPARE_CHUNK + out.len();
-                let depth = |d: f32| if usable(d, params) { d } else { f32::NAN }.to_bits() as u64;
                 match color {
                     Some(c) => {
-                        for ((o, &d), &c) in out
-                            .iter_mut()
-                            .zip(&src[pixels.clone()])
-                            .zip(&c.data[pixels])
-                        {
-                            *o = depth(d) | (pack_rgb(c) as u64) << 32;
-                        }
+                        pack_words::<true>(out, &src[pixels.clone()], &c.data[pixels], params)
                     }
-                    None => {
-                        for (o, &d) in out.iter_mut().zip(&src[pixels]) {
-                            *o = depth(d);
-                        }
-                    }
+                    None => pack_words::<false>(out, &src[pixels], &[], params),
                 }
             });
+    }
+}
+
+/// The words of [`FramePixels`] for `depth_m` and (when `COLOR`) `rgb`, into `out`. Compiled
+/// for AVX-512, AVX2 and the baseline, picked at run time (the colours' 3-byte stride is
+/// unpacked by vector shuffles where the target has them).
+#[multiversion::multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512vl+avx512vbmi+avx2+avx+sse4.1",
+    "x86_64+avx2+avx+sse4.1",
+    "x86_64+sse4.1"
+))]
+fn pack_words<const COLOR: bool>(
+    out: &mut [u64],
+    depth_m: &[f32],
+    rgb: &[[u8; 3]],
+    params: &DepthFusionParams,
+) {
+    let depth = |d: f32| if usable(d, params) { d } else { f32::NAN }.to_bits() as u64;
+    if COLOR {
+        for ((o, &d), &c) in out.iter_mut().zip(depth_m).zip(rgb) {
+            *o = depth(d) | (pack_rgb(c) as u64) << 32;
+        }
+    } else {
+        for (o, &d) in out.iter_mut().zip(depth_m) {
+            *o = depth(d);
+        }
     }
 }
 
