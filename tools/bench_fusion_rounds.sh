@@ -54,6 +54,9 @@ fi
 rounds=${ROUNDS:-10}
 raw=$(mktemp)
 trap 'rm -f "$raw"' EXIT
+build() { # tool -> the path of its denser build
+  if [[ $1 == after ]]; then echo "$AFTER"; else echo "$BEFORE"; fi
+}
 denser_rows() { # round tool frames: `denser bench` table rows -> raw lines
   awk -v r="$1" -v b="$2" -v f="$3" -F'|' '/ cm /{gsub(/ /,"",$2); gsub(/ /,"",$4); print r, b, f, $2, $4}'
 }
@@ -66,13 +69,12 @@ for j in map(json.loads, sys.stdin):
 }
 for r in $(seq 1 "$rounds"); do
   for tool in before after; do
-    bin=$BEFORE; [[ $tool == after ]] && bin=$AFTER
-    "$bin" bench --passes 5 2>/dev/null | denser_rows "$r" "$tool" rgbd
+    "$(build "$tool")" bench --passes 5 2>/dev/null | denser_rows "$r" "$tool" rgbd
   done
   python3 "$here/bench_open3d.py" --passes 5 2>/dev/null | grep '^{' | open3d_rows "$r" rgbd
   for tool in before after; do
-    bin=$BEFORE; [[ $tool == after ]] && bin=$AFTER
-    "$bin" bench --rgbd "$STREET" --passes 3 --max-depth-m 40 2>/dev/null | denser_rows "$r" "$tool" street
+    "$(build "$tool")" bench --rgbd "$STREET" --passes 3 --max-depth-m 40 2>/dev/null \
+      | denser_rows "$r" "$tool" street
   done
   python3 "$here/bench_open3d.py" --kitti "$STREET" --passes 3 --depth-max 40 2>/dev/null | grep '^{' | open3d_rows "$r" street
 done | tee "$raw"

@@ -340,7 +340,8 @@ impl SliceGeometry {
     }
 
     /// The blocks `first .. end` (per axis) of the box around the slice's corners at depths `za`
-    /// and `zb` (`0 ≤ za ≤ zb`), widened by `margin_m`; `rays` bounds its edge rays per axis.
+    /// and `zb` (both ≥ 0, in either order), widened by `margin_m`; `rays` bounds its edge rays
+    /// per axis.
     ///
     /// The same box as the eight corners `origin + z·ray` give one by one: for `z ≥ 0`, the
     /// rounded `z·r` and `origin + z·r` do not decrease with `r`, so the least (greatest) corner
