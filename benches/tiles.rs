@@ -11,12 +11,13 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use denser::backend::Backend;
 use denser::fusion::{integrate_depth, DepthFusionParams};
 use denser::grid::{Block, BlockIndex, GridParams, Layer};
+use denser::map::codec::{decode_chunk, encode_chunk, ChunkHeader};
+use denser::map::store::MapStore;
+use denser::map::{group_by_chunk, ChunkIndex};
+use denser::outofcore::pager::{OverrunPolicy, PagerConfig};
+use denser::outofcore::regional::RegionalOptions;
+use denser::outofcore::PagedStore;
 use denser::reconstruct::{ReconstructionConfig, Reconstructor};
-use denser::tiles::codec::{decode_chunk, encode_chunk, ChunkHeader};
-use denser::tiles::pager::{OverrunPolicy, PagerConfig};
-use denser::tiles::regional::RegionalOptions;
-use denser::tiles::store::MapStore;
-use denser::tiles::{group_by_chunk, ChunkIndex, PagedStore};
 
 const GRID: GridParams = GridParams {
     voxel_size_m: 0.05,
@@ -105,8 +106,9 @@ fn paging(c: &mut Criterion) {
                         region_chunks: 2,
                         budget_bytes: 1 << 30,
                         halo_blocks: None,
-                        sweep_iterations: Some(denser::tiles::sweeps::DEFAULT_SWEEP_ITERATIONS),
+                        sweep_iterations: Some(denser::outofcore::sweeps::DEFAULT_SWEEP_ITERATIONS),
                     },
+                    denser::export::write_map_surface,
                 );
                 let config = ReconstructionConfig {
                     grid: GRID,

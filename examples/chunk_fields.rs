@@ -5,11 +5,11 @@
 //! files, and encode/decode milliseconds per chunk. Usage: `chunk_fields MAP_DIR [ZSTD_LEVEL]`.
 
 use denser::grid::{Block, BlockIndex};
-use denser::tiles::codec::{
+use denser::map::codec::{
     decode_chunk, encode_chunk_v3, encode_chunk_with, local_order, payload_planes,
     STRUCTURED_ZSTD_LEVEL,
 };
-use denser::tiles::store::MapStore;
+use denser::map::store::MapStore;
 use std::time::Instant;
 
 fn main() -> denser::Result<()> {

@@ -2,7 +2,7 @@
 //! as `u − f` (chunk format 1) vs. as deltas of `u` along the coded voxels. Usage:
 //! `chunk_levels MAP_DIR [MAX_CHUNKS]`.
 
-use denser::tiles::store::MapStore;
+use denser::map::store::MapStore;
 
 fn zz(d: i16) -> u16 {
     ((d << 1) ^ (d >> 15)) as u16

@@ -6,8 +6,8 @@
 //! map's latest pass). Usage: `tv_global MAP [REGULARISED_MAP]`.
 
 use denser::grid::{decode_tsdf, Layer};
+use denser::map::store::MapStore;
 use denser::regularize::{TvParams, TvProblem};
-use denser::tiles::store::MapStore;
 use std::path::Path;
 
 fn cpu_seconds() -> f64 {

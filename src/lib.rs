@@ -6,7 +6,13 @@
 //! voxel grid ([`grid`]); [`regularize`] runs the Ω-aware TV regulariser; [`mesh`] extracts
 //! coloured surfaces; [`eval`] scores them against ground truth. [`reconstruct`] drives the
 //! stages over a [`store::BlockStore`] (the map in RAM, or paged through chunk files by
-//! [`tiles`]) with the stages of one [`backend::Backend`] (CPU, or GPU through [`gpu`]).
+//! [`outofcore`]) with the stages of one [`backend::Backend`] (CPU, or GPU through [`gpu`]).
+//!
+//! Out of core, three rooms, each importing only from the rooms below it: [`map`], the storage
+//! engine (chunk files, manifest, commits, locks, repair; it knows nothing above it);
+//! [`outofcore`], the algorithms over a stored map (pager, regional and swept regularisation,
+//! shards, merge); [`export`], the map's surfaces as meshes, point clouds and 3D Tiles. The rule
+//! is checked by `tests/core/rooms.rs`.
 
 // Validation writes `!(x > 0.0)` on purpose: NaN fails it, where `x <= 0.0` would let NaN
 // through.
@@ -17,19 +23,21 @@ pub mod camera;
 pub mod depth;
 pub mod error;
 pub mod eval;
+pub mod export;
 pub mod frame;
 pub mod fusion;
 pub mod geo;
 pub mod gpu;
 pub mod grid;
 pub mod io;
+pub mod map;
 pub mod memory;
 pub mod mesh;
+pub mod outofcore;
 pub mod progress;
 pub mod reconstruct;
 pub mod regularize;
 pub mod store;
 pub mod synth;
-pub mod tiles;
 
 pub use error::{Error, Result};

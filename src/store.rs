@@ -4,7 +4,7 @@
 //! every line above this trait.
 //!
 //! - [`MemoryStore`]: the whole map is one layer in RAM; nothing to page, commits are no-ops.
-//! - [`crate::tiles::PagedStore`]: the map is a directory of chunk files; blocks are paged in
+//! - [`crate::outofcore::PagedStore`]: the map is a directory of chunk files; blocks are paged in
 //!   around the camera within a byte budget, commits are checkpoints a killed run resumes from,
 //!   regularisation runs region by region with exact halos, meshes are exported tile by tile.
 //!
@@ -239,7 +239,7 @@ impl TvSolver for Chunked<'_> {
 
 /// RAM the in-memory path needs per allocated block for the whole run: the block with a
 /// regularised field (8 B/voxel and its hash slot) and the regulariser's arrays over it
-/// (`tiles::regional::SOLVER_BYTES_PER_VOXEL`, 30 B/voxel), bytes.
+/// (`outofcore::regional::SOLVER_BYTES_PER_VOXEL`, 30 B/voxel), bytes.
 pub const MEMORY_RUN_BYTES_PER_BLOCK: u64 = (VOXELS_PER_BLOCK as u64) * (8 + 30) + 32;
 
 /// The whole map in one RAM [`Layer`].

@@ -4,11 +4,11 @@
 
 use super::Outcome;
 use anyhow::{bail, Context, Result};
+use denser::export::{self, Bbox, ExportOptions, ExportStats, ExportTarget};
 use denser::geo::WorldFrame;
+use denser::map::store::MapStore;
+use denser::map::MapLocation;
 use denser::mesh::Field;
-use denser::tiles::export::{self, Bbox, ExportOptions, ExportStats, ExportTarget};
-use denser::tiles::store::MapStore;
-use denser::tiles::MapLocation;
 use std::fmt;
 use std::path::PathBuf;
 
@@ -64,8 +64,8 @@ pub(crate) struct Args {
 
 struct PartWritten {
     map: MapLocation,
-    shard: denser::tiles::shards::Shard,
-    stats: denser::tiles::parts::PartStats,
+    shard: denser::outofcore::shards::Shard,
+    stats: denser::export::parts::PartStats,
 }
 
 impl fmt::Display for PartWritten {
@@ -217,7 +217,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         );
     }
     if let Some(spec) = &a.shard {
-        let shard = denser::tiles::shards::Shard::parse(spec)?;
+        let shard = denser::outofcore::shards::Shard::parse(spec)?;
         let frame = match (&options.frame, &target) {
             (Some(f), _) => f.clone(),
             (None, ExportTarget::Mesh(p) | ExportTarget::Points(p))
@@ -228,7 +228,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
             (None, _) => WorldFrame::local_z_up(),
         };
         let chunks = export::chunks_in(&store, &frame, options.bbox);
-        let stats = denser::tiles::parts::write_part(&store, field, &chunks, shard)
+        let stats = denser::export::parts::write_part(&store, field, &chunks, shard)
             .with_context(|| format!("export shard {shard} of {}", a.dir))?;
         return Ok(Box::new(PartWritten {
             map: a.dir,
@@ -246,7 +246,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
             denser::io::atomic::check_output_file(p)?
         }
     }
-    let parts = denser::tiles::parts::ExportParts::load(&store, field)
+    let parts = denser::export::parts::ExportParts::load(&store, field)
         .context("reading the export shards' parts")?
         .map(std::sync::Arc::new);
     if let Some(p) = &parts {

@@ -3,8 +3,8 @@
 
 use super::{mib, Outcome, Problems};
 use anyhow::{Context, Result};
-use denser::tiles::store::MapStore;
-use denser::tiles::MapLocation;
+use denser::map::store::MapStore;
+use denser::map::MapLocation;
 use std::fmt;
 
 #[derive(clap::Args)]
@@ -35,7 +35,7 @@ impl fmt::Display for Inspected {
         let s = self.store.summary();
         let h = self.store.manifest().header;
         let passes = self.store.manifest().pass_status();
-        let frames = if h.frames_committed == denser::tiles::manifest::FRAMES_UNKNOWN {
+        let frames = if h.frames_committed == denser::map::manifest::FRAMES_UNKNOWN {
             "unknown (repaired map: fusion cannot resume)".to_string()
         } else {
             h.frames_committed.to_string()
@@ -109,11 +109,12 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     let problems = if a.verify { store.verify() } else { Vec::new() };
     let chunks = store.summary().chunks;
     let files = store.files().clone();
-    let shard_plans = denser::tiles::shards::plans(&*files)?
+    let shard_plans = denser::outofcore::shards::plans(&*files)?
         .into_iter()
         .map(|p| {
             let key = u64::from_str_radix(&p.key, 16).unwrap_or(0);
-            let done = denser::tiles::shards::recorded_regions(&*files, key).map_or(0, |v| v.len());
+            let done =
+                denser::outofcore::shards::recorded_regions(&*files, key).map_or(0, |v| v.len());
             (p.pass, done, p.regions, p.key)
         })
         .collect();

@@ -4,8 +4,8 @@
 
 use super::{mib, parse_bytes, Outcome};
 use anyhow::{Context, Result};
-use denser::tiles::merge::{merge, MergeStats};
-use denser::tiles::MapLocation;
+use denser::map::MapLocation;
+use denser::outofcore::merge::{merge, MergeStats};
 use std::fmt;
 
 #[derive(clap::Args)]

@@ -399,19 +399,19 @@ pub(crate) struct BudgetArgs {
     /// Regularisation iterations per sweep: every region this many iterations at a time, the
     /// solver state kept in the map between sweeps, a halo of (this + 1) voxels (15: two blocks, 7: one);
     /// 0 solves each region with all iterations at once and the exact halo.
-    #[arg(long, default_value_t = denser::tiles::sweeps::DEFAULT_SWEEP_ITERATIONS)]
+    #[arg(long, default_value_t = denser::outofcore::sweeps::DEFAULT_SWEEP_ITERATIONS)]
     pub sweep_iterations: u32,
 }
 
 impl BudgetArgs {
     /// Regional regularisation within this budget.
-    pub fn regional(&self) -> denser::Result<denser::tiles::regional::RegionalOptions> {
+    pub fn regional(&self) -> denser::Result<denser::outofcore::regional::RegionalOptions> {
         if self.region_chunks == Some(0) {
             return Err(denser::Error::InvalidArgument(
                 "--region-chunks must be at least 1 (leave it out to fit the budget)".into(),
             ));
         }
-        Ok(denser::tiles::regional::RegionalOptions {
+        Ok(denser::outofcore::regional::RegionalOptions {
             region_chunks: self.region_chunks.unwrap_or(0),
             budget_bytes: denser::memory::data_share_bytes(self.memory_budget),
             halo_blocks: None,

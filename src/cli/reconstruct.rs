@@ -15,16 +15,18 @@ use denser::eval::{evaluate_reconstruction, EvaluationReport, GroundTruth, RunFa
 use denser::io::sequence::{
     detect_input, open_sequence, FrameRange, InputKind, RangeSource, Sequence,
 };
+use denser::map::job::{relative_hint, JobRecord};
+use denser::map::layout::MANIFEST_FILE;
+use denser::map::manifest::FRAMES_UNKNOWN;
+use denser::map::store::MapStore;
+use denser::map::MapLocation;
 use denser::memory::peak_rss_bytes;
 use denser::mesh::Field;
+use denser::outofcore::pager::{OverrunPolicy, PagerConfig};
+use denser::outofcore::regional::check_budget_up_front;
+use denser::outofcore::PagedStore;
 use denser::reconstruct::{ReconstructionConfig, Reconstructor, RegularizeOutcome};
 use denser::store::{BlockStore, MemoryStore, SurfaceOutput};
-use denser::tiles::job::{relative_hint, JobRecord};
-use denser::tiles::manifest::FRAMES_UNKNOWN;
-use denser::tiles::pager::{OverrunPolicy, PagerConfig};
-use denser::tiles::regional::check_budget_up_front;
-use denser::tiles::store::{MapStore, MANIFEST_FILE};
-use denser::tiles::{MapLocation, PagedStore};
 use std::fmt;
 use std::path::PathBuf;
 
@@ -368,11 +370,11 @@ fn ram_limit_bytes() -> u64 {
 /// regularising one chunk with its halo might not fit the budget (`check`), down to 4 blocks
 /// (whose refusal, if even that does not fit, names the budget that would do).
 fn planned_chunk_blocks(check: impl Fn(u32) -> denser::Result<()>) -> denser::Result<u32> {
-    let mut c = denser::tiles::DEFAULT_CHUNK_BLOCKS;
+    let mut c = denser::map::DEFAULT_CHUNK_BLOCKS;
     loop {
         match check(c) {
             Ok(()) => {
-                if c != denser::tiles::DEFAULT_CHUNK_BLOCKS {
+                if c != denser::map::DEFAULT_CHUNK_BLOCKS {
                     tracing::info!(
                         "chunks of {c}³ blocks, so that regularising one region fits the memory budget"
                     );
@@ -475,6 +477,7 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
             writer_threads: 2,
         },
         regional,
+        denser::export::write_map_surface,
     ))
 }
 

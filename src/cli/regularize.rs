@@ -5,12 +5,13 @@
 use super::reconstruct::RegularizeLine;
 use super::{mib, BudgetArgs, DeviceArgs, Outcome, TvArgs};
 use anyhow::{Context, Result};
+use denser::map::store::MapStore;
+use denser::map::MapLocation;
+use denser::outofcore::regional::{regularize_shard, MapRegularizeStats};
+use denser::outofcore::shards::Shard;
+use denser::outofcore::PagedStore;
 use denser::reconstruct::{ReconstructionConfig, Reconstructor, RegularizeOutcome};
 use denser::regularize::TvSolver;
-use denser::tiles::regional::{regularize_shard, MapRegularizeStats};
-use denser::tiles::shards::Shard;
-use denser::tiles::store::MapStore;
-use denser::tiles::{MapLocation, PagedStore};
 use std::fmt;
 
 #[derive(clap::Args)]
@@ -153,7 +154,11 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     let device = backend.device_name();
     let mut rec = Reconstructor::with_store(
         config,
-        Box::new(PagedStore::stored(store, a.budget.regional()?)),
+        Box::new(PagedStore::stored(
+            store,
+            a.budget.regional()?,
+            denser::export::write_map_surface,
+        )),
         backend,
         0,
     )?;

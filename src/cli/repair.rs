@@ -3,7 +3,7 @@
 
 use super::Outcome;
 use anyhow::{Context, Result};
-use denser::tiles::repair::RepairReport;
+use denser::map::repair::RepairReport;
 use std::fmt;
 use std::path::PathBuf;
 
@@ -59,7 +59,7 @@ impl fmt::Display for Repaired {
 }
 
 pub(crate) fn run(a: Args) -> Result<Outcome> {
-    let report = denser::tiles::repair::repair(&a.dir)
+    let report = denser::map::repair::repair(&a.dir)
         .with_context(|| format!("repairing map {}", a.dir.display()))?;
     Ok(Box::new(Repaired {
         dir: a.dir,

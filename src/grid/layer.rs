@@ -10,6 +10,13 @@ use super::index::{BlockIndex, GridParams, VoxelIndex, VOXELS_PER_BLOCK};
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
+/// RAM bytes of a block's slot in the layer's hash table: its key, the box, one control byte.
+const SLOT_BYTES: usize = std::mem::size_of::<BlockIndex>() + std::mem::size_of::<Box<Block>>() + 1;
+
+/// RAM bytes of one resident block with its hash slot (regularised field not included), the unit
+/// of every memory budget over resident blocks (the pager's residency, a region's working memory).
+pub const BLOCK_RESIDENT_BYTES: u64 = (std::mem::size_of::<Block>() + SLOT_BYTES) as u64;
+
 /// Block indices a stage touched, sorted and without duplicates.
 pub type TouchedBlocks = Vec<BlockIndex>;
 
@@ -237,9 +244,8 @@ impl Layer {
 
     /// Bytes held in RAM: blocks plus the hash table's slots (key, pointer, control byte).
     pub fn memory_bytes(&self) -> usize {
-        let slot = std::mem::size_of::<BlockIndex>() + std::mem::size_of::<Box<Block>>() + 1;
         let blocks: usize = self.blocks.values().map(|b| b.heap_bytes()).sum();
-        blocks + self.blocks.capacity() * slot
+        blocks + self.blocks.capacity() * SLOT_BYTES
     }
 
     /// RAM bytes per allocated voxel ([`Layer::memory_bytes`] / (blocks · 512)).

@@ -22,5 +22,5 @@ pub use index::{
     floor_i64, linear_index, local_coords, round_i64, BlockIndex, GridParams, VoxelIndex,
     VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
 };
-pub use layer::{BlockHasher, Layer, TouchedBlocks};
+pub use layer::{BlockHasher, Layer, TouchedBlocks, BLOCK_RESIDENT_BYTES};
 pub use residency::{eviction_order, EvictionCandidate};

@@ -6,7 +6,7 @@
 //! previous complete pass still exportable, and finished by the next run (which recovers the
 //! killed run's stale lock).
 
-use denser::tiles::manifest::decode_manifest;
+use denser::map::manifest::decode_manifest;
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -138,7 +138,7 @@ fn chunk_files(map: &Path) -> Vec<String> {
     v
 }
 
-fn manifest(map: &Path) -> Option<denser::tiles::manifest::Manifest> {
+fn manifest(map: &Path) -> Option<denser::map::manifest::Manifest> {
     decode_manifest(&std::fs::read(map.join("manifest.dmf")).ok()?).ok()
 }
 
@@ -265,10 +265,10 @@ fn a_swapped_chunk_is_refused_by_export_and_regularize() {
         })
         .expect("a chunk that grew after frame 5");
     let e_new = new.chunks[c];
-    let name = denser::tiles::manifest::chunk_file_name(*c, e_new.file_seq);
+    let name = denser::map::manifest::chunk_file_name(*c, e_new.file_seq);
     std::fs::copy(
         d.join("old/chunks")
-            .join(denser::tiles::manifest::chunk_file_name(*c, e_old.file_seq)),
+            .join(denser::map::manifest::chunk_file_name(*c, e_old.file_seq)),
         d.join("new/chunks").join(&name),
     )
     .expect("swap");

@@ -6,8 +6,8 @@
 //! the two halves of a drive against the whole drive's map (stated tolerances).
 
 use crate::common::{skip, Moto};
-use denser::tiles::s3::S3Files;
-use denser::tiles::store::MapStore;
+use denser::map::s3::S3Files;
+use denser::map::store::MapStore;
 use std::collections::HashMap;
 use std::path::Path;
 use std::process::{Child, Command, Output, Stdio};
@@ -95,7 +95,7 @@ fn fuse(map: &str, out: &str, d: &Path, env: &[(&'static str, String)]) {
 
 const REG: [&str; 4] = ["--iterations", "4", "--region-chunks", "1"];
 
-fn s3_files(moto: &Moto, bucket: &str, prefix: &str) -> Arc<dyn denser::tiles::files::MapFiles> {
+fn s3_files(moto: &Moto, bucket: &str, prefix: &str) -> Arc<dyn denser::map::files::MapFiles> {
     let opts = moto.options();
     Arc::new(
         S3Files::with_options(bucket, prefix, opts.iter().map(|(k, v)| (*k, v.as_str())))
@@ -118,7 +118,7 @@ fn blocks_equal(a: &MapStore, b: &MapStore) {
 }
 
 /// Region records written so far under the map's `shards/` (all plans).
-fn records(files: &dyn denser::tiles::files::MapFiles) -> usize {
+fn records(files: &dyn denser::map::files::MapFiles) -> usize {
     files
         .list_recursive("shards")
         .map(|v| v.iter().filter(|o| o.name.contains("/regions/")).count())

@@ -8,3 +8,4 @@ mod analytic;
 mod eval_analytic;
 mod eval_output;
 mod real_data;
+mod rooms;

@@ -8,14 +8,15 @@
 //! real processes: `tests/cli_engine.rs`.
 
 use denser::grid::{encode_tsdf, Block, BlockIndex, GridParams, Layer, OMEGA_BIT};
+use denser::map::codec::{encode_chunk, ChunkHeader};
+use denser::map::layout::{CHUNKS_DIR, LOCK_FILE, MANIFEST_FILE};
+use denser::map::lock::WriterLock;
+use denser::map::manifest::{chunk_file_name, encode_manifest, FRAMES_UNKNOWN};
+use denser::map::repair::repair;
+use denser::map::store::MapStore;
+use denser::map::{group_by_chunk, ChunkIndex};
+use denser::outofcore::regional::{regularize_map, RegionalOptions};
 use denser::regularize::TvParams;
-use denser::tiles::codec::{encode_chunk, ChunkHeader};
-use denser::tiles::lock::{WriterLock, LOCK_FILE};
-use denser::tiles::manifest::{chunk_file_name, encode_manifest, FRAMES_UNKNOWN};
-use denser::tiles::regional::{regularize_map, RegionalOptions};
-use denser::tiles::repair::repair;
-use denser::tiles::store::{MapStore, CHUNKS_DIR, MANIFEST_FILE};
-use denser::tiles::{group_by_chunk, ChunkIndex};
 use denser::Error;
 use std::path::Path;
 
@@ -137,10 +138,7 @@ fn a_second_writer_is_refused_at_once_naming_the_holder() {
                 holder.contains(&format!("pid {}", std::process::id())),
                 "{holder}"
             );
-            assert!(
-                holder.contains(&denser::tiles::lock::host_name()),
-                "{holder}"
-            );
+            assert!(holder.contains(&denser::map::lock::host_name()), "{holder}");
             // The command is this test binary's (`tiles-<hash>`).
             let exe = std::env::current_exe().expect("exe");
             let name = exe.file_name().expect("name").to_string_lossy();
@@ -562,7 +560,7 @@ fn repair_keeps_the_newest_intact_version_and_reports_the_rest() {
     let s = MapStore::open_read_only(&root).expect("open");
     assert!(s.verify().is_empty());
     assert_eq!(s.manifest().chunks[&c].file_seq, {
-        let (_, seq) = denser::tiles::manifest::parse_chunk_file_name(&v1_name).expect("name");
+        let (_, seq) = denser::map::manifest::parse_chunk_file_name(&v1_name).expect("name");
         seq
     });
 }
@@ -634,7 +632,7 @@ fn an_interrupted_pass_keeps_the_last_complete_pass_readable_until_it_completes(
 }
 
 /// A format-1 manifest (the same header up to byte 80, no kept table) over format-1 chunk files.
-fn v1_manifest(m: &denser::tiles::manifest::Manifest) -> Vec<u8> {
+fn v1_manifest(m: &denser::map::manifest::Manifest) -> Vec<u8> {
     let mut b = encode_manifest(m);
     b[8] = 1;
     b[80..124].iter_mut().for_each(|x| *x = 0);
@@ -657,7 +655,7 @@ fn maps_of_format_1_still_open_and_are_upgraded_by_their_next_commit() {
         let path = root.join(CHUNKS_DIR).join(chunk_file_name(*c, e.file_seq));
         let written = std::fs::read(&path).expect("read");
         assert_eq!(&written[8..10], &[3, 0], "this build writes chunk format 3");
-        let d = denser::tiles::store::read_chunk_file(&path).expect("read");
+        let d = denser::map::store::read_chunk_file(&path).expect("read");
         let refs: Vec<(BlockIndex, &Block)> = d.blocks.iter().map(|(i, b)| (*i, &**b)).collect();
         let bytes = encode_chunk(&d.header, &refs, 3);
         e.file_bytes = bytes.len() as u64;

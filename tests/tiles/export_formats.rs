@@ -8,11 +8,11 @@
 //! every exported point can be checked against the known surface. Tools that are absent (python
 //! laspy, PDAL, node, Chromium) make their part print `skipped: …` instead of failing.
 
+use denser::export::{self, ExportOptions, ExportTarget};
 use denser::geo::WorldFrame;
 use denser::grid::{linear_index, Block, BlockIndex, GridParams, Layer, VOXELS_PER_SIDE};
+use denser::map::store::MapStore;
 use denser::mesh::Field;
-use denser::tiles::export::{self, ExportOptions, ExportTarget};
-use denser::tiles::store::MapStore;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -87,7 +87,7 @@ fn analytic_map(dir: &Path, chunk_blocks: u32) -> MapStore {
         }
     }
     let mut store = MapStore::create(dir, grid, chunk_blocks).expect("create map");
-    for (c, blocks) in denser::tiles::group_by_chunk(layer.indices_sorted(), chunk_blocks) {
+    for (c, blocks) in denser::map::group_by_chunk(layer.indices_sorted(), chunk_blocks) {
         let refs: Vec<(BlockIndex, &Block)> = blocks
             .iter()
             .map(|b| (*b, layer.get(b).expect("block")))

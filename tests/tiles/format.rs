@@ -4,17 +4,18 @@
 //! corrupted chunks reported by file name).
 
 use denser::grid::{encode_tsdf, Block, BlockIndex, GridParams, OMEGA_BIT, VOXELS_PER_BLOCK};
-use denser::regularize::TvParams;
-use denser::tiles::codec::{
+use denser::map::codec::{
     decode_chunk, decode_header, decode_header_with_origin, encode_chunk, encode_chunk_with,
     encode_header, encode_header_v2, ChunkHeader, ChunkOrigin, CodecError, CHUNK_HEADER_BYTES,
     CHUNK_HEADER_V2_BYTES,
 };
-use denser::tiles::manifest::{
+use denser::map::layout::CHUNKS_DIR;
+use denser::map::manifest::{
     decode_manifest, encode_manifest, ChunkEntry, Manifest, ManifestHeader, MANIFEST_HEADER_BYTES,
 };
-use denser::tiles::store::{MapStore, CHUNKS_DIR};
-use denser::tiles::ChunkIndex;
+use denser::map::store::MapStore;
+use denser::map::ChunkIndex;
+use denser::regularize::TvParams;
 use proptest::prelude::*;
 
 fn header(chunk: ChunkIndex, chunk_blocks: u32) -> ChunkHeader {

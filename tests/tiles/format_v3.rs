@@ -4,13 +4,13 @@
 //! formats 1 and 2 still read.
 
 use denser::grid::{Block, BlockIndex, OMEGA_BIT, VOXELS_PER_BLOCK};
-use denser::regularize::TvParams;
-use denser::tiles::codec::{
+use denser::map::codec::{
     decode_chunk, decode_header_with_origin, encode_chunk, encode_chunk_v3,
     encode_chunk_v3_reusing, encode_chunk_with, encode_header_v2, encode_header_v3, ChunkHeader,
     ChunkOrigin, PreviousFrames, CHUNK_HEADER_V2_BYTES,
 };
-use denser::tiles::ChunkIndex;
+use denser::map::ChunkIndex;
+use denser::regularize::TvParams;
 use proptest::prelude::*;
 
 fn header(chunk: ChunkIndex) -> ChunkHeader {

@@ -8,17 +8,17 @@ use crate::common;
 
 use common::{orbit, vga, Rng, SphereScene};
 use denser::backend::Backend;
+use denser::export::{export, Bbox, ExportTarget};
 use denser::fusion::{integrate_depth, integrate_lidar, DepthFusionParams, LidarFusionParams};
 use denser::grid::{decode_tsdf, BlockIndex, GridParams, Layer};
+use denser::map::store::MapStore;
 use denser::mesh::{extract_mesh, Field};
+use denser::outofcore::pager::{OverrunPolicy, PagerConfig};
+use denser::outofcore::regional::{regularize_map, RegionalOptions};
+use denser::outofcore::PagedStore;
 use denser::reconstruct::{ReconstructionConfig, Reconstructor};
 use denser::regularize::{regularize_layer, TvParams};
 use denser::store::PagingSummary;
-use denser::tiles::export::{export, Bbox, ExportTarget};
-use denser::tiles::pager::{OverrunPolicy, PagerConfig};
-use denser::tiles::regional::{regularize_map, RegionalOptions};
-use denser::tiles::store::MapStore;
-use denser::tiles::PagedStore;
 
 /// 5 cm voxels, chunks of 2³ blocks (0.8 m): the 2 m sphere and its floor span hundreds of chunks.
 const CHUNK_BLOCKS: u32 = 2;
@@ -82,6 +82,7 @@ fn paged(
             halo_blocks: None,
             sweep_iterations: None,
         },
+        denser::export::write_map_surface,
     );
     let config = ReconstructionConfig {
         grid: grid(),
@@ -175,7 +176,7 @@ pub(crate) fn fused_store(dir: &std::path::Path) -> (Layer, MapStore) {
         integrate_depth(&mut mem, f, &DepthFusionParams::default());
     }
     let mut store = MapStore::create(dir, grid(), CHUNK_BLOCKS).expect("create");
-    for (c, blocks) in denser::tiles::group_by_chunk(mem.indices_sorted(), CHUNK_BLOCKS) {
+    for (c, blocks) in denser::map::group_by_chunk(mem.indices_sorted(), CHUNK_BLOCKS) {
         let refs: Vec<(BlockIndex, &denser::grid::Block)> = blocks
             .iter()
             .map(|b| (*b, mem.get(b).expect("block")))
@@ -464,8 +465,8 @@ fn gpu_tier_paged_fusion_equals_in_memory_gpu_fusion() {
 
 #[test]
 fn regional_regularisation_on_the_gpu_equals_the_global_cpu_solve() {
+    use denser::outofcore::regional::regularize_map_with;
     use denser::regularize::solve_gpu;
-    use denser::tiles::regional::regularize_map_with;
     let Some(ctx) = common::gpu() else { return };
     // All iterations at once with the exact halo, and sweeps of 7 with the state kept between.
     for sweep_iterations in [None, Some(7)] {

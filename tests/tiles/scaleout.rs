@@ -8,13 +8,15 @@
 
 use crate::common::Moto;
 use denser::grid::{encode_tsdf, Block, BlockIndex, GridParams, Layer, OMEGA_BIT};
+use denser::map::files::{Conditional, MapFiles};
+use denser::map::layout::{CHUNKS_DIR, MANIFEST_FILE};
+use denser::map::s3::S3Files;
+use denser::map::store::MapStore;
+use denser::map::MapLocation;
+use denser::map::{group_by_chunk, ChunkIndex};
+use denser::outofcore::regional::{regularize_map, regularize_shard, RegionalOptions};
+use denser::outofcore::shards::Shard;
 use denser::regularize::TvParams;
-use denser::tiles::files::{Conditional, MapFiles, MapLocation};
-use denser::tiles::regional::{regularize_map, regularize_shard, RegionalOptions};
-use denser::tiles::s3::S3Files;
-use denser::tiles::shards::Shard;
-use denser::tiles::store::{MapStore, CHUNKS_DIR, MANIFEST_FILE};
-use denser::tiles::{group_by_chunk, ChunkIndex};
 use std::sync::Arc;
 
 const CHUNK_BLOCKS: u32 = 2;

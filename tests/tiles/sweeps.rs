@@ -5,11 +5,13 @@
 //! to a memory budget, and a budget too small for one chunk refused before anything is written.
 
 use crate::paging::{fused_store, max_u_difference, store_layer};
+use denser::map::layout::SWEEPS_AREA;
+use denser::map::store::MapStore;
+use denser::outofcore::regional::{
+    plan_region_chunks, regularize_map, RegionCosts, RegionalOptions,
+};
+use denser::outofcore::sweep_state::{decode_block_state, decode_state_index};
 use denser::regularize::{TvParams, TvProblem};
-use denser::tiles::regional::{plan_region_chunks, regularize_map, RegionCosts, RegionalOptions};
-use denser::tiles::store::MapStore;
-use denser::tiles::sweep_state::{decode_block_state, decode_state_index};
-use denser::tiles::sweeps::SWEEPS_FOLDER;
 use std::path::Path;
 
 fn params() -> TvParams {
@@ -33,7 +35,7 @@ fn assert_state_equals(map: &Path, parity: u32, step: u32, global: &TvProblem) -
     let (u, ubar, p) = global.state();
     let n = u.len();
     let mut blocks = 0;
-    let folder = map.join(SWEEPS_FOLDER).join(format!("s{parity}"));
+    let folder = map.join(SWEEPS_AREA).join(format!("s{parity}"));
     for e in std::fs::read_dir(&folder).expect("state folder") {
         let path = e.expect("entry").path();
         let bytes = std::fs::read(&path).expect("read state");
@@ -120,7 +122,7 @@ fn sweeps_equal_the_global_solve_bit_for_bit_through_kills() {
             .collect();
         [v[0], v[1], v[2]]
     };
-    let torn = std::fs::read_dir(map.join(SWEEPS_FOLDER).join("s1"))
+    let torn = std::fs::read_dir(map.join(SWEEPS_AREA).join("s1"))
         .expect("s1")
         .map(|e| e.expect("entry").path())
         .max_by_key(chunk_of)
@@ -158,8 +160,7 @@ fn sweeps_equal_the_global_solve_bit_for_bit_through_kills() {
     assert_eq!(last.pass, first.pass);
     assert!(store.manifest().latest_pass_complete());
     assert!(
-        !map.join(SWEEPS_FOLDER).join("s0").exists()
-            && !map.join(SWEEPS_FOLDER).join("s1").exists(),
+        !map.join(SWEEPS_AREA).join("s0").exists() && !map.join(SWEEPS_AREA).join("s1").exists(),
         "the state is removed when the pass completes"
     );
 
@@ -222,7 +223,7 @@ fn regions_are_planned_to_the_budget_and_a_budget_too_small_is_refused_first() {
     let e = regularize_map(&mut store, &params(), &opts, |_, _| true).expect_err("refused");
     assert!(e.to_string().contains("MiB"), "{e}");
     assert_eq!(store.manifest().chunks, before.chunks, "nothing written");
-    assert!(!map.join(SWEEPS_FOLDER).join("s0").exists());
+    assert!(!map.join(SWEEPS_AREA).join("s0").exists());
     // A budget between: the planned regions' real peak stays under it, the result is exact.
     let budget = (smallest + one) / 2;
     let (r, bound) = plan_region_chunks(&chunks, cb, 1, costs, budget).expect("plan");
@@ -249,10 +250,7 @@ fn regions_are_planned_to_the_budget_and_a_budget_too_small_is_refused_first() {
 
 /// The least budget the plan accepts (one chunk per region), found by bisection.
 fn least_budget(
-    chunks: &std::collections::BTreeMap<
-        denser::tiles::ChunkIndex,
-        denser::tiles::manifest::ChunkEntry,
-    >,
+    chunks: &std::collections::BTreeMap<denser::map::ChunkIndex, denser::map::manifest::ChunkEntry>,
     cb: u32,
 ) -> u64 {
     let costs = RegionCosts::of(true);

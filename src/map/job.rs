@@ -9,14 +9,11 @@
 //! payload and a CRC-32, written atomically. Maps made before it carry `job.json`; it is read,
 //! checked and replaced by a `job.djr` on the first resume.
 
-use super::store::write_atomically;
+use super::files::write_atomically;
+use super::layout::{JOB_FILE, LEGACY_JOB_FILE};
 use crate::{Error, Result};
 use std::path::{Path, PathBuf};
 
-/// File name of the record inside a map directory.
-pub const JOB_FILE: &str = "job.djr";
-/// The record of maps made before `job.djr` (JSON, absolute input path).
-pub const LEGACY_JOB_FILE: &str = "job.json";
 /// Magic bytes at offset 0.
 pub const JOB_MAGIC: [u8; 4] = *b"DJR1";
 /// Current format version.

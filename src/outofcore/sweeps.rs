@@ -24,27 +24,30 @@
 //! pass completes.
 //! Layouts: `formats/sweep-state.md`.
 
-use super::files::MapFiles;
-use super::files::ObjectBytes;
-use super::pager::BLOCK_RESIDENT_BYTES;
-use super::regional::{region_of, MapRegularizeStats, SOLVER_BYTES_PER_VOXEL};
-use super::store::MapStore;
+use super::region_plan::{
+    region_of, region_over_budget, MapRegularizeStats, SWEEP_BYTES_PER_BLOCK,
+    SWEEP_BYTES_PER_CORE_BLOCK, SWEEP_BYTES_PER_CORE_OMEGA_VOXEL, SWEEP_BYTES_PER_OMEGA_VOXEL,
+};
 use super::sweep_state::{
     decode_block_into, decode_state_index, encode_dense_record, encode_state, encode_state_with,
     BlockState, DenseBlock, StateHeader, SweepProgress, STATE_BYTES_PER_OMEGA_VOXEL,
-    STATE_ENTRY_BYTES, STATE_MASK_BYTES,
+    STATE_MASK_BYTES,
 };
-use super::ChunkIndex;
 use crate::error::{Error, Result};
 use crate::grid::{decode_tsdf, Block, BlockIndex, Layer, VOXELS_PER_BLOCK};
+use crate::map::files::MapFiles;
+use crate::map::files::ObjectBytes;
+use crate::map::layout::SWEEPS_AREA;
+use crate::map::store::MapStore;
+use crate::map::ChunkIndex;
 use crate::regularize::{RegionPlan, TvParams, TvProblem};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 
-/// Folder of a swept pass's state and progress record in the map's store.
-pub const SWEEPS_FOLDER: &str = "sweeps";
-/// The progress record's name.
-pub const PROGRESS_FILE: &str = "sweeps/progress.dsp";
+/// The progress record's name, in the area the engine reserves for swept passes.
+fn progress_file() -> String {
+    format!("{SWEEPS_AREA}/progress.dsp")
+}
 /// Least time between two writes of the progress record within a step.
 const PROGRESS_INTERVAL: std::time::Duration = std::time::Duration::from_secs(1);
 /// Iterations per sweep by default: a halo of `K + 1 = 16` voxels, two blocks. Measured against
@@ -52,19 +55,6 @@ const PROGRESS_INTERVAL: std::time::Duration = std::time::Duration::from_secs(1)
 /// global solve's CPU time against 2.5× and 2.6× (`docs/bench/regularize.md`; measured before
 /// halo rings stopped updating early, which favours wider halos: not measured again since).
 pub const DEFAULT_SWEEP_ITERATIONS: u32 = 15;
-
-/// Working memory of one gathered block in a sweep besides its Ω voxels: the solver's arrays
-/// and its state record's mask and index entry, bytes.
-pub const SWEEP_BYTES_PER_BLOCK: u64 = VOXELS_PER_BLOCK as u64 * SOLVER_BYTES_PER_VOXEL
-    + (STATE_MASK_BYTES + STATE_ENTRY_BYTES) as u64;
-/// Working memory of one gathered Ω voxel: its state record as read, bytes.
-pub const SWEEP_BYTES_PER_OMEGA_VOXEL: u64 = STATE_BYTES_PER_OMEGA_VOXEL as u64;
-/// What a region's own block adds besides its Ω voxels: the block decoded for the last step and
-/// its state record's mask and index entry encoded for writing, bytes.
-pub const SWEEP_BYTES_PER_CORE_BLOCK: u64 =
-    BLOCK_RESIDENT_BYTES + (STATE_MASK_BYTES + STATE_ENTRY_BYTES) as u64;
-/// What a region's own Ω voxel adds: its state record encoded for writing, bytes.
-pub const SWEEP_BYTES_PER_CORE_OMEGA_VOXEL: u64 = STATE_BYTES_PER_OMEGA_VOXEL as u64;
 
 /// Writes a state file of parity `step mod 2` over the one of two steps before, in place: not
 /// atomic and not fsynced on local disks. Safe because nothing reads it before the step that
@@ -109,7 +99,7 @@ fn write_scratch(files: &dyn MapFiles, name: &str, bytes: &[u8]) -> Result<()> {
 
 fn state_name(parity: u32, c: ChunkIndex) -> String {
     let [x, y, z] = c.0;
-    format!("{SWEEPS_FOLDER}/s{parity}/c_{x}_{y}_{z}.dsws")
+    format!("{SWEEPS_AREA}/s{parity}/c_{x}_{y}_{z}.dsws")
 }
 
 fn fnv(h: &mut u64, bytes: &[u8]) {
@@ -141,9 +131,9 @@ fn pass_key(store: &MapStore, pass: u32, params: &TvParams, region_chunks: u32, 
 
 /// Removes every object under `sweeps/`.
 pub fn remove_state(files: &dyn MapFiles) -> Result<usize> {
-    let listed = files.list_recursive(SWEEPS_FOLDER)?;
+    let listed = files.list_recursive(SWEEPS_AREA)?;
     for o in &listed {
-        files.delete(&format!("{SWEEPS_FOLDER}/{}", o.name))?;
+        files.delete(&format!("{SWEEPS_AREA}/{}", o.name))?;
     }
     Ok(listed.len())
 }
@@ -156,10 +146,10 @@ fn resume_point(
     last_step: u32,
 ) -> Result<Option<SweepProgress>> {
     let files = store.files();
-    let Some(bytes) = files.read(PROGRESS_FILE)? else {
+    let Some(bytes) = files.read(&progress_file())? else {
         return Ok(None);
     };
-    let rec = SweepProgress::decode(&files.path(PROGRESS_FILE), &bytes)?;
+    let rec = SweepProgress::decode(&files.path(&progress_file()), &bytes)?;
     if rec.key != key || rec.chunks.len() != store.manifest().chunks.len() {
         return Ok(None);
     }
@@ -360,7 +350,7 @@ pub(super) fn regularize_swept(
             steps_done,
             regions_done: regions_done as u32,
         };
-        write_scratch(&*files, PROGRESS_FILE, &rec.encode())
+        write_scratch(&*files, &progress_file(), &rec.encode())
     };
     let total = regions.len() * (sweeps as usize + 1);
     let mut block_iterations = 0u64;
@@ -428,12 +418,7 @@ pub(super) fn regularize_swept(
                         }
                     }
                     if bytes > run.budget_bytes {
-                        return Err(super::region_plan::region_over_budget(
-                            *rkey,
-                            halo,
-                            bytes,
-                            run.budget_bytes,
-                        ));
+                        return Err(region_over_budget(*rkey, halo, bytes, run.budget_bytes));
                     }
                     stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
                     trim.make_room(bytes);
@@ -536,7 +521,7 @@ fn gather_states(
                     return Err(Error::bad_input(
                         &path,
                         format!(
-                            "the state of step {} is missing (a map changed under a swept pass?); delete {SWEEPS_FOLDER}/ to restart the pass",
+                            "the state of step {} is missing (a map changed under a swept pass?); delete {SWEEPS_AREA}/ to restart the pass",
                             step - 1
                         ),
                     ));
@@ -547,7 +532,7 @@ fn gather_states(
                     return Err(Error::bad_input(
                         &path,
                         format!(
-                            "holds chunk {:?} after step {} of another pass (key {:016x}), expected chunk {:?} after step {} of key {key:016x}; delete {SWEEPS_FOLDER}/ to restart the pass",
+                            "holds chunk {:?} after step {} of another pass (key {:016x}), expected chunk {:?} after step {} of key {key:016x}; delete {SWEEPS_AREA}/ to restart the pass",
                             h.chunk,
                             h.step,
                             h.key,

@@ -4,15 +4,87 @@
 //! counts), and the data-independent bound `reconstruct --map` checks before fusing
 //! ([`check_budget_up_front`]).
 
-use super::manifest::ChunkEntry;
-use super::pager::BLOCK_RESIDENT_BYTES;
-use super::regional::{region_of, RegionalOptions, SOLVER_BYTES_PER_VOXEL};
-use super::store::MapStore;
-use super::ChunkIndex;
+use super::sweep_state::{STATE_BYTES_PER_OMEGA_VOXEL, STATE_ENTRY_BYTES, STATE_MASK_BYTES};
 use crate::error::{Error, Result};
-use crate::grid::VOXELS_PER_BLOCK;
+use crate::grid::{BLOCK_RESIDENT_BYTES, VOXELS_PER_BLOCK};
+use crate::map::manifest::ChunkEntry;
+use crate::map::store::MapStore;
+use crate::map::ChunkIndex;
 use crate::regularize::RegionPlan;
 use std::collections::BTreeMap;
+
+/// Bytes per voxel the solver's arrays take while a region is solved (`f`, `w`, `u`, `ū`: 4 each,
+/// `p`: 12, mask 1, the gather's Ω flags 1, neighbour links 0.05), used for the budget check.
+pub const SOLVER_BYTES_PER_VOXEL: u64 = 30;
+
+/// Working memory of one gathered block in a sweep besides its Ω voxels: the solver's arrays
+/// and its state record's mask and index entry, bytes.
+pub const SWEEP_BYTES_PER_BLOCK: u64 = VOXELS_PER_BLOCK as u64 * SOLVER_BYTES_PER_VOXEL
+    + (STATE_MASK_BYTES + STATE_ENTRY_BYTES) as u64;
+/// Working memory of one gathered Ω voxel: its state record as read, bytes.
+pub const SWEEP_BYTES_PER_OMEGA_VOXEL: u64 = STATE_BYTES_PER_OMEGA_VOXEL as u64;
+/// What a region's own block adds besides its Ω voxels: the block decoded for the last step and
+/// its state record's mask and index entry encoded for writing, bytes.
+pub const SWEEP_BYTES_PER_CORE_BLOCK: u64 =
+    BLOCK_RESIDENT_BYTES + (STATE_MASK_BYTES + STATE_ENTRY_BYTES) as u64;
+/// What a region's own Ω voxel adds: its state record encoded for writing, bytes.
+pub const SWEEP_BYTES_PER_CORE_OMEGA_VOXEL: u64 = STATE_BYTES_PER_OMEGA_VOXEL as u64;
+
+/// Counters of an offline regularisation run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct MapRegularizeStats {
+    /// Pass number written into the manifest.
+    pub pass: u32,
+    /// Regions solved in this run.
+    pub regions: usize,
+    /// Regions found already done (resumed run).
+    pub regions_skipped: usize,
+    /// Blocks written.
+    pub core_blocks: usize,
+    /// Blocks solved, halos included.
+    pub solved_blocks: usize,
+    /// Ω voxels written.
+    pub core_omega_voxels: u64,
+    /// Largest estimated working memory of one region, bytes.
+    pub peak_region_bytes: u64,
+    /// Halo thickness used, blocks.
+    pub halo_blocks: i32,
+    /// Wall time, seconds.
+    pub seconds: f64,
+    /// The caller stopped the run early (progress returned false); what was done is committed.
+    pub interrupted: bool,
+    /// Regions adopted from shards' records (a committing run after `--shard` runs).
+    pub regions_adopted: usize,
+    /// Regions left to other shards (a `--shard` run).
+    pub regions_other_shards: usize,
+    /// Sweeps the iterations were split into (1: all at once with the exact halo).
+    pub sweeps: u32,
+    /// Region edge used, chunks (planned to the budget when not given).
+    pub region_chunks: u32,
+}
+
+/// How a stored map's regularisation ([`super::regional::regularize_map`]) tiles and bounds its
+/// work.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RegionalOptions {
+    /// Region edge, chunks; 0: the largest that fits the budget ([`plan_region_chunks`]).
+    pub region_chunks: u32,
+    /// Working-memory bound of one region, bytes.
+    pub budget_bytes: u64,
+    /// Halo thickness, blocks; `None` for the exact halo of the iteration count. A thinner halo
+    /// leaves seams (kept for the test that shows it).
+    pub halo_blocks: Option<i32>,
+    /// Iterations per sweep ([`super::sweeps`]: every region this many iterations at a time, the
+    /// solver state kept in the store between sweeps, a halo of `K + 1` voxels); `None` solves
+    /// each region with all iterations at once and the exact halo of `iterations + 1` voxels
+    /// (also what `--shard` runs always do, and a committing run that adopted shards' regions).
+    pub sweep_iterations: Option<u32>,
+}
+
+/// The region of `r`³ chunks holding chunk `c`.
+pub(super) fn region_of(c: ChunkIndex, r: i32) -> [i32; 3] {
+    [0, 1, 2].map(|a| c.0[a].div_euclid(r))
+}
 
 /// What a region's working memory is made of, for planning regions to a budget.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -30,13 +102,12 @@ pub struct RegionCosts {
 impl RegionCosts {
     /// The costs of a swept pass (`swept`) or of one solve with the exact halo.
     pub fn of(swept: bool) -> Self {
-        use super::sweeps as s;
         if swept {
             RegionCosts {
-                per_block: s::SWEEP_BYTES_PER_BLOCK,
-                per_omega_voxel: s::SWEEP_BYTES_PER_OMEGA_VOXEL,
-                per_core_block: s::SWEEP_BYTES_PER_CORE_BLOCK,
-                per_core_omega_voxel: s::SWEEP_BYTES_PER_CORE_OMEGA_VOXEL,
+                per_block: SWEEP_BYTES_PER_BLOCK,
+                per_omega_voxel: SWEEP_BYTES_PER_OMEGA_VOXEL,
+                per_core_block: SWEEP_BYTES_PER_CORE_BLOCK,
+                per_core_omega_voxel: SWEEP_BYTES_PER_CORE_OMEGA_VOXEL,
             }
         } else {
             RegionCosts {

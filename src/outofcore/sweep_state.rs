@@ -5,7 +5,7 @@
 //! small progress record saying which step of the pass finished for how many regions.
 //!
 //! Pure codecs: no I/O here ([`super::sweeps`] reads and writes through
-//! [`super::files::MapFiles`]). Voxels outside Ω are not stored: the solver never reads or
+//! [`crate::map::files::MapFiles`]). Voxels outside Ω are not stored: the solver never reads or
 //! changes them ([`crate::regularize::TvProblem`]'s link bits need both voxels in Ω).
 
 use crate::error::{Error, Result};
@@ -392,12 +392,12 @@ pub struct SweepProgress {
 impl SweepProgress {
     /// The record's file bytes.
     pub fn encode(&self) -> Vec<u8> {
-        super::record::encode(PROGRESS_MAGIC, PROGRESS_VERSION, self)
+        crate::map::record::encode(PROGRESS_MAGIC, PROGRESS_VERSION, self)
     }
 
     /// Decodes file bytes; `path` names the file in errors.
     pub fn decode(path: &Path, b: &[u8]) -> Result<Self> {
-        super::record::decode(
+        crate::map::record::decode(
             path,
             b,
             PROGRESS_MAGIC,

@@ -23,12 +23,12 @@ use super::codec::{
     DecodedChunk, PreviousFrames, CHUNK_HEADER_V2_BYTES, DEFAULT_ZSTD_LEVEL, FLAG_HAS_REGULARIZED,
     NO_PARAMS,
 };
-use super::files::{
-    Conditional, MapFiles, MapLocation, ObjectBytes, ObjectVersion, ReaderHold, WriterHold,
-};
+use super::files::{Conditional, MapFiles, ObjectBytes, ObjectVersion, ReaderHold, WriterHold};
+use super::layout::{CHUNKS_DIR, MANIFEST_FILE, MANIFEST_TMP};
+use super::location::MapLocation;
 use super::manifest::{
-    chunk_file_name, decode_manifest, encode_manifest, parse_chunk_file_name, ChunkEntry, Manifest,
-    ManifestHeader, ENTRY_HAS_REGULARIZED,
+    chunk_file_name, decode_manifest, encode_manifest, new_map_id, parse_chunk_file_name,
+    ChunkEntry, Manifest, ManifestHeader, ENTRY_HAS_REGULARIZED,
 };
 use super::ChunkIndex;
 use crate::error::{Error, Result};
@@ -45,21 +45,11 @@ mod cleanup;
 mod manifest_io;
 
 use manifest_io::{chunk_object, lost_manifest, require_manifest};
-pub use manifest_io::{
-    count_chunk_files, count_chunk_objects, new_map_id, read_manifest, read_manifest_at,
-};
+pub use manifest_io::{count_chunk_files, count_chunk_objects, read_manifest, read_manifest_at};
 
 use cache::ChunkCache;
 pub use cache::DEFAULT_OBJECT_CACHE_BYTES;
 pub use chunk_io::{read_chunk_file, ChunkWriter};
-
-/// Name of the manifest inside a map directory.
-pub const MANIFEST_FILE: &str = "manifest.dmf";
-/// Folder of chunk files inside a map directory.
-pub const CHUNKS_DIR: &str = "chunks";
-
-/// Name of the temporary manifest a local commit renames (only writers make it).
-const MANIFEST_TMP: &str = "manifest.tmp";
 
 /// How a [`MapStore`] was opened.
 #[derive(Debug)]
@@ -144,6 +134,24 @@ pub struct OpenCleanup {
     pub left_alone: Vec<String>,
     /// Files of regularisation shards kept for adoption (their plan is open, `formats/shards.md`).
     pub shard_files_kept: usize,
+}
+
+impl MapLocation {
+    /// Opens the location's objects: a directory ([`super::files::LocalFiles`]) or an
+    /// object-store prefix (`S3Files`).
+    pub fn open_files(&self) -> Result<Arc<dyn MapFiles>> {
+        match self {
+            MapLocation::Dir(d) => Ok(Arc::new(super::files::LocalFiles::new(d))),
+            #[cfg(feature = "s3")]
+            MapLocation::S3 { bucket, prefix } => {
+                Ok(Arc::new(super::s3::S3Files::from_env(bucket, prefix)?))
+            }
+            #[cfg(not(feature = "s3"))]
+            MapLocation::S3 { .. } => Err(Error::InvalidArgument(format!(
+                "{self}: this denser was built without the `s3` feature"
+            ))),
+        }
+    }
 }
 
 impl MapStore {

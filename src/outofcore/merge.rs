@@ -14,10 +14,10 @@
 //! differs from sequential fusion only by rounding (one quantised average instead of a chain of
 //! them) and by the weight cap, which sequential fusion reaches earlier.
 
-use super::store::MapStore;
-use super::MapLocation;
 use crate::error::{Error, Result};
 use crate::grid::{decode_tsdf, encode_tsdf, Block, BlockIndex, MAX_WEIGHT, OMEGA_BIT};
+use crate::map::store::MapStore;
+use crate::map::MapLocation;
 use std::collections::BTreeMap;
 
 /// What [`merge`] did.
@@ -100,7 +100,7 @@ pub fn merge(inputs: &[MapLocation], out: &MapLocation, budget_bytes: u64) -> Re
             ));
         }
     }
-    let mut all: std::collections::BTreeSet<super::ChunkIndex> = Default::default();
+    let mut all: std::collections::BTreeSet<crate::map::ChunkIndex> = Default::default();
     for m in &maps {
         all.extend(m.chunk_indices());
     }

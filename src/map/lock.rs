@@ -17,15 +17,11 @@
 //! These are advisory `flock` locks: they bind `denser` processes (of this build or later) on one
 //! machine's local file system; on NFS Linux maps them to POSIX byte-range locks.
 
+use super::layout::{LOCK_FILE, READERS_LOCK_FILE};
 use crate::error::{Error, Result};
 use std::fs::{File, OpenOptions, TryLockError};
 use std::io::{Read, Seek, Write};
 use std::path::{Path, PathBuf};
-
-/// Name of the writer lock file inside a map directory.
-pub const LOCK_FILE: &str = "lock";
-/// Name of the readers' lock file inside a map directory.
-pub const READERS_LOCK_FILE: &str = "readers.lock";
 
 /// Who holds (or held) a map's writer lock, as recorded in the lock file.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]

@@ -1,5 +1,12 @@
 //! Tile-by-tile export of a stored map to one mesh (PLY), one point cloud (PLY, LAS, LAZ, COPC)
-//! or a 3D Tiles tileset ([`super::tileset`]).
+//! or a 3D Tiles tileset ([`tileset`]): the exports room, above the storage engine
+//! ([`crate::map`]) and the out-of-core solvers ([`crate::outofcore`]), which never import it.
+//!
+//! - [`export`], [`export_with`]: one stitched output of the whole map or a box;
+//!   [`write_map_surface`], the [`crate::outofcore::SurfaceWriter`] a paged store is handed.
+//! - `chunks`: the chunk-level pieces every exporter shares (coverage, one chunk's mesh).
+//! - [`parts`]: chunk meshes made by `export --shard` array tasks, stored in the map.
+//! - [`tileset`]: the map as a 3D Tiles 1.1 tileset with levels of detail.
 //!
 //! Chunks are meshed one at a time, each with the one-voxel layer it reads from its +x/+y/+z
 //! neighbours, so memory holds at most eight chunks plus the vertices on chunk faces. Marching
@@ -15,57 +22,24 @@
 //! and is then written with `double` coordinates; LAS, LAZ, COPC and 3D Tiles always use a world
 //! frame, the local z-up frame by default. `--bbox` is in the output's frame.
 
-use super::store::MapStore;
-use super::ChunkIndex;
+mod chunks;
+pub mod parts;
+pub mod tileset;
+
+pub use chunks::{chunk_bounds_m, chunks_in, frame_bounds, mesh_chunk, Bbox};
+
 use crate::error::{Error, Result};
 use crate::geo::WorldFrame;
-use crate::grid::{BlockIndex, Layer, VOXELS_PER_SIDE};
+use crate::grid::VOXELS_PER_SIDE;
 use crate::io::atomic::{PendingFile, TempPath};
 use crate::io::copc::{CopcOptions, CopcStats, CopcWriter};
 use crate::io::las::LasPointWriter;
-use crate::mesh::{extract_mesh_keyed, EdgeKey, Field, Mesh};
+use crate::map::store::MapStore;
+use crate::mesh::{EdgeKey, Field};
+use crate::outofcore::SurfaceCounts;
 use std::collections::HashMap;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
-
-/// An axis-aligned box in world coordinates, metres.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Bbox {
-    /// Lower corner.
-    pub min_m: [f64; 3],
-    /// Upper corner.
-    pub max_m: [f64; 3],
-}
-
-impl Bbox {
-    /// Parses `xmin,ymin,zmin,xmax,ymax,zmax`.
-    pub fn parse(s: &str) -> Result<Self> {
-        let v: Vec<f64> = s
-            .split(',')
-            .map(|t| t.trim().parse::<f64>())
-            .collect::<std::result::Result<_, _>>()
-            .map_err(|e| Error::InvalidArgument(format!("--bbox {s:?}: {e}")))?;
-        if v.len() != 6 || (0..3).any(|a| !(v[a] <= v[a + 3])) {
-            return Err(Error::InvalidArgument(format!(
-                "--bbox {s:?}: expected xmin,ymin,zmin,xmax,ymax,zmax with min ≤ max"
-            )));
-        }
-        Ok(Bbox {
-            min_m: [v[0], v[1], v[2]],
-            max_m: [v[3], v[4], v[5]],
-        })
-    }
-
-    /// Whether `p` lies inside (bounds included).
-    pub fn contains(&self, p: [f64; 3]) -> bool {
-        (0..3).all(|a| p[a] >= self.min_m[a] && p[a] <= self.max_m[a])
-    }
-
-    /// Whether the box meets `[lo, hi]`.
-    pub fn meets(&self, lo: [f64; 3], hi: [f64; 3]) -> bool {
-        (0..3).all(|a| hi[a] >= self.min_m[a] && lo[a] <= self.max_m[a])
-    }
-}
 
 /// What an export wrote.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
@@ -87,7 +61,7 @@ pub struct ExportStats {
     /// COPC octree figures (COPC outputs only).
     pub copc: Option<CopcStats>,
     /// Tileset figures (3D Tiles outputs only).
-    pub tileset: Option<super::tileset::TilesetStats>,
+    pub tileset: Option<tileset::TilesetStats>,
 }
 
 /// How to export: which field, which part, which frame, how much RAM.
@@ -101,9 +75,9 @@ pub struct ExportOptions {
     pub frame: Option<WorldFrame>,
     /// RAM for outputs that need more than a chunk at a time (the COPC octree), bytes.
     pub memory_budget_bytes: u64,
-    /// Chunk meshes made by `export --shard` runs ([`super::parts`]): taken from there instead
+    /// Chunk meshes made by `export --shard` runs ([`parts`]): taken from there instead
     /// of meshed again.
-    pub parts: Option<std::sync::Arc<super::parts::ExportParts>>,
+    pub parts: Option<std::sync::Arc<parts::ExportParts>>,
 }
 
 impl ExportOptions {
@@ -126,7 +100,7 @@ pub enum ExportTarget {
     Mesh(PathBuf),
     /// Surface points (mesh vertices) as PLY, LAS, LAZ or COPC (`*.copc.laz`), chosen by the name.
     Points(PathBuf),
-    /// A 3D Tiles 1.1 tileset in this folder ([`super::tileset`]).
+    /// A 3D Tiles 1.1 tileset in this folder ([`tileset`]).
     Tiles(PathBuf),
 }
 
@@ -145,72 +119,6 @@ pub fn is_copc_path(path: &Path) -> bool {
 fn on_chunk_face(key: &EdgeKey, chunk_voxels: i64) -> bool {
     let (v, axis) = (key.0 .0, key.1 as usize);
     (0..3).any(|b| b != axis && v[b].rem_euclid(chunk_voxels) == 0)
-}
-
-/// Map-frame bounds of chunk `c`, metres.
-pub fn chunk_bounds_m(store: &MapStore, c: ChunkIndex) -> ([f64; 3], [f64; 3]) {
-    let chunk_m = store.grid().block_size_m() * store.chunk_blocks() as f64;
-    let lo = [0, 1, 2].map(|a| c.0[a] as f64 * chunk_m);
-    let hi = [0, 1, 2].map(|a| (c.0[a] + 1) as f64 * chunk_m);
-    (lo, hi)
-}
-
-/// The axis-aligned box (in `frame`) of a map-frame box's eight corners.
-pub fn frame_bounds(frame: &WorldFrame, lo: [f64; 3], hi: [f64; 3]) -> ([f64; 3], [f64; 3]) {
-    let mut a = [f64::INFINITY; 3];
-    let mut b = [f64::NEG_INFINITY; 3];
-    for k in 0..8 {
-        let p = [0, 1, 2].map(|d| if (k >> d) & 1 == 0 { lo[d] } else { hi[d] });
-        let w = frame.to_world(p);
-        for d in 0..3 {
-            a[d] = a[d].min(w[d]);
-            b[d] = b[d].max(w[d]);
-        }
-    }
-    (a, b)
-}
-
-/// The chunks of `store` whose box (in `frame`) meets `bbox` (all without a box), sorted.
-pub fn chunks_in(store: &MapStore, frame: &WorldFrame, bbox: Option<Bbox>) -> Vec<ChunkIndex> {
-    store
-        .chunk_indices()
-        .into_iter()
-        .filter(|c| {
-            let (lo, hi) = chunk_bounds_m(store, *c);
-            let (lo, hi) = frame_bounds(frame, lo, hi);
-            bbox.is_none_or(|b| b.meets(lo, hi))
-        })
-        .collect()
-}
-
-/// Meshes chunk `c` of the map (reading the neighbour blocks its cubes need): the mesh in the map
-/// frame, each vertex's edge key, and the number of the chunk's own blocks.
-pub fn mesh_chunk(
-    store: &MapStore,
-    c: ChunkIndex,
-    field: Field,
-) -> Result<(Mesh, Vec<EdgeKey>, usize)> {
-    let cb = store.chunk_blocks();
-    let mut layer = Layer::new(store.grid());
-    let mut own: Vec<BlockIndex> = Vec::new();
-    let hi_block = c.origin_block(cb).map(|o| o + cb as i32);
-    for d in 0..8i32 {
-        let off = [d & 1, (d >> 1) & 1, (d >> 2) & 1];
-        let Some(dec) = store.read_chunk(c.offset(off))? else {
-            continue;
-        };
-        for (b, block) in dec.blocks {
-            if d == 0 {
-                own.push(b);
-                layer.insert(b, block);
-            } else if (0..3).all(|a| off[a] == 0 || b.0[a] == hi_block[a]) {
-                // Only the neighbour blocks touching this chunk's +faces are read by its cubes.
-                layer.insert(b, block);
-            }
-        }
-    }
-    let (m, keys) = extract_mesh_keyed(&layer, field, Some(&own));
-    Ok((m, keys, own.len()))
 }
 
 enum Sink {
@@ -238,6 +146,31 @@ pub fn export(
     export_with(store, &o, target)
 }
 
+/// The surfaces of a stored map as a paged store writes them at the end of a run (the
+/// [`crate::outofcore::SurfaceWriter`] handed to [`crate::outofcore::PagedStore`]): `field`
+/// meshed into a binary PLY at `mesh_path` and, with `points_path`, its vertices as a point cloud.
+pub fn write_map_surface(
+    store: &MapStore,
+    field: Field,
+    mesh_path: &Path,
+    points_path: Option<&Path>,
+) -> Result<SurfaceCounts> {
+    let mesh = export(
+        store,
+        field,
+        None,
+        &ExportTarget::Mesh(mesh_path.to_path_buf()),
+    )?;
+    if let Some(p) = points_path {
+        export(store, field, None, &ExportTarget::Points(p.to_path_buf()))?;
+    }
+    Ok(SurfaceCounts {
+        vertices: mesh.vertices,
+        triangles: mesh.triangles,
+        area_m2: mesh.area_m2,
+    })
+}
+
 /// Exports the stored map tile by tile with `options` (see [`export`] and the module doc).
 pub fn export_with(
     store: &MapStore,
@@ -250,7 +183,7 @@ pub fn export_with(
         ExportTarget::Points(p) => (p.clone(), false),
         ExportTarget::Tiles(dir) => {
             let frame = options.frame.clone().unwrap_or_else(WorldFrame::local_z_up);
-            let st = super::tileset::write_tileset_with(
+            let st = tileset::write_tileset_with(
                 store,
                 options.field,
                 options.bbox,
@@ -347,7 +280,7 @@ pub fn export_with(
     let mut next_id: u64 = 0;
     let bar = crate::progress::bar(chunks.len() as u64, "exporting");
     for &c in &chunks {
-        let (m, keys, own) = super::parts::chunk_mesh(store, c, field, options.parts.as_deref())?;
+        let (m, keys, own) = parts::chunk_mesh(store, c, field, options.parts.as_deref())?;
         stats.voxels += own as u64 * 512;
         let world: Vec<[f64; 3]> = m
             .positions_m

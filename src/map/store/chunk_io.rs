@@ -14,7 +14,7 @@ pub(super) fn read_chunk_file_len(path: &Path) -> Result<(DecodedChunk, u64)> {
     let name = path
         .file_name()
         .map_or(String::new(), |n| n.to_string_lossy().into_owned());
-    let files = crate::tiles::files::LocalFiles::new(dir);
+    let files = crate::map::files::LocalFiles::new(dir);
     decode_object(&files, &name, files.read(&name)?)
 }
 

@@ -9,15 +9,17 @@
 //! same monotone test that picks the allocated blocks a frame carves), so every block in-memory
 //! fusion would update is resident. A LiDAR scan needs only the chunks of its band. Hence
 //! fusing through the pager gives bit-identical voxels to fusing into one in-memory layer.
+//!
+//! Surfaces are written by the exporter, a room above this one ([`crate::export`]): whoever opens
+//! a paged store hands one in as a [`SurfaceWriter`], so nothing here imports it.
 
-use super::export::{export, ExportTarget};
 use super::pager::{Pager, PagerConfig, PagerStats};
 use super::regional::{regularize_map_with, RegionalOptions};
-use super::store::MapStore;
-use super::{group_by_chunk, ChunkIndex};
 use crate::error::{Error, Result};
 use crate::fusion::DepthPlan;
 use crate::grid::{BlockIndex, GridParams, Layer};
+use crate::map::store::MapStore;
+use crate::map::{group_by_chunk, ChunkIndex};
 use crate::mesh::Field;
 use crate::regularize::{TvParams, TvSolver};
 use crate::store::{
@@ -25,6 +27,23 @@ use crate::store::{
 };
 use std::collections::HashSet;
 use std::path::Path;
+
+/// What a [`SurfaceWriter`] wrote: the mesh's size.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SurfaceCounts {
+    /// Vertices written.
+    pub vertices: u64,
+    /// Triangles written.
+    pub triangles: u64,
+    /// Surface area, m².
+    pub area_m2: f64,
+}
+
+/// Writes `field` of a stored map tile by tile as a binary PLY mesh at the first path and, with
+/// the second, its vertices as a point cloud (PLY, LAS or LAZ by extension). The exporter
+/// ([`crate::export::write_map_surface`]) lives in a room above the solvers, so whoever opens a
+/// [`PagedStore`] hands it in.
+pub type SurfaceWriter = fn(&MapStore, Field, &Path, Option<&Path>) -> Result<SurfaceCounts>;
 
 // One per open map: the size of the largest variant does not matter.
 #[allow(clippy::large_enum_variant)]
@@ -48,12 +67,18 @@ pub struct PagedStore {
     pager_stats: PagerStats,
     budget_bytes: u64,
     empty: Layer,
+    surfaces: SurfaceWriter,
 }
 
 impl PagedStore {
     /// Fusion into `store` through a pager with `pager` settings; later regularisation uses
-    /// `regional`.
-    pub fn new(store: MapStore, pager: PagerConfig, regional: RegionalOptions) -> Self {
+    /// `regional`, surfaces are written by `surfaces`.
+    pub fn new(
+        store: MapStore,
+        pager: PagerConfig,
+        regional: RegionalOptions,
+        surfaces: SurfaceWriter,
+    ) -> Self {
         let grid = store.grid();
         let frames = store.manifest().header.frames_committed;
         PagedStore {
@@ -66,11 +91,12 @@ impl PagedStore {
             pager_stats: PagerStats::default(),
             budget_bytes: pager.budget_bytes,
             empty: Layer::new(grid),
+            surfaces,
         }
     }
 
     /// A stored map, to regularise or export (no fusion: frames cannot be added).
-    pub fn stored(store: MapStore, regional: RegionalOptions) -> Self {
+    pub fn stored(store: MapStore, regional: RegionalOptions, surfaces: SurfaceWriter) -> Self {
         let grid = store.grid();
         let frames = store.manifest().header.frames_committed;
         PagedStore {
@@ -83,6 +109,7 @@ impl PagedStore {
             pager_stats: PagerStats::default(),
             budget_bytes: regional.budget_bytes,
             empty: Layer::new(grid),
+            surfaces,
         }
     }
 
@@ -264,17 +291,10 @@ impl BlockStore for PagedStore {
         if let State::Paging(p) = &mut self.state {
             tier.sync(p.layer_mut())?;
         }
+        let surfaces = self.surfaces;
         let store = self.finish_paging()?;
         let t = std::time::Instant::now();
-        let mesh = export(
-            store,
-            field,
-            None,
-            &ExportTarget::Mesh(mesh_path.to_path_buf()),
-        )?;
-        if let Some(p) = points_path {
-            export(store, field, None, &ExportTarget::Points(p.to_path_buf()))?;
-        }
+        let mesh = surfaces(store, field, mesh_path, points_path)?;
         Ok(SurfaceOutput {
             field,
             mesh_path: mesh_path.to_path_buf(),

@@ -13,7 +13,7 @@
 //! the pass that wrote it. The manifest is committed after every region, so a killed run resumes
 //! with the first region not committed; a run with other parameters starts a new pass. Until a
 //! new pass reaches every chunk, the files of the last complete pass stay on disk and in the
-//! manifest ([`crate::tiles::manifest::Manifest::kept`]), so that pass remains readable whole.
+//! manifest ([`crate::map::manifest::Manifest::kept`]), so that pass remains readable whole.
 //!
 //! Sharding ([`regularize_shard`], `formats/shards.md`) is a thin layer over the same loop: which
 //! regions this process solves (its share, `k mod N`), and how a region's result is recorded —
@@ -21,75 +21,19 @@
 //! with reserved numbers and a region record that the writer's next run adopts
 //! ([`super::shards::adopt`]) before it solves what no shard recorded.
 
-use super::files::ObjectBytes;
-use super::pager::BLOCK_RESIDENT_BYTES;
-use super::region_plan::resolve;
-pub use super::region_plan::{check_budget_up_front, plan_region_chunks, RegionCosts};
+pub use super::region_plan::{
+    check_budget_up_front, plan_region_chunks, MapRegularizeStats, RegionCosts, RegionalOptions,
+};
+use super::region_plan::{region_of, region_over_budget, resolve, SOLVER_BYTES_PER_VOXEL};
 use super::shards::{self, Shard, ShardPlan};
-use super::store::MapStore;
-use super::ChunkIndex;
 use crate::error::Result;
+use crate::grid::BLOCK_RESIDENT_BYTES;
 use crate::grid::{Block, BlockIndex, Layer, VOXELS_PER_BLOCK};
+use crate::map::files::ObjectBytes;
+use crate::map::store::MapStore;
+use crate::map::ChunkIndex;
 use crate::regularize::{RegionPlan, TvParams, TvProblem};
 use std::collections::BTreeMap;
-
-/// Bytes per voxel the solver's arrays take while a region is solved (`f`, `w`, `u`, `ū`: 4 each,
-/// `p`: 12, mask 1, the gather's Ω flags 1, neighbour links 0.05), used for the budget check.
-pub const SOLVER_BYTES_PER_VOXEL: u64 = 30;
-
-/// Counters of an offline regularisation run.
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
-pub struct MapRegularizeStats {
-    /// Pass number written into the manifest.
-    pub pass: u32,
-    /// Regions solved in this run.
-    pub regions: usize,
-    /// Regions found already done (resumed run).
-    pub regions_skipped: usize,
-    /// Blocks written.
-    pub core_blocks: usize,
-    /// Blocks solved, halos included.
-    pub solved_blocks: usize,
-    /// Ω voxels written.
-    pub core_omega_voxels: u64,
-    /// Largest estimated working memory of one region, bytes.
-    pub peak_region_bytes: u64,
-    /// Halo thickness used, blocks.
-    pub halo_blocks: i32,
-    /// Wall time, seconds.
-    pub seconds: f64,
-    /// The caller stopped the run early (progress returned false); what was done is committed.
-    pub interrupted: bool,
-    /// Regions adopted from shards' records (a committing run after `--shard` runs).
-    pub regions_adopted: usize,
-    /// Regions left to other shards (a `--shard` run).
-    pub regions_other_shards: usize,
-    /// Sweeps the iterations were split into (1: all at once with the exact halo).
-    pub sweeps: u32,
-    /// Region edge used, chunks (planned to the budget when not given).
-    pub region_chunks: u32,
-}
-
-/// How [`regularize_map`] tiles and bounds its work.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RegionalOptions {
-    /// Region edge, chunks; 0: the largest that fits the budget ([`plan_region_chunks`]).
-    pub region_chunks: u32,
-    /// Working-memory bound of one region, bytes.
-    pub budget_bytes: u64,
-    /// Halo thickness, blocks; `None` for the exact halo of the iteration count. A thinner halo
-    /// leaves seams (kept for the test that shows it).
-    pub halo_blocks: Option<i32>,
-    /// Iterations per sweep ([`super::sweeps`]: every region this many iterations at a time, the
-    /// solver state kept in the store between sweeps, a halo of `K + 1` voxels); `None` solves
-    /// each region with all iterations at once and the exact halo of `iterations + 1` voxels
-    /// (also what `--shard` runs always do, and a committing run that adopted shards' regions).
-    pub sweep_iterations: Option<u32>,
-}
-
-pub(super) fn region_of(c: ChunkIndex, r: i32) -> [i32; 3] {
-    [0, 1, 2].map(|a| c.0[a].div_euclid(r))
-}
 
 /// Regularises every chunk of `store` with `params`, regions of `region_chunks`³ chunks, keeping
 /// each region's working memory under `budget_bytes` (an error says so when one region does not
@@ -405,12 +349,7 @@ fn regularize_pass(
             let bytes = gathered.len() as u64
                 * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
             if bytes > options.budget_bytes {
-                return Err(super::region_plan::region_over_budget(
-                    *key,
-                    halo,
-                    bytes,
-                    options.budget_bytes,
-                ));
+                return Err(region_over_budget(*key, halo, bytes, options.budget_bytes));
             }
         }
         let bytes = gathered.len() as u64
@@ -460,7 +399,7 @@ fn regularize_pass(
                 });
             }
             stats.core_omega_voxels += omega;
-            let holder = super::lock::LockHolder::current();
+            let holder = crate::map::lock::LockHolder::current();
             shards::write_record(
                 &**store.files(),
                 *plan_key,

@@ -7,7 +7,7 @@ use super::*;
 impl MapStore {
     /// Whether the header of chunk file `name` says it is file `seq` of chunk `c` of this map
     /// (format 1 files carry no origin: their name is all there is). Reads the header only.
-    pub(crate) fn header_is_ours(&self, name: &str, c: ChunkIndex, seq: u64) -> bool {
+    fn header_is_ours(&self, name: &str, c: ChunkIndex, seq: u64) -> bool {
         let Ok(head) = self.files.read_range(name, 0..CHUNK_HEADER_V2_BYTES as u64) else {
             return false;
         };
@@ -28,7 +28,7 @@ impl MapStore {
         let mut out = OpenCleanup::default();
         let listed = self.files.list(CHUNKS_DIR)?;
         let next = self.manifest.header.next_file_seq;
-        let reserved = crate::tiles::shards::reserved_ranges(&*self.files)?;
+        let reserved = crate::map::reserve::reservations(&*self.files)?;
         let mut superseded = Vec::new();
         for obj in listed {
             let name = obj.name;
@@ -123,6 +123,33 @@ impl MapStore {
             tracing::warn!("{}: left alone: {l}", self.files.path(CHUNKS_DIR).display());
         }
         Ok(out)
+    }
+
+    /// Removes the chunk files numbered in `range` (a reservation its owner has closed,
+    /// [`crate::map::layout`]) that the manifest does not name, each only after its header proves
+    /// it is this map's file of that number. Returns how many were removed.
+    pub fn remove_unnamed_in(&self, range: std::ops::Range<u64>) -> Result<usize> {
+        let mut removed = 0;
+        for o in self.files.list(CHUNKS_DIR)? {
+            let Some((c, seq)) = parse_chunk_file_name(&o.name) else {
+                continue;
+            };
+            if !range.contains(&seq) {
+                continue;
+            }
+            let named = |m: &std::collections::BTreeMap<ChunkIndex, ChunkEntry>| {
+                m.get(&c).is_some_and(|e| e.file_seq == seq)
+            };
+            let name = format!("{CHUNKS_DIR}/{}", o.name);
+            if !named(&self.manifest.chunks)
+                && !named(&self.manifest.kept)
+                && self.header_is_ours(&name, c, seq)
+            {
+                self.files.delete(&name)?;
+                removed += 1;
+            }
+        }
+        Ok(removed)
     }
 
     /// Reads every file the manifest names (current and kept) and checks it as

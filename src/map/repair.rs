@@ -18,13 +18,12 @@
 
 use super::codec::{ChunkHeader, ChunkOrigin, FLAG_HAS_REGULARIZED};
 use super::files::{LocalFiles, MapFiles};
+use super::layout::{CHUNKS_DIR, MANIFEST_FILE};
 use super::manifest::{
-    parse_chunk_file_name, ChunkEntry, Manifest, ManifestHeader, PassStatus, ENTRY_HAS_REGULARIZED,
-    FRAMES_UNKNOWN,
+    new_map_id, parse_chunk_file_name, ChunkEntry, Manifest, ManifestHeader, PassStatus,
+    ENTRY_HAS_REGULARIZED, FRAMES_UNKNOWN,
 };
-use super::store::{
-    new_map_id, read_chunk_file, read_manifest, MapStore, CHUNKS_DIR, MANIFEST_FILE,
-};
+use super::store::{read_chunk_file, read_manifest, MapStore};
 use super::ChunkIndex;
 use crate::error::{Error, Result};
 use crate::regularize::TvParams;

@@ -1,50 +1,56 @@
-//! Out of core: the map as a directory of compressed chunk files, paged around the camera.
+//! The storage engine: a map as named objects (a directory or an object-store prefix), chunk
+//! files committed by a manifest, one writer at a time, crash-safe, verified on every read.
 //!
+//! The engine knows nothing of the algorithms above it ([`crate::outofcore`], [`crate::export`]):
+//! no module here imports from them (checked by `tests/core/rooms.rs`). Its public API is
+//!
+//! - **open**: [`store::MapStore::create`], [`store::MapStore::open`] (one writer, the lock),
+//!   [`store::MapStore::open_read_only`] (readers that never lose the files their manifest names);
+//! - **read a chunk, verified**: [`store::MapStore::read_chunk`] (header, entry and payload CRC
+//!   checked against the manifest entry);
+//! - **write chunk versions**: [`store::ChunkWriter`] (new file, fsync, rename; create-only
+//!   where another process may write the same name) and [`store::MapStore::record`];
+//! - **commit**: [`store::MapStore::commit`] (the manifest, the only commit point);
+//! - **list what is provably this writer's own**: the clean-up at open (`store/cleanup.rs`) and
+//!   [`repair`], under the rules of [`layout`], the one place that names every kind of object a
+//!   map holds, who writes it, and when the engine may delete it.
+//!
+//! Modules:
+//! - [`layout`]: every object name of a map, the areas reserved for the algorithms above
+//!   (shard records, sweep state, export parts), file-number reservations, and the clean-up and
+//!   repair rule of each kind of file.
+//! - [`reserve`]: reading the file-number reservations of array jobs.
 //! - [`codec`]: pure chunk encoder/decoder (`formats/chunk.md`).
 //! - [`manifest`]: the map's manifest, the commit point of every write (`formats/manifest.md`).
 //! - [`store`]: the map: crash-safe chunk writes (new file, fsync, rename), reads checked against
 //!   the manifest entry, checkpoints that commit a manifest, verification.
 //! - [`files`]: the storage seam under the store: a local directory ([`files::LocalFiles`]) or an
-//!   object-store prefix (`s3`: `s3://bucket/prefix`, conditional writes, a lease, a chunk cache).
-//! - [`shards`]: regions and exports as array jobs (plans, region records, adoption).
-//! - [`merge`]: several maps of one world frame combined chunk by chunk (weighted TSDF average).
+//!   object-store prefix (`s3`: `s3://bucket/prefix`, conditional writes, a lease, a chunk cache);
+//!   [`location`] names and opens either.
 //! - [`lock`]: one writer per map (an advisory lock naming its holder), readers that never lose
 //!   the files their manifest names.
+//! - [`record`]: the versioned, checksummed record codec (job record, sweep progress).
+//! - [`job`]: the job record a resumed run must match (`formats/job.md`).
 //! - [`repair`]: rebuilds a lost manifest from the chunk files' self-describing headers.
-//! - [`pager`]: residency around the camera within a byte budget; evicted chunks are encoded and
-//!   written by background workers; revisited chunks are read back.
-//! - [`regional`]: offline regularisation of a stored map region by region with exact halos.
-//! - [`export`]: tile-by-tile export of meshes and point clouds (PLY, LAS, LAZ, COPC) in a world
-//!   frame; [`tileset`]: the map as a 3D Tiles tileset with levels of detail.
 //!
 //! A chunk is a cube of `chunk_blocks`³ blocks (default 16³ = 128³ voxels). Nothing here changes
-//! voxel values: fusing with paging gives the same bits as fusing in memory (tested).
+//! voxel values.
 
 pub mod codec;
-pub mod export;
 pub mod files;
 pub mod job;
+pub mod layout;
+pub mod location;
 pub mod lock;
 pub mod manifest;
-pub mod merge;
-mod paged;
-pub mod pager;
-pub mod parts;
-mod record;
-pub mod region_plan;
-pub mod regional;
+pub(crate) mod record;
 pub mod repair;
+pub mod reserve;
 #[cfg(feature = "s3")]
 pub mod s3;
-pub mod shards;
 pub mod store;
-pub mod sweep_state;
-pub mod sweeps;
-pub mod tileset;
 
-pub use files::MapLocation;
-
-pub use paged::PagedStore;
+pub use location::MapLocation;
 
 use crate::grid::BlockIndex;
 use serde::{Deserialize, Serialize};

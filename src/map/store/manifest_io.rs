@@ -3,22 +3,9 @@
 
 use super::*;
 
-/// A fresh random map identity (never 0).
-pub fn new_map_id() -> u64 {
-    use std::hash::{BuildHasher, Hasher};
-    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
-    h.write_u32(std::process::id());
-    h.write_u128(
-        std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_nanos()),
-    );
-    h.finish().max(1)
-}
-
 /// Chunk files (`*.dchk`) in `dir/chunks`, by name (0 when the folder is missing).
 pub fn count_chunk_files(dir: &Path) -> usize {
-    count_chunk_objects(&crate::tiles::files::LocalFiles::new(dir))
+    count_chunk_objects(&crate::map::files::LocalFiles::new(dir))
 }
 
 /// Chunk files (`*.dchk`) under the map's `chunks/` (0 when there are none, or on an error).
@@ -71,7 +58,7 @@ pub(super) fn lost_manifest(files: &dyn MapFiles, n: usize) -> Error {
 
 /// Reads and decodes `dir/manifest.dmf`; errors name the file.
 pub fn read_manifest(dir: &Path) -> Result<Manifest> {
-    read_manifest_at(&crate::tiles::files::LocalFiles::new(dir)).map(|(m, _)| m)
+    read_manifest_at(&crate::map::files::LocalFiles::new(dir)).map(|(m, _)| m)
 }
 
 /// Reads and decodes the map's manifest with its version; errors name the object.

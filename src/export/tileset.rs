@@ -26,13 +26,13 @@
 //! frame: ECEF for a UTM or geocentric CRS ([`WorldFrame::ecef_from_local`]), the given
 //! world-from-local transform for a local one.
 
-use super::export::{chunk_bounds_m, chunks_in, frame_bounds, Bbox};
-use super::store::MapStore;
-use super::ChunkIndex;
+use super::chunks::{chunk_bounds_m, chunks_in, frame_bounds, Bbox};
 use crate::error::{Error, Result};
 use crate::geo::WorldFrame;
 use crate::io::atomic::TempPath;
 use crate::io::glb::encode_glb;
+use crate::map::store::MapStore;
+use crate::map::ChunkIndex;
 use crate::mesh::{Field, Mesh};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::path::Path;

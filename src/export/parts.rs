@@ -9,19 +9,18 @@
 //! The key is a hash of the map id, the field and every chunk's committed file: parts of another
 //! state of the map are never used (and are removed by the next final export).
 
-use super::export::mesh_chunk;
-use super::manifest::Manifest;
-use super::shards::Shard;
-use super::store::MapStore;
-use super::ChunkIndex;
+use super::chunks::mesh_chunk;
 use crate::error::{Error, Result};
 use crate::grid::VoxelIndex;
+use crate::map::layout::EXPORTS_AREA;
+use crate::map::manifest::Manifest;
+use crate::map::store::MapStore;
+use crate::map::ChunkIndex;
 use crate::mesh::{EdgeKey, Field, Mesh};
+use crate::outofcore::shards::Shard;
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
-/// Folder of export parts inside a map.
-pub const EXPORTS_FOLDER: &str = "exports";
 /// First 8 bytes of a part object.
 pub const PART_MAGIC: [u8; 8] = *b"DNSRPART";
 /// Part format version.
@@ -57,7 +56,7 @@ pub fn export_key(m: &Manifest, field: Field) -> u64 {
 
 fn part_name(key: u64, shard: Shard) -> String {
     format!(
-        "{EXPORTS_FOLDER}/{key:016x}/part-{}-of-{}.dmp",
+        "{EXPORTS_AREA}/{key:016x}/part-{}-of-{}.dmp",
         shard.index, shard.count
     )
 }
@@ -223,7 +222,7 @@ pub fn write_part(
 /// The parts stored for the map's current state and `field`: where each chunk's record is.
 #[derive(Debug)]
 pub struct ExportParts {
-    store_files: Arc<dyn super::files::MapFiles>,
+    store_files: Arc<dyn crate::map::files::MapFiles>,
     key: u64,
     /// Chunk → (part object, offset, length).
     records: BTreeMap<ChunkIndex, (String, u64, u64)>,
@@ -237,7 +236,7 @@ impl ExportParts {
     pub fn load(store: &MapStore, field: Field) -> Result<Option<Self>> {
         let key = export_key(store.manifest(), field);
         let files = store.files().clone();
-        let folder = format!("{EXPORTS_FOLDER}/{key:016x}");
+        let folder = format!("{EXPORTS_AREA}/{key:016x}");
         let listed = files.list(&folder)?;
         if listed.is_empty() {
             return Ok(None);
@@ -321,8 +320,8 @@ impl ExportParts {
 
     /// Removes these parts, and parts of other states of the map (stale), from the store.
     pub fn remove_all(&self) -> Result<()> {
-        for o in self.store_files.list_recursive(EXPORTS_FOLDER)? {
-            let name = format!("{EXPORTS_FOLDER}/{}", o.name);
+        for o in self.store_files.list_recursive(EXPORTS_AREA)? {
+            let name = format!("{EXPORTS_AREA}/{}", o.name);
             let ours = o.name.starts_with(&format!("{:016x}/", self.key));
             if ours || o.name.ends_with(".dmp") {
                 self.store_files.delete(&name)?;

@@ -19,18 +19,18 @@
 //! when the pass completes removes the plans with the files of theirs that no manifest names.
 //! While a plan exists, writers opening the map leave the files in its range alone.
 
-use super::codec::{decode_header_with_origin, CHUNK_HEADER_V2_BYTES, FLAG_HAS_REGULARIZED};
-use super::files::MapFiles;
-use super::manifest::{chunk_file_name, ChunkEntry, Manifest, ENTRY_HAS_REGULARIZED};
-use super::store::{MapStore, CHUNKS_DIR};
-use super::ChunkIndex;
 use crate::error::{Error, Result};
+use crate::map::codec::{decode_header_with_origin, CHUNK_HEADER_V2_BYTES, FLAG_HAS_REGULARIZED};
+use crate::map::files::MapFiles;
+use crate::map::layout::{CHUNKS_DIR, RESERVATION_FILE, SHARDS_AREA};
+use crate::map::manifest::{chunk_file_name, ChunkEntry, Manifest, ENTRY_HAS_REGULARIZED};
+use crate::map::reserve::{reservation_name, reservation_objects, Reservation};
+use crate::map::store::{MapStore, WrittenChunk};
+use crate::map::ChunkIndex;
 use crate::regularize::TvParams;
 use std::collections::BTreeMap;
 use std::ops::Range;
 
-/// Folder of shard plans and records.
-pub const SHARDS_FOLDER: &str = "shards";
 /// Distance between the manifest's next file number and a plan's first reserved number.
 pub const SHARD_SEQ_GAP: u64 = 1 << 32;
 /// `format` of a plan object.
@@ -149,7 +149,11 @@ pub struct ShardPlan {
 impl ShardPlan {
     /// The file numbers it reserves.
     pub fn reserved(&self) -> Range<u64> {
-        self.seq_base..self.seq_base + self.chunks
+        Reservation {
+            seq_base: self.seq_base,
+            chunks: self.chunks,
+        }
+        .range()
     }
 }
 
@@ -237,12 +241,12 @@ pub fn plan_key(m: &Manifest, pass: u32, params: &TvParams, region_chunks: u32, 
 }
 
 fn plan_name(key: u64) -> String {
-    format!("{SHARDS_FOLDER}/{key:016x}/plan.json")
+    reservation_name(&format!("{key:016x}"))
 }
 
 fn record_name(key: u64, region: [i32; 3]) -> String {
     format!(
-        "{SHARDS_FOLDER}/{key:016x}/regions/r_{}_{}_{}.json",
+        "{SHARDS_AREA}/{key:016x}/regions/r_{}_{}_{}.json",
         region[0], region[1], region[2]
     )
 }
@@ -262,11 +266,7 @@ fn parse_json<T: serde::de::DeserializeOwned>(
 /// Every plan under `shards/` (unreadable ones are reported and skipped).
 pub fn plans(files: &dyn MapFiles) -> Result<Vec<ShardPlan>> {
     let mut out = Vec::new();
-    for o in files.list_recursive(SHARDS_FOLDER)? {
-        if !o.name.ends_with("/plan.json") || o.name.matches('/').count() != 1 {
-            continue;
-        }
-        let name = format!("{SHARDS_FOLDER}/{}", o.name);
+    for name in reservation_objects(files)? {
         match parse_json::<ShardPlan>(files, &name) {
             Ok(Some(p)) if p.format == PLAN_FORMAT => out.push(p),
             Ok(_) => {}
@@ -274,11 +274,6 @@ pub fn plans(files: &dyn MapFiles) -> Result<Vec<ShardPlan>> {
         }
     }
     Ok(out)
-}
-
-/// File numbers reserved by open plans: writers opening the map leave those files alone.
-pub fn reserved_ranges(files: &dyn MapFiles) -> Result<Vec<Range<u64>>> {
-    Ok(plans(files)?.iter().map(ShardPlan::reserved).collect())
 }
 
 /// Creates the plan of `key` (create-only) or reads the one a shard created first; an error when
@@ -330,7 +325,7 @@ pub fn plan_for(
         created_unix_s: std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_secs()),
-        created_by: super::lock::LockHolder::current().describe(),
+        created_by: crate::map::lock::LockHolder::current().describe(),
     }
 }
 
@@ -345,7 +340,7 @@ pub fn reserved_seqs(m: &Manifest, plan: &ShardPlan) -> BTreeMap<ChunkIndex, u64
 
 /// Regions recorded as done under `key`.
 pub fn recorded_regions(files: &dyn MapFiles, key: u64) -> Result<Vec<[i32; 3]>> {
-    let folder = format!("{SHARDS_FOLDER}/{key:016x}/regions");
+    let folder = format!("{SHARDS_AREA}/{key:016x}/regions");
     Ok(files
         .list(&folder)?
         .iter()
@@ -470,7 +465,7 @@ pub fn adopt(
         }
         for f in &rec.files {
             max_seq = max_seq.max(f.file_seq);
-            store.record(super::store::WrittenChunk {
+            store.record(WrittenChunk {
                 chunk: ChunkIndex(f.chunk),
                 entry: ChunkEntry {
                     block_count: f.block_count,
@@ -500,41 +495,20 @@ pub fn adopt(
 }
 
 /// Removes every plan of the map with its records and the files in its range that the manifest
-/// does not name (their headers checked: this map's file of that number), once the pass is
+/// does not name (the engine's rule: [`MapStore::remove_unnamed_in`]), once the pass is
 /// complete. Returns how many files were removed.
 pub fn close_plans(store: &MapStore) -> Result<usize> {
     let files = store.files().clone();
-    let plans = plans(&*files)?;
-    if plans.is_empty() {
-        return Ok(0);
-    }
-    let m = store.manifest();
     let mut removed = 0;
-    let listed = files.list(CHUNKS_DIR)?;
-    for plan in &plans {
-        let range = plan.reserved();
-        for o in &listed {
-            let Some((c, seq)) = super::manifest::parse_chunk_file_name(&o.name) else {
-                continue;
-            };
-            if !range.contains(&seq) {
-                continue;
-            }
-            let named = m.chunks.get(&c).is_some_and(|e| e.file_seq == seq)
-                || m.kept.get(&c).is_some_and(|e| e.file_seq == seq);
-            let name = format!("{CHUNKS_DIR}/{}", o.name);
-            if !named && store.header_is_ours(&name, c, seq) {
-                files.delete(&name)?;
-                removed += 1;
-            }
-        }
-        let folder = format!("{SHARDS_FOLDER}/{}", plan.key);
+    for plan in &plans(&*files)? {
+        removed += store.remove_unnamed_in(plan.reserved())?;
+        let folder = format!("{SHARDS_AREA}/{}", plan.key);
         for o in files.list_recursive(&folder)? {
-            if o.name != "plan.json" {
+            if o.name != RESERVATION_FILE {
                 files.delete(&format!("{folder}/{}", o.name))?;
             }
         }
-        files.delete(&format!("{folder}/plan.json"))?;
+        files.delete(&reservation_name(&plan.key))?;
     }
     Ok(removed)
 }

@@ -22,8 +22,10 @@
 //!   3600 s), so a reader sees its manifest's files for at least that long.
 
 use super::files::{
-    Conditional, Listed, MapFiles, MapLocation, ObjectBytes, ObjectVersion, ReaderHold, WriterHold,
+    Conditional, Listed, MapFiles, ObjectBytes, ObjectVersion, ReaderHold, WriterHold,
 };
+use super::layout::{GC_FOLDER, LEASE_OBJECT};
+use super::location::MapLocation;
 use super::lock::{host_name, LockHolder};
 use crate::error::{Error, Result};
 use object_store::aws::{AmazonS3, AmazonS3Builder};
@@ -32,11 +34,6 @@ use object_store::{ObjectStore, ObjectStoreExt, PutMode, PutOptions, PutPayload,
 use std::ops::Range;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
-
-/// Name of the lease object (the object-store writer lock).
-pub const LEASE_OBJECT: &str = "lock";
-/// Folder of deletion records.
-pub const GC_FOLDER: &str = "gc";
 
 fn now_s() -> u64 {
     std::time::SystemTime::now()
@@ -474,7 +471,7 @@ impl MapFiles for S3Files {
     fn lock_writer(&self) -> Result<Box<dyn WriterHold>> {
         let record = LeaseRecord {
             holder: LockHolder::current(),
-            token: super::store::new_map_id(),
+            token: super::manifest::new_map_id(),
             expires_unix_s: now_s() + self.lease_s,
         };
         let bytes = record.encode();
@@ -600,7 +597,7 @@ impl MapFiles for S3Files {
             }
             let name = format!(
                 "{GC_FOLDER}/{due:012}-{generation:020}-{:016x}.txt",
-                super::store::new_map_id()
+                super::manifest::new_map_id()
             );
             self.write(&name, text.as_bytes())?;
         }

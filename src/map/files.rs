@@ -17,98 +17,10 @@
 //! Everything above this trait — manifest, entry checks, passes, cleanup rules, shards — is the
 //! same code for both.
 
+use super::location::MapLocation;
 use crate::error::{Error, Result};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
-
-/// Where a map lives: a local directory or an object-store prefix.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum MapLocation {
-    /// A directory on a local (or network) file system.
-    Dir(PathBuf),
-    /// `s3://bucket/prefix`: objects `prefix/manifest.dmf`, `prefix/chunks/…` in `bucket`.
-    S3 {
-        /// The bucket.
-        bucket: String,
-        /// The key prefix, without leading or trailing `/` (may be empty).
-        prefix: String,
-    },
-}
-
-impl MapLocation {
-    /// Parses `s3://bucket/prefix` (an object store) or anything else as a directory path.
-    pub fn parse(s: &str) -> Result<Self> {
-        if let Some(rest) = s.strip_prefix("s3://") {
-            let (bucket, prefix) = rest.split_once('/').unwrap_or((rest, ""));
-            if bucket.is_empty() {
-                return Err(Error::InvalidArgument(format!(
-                    "{s:?}: an object-store map is s3://BUCKET/PREFIX"
-                )));
-            }
-            return Ok(MapLocation::S3 {
-                bucket: bucket.to_string(),
-                prefix: prefix.trim_matches('/').to_string(),
-            });
-        }
-        if s.contains("://") {
-            return Err(Error::InvalidArgument(format!(
-                "{s:?}: unknown map address (give a directory or s3://bucket/prefix)"
-            )));
-        }
-        Ok(MapLocation::Dir(PathBuf::from(s)))
-    }
-
-    /// The local directory, if this is one.
-    pub fn as_dir(&self) -> Option<&Path> {
-        match self {
-            MapLocation::Dir(d) => Some(d),
-            MapLocation::S3 { .. } => None,
-        }
-    }
-
-    /// The location as a path, for messages: the directory, or `s3://bucket/prefix`.
-    pub fn display_path(&self) -> PathBuf {
-        PathBuf::from(self.to_string())
-    }
-
-    /// Opens the location's objects.
-    pub fn open_files(&self) -> Result<std::sync::Arc<dyn MapFiles>> {
-        match self {
-            MapLocation::Dir(d) => Ok(std::sync::Arc::new(LocalFiles::new(d))),
-            #[cfg(feature = "s3")]
-            MapLocation::S3 { bucket, prefix } => Ok(std::sync::Arc::new(
-                super::s3::S3Files::from_env(bucket, prefix)?,
-            )),
-            #[cfg(not(feature = "s3"))]
-            MapLocation::S3 { .. } => Err(Error::InvalidArgument(format!(
-                "{self}: this denser was built without the `s3` feature"
-            ))),
-        }
-    }
-}
-
-impl From<&Path> for MapLocation {
-    fn from(p: &Path) -> Self {
-        MapLocation::Dir(p.to_path_buf())
-    }
-}
-
-impl std::fmt::Display for MapLocation {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            MapLocation::Dir(d) => write!(f, "{}", d.display()),
-            MapLocation::S3 { bucket, prefix } if prefix.is_empty() => write!(f, "s3://{bucket}"),
-            MapLocation::S3 { bucket, prefix } => write!(f, "s3://{bucket}/{prefix}"),
-        }
-    }
-}
-
-impl std::str::FromStr for MapLocation {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        MapLocation::parse(s)
-    }
-}
 
 /// An object's version as its store reports it (the e-tag and, where versioning is on, the
 /// version id): what a compare-and-swap compares. Local directories have none.
@@ -408,7 +320,7 @@ impl MapFiles for LocalFiles {
             ".{}.{}.{}.new",
             path.file_name().map_or("x".into(), |n| n.to_string_lossy()),
             std::process::id(),
-            super::store::new_map_id()
+            super::manifest::new_map_id()
         ));
         {
             let mut f = std::fs::File::create(&tmp).map_err(|e| Error::io(&tmp, e))?;
@@ -496,7 +408,7 @@ impl MapFiles for LocalFiles {
         }
         // Folders of records (shards/KEY/regions, exports/KEY) go with their last object, as
         // prefixes do on an object store; `chunks/` and the map's root stay.
-        let keep = [self.dir.clone(), self.dir.join(super::store::CHUNKS_DIR)];
+        let keep = [self.dir.clone(), self.dir.join(super::layout::CHUNKS_DIR)];
         let mut dir = p.parent().map(Path::to_path_buf);
         while let Some(d) = dir {
             if keep.contains(&d) || !d.starts_with(&self.dir) || std::fs::remove_dir(&d).is_err() {

@@ -3,7 +3,7 @@
 //! Before each frame the caller names the chunks the frame needs ([`Pager::page_in`]); chunks on
 //! disk are read back (a revisit), new ones start empty. After the frame, [`Pager::evict_to_budget`]
 //! moves the chunks farthest from the camera out of the layer and hands them to background writer
-//! threads (crossbeam channel), which encode and write them (crash-safely, see [`super::store`]).
+//! threads (crossbeam channel), which encode and write them (crash-safely, see [`crate::map::store`]).
 //! Chunks still being written count against the budget. The chunks the current frame needs are
 //! never evicted; if they alone exceed the budget the overrun is reported (an error, or a counted
 //! warning with [`OverrunPolicy::Warn`]), never ignored.
@@ -14,10 +14,12 @@
 //! The pager never changes voxel values: fusing through it gives the same bits as fusing into one
 //! in-memory layer, provided the caller pages in every chunk the frame can update (tested).
 
-use super::store::{ChunkWriter, MapStore, WrittenChunk};
-use super::{group_by_chunk, ChunkIndex};
 use crate::error::{Error, Result};
-use crate::grid::{eviction_order, Block, BlockIndex, EvictionCandidate, Layer};
+use crate::grid::{
+    eviction_order, Block, BlockIndex, EvictionCandidate, Layer, BLOCK_RESIDENT_BYTES,
+};
+use crate::map::store::{ChunkWriter, MapStore, WrittenChunk};
+use crate::map::{group_by_chunk, ChunkIndex};
 use crossbeam::channel::{bounded, unbounded, Receiver, Sender};
 use std::collections::{HashMap, HashSet};
 
@@ -93,13 +95,6 @@ struct WriteDone {
 struct Resident {
     dirty: bool,
 }
-
-/// RAM bytes of one resident block with its hash slot (regularised field not included: the
-/// pager runs during fusion, before `u` exists).
-pub const BLOCK_RESIDENT_BYTES: u64 = (std::mem::size_of::<Block>()
-    + std::mem::size_of::<BlockIndex>()
-    + std::mem::size_of::<Box<Block>>()
-    + 1) as u64;
 
 /// The paging state around one layer of resident blocks.
 pub struct Pager {

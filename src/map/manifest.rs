@@ -16,6 +16,19 @@ use super::ChunkIndex;
 use crate::regularize::TvParams;
 use std::collections::BTreeMap;
 
+/// A fresh random map identity (never 0).
+pub fn new_map_id() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u32(std::process::id());
+    h.write_u128(
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos()),
+    );
+    h.finish().max(1)
+}
+
 /// First 8 bytes of a manifest.
 pub const MANIFEST_MAGIC: [u8; 8] = *b"DNSRMANI";
 /// Manifest format version written by this build.
@@ -405,7 +418,7 @@ pub fn decode_manifest(b: &[u8]) -> Result<Manifest, ManifestError> {
         complete_params: if v2 {
             get_params(b, 84)
         } else {
-            crate::tiles::codec::NO_PARAMS
+            crate::map::codec::NO_PARAMS
         },
         map_id: if v2 { get_u64(b, 104) } else { 0 },
     };

@@ -1,0 +1,116 @@
+//! The chunk-level pieces every exporter shares: which chunks an export covers ([`chunks_in`],
+//! boxes in a world frame), and one chunk meshed with the neighbour layer its cubes read
+//! ([`mesh_chunk`]). A leaf of the exports room: the stitched outputs ([`super::export`]), the
+//! shards' parts ([`super::parts`]) and the tilesets ([`super::tileset`]) build on it.
+
+use crate::error::{Error, Result};
+use crate::geo::WorldFrame;
+use crate::grid::{BlockIndex, Layer};
+use crate::map::store::MapStore;
+use crate::map::ChunkIndex;
+use crate::mesh::{extract_mesh_keyed, EdgeKey, Field, Mesh};
+
+/// An axis-aligned box in world coordinates, metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bbox {
+    /// Lower corner.
+    pub min_m: [f64; 3],
+    /// Upper corner.
+    pub max_m: [f64; 3],
+}
+
+impl Bbox {
+    /// Parses `xmin,ymin,zmin,xmax,ymax,zmax`.
+    pub fn parse(s: &str) -> Result<Self> {
+        let v: Vec<f64> = s
+            .split(',')
+            .map(|t| t.trim().parse::<f64>())
+            .collect::<std::result::Result<_, _>>()
+            .map_err(|e| Error::InvalidArgument(format!("--bbox {s:?}: {e}")))?;
+        if v.len() != 6 || (0..3).any(|a| !(v[a] <= v[a + 3])) {
+            return Err(Error::InvalidArgument(format!(
+                "--bbox {s:?}: expected xmin,ymin,zmin,xmax,ymax,zmax with min ≤ max"
+            )));
+        }
+        Ok(Bbox {
+            min_m: [v[0], v[1], v[2]],
+            max_m: [v[3], v[4], v[5]],
+        })
+    }
+
+    /// Whether `p` lies inside (bounds included).
+    pub fn contains(&self, p: [f64; 3]) -> bool {
+        (0..3).all(|a| p[a] >= self.min_m[a] && p[a] <= self.max_m[a])
+    }
+
+    /// Whether the box meets `[lo, hi]`.
+    pub fn meets(&self, lo: [f64; 3], hi: [f64; 3]) -> bool {
+        (0..3).all(|a| hi[a] >= self.min_m[a] && lo[a] <= self.max_m[a])
+    }
+}
+
+/// Map-frame bounds of chunk `c`, metres.
+pub fn chunk_bounds_m(store: &MapStore, c: ChunkIndex) -> ([f64; 3], [f64; 3]) {
+    let chunk_m = store.grid().block_size_m() * store.chunk_blocks() as f64;
+    let lo = [0, 1, 2].map(|a| c.0[a] as f64 * chunk_m);
+    let hi = [0, 1, 2].map(|a| (c.0[a] + 1) as f64 * chunk_m);
+    (lo, hi)
+}
+
+/// The axis-aligned box (in `frame`) of a map-frame box's eight corners.
+pub fn frame_bounds(frame: &WorldFrame, lo: [f64; 3], hi: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+    let mut a = [f64::INFINITY; 3];
+    let mut b = [f64::NEG_INFINITY; 3];
+    for k in 0..8 {
+        let p = [0, 1, 2].map(|d| if (k >> d) & 1 == 0 { lo[d] } else { hi[d] });
+        let w = frame.to_world(p);
+        for d in 0..3 {
+            a[d] = a[d].min(w[d]);
+            b[d] = b[d].max(w[d]);
+        }
+    }
+    (a, b)
+}
+
+/// The chunks of `store` whose box (in `frame`) meets `bbox` (all without a box), sorted.
+pub fn chunks_in(store: &MapStore, frame: &WorldFrame, bbox: Option<Bbox>) -> Vec<ChunkIndex> {
+    store
+        .chunk_indices()
+        .into_iter()
+        .filter(|c| {
+            let (lo, hi) = chunk_bounds_m(store, *c);
+            let (lo, hi) = frame_bounds(frame, lo, hi);
+            bbox.is_none_or(|b| b.meets(lo, hi))
+        })
+        .collect()
+}
+
+/// Meshes chunk `c` of the map (reading the neighbour blocks its cubes need): the mesh in the map
+/// frame, each vertex's edge key, and the number of the chunk's own blocks.
+pub fn mesh_chunk(
+    store: &MapStore,
+    c: ChunkIndex,
+    field: Field,
+) -> Result<(Mesh, Vec<EdgeKey>, usize)> {
+    let cb = store.chunk_blocks();
+    let mut layer = Layer::new(store.grid());
+    let mut own: Vec<BlockIndex> = Vec::new();
+    let hi_block = c.origin_block(cb).map(|o| o + cb as i32);
+    for d in 0..8i32 {
+        let off = [d & 1, (d >> 1) & 1, (d >> 2) & 1];
+        let Some(dec) = store.read_chunk(c.offset(off))? else {
+            continue;
+        };
+        for (b, block) in dec.blocks {
+            if d == 0 {
+                own.push(b);
+                layer.insert(b, block);
+            } else if (0..3).all(|a| off[a] == 0 || b.0[a] == hi_block[a]) {
+                // Only the neighbour blocks touching this chunk's +faces are read by its cubes.
+                layer.insert(b, block);
+            }
+        }
+    }
+    let (m, keys) = extract_mesh_keyed(&layer, field, Some(&own));
+    Ok((m, keys, own.len()))
+}

@@ -1,0 +1,63 @@
+//! Every kind of object a map holds, who writes it, and when the engine may delete it: the one
+//! place where the names and the clean-up and repair rules are stated. Names are relative to the
+//! map's root (a directory, or an object-store prefix).
+//!
+//! | object | written by | the engine's rule |
+//! |---|---|---|
+//! | [`MANIFEST_FILE`] | the writer's commit ([`super::store::MapStore::commit`]) | never deleted; rebuilt by [`super::repair`] when lost |
+//! | [`MANIFEST_TMP`] | a local commit before its rename | removed by the next writer at open |
+//! | `chunks/c_X_Y_Z_SEQ.dchk` ([`CHUNKS_DIR`]) | [`super::store::ChunkWriter`] | kept while a committed manifest names it (current or kept pass); see below |
+//! | `chunks/*.tmp`, `chunks/.*.new` | a chunk write before its rename or link | removed by the next writer at open |
+//! | [`LOCK_FILE`], [`READERS_LOCK_FILE`] | [`super::lock`] (local maps) | never deleted |
+//! | [`LEASE_OBJECT`], `gc/*` ([`GC_FOLDER`]) | the object-store writer (`s3`) | the lease is renewed and released by its holder; deletion records are carried out when due |
+//! | [`JOB_FILE`], [`LEGACY_JOB_FILE`] | `reconstruct --map` ([`super::job`]) | never deleted |
+//! | `shards/…` ([`SHARDS_AREA`]) | array-job shards (`crate::outofcore::shards`) | the engine reads only the reservations ([`super::reserve`]); the owner removes its records |
+//! | `sweeps/…` ([`SWEEPS_AREA`]) | swept regularisation (`crate::outofcore::sweeps`) | never read or deleted by the engine; the owner removes it |
+//! | `exports/…` ([`EXPORTS_AREA`]) | `export --shard` (`crate::export::parts`) | never read or deleted by the engine; the owner removes it |
+//! | anything else | — | reported and left alone |
+//!
+//! A chunk file the manifest does not name is deleted by a writer only when the writer can prove
+//! it is this map's own leftover: its header names this map, this chunk and this file number
+//! (`store/cleanup.rs`, `MapStore::header_is_ours`), and
+//! - its number is at or past the committed next number (written after the last commit by a
+//!   writer that died) and no open reservation holds it; or
+//! - it is an older version of a chunk the manifest names (superseded), once no reader has the
+//!   map open; or
+//! - its number lies in a reservation its owner has closed
+//!   (`MapStore::remove_unnamed_in`).
+//!
+//! Everything else in `chunks/` is reported and left alone. [`super::repair`] deletes nothing.
+//!
+//! The algorithms above the engine keep their own files in the areas reserved for them
+//! ([`SHARDS_AREA`], [`SWEEPS_AREA`], [`EXPORTS_AREA`]), written and deleted through the same
+//! seam ([`super::files::MapFiles`]); the engine never interprets them, except that a
+//! **reservation** — `shards/KEY/plan.json` whose `seq_base` and `chunks` fields reserve the
+//! chunk file numbers `seq_base .. seq_base + chunks` for writers other than the map's writer
+//! (`formats/shards.md`) — keeps the files in its range from the writer's clean-up at open.
+
+/// The manifest, the commit point of every write (`formats/manifest.md`).
+pub const MANIFEST_FILE: &str = "manifest.dmf";
+/// The temporary manifest a local commit renames (only writers make it).
+pub const MANIFEST_TMP: &str = "manifest.tmp";
+/// Folder of chunk files (`formats/chunk.md`).
+pub const CHUNKS_DIR: &str = "chunks";
+/// The writer lock file of a local map.
+pub const LOCK_FILE: &str = "lock";
+/// The readers' lock file of a local map.
+pub const READERS_LOCK_FILE: &str = "readers.lock";
+/// The lease object (the object-store writer lock).
+pub const LEASE_OBJECT: &str = "lock";
+/// Folder of deletion records on an object store.
+pub const GC_FOLDER: &str = "gc";
+/// The job record (`formats/job.md`).
+pub const JOB_FILE: &str = "job.djr";
+/// The job record of maps made before `job.djr` (JSON, absolute input path).
+pub const LEGACY_JOB_FILE: &str = "job.json";
+/// Area of array-job plans (reservations) and region records (`formats/shards.md`).
+pub const SHARDS_AREA: &str = "shards";
+/// Area of a swept regularisation pass's state and progress (`formats/sweep-state.md`).
+pub const SWEEPS_AREA: &str = "sweeps";
+/// Area of the chunk meshes made by `export --shard` runs.
+pub const EXPORTS_AREA: &str = "exports";
+/// Name of a reservation inside its folder `shards/KEY/`.
+pub const RESERVATION_FILE: &str = "plan.json";
