@@ -446,7 +446,11 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
                 "this map's manifest was rebuilt by `denser repair`, which cannot know how many frames were fused: fusion cannot resume it (regularize, export and inspect work); reconstruct into a new --map folder",
             ));
         }
-        record.check_or_write_at(&**store.files(), &job.input)?;
+        record.check_or_write_at(
+            &**store.files(),
+            &job.input,
+            store.manifest().header.frames_committed,
+        )?;
         store
     } else {
         let chunk_blocks = match m.chunk_blocks {

@@ -121,11 +121,15 @@ impl WorldFrame {
                     "origin {origin:?}: expected 3 coordinates and an optional heading"
                 )));
             }
-            return Ok(Self::from_origin(
-                Some(crs),
-                [v[0], v[1], v[2]],
-                v.get(3).copied().unwrap_or(90.0),
-            ));
+            let heading_deg = v.get(3).copied().unwrap_or(90.0);
+            if !(-360.0..=360.0).contains(&heading_deg) {
+                return Err(bad(format!(
+                    "heading {heading_deg}°: expected a compass heading in [-360, 360] degrees"
+                )));
+            }
+            let origin = [v[0], v[1], v[2]];
+            check_area(&crs, origin).map_err(bad)?;
+            return Ok(Self::from_origin(Some(crs), origin, heading_deg));
         }
         let path = Path::new(spec);
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
@@ -185,6 +189,10 @@ impl WorldFrame {
                 rot.determinant()
             ));
         }
+        if let Some(crs) = &crs {
+            check_area(crs, [m[(0, 3)], m[(1, 3)], m[(2, 3)]])
+                .map_err(|e| format!("the matrix's translation (the map origin): {e}"))?;
+        }
         Ok(WorldFrame {
             world_from_map: m,
             crs,
@@ -232,6 +240,60 @@ impl WorldFrame {
         let rot = ecef_from_grid * wl.fixed_view::<3, 3>(0, 0);
         Some(homogeneous(rot, Vector3::from(origin)))
     }
+}
+
+/// Heights accepted for a map origin, metres above the ellipsoid: the Dead Sea shore to well
+/// above any aircraft survey.
+const HEIGHT_RANGE_M: std::ops::RangeInclusive<f64> = -12_000.0..=100_000.0;
+
+/// Checks that `origin` (CRS coordinates) lies where the CRS is defined (issue 36: an easting of
+/// 10¹² wrote `null` into a tileset's transform, and a negative northing in a northern zone was
+/// accepted). UTM: easting 0–1 000 km (a zone is ~670 km wide at the equator), northing 0 to
+/// 9 350 km (84° N) in a northern zone and 1 000 to 10 000 km (80° S to the equator) in a southern
+/// one; geocentric: within 100 km of the WGS 84 ellipsoid's surface.
+fn check_area(crs: &Crs, origin: [f64; 3]) -> std::result::Result<(), String> {
+    let [x, y, z] = origin;
+    if let Some(zone) = wkt::utm_zone(crs.epsg) {
+        let northing = if zone.north {
+            0.0..=9_350_000.0
+        } else {
+            1_000_000.0..=10_000_000.0
+        };
+        let hemisphere = if zone.north { "northern" } else { "southern" };
+        if !(0.0..=1_000_000.0).contains(&x) {
+            return Err(format!(
+                "easting {x} m is outside UTM zone {} (0 to 1 000 000 m) of EPSG:{}",
+                zone.zone, crs.epsg
+            ));
+        }
+        if !northing.contains(&y) {
+            return Err(format!(
+                "northing {y} m is outside the {hemisphere} UTM zone {} of EPSG:{} ({} to {} m)",
+                zone.zone,
+                crs.epsg,
+                northing.start(),
+                northing.end()
+            ));
+        }
+        if !HEIGHT_RANGE_M.contains(&z) {
+            return Err(format!(
+                "height {z} m is outside {} to {} m",
+                HEIGHT_RANGE_M.start(),
+                HEIGHT_RANGE_M.end()
+            ));
+        }
+        return Ok(());
+    }
+    // Geocentric (EPSG:4978): near the ellipsoid's surface (semi-axes 6 378 137 and 6 356 752 m).
+    let r = (x * x + y * y + z * z).sqrt();
+    if !(6_256_752.0..=6_478_137.0).contains(&r) {
+        return Err(format!(
+            "geocentric point ({x}, {y}, {z}) is {:.0} km from the Earth's centre, not within 100 km of its surface (EPSG:{})",
+            r / 1000.0,
+            crs.epsg
+        ));
+    }
+    Ok(())
 }
 
 fn crs_for(code: &str) -> std::result::Result<Crs, String> {
@@ -289,6 +351,34 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("EPSG:2056") && e.contains("UTM"), "{e}");
+    }
+
+    /// Issue 36: origins outside the CRS's area and absurd headings were accepted (an easting of
+    /// 10¹² wrote `null` into tileset.json).
+    #[test]
+    fn origins_outside_the_crs_and_bad_headings_are_refused() {
+        for (spec, word) in [
+            ("EPSG:32632@1e12,5335000,500", "easting"),
+            ("EPSG:32632@691000,5e8,500", "northing"),
+            ("EPSG:32632@691000,-5335000,500", "northing"),
+            ("EPSG:32732@691000,500000,500", "southern"),
+            ("EPSG:25832@691000,5335000,1e7", "height"),
+            ("EPSG:32632@691000,5335000,500,1e9", "heading"),
+            ("EPSG:4978@1,2,3", "centre"),
+        ] {
+            let e = WorldFrame::parse(spec).unwrap_err().to_string();
+            assert!(e.contains(word), "{spec}: {e}");
+        }
+        for ok in [
+            "EPSG:32632@691000,5335000,500,-90",
+            "EPSG:32732@300000,7000000,20",
+            "EPSG:4978@4177891.13,855128.58,4727618.05",
+        ] {
+            assert!(WorldFrame::parse(ok).is_ok(), "{ok}");
+        }
+        let e =
+            WorldFrame::parse_matrix_text("EPSG:32632\n1 0 0 1e12\n0 1 0 0\n0 0 1 0").unwrap_err();
+        assert!(e.contains("translation") && e.contains("easting"), "{e}");
     }
 
     #[test]

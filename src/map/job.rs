@@ -164,12 +164,14 @@ impl JobRecord {
         &self,
         files: &dyn super::files::MapFiles,
         input: &Path,
+        frames_committed: u64,
     ) -> Result<()> {
         if let Some(dir) = files.location().as_dir() {
-            return self.check_or_write(dir, input);
+            return self.check_or_write(dir, input, frames_committed);
         }
         let path = files.path(JOB_FILE);
         match files.read_versioned(JOB_FILE)? {
+            None if frames_committed > 0 => Err(missing_record(path, frames_committed)),
             None => self.write_at(files),
             Some((b, _)) => {
                 let stored = Self::decode(&path, &b)?;
@@ -189,10 +191,20 @@ impl JobRecord {
         }
     }
 
-    /// Checks a resumed run against the record of `map_dir` (written when absent): an error
-    /// naming every field that differs, so the user can fix the command or use a new map.
-    pub fn check_or_write(&self, map_dir: &Path, input: &Path) -> Result<()> {
+    /// Checks a resumed run against the record of `map_dir`: an error naming every field that
+    /// differs, so the user can fix the command or use a new map. An absent record is written
+    /// when the map holds no committed frame (`frames_committed`), and refused otherwise: the
+    /// run could not tell whether it continues the same job (issue 36).
+    pub fn check_or_write(
+        &self,
+        map_dir: &Path,
+        input: &Path,
+        frames_committed: u64,
+    ) -> Result<()> {
         match Self::read(map_dir, input)? {
+            None if frames_committed > 0 => {
+                Err(missing_record(map_dir.join(JOB_FILE), frames_committed))
+            }
             None => self.write(map_dir),
             Some(mut stored) => {
                 if stored.input_fingerprint == 0 {
@@ -219,6 +231,16 @@ impl JobRecord {
             }
         }
     }
+}
+
+/// The refusal of a resume whose map lost its job record.
+fn missing_record(path: PathBuf, frames_committed: u64) -> Error {
+    Error::bad_input(
+        path,
+        format!(
+            "missing, but the map holds {frames_committed} committed frames: without the record of the job that fused them, a resumed run cannot check that it is the same job (input, range, step, grid, depth limit). Restore the file from a backup, or reconstruct into a new --map folder; regularize, export and inspect still work"
+        ),
+    )
 }
 
 /// The input folder as seen from `map_dir` (`../data/seq00`), or its own path when the two

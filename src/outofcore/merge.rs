@@ -77,6 +77,24 @@ pub fn merge(inputs: &[MapLocation], out: &MapLocation, budget_bytes: u64) -> Re
         .iter()
         .map(MapStore::open_read_only_at)
         .collect::<Result<_>>()?;
+    // A map given twice (or a copy of one: same identity) would count every observation twice.
+    for (j, m) in maps.iter().enumerate() {
+        for (i, earlier) in maps[..j].iter().enumerate() {
+            let id = m.manifest().header.map_id;
+            let same_id = id != 0 && id == earlier.manifest().header.map_id;
+            if same_id || inputs[i] == inputs[j] {
+                return Err(Error::bad_input(
+                    m.dir(),
+                    format!(
+                        "is the same map as input {} ({}{}): merging a map with itself would double every weight",
+                        i + 1,
+                        earlier.dir().display(),
+                        if same_id { format!(", map id {id:016x}") } else { String::new() }
+                    ),
+                ));
+            }
+        }
+    }
     let first = &maps[0];
     let (grid, cb) = (first.grid(), first.chunk_blocks());
     for m in &maps[1..] {

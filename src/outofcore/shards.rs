@@ -373,6 +373,19 @@ pub struct Adopted {
 }
 
 /// Checks one recorded file against its header (a ranged read of 128 bytes) and the plan.
+/// The manifest entry a recorded file becomes once adopted into `pass`.
+fn entry_of(f: &RecordedFile, pass: u32) -> ChunkEntry {
+    ChunkEntry {
+        block_count: f.block_count,
+        observed_voxels: f.observed_voxels,
+        flags: f.flags,
+        file_seq: f.file_seq,
+        file_bytes: f.file_bytes,
+        payload_crc32: f.payload_crc32,
+        reg_pass: pass,
+    }
+}
+
 fn check_file(
     store: &MapStore,
     plan: &ShardPlan,
@@ -452,7 +465,17 @@ pub fn adopt(
             ));
         } else {
             for f in &rec.files {
-                if let Err(e) = check_file(store, &plan, &seqs, f) {
+                // The header against the record and the plan, then the whole file read as the
+                // engine reads a committed one (both CRCs, the payload decoded, every field
+                // against the entry): a flipped payload byte refuses the region, which is then
+                // solved again, before anything it would supersede is deleted (issue 36).
+                let verified = check_file(store, &plan, &seqs, f).and_then(|()| {
+                    store
+                        .read_entry(ChunkIndex(f.chunk), &entry_of(f, plan.pass))
+                        .map(|_| ())
+                        .map_err(|e| e.to_string())
+                });
+                if let Err(e) = verified {
                     why = Some(e);
                     break;
                 }
@@ -467,15 +490,7 @@ pub fn adopt(
             max_seq = max_seq.max(f.file_seq);
             store.record(WrittenChunk {
                 chunk: ChunkIndex(f.chunk),
-                entry: ChunkEntry {
-                    block_count: f.block_count,
-                    observed_voxels: f.observed_voxels,
-                    flags: f.flags,
-                    file_seq: f.file_seq,
-                    file_bytes: f.file_bytes,
-                    payload_crc32: f.payload_crc32,
-                    reg_pass: plan.pass,
-                },
+                entry: entry_of(f, plan.pass),
             });
             out.chunks += 1;
         }

@@ -28,6 +28,10 @@ use crate::grid::{
 use rayon::prelude::*;
 use std::collections::HashMap;
 
+/// The largest data weight λ accepted. Past about 10⁶ the primal step keeps `u = f` to f32
+/// precision (`τ λ w ≫ 1`) anyway, and far larger values overflow `τ λ w` to infinity.
+pub const MAX_LAMBDA: f32 = 1.0e6;
+
 /// Parameters of the TV primal–dual solver.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TvParams {
@@ -56,9 +60,12 @@ impl TvParams {
         }
     }
 
-    /// Checks the step sizes satisfy the convergence condition `σ τ ‖∇‖² ≤ 1` with `‖∇‖² ≤ 12`.
+    /// Checks the step sizes satisfy the convergence condition `σ τ ‖∇‖² ≤ 1` with `‖∇‖² ≤ 12`,
+    /// and that λ is in `(0, MAX_LAMBDA]` (an infinite λ makes the primal step ∞/∞ = NaN: issue 36
+    /// found `--lambda inf` committing a pass whose mesh was empty).
     pub fn validate(&self) -> crate::Result<()> {
         let ok = self.lambda > 0.0
+            && self.lambda <= MAX_LAMBDA
             && self.sigma > 0.0
             && self.tau > 0.0
             && (0.0..=1.0).contains(&self.theta)
@@ -67,7 +74,7 @@ impl TvParams {
             Ok(())
         } else {
             Err(crate::Error::InvalidArgument(format!(
-                "TV parameters need λ, σ, τ > 0, θ ∈ [0, 1] and σ·τ·12 ≤ 1; got {self:?}"
+                "TV parameters need 0 < λ ≤ {MAX_LAMBDA:e}, σ, τ > 0, θ ∈ [0, 1] and σ·τ·12 ≤ 1; got {self:?}"
             )))
         }
     }

@@ -506,3 +506,50 @@ fn link_masks_follow_their_definition() {
         );
     }
 }
+
+/// Issue 36: `regularize --lambda inf` committed a pass whose mesh was empty (∞/∞ = NaN in the
+/// primal step); every non-finite or overflowing parameter is refused before any work.
+#[test]
+fn validate_refuses_non_finite_and_overflowing_parameters() {
+    let paper = TvParams::paper(0.1);
+    assert!(paper.validate().is_ok());
+    assert!(TvParams {
+        lambda: MAX_LAMBDA,
+        ..paper
+    }
+    .validate()
+    .is_ok());
+    for lambda in [f32::INFINITY, f32::NAN, -1.0, 0.0, 1e12, f32::MAX] {
+        let err = TvParams { lambda, ..paper }
+            .validate()
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("λ ≤ 1e6"), "{lambda}: {err}");
+    }
+    for (sigma, tau) in [
+        (f32::INFINITY, paper.tau),
+        (paper.sigma, f32::INFINITY),
+        (f32::NAN, paper.tau),
+    ] {
+        assert!(
+            TvParams {
+                sigma,
+                tau,
+                ..paper
+            }
+            .validate()
+            .is_err(),
+            "σ {sigma} τ {tau}"
+        );
+    }
+    // The layer's solve refuses it before touching a block.
+    let mut layer = Layer::new(crate::grid::GridParams {
+        voxel_size_m: 0.1,
+        truncation_m: 1.0,
+    });
+    let bad = TvParams {
+        lambda: f32::INFINITY,
+        ..paper
+    };
+    assert!(regularize_layer(&mut layer, &bad).is_err());
+}

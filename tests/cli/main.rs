@@ -13,3 +13,4 @@ mod outputs;
 #[cfg(feature = "s3")]
 mod scaleout;
 mod stereo;
+mod survives;

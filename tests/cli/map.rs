@@ -6,11 +6,11 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
-fn bin() -> Command {
+pub(crate) fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_denser"))
 }
 
-fn denser(args: &[&str], cwd: &Path) -> Output {
+pub(crate) fn denser(args: &[&str], cwd: &Path) -> Output {
     bin()
         .args(args)
         .current_dir(cwd)
@@ -18,7 +18,7 @@ fn denser(args: &[&str], cwd: &Path) -> Output {
         .expect("run denser")
 }
 
-fn text(o: &Output) -> String {
+pub(crate) fn text(o: &Output) -> String {
     format!(
         "{}{}",
         String::from_utf8_lossy(&o.stdout),
@@ -26,13 +26,13 @@ fn text(o: &Output) -> String {
     )
 }
 
-fn ok(args: &[&str], cwd: &Path) -> String {
+pub(crate) fn ok(args: &[&str], cwd: &Path) -> String {
     let o = denser(args, cwd);
     assert!(o.status.success(), "denser {args:?} failed:\n{}", text(&o));
     text(&o)
 }
 
-fn reconstruct_args<'a>(map: &'a str, out: &'a str) -> Vec<&'a str> {
+pub(crate) fn reconstruct_args<'a>(map: &'a str, out: &'a str) -> Vec<&'a str> {
     vec![
         "reconstruct",
         "drive/sequences/00",
@@ -59,7 +59,7 @@ fn reconstruct_args<'a>(map: &'a str, out: &'a str) -> Vec<&'a str> {
 }
 
 /// A synthetic LiDAR-only drive in `d/drive` of `length_m`, a scan every `spacing_m`.
-fn lidar_drive(d: &Path, length_m: &str, spacing_m: &str) {
+pub(crate) fn lidar_drive(d: &Path, length_m: &str, spacing_m: &str) {
     ok(
         &[
             "synth",
@@ -75,7 +75,7 @@ fn lidar_drive(d: &Path, length_m: &str, spacing_m: &str) {
     );
 }
 
-fn map_json(map: &str, cwd: &Path) -> serde_json::Value {
+pub(crate) fn map_json(map: &str, cwd: &Path) -> serde_json::Value {
     let s = ok(&["inspect", map, "--verify", "--json"], cwd);
     let start = s.find('{').expect("json");
     let end = s.rfind('}').expect("json");
@@ -342,7 +342,7 @@ fn regularize_plans_regions_to_the_budget_and_reconstruct_checks_it_before_fusio
     assert!(a.len() > 1000 && a == b, "the meshes of u differ");
 }
 
-fn copy_dir(from: &Path, to: &Path) {
+pub(crate) fn copy_dir(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).expect("mkdir");
     for e in std::fs::read_dir(from).expect("ls") {
         let e = e.expect("entry");

@@ -237,6 +237,75 @@ fn sharded_regularisation_equals_one_process_on_disk() {
     assert_eq!(n_files, a.chunk_indices().len(), "one file per chunk");
 }
 
+/// Issue 36 item 3: a shard's chunk file with one payload byte flipped (its header intact) was
+/// adopted, the pass committed and the chunk's previous file deleted: the chunk was lost. Adoption
+/// now reads every recorded file as the engine reads a committed one; the damaged region is
+/// refused and solved again, and the map ends equal to a one-process pass.
+#[test]
+fn a_shard_file_with_a_flipped_payload_byte_is_not_adopted() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let layer = surface_layer(4, 3, 11);
+    let one = dir.path().join("one");
+    let sharded = dir.path().join("sharded");
+    for d in [&one, &sharded] {
+        let mut s = MapStore::create(d, grid(), CHUNK_BLOCKS).expect("create");
+        write_layer(&mut s, &layer);
+    }
+    let mut w = MapStore::open(&one).expect("open");
+    let single = regularize_map(&mut w, &params(), &options(), |_, _| true).expect("one process");
+    drop(w);
+    let mut r = MapStore::open_read_only(&sharded).expect("reader");
+    let shard = regularize_shard(
+        &mut r,
+        &params(),
+        &options(),
+        Shard { index: 0, count: 1 },
+        |_, _| true,
+        |p, prm| {
+            p.solve(prm);
+            Ok(())
+        },
+    )
+    .expect("shard");
+    drop(r);
+    assert_eq!(shard.regions, single.regions);
+    // One of the shard's files (numbered in its plan's reserved range, far above the
+    // manifest's) gets one payload byte flipped; its header and CRC fields stay as written.
+    let before = MapStore::open_read_only(&sharded).expect("reader");
+    let next = before.manifest().header.next_file_seq;
+    drop(before);
+    let mut shard_files: Vec<_> = std::fs::read_dir(sharded.join(CHUNKS_DIR))
+        .expect("ls")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| {
+            let name = p.file_name().expect("name").to_string_lossy().into_owned();
+            denser::map::manifest::parse_chunk_file_name(&name).is_some_and(|(_, seq)| seq >= next)
+        })
+        .collect();
+    shard_files.sort();
+    assert!(!shard_files.is_empty(), "the shard wrote its files");
+    let victim = &shard_files[shard_files.len() / 2];
+    let mut bytes = std::fs::read(victim).expect("read");
+    let last = bytes.len() - 1;
+    bytes[last] ^= 0x5a;
+    std::fs::write(victim, &bytes).expect("flip a payload byte");
+
+    let mut w = MapStore::open(&sharded).expect("committer");
+    let fin = regularize_map(&mut w, &params(), &options(), |_, _| true).expect("final");
+    assert_eq!(fin.regions_adopted, single.regions - 1, "{fin:?}");
+    assert_eq!(
+        fin.regions, 1,
+        "the damaged region is solved again: {fin:?}"
+    );
+    assert!(w.verify().is_empty(), "{:?}", w.verify());
+    assert_eq!(
+        w.chunk_indices(),
+        MapStore::open_read_only(&one).expect("one").chunk_indices()
+    );
+    let a = MapStore::open_read_only(&one).expect("one");
+    assert_layers_identical(&store_layer(&a), &store_layer(&w));
+}
+
 fn s3_files(moto: &Moto, bucket: &str, prefix: &str, extra: &[(&str, &str)]) -> Arc<dyn MapFiles> {
     let opts = moto.options();
     let mut all: Vec<(&str, &str)> = opts.iter().map(|(k, v)| (*k, v.as_str())).collect();
