@@ -48,6 +48,28 @@ pub enum Error {
         /// The generation this writer had read.
         read_generation: u64,
     },
+    /// A writer's lock file was removed or replaced while it held the lock: another writer may
+    /// have been admitted, so this one stops before its next commit.
+    #[error("{path}: {why} while this writer held the lock; another writer may have been admitted, so this one stopped before committing (what it committed earlier is intact)")]
+    LockLost {
+        /// The lock file.
+        path: PathBuf,
+        /// What happened to it.
+        why: String,
+    },
+    /// The manifest is older than the map's last commit (an older copy put back by a restore or a
+    /// sync): opening it would name deleted files and delete newer ones, so nothing is done.
+    #[error("{map}: the manifest (generation {manifest_generation}) is older than the map's last commit (generation {newer_generation}: {evidence}); it was replaced by an older copy (a restore from a backup or a sync tool?). Nothing was changed or deleted. Run `denser repair {map}` to rebuild the manifest from the chunk files (the older one is kept beside it)")]
+    MapRolledBack {
+        /// The map.
+        map: PathBuf,
+        /// The generation of the manifest found.
+        manifest_generation: u64,
+        /// The newest generation the map shows evidence of.
+        newer_generation: u64,
+        /// Where that evidence is.
+        evidence: String,
+    },
     /// A parameter or argument is out of its valid range.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),

@@ -20,9 +20,22 @@ pub(crate) struct Args {
     json: bool,
 }
 
+/// An open shard plan as `inspect` reports it.
+struct PlanState {
+    pass: u32,
+    /// Regions recorded by shards.
+    recorded: usize,
+    /// Regions of the plan.
+    regions: u64,
+    key: String,
+    /// Whether the committing run would adopt them: the plan's key is still the one of the
+    /// committed manifest (a stale plan's map changed after its shards read it).
+    current: bool,
+}
+
 struct Inspected {
-    /// Open shard plans: (pass, regions recorded, regions of the plan, key).
-    shard_plans: Vec<(u32, usize, u64, String)>,
+    /// Open shard plans.
+    shard_plans: Vec<PlanState>,
     dir: MapLocation,
     store: MapStore,
     verified: bool,
@@ -52,8 +65,9 @@ impl fmt::Display for Inspected {
                 "regularization_pass": h.reg_pass,
                 "regularization": passes,
                 "regularization_status": passes.describe(),
-                "shard_plans": self.shard_plans.iter().map(|(p, done, total, key)| serde_json::json!({
-                    "pass": p, "regions_recorded": done, "regions": total, "key": key,
+                "shard_plans": self.shard_plans.iter().map(|p| serde_json::json!({
+                    "pass": p.pass, "regions_recorded": p.recorded, "regions": p.regions,
+                    "key": p.key, "current": p.current,
                 })).collect::<Vec<_>>(),
                 "verified": self.verified,
                 "problems": self.problems,
@@ -68,12 +82,25 @@ impl fmt::Display for Inspected {
             h.voxel_size_m, h.truncation_m, h.chunk_blocks, h.generation
         )?;
         writeln!(f, "  regularisation: {}", passes.describe())?;
-        for (p, done, total, key) in &self.shard_plans {
-            writeln!(
-                f,
-                "  shards of pass {p}: {done} of {total} regions recorded (plan {key}); `denser regularize {}` with the same parameters adopts them",
-                self.dir
-            )?;
+        for p in &self.shard_plans {
+            let (pass, done, total, key) = (p.pass, p.recorded, p.regions, &p.key);
+            if !p.current {
+                writeln!(
+                    f,
+                    "  stale shard plan {key} of pass {pass} ({done} of {total} regions recorded): the map changed after its shards read it, so none will be adopted; it is removed when a regularisation pass completes"
+                )?;
+            } else if done == 0 {
+                writeln!(
+                    f,
+                    "  shards of pass {pass}: none of {total} regions recorded yet (plan {key})"
+                )?;
+            } else {
+                writeln!(
+                    f,
+                    "  shards of pass {pass}: {done} of {total} regions recorded (plan {key}); `denser regularize {}` with the same parameters adopts them",
+                    self.dir
+                )?;
+            }
         }
         if !passes.is_complete() {
             for line in passes.chunks_by_pass_lines(Some(12)) {
@@ -113,9 +140,22 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         .into_iter()
         .map(|p| {
             let key = u64::from_str_radix(&p.key, 16).unwrap_or(0);
-            let done =
+            let recorded =
                 denser::outofcore::shards::recorded_regions(&*files, key).map_or(0, |v| v.len());
-            (p.pass, done, p.regions, p.key)
+            let now = denser::outofcore::shards::plan_key(
+                store.manifest(),
+                p.pass,
+                &p.params,
+                p.region_chunks,
+                p.halo_blocks,
+            );
+            PlanState {
+                pass: p.pass,
+                recorded,
+                regions: p.regions,
+                current: now == key,
+                key: p.key,
+            }
         })
         .collect();
     let inspected = Inspected {

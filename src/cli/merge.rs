@@ -13,7 +13,8 @@ pub(crate) struct Args {
     /// Input maps (directories or s3://bucket/prefix), same voxel size, μ and chunk edge.
     #[arg(value_name = "MAP", required = true, num_args = 1..)]
     inputs: Vec<MapLocation>,
-    /// The new map (a directory or s3://bucket/prefix that holds no map yet).
+    /// The new map (a directory or s3://bucket/prefix that holds no map yet, or the unfinished
+    /// output of this same merge, which is resumed).
     #[arg(long, value_name = "MAP")]
     out: MapLocation,
     /// Memory for one chunk of every input, decoded.
@@ -41,6 +42,13 @@ impl fmt::Display for Merged {
             s.seconds,
             mib(s.peak_chunk_bytes)
         )?;
+        if s.chunks_resumed > 0 {
+            writeln!(
+                f,
+                "resumed a stopped merge: {} chunks it had committed were kept",
+                s.chunks_resumed
+            )?;
+        }
         writeln!(
             f,
             "not regularised: run `denser regularize {}` (or shard it with --shard I/N)",

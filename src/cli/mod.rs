@@ -119,6 +119,14 @@ pub fn main() -> ExitCode {
             serde_json::json!(denser::gpu::GpuContext::probe()).to_string() + "\n",
         ) as Outcome),
     };
+    if std::env::var_os(denser::map::fault::FAULT_INJECTION_VARIABLE).is_some() {
+        // For the crash suite (tests/cli/faults.rs): how many map operations this run made.
+        eprintln!(
+            "{}: {} map operations",
+            denser::map::fault::FAULT_INJECTION_VARIABLE,
+            denser::map::fault::operations()
+        );
+    }
     let printed = result.and_then(|outcome| {
         let mut out = std::io::stdout().lock();
         write!(out, "{outcome}")?;

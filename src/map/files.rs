@@ -218,7 +218,7 @@ impl WriterHold for LocalWriter {
         self.0.stale.as_ref().map(|h| h.describe())
     }
     fn check(&self) -> Result<()> {
-        Ok(())
+        self.0.check()
     }
 }
 

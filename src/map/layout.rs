@@ -6,6 +6,8 @@
 //! |---|---|---|
 //! | [`MANIFEST_FILE`] | the writer's commit ([`super::store::MapStore::commit`]) | never deleted; rebuilt by [`super::repair`] when lost |
 //! | [`MANIFEST_TMP`] | a local commit before its rename | removed by the next writer at open |
+//! | [`COMMIT_MARK`] | every commit, after the manifest | never deleted; a manifest older than it is a rollback, refused by every opener |
+//! | [`INCOMPLETE_MARK`] | a job that builds a new map over several commits (`merge`), before its first commit | removed by that job when it completes; while present every opener refuses the map, naming the job, except the job's own resume |
 //! | `chunks/c_X_Y_Z_SEQ.dchk` ([`CHUNKS_DIR`]) | [`super::store::ChunkWriter`] | kept while a committed manifest names it (current or kept pass); see below |
 //! | `chunks/*.tmp`, `chunks/.*.new` | a chunk write before its rename or link | removed by the next writer at open |
 //! | [`LOCK_FILE`], [`READERS_LOCK_FILE`] | [`super::lock`] (local maps) | never deleted |
@@ -15,6 +17,12 @@
 //! | `sweeps/…` ([`SWEEPS_AREA`]) | swept regularisation (`crate::outofcore::sweeps`) | never read or deleted by the engine; the owner removes it |
 //! | `exports/…` ([`EXPORTS_AREA`]) | `export --shard` (`crate::export::parts`) | never read or deleted by the engine; the owner removes it |
 //! | anything else | — | reported and left alone |
+//!
+//! Before anything is deleted, a writer checks that its manifest is the map's latest: a
+//! [`COMMIT_MARK`] of a newer generation, or a chunk file of this map stamped with a commit
+//! generation past the manifest's next one (format 4), means the manifest was rolled back; the map
+//! is then refused ([`crate::Error::MapRolledBack`]) until `repair` rebuilds it. Readers check the
+//! mark too (reading it before the manifest, so a commit in between is no false alarm).
 //!
 //! A chunk file the manifest does not name is deleted by a writer only when the writer can prove
 //! it is this map's own leftover: its header names this map, this chunk and this file number
@@ -26,7 +34,8 @@
 //! - its number lies in a reservation its owner has closed
 //!   (`MapStore::remove_unnamed_in`).
 //!
-//! Everything else in `chunks/` is reported and left alone. [`super::repair`] deletes nothing.
+//! Everything else in `chunks/` is reported and left alone. [`super::repair`] deletes nothing; it
+//! keeps each chunk's newest intact version by (commit generation, file number).
 //!
 //! The algorithms above the engine keep their own files in the areas reserved for them
 //! ([`SHARDS_AREA`], [`SWEEPS_AREA`], [`EXPORTS_AREA`]), written and deleted through the same
@@ -39,6 +48,12 @@
 pub const MANIFEST_FILE: &str = "manifest.dmf";
 /// The temporary manifest a local commit renames (only writers make it).
 pub const MANIFEST_TMP: &str = "manifest.tmp";
+/// The generation of the map's last commit, written after each commit (`formats/manifest.md`):
+/// a manifest older than it was put back by a restore or a sync, and is refused.
+pub const COMMIT_MARK: &str = "last-commit";
+/// The mark of a map still being built by a job of several commits (`merge`): its text names the
+/// job; every opener refuses the map while it exists, except that job's resume.
+pub const INCOMPLETE_MARK: &str = "incomplete";
 /// Folder of chunk files (`formats/chunk.md`).
 pub const CHUNKS_DIR: &str = "chunks";
 /// The writer lock file of a local map.

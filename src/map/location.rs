@@ -29,9 +29,23 @@ impl MapLocation {
                     "{s:?}: an object-store map is s3://BUCKET/PREFIX"
                 )));
             }
+            let prefix = prefix.trim_matches('/');
+            // Object keys have no relative segments: `s3://city/../x` was written under the
+            // literal key `%2E%2E/x` (issue 36).
+            if let Some(bad) = (!prefix.is_empty())
+                .then(|| prefix.split('/'))
+                .into_iter()
+                .flatten()
+                .find(|seg| seg.is_empty() || *seg == "." || *seg == "..")
+            {
+                return Err(Error::InvalidArgument(format!(
+                    "{s:?}: an object-store prefix has no {} segments (object keys are not paths); name the prefix as it is stored",
+                    if bad.is_empty() { "empty" } else { "'.' or '..'" }
+                )));
+            }
             return Ok(MapLocation::S3 {
                 bucket: bucket.to_string(),
-                prefix: prefix.trim_matches('/').to_string(),
+                prefix: prefix.to_string(),
             });
         }
         if s.contains("://") {

@@ -186,6 +186,26 @@ impl WriterLock {
     pub fn path(&self) -> &Path {
         &self.path
     }
+
+    /// An error unless the lock file at its path is still the file this writer locked: a lock
+    /// file removed (or replaced) while held lets a second writer lock a new file at the same
+    /// path, so a writer checks before every commit (issue 36).
+    pub fn check(&self) -> Result<()> {
+        use std::os::unix::fs::MetadataExt;
+        let lost = |why: String| Error::LockLost {
+            path: self.path.clone(),
+            why,
+        };
+        let held = self.file.metadata().map_err(|e| Error::io(&self.path, e))?;
+        match std::fs::metadata(&self.path) {
+            Ok(now) if now.dev() == held.dev() && now.ino() == held.ino() => Ok(()),
+            Ok(_) => Err(lost("the lock file was replaced by another file".into())),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                Err(lost("the lock file was removed".into()))
+            }
+            Err(e) => Err(Error::io(&self.path, e)),
+        }
+    }
 }
 
 impl Drop for WriterLock {

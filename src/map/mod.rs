@@ -32,11 +32,14 @@
 //! - [`record`]: the versioned, checksummed record codec (job record, sweep progress).
 //! - [`job`]: the job record a resumed run must match (`formats/job.md`).
 //! - [`repair`]: rebuilds a lost manifest from the chunk files' self-describing headers.
+//! - [`fault`]: fault injection under the seam (a failing or crashing operation), for the crash
+//!   suite.
 //!
 //! A chunk is a cube of `chunk_blocks`³ blocks (default 16³ = 128³ voxels). Nothing here changes
 //! voxel values.
 
 pub mod codec;
+pub mod fault;
 pub mod files;
 pub mod job;
 pub mod layout;

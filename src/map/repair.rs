@@ -3,8 +3,11 @@
 //! Chunk files are self-describing: the header of every file (format 2, `formats/chunk.md`) names
 //! its chunk, grid, map, sequence number and the regularisation pass (with its parameters) that
 //! wrote its `u`. [`repair`] reads and checks every file in `chunks/` (both CRCs and the whole
-//! payload), keeps for each chunk the **newest intact version** (largest sequence number that
-//! decodes), and writes a new manifest naming those. Files whose grid (voxel size, μ, chunk edge)
+//! payload), keeps for each chunk the **newest intact version** — the largest (commit generation,
+//! file number) that decodes: the commit generation of format-4 headers orders a regularisation
+//! shard's files (numbered far above the writer's) below any later commit, and files without one
+//! (formats 1–3) count as generation 0 — and writes a new manifest naming those, committed past
+//! every generation the files and the commit mark show. Files whose grid (voxel size, μ, chunk edge)
 //! or map id disagree with the majority are not kept, nor are damaged files; each is reported with
 //! the reason. The regularisation state is rebuilt from the kept files: the latest pass and its
 //! parameters, and — where the chunks that pass did not reach all stand at one older pass and the
@@ -16,19 +19,67 @@
 //! manifest says "unknown" ([`FRAMES_UNKNOWN`]), which `reconstruct --map` refuses to resume;
 //! regularize, export and inspect work. Format-1 files carry no pass: they count as unregularised.
 
-use super::codec::{ChunkHeader, ChunkOrigin, FLAG_HAS_REGULARIZED};
+use super::codec::{
+    decode_header_with_origin, ChunkHeader, ChunkOrigin, CHUNK_HEADER_V2_BYTES,
+    FLAG_HAS_REGULARIZED,
+};
 use super::files::{LocalFiles, MapFiles};
-use super::layout::{CHUNKS_DIR, MANIFEST_FILE};
+use super::layout::{CHUNKS_DIR, COMMIT_MARK, MANIFEST_FILE};
 use super::manifest::{
     new_map_id, parse_chunk_file_name, ChunkEntry, Manifest, ManifestHeader, PassStatus,
     ENTRY_HAS_REGULARIZED, FRAMES_UNKNOWN,
 };
-use super::store::{read_chunk_file, read_manifest, MapStore};
+use super::store::{read_chunk_file, read_commit_mark, read_manifest, MapStore};
 use super::ChunkIndex;
 use crate::error::{Error, Result};
 use crate::regularize::TvParams;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
+
+/// The commit generation in the header of chunk file `path` (0 when it has none or cannot be
+/// read).
+fn header_commit_gen(path: &Path) -> u64 {
+    use std::io::Read;
+    let mut head = [0u8; CHUNK_HEADER_V2_BYTES];
+    let n = std::fs::File::open(path)
+        .and_then(|mut f| f.read(&mut head))
+        .unwrap_or(0);
+    decode_header_with_origin(&head[..n])
+        .ok()
+        .and_then(|(_, o)| o)
+        .map_or(0, |o| o.commit_gen)
+}
+
+/// Why manifest `m` is older than its map, if it is: the commit mark records a newer
+/// generation, or a chunk file of this map was written after a commit `m` does not know
+/// (`layout.rs`). Reads the mark and the chunk files' headers.
+fn rollback_evidence(files: &dyn MapFiles, m: &Manifest) -> Result<Option<String>> {
+    let h = m.header;
+    if let Some((id, gen)) = read_commit_mark(files)? {
+        if id == h.map_id && gen > h.generation {
+            return Ok(Some(format!(
+                "{} records generation {gen}",
+                files.path(COMMIT_MARK).display()
+            )));
+        }
+    }
+    for obj in files.list(CHUNKS_DIR)? {
+        let name = format!("{CHUNKS_DIR}/{}", obj.name);
+        let Ok(head) = files.read_range(&name, 0..CHUNK_HEADER_V2_BYTES as u64) else {
+            continue;
+        };
+        if let Ok((_, Some(o))) = decode_header_with_origin(&head) {
+            if o.map_id == h.map_id && o.commit_gen > h.generation + 1 {
+                return Ok(Some(format!(
+                    "{} was written after generation {}",
+                    files.path(&name).display(),
+                    o.commit_gen - 1
+                )));
+            }
+        }
+    }
+    Ok(None)
+}
 
 /// What [`repair`] did.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -77,8 +128,10 @@ fn grid_key(h: &ChunkHeader) -> GridKey {
 }
 
 /// Rebuilds `dir/manifest.dmf` from the chunk files, holding the map's writer lock. Refuses a map
-/// whose manifest is intact (`inspect --verify` checks such a map); an unreadable manifest is
-/// moved aside to `manifest.dmf.unreadable-<unix seconds>` first.
+/// whose manifest is intact and the latest (`inspect --verify` checks such a map); an unreadable
+/// manifest is moved aside to `manifest.dmf.unreadable-<unix seconds>` first, and a rolled-back
+/// one (older than the commit mark or than chunk files of this map, `layout.rs`) to
+/// `manifest.dmf.rolled-back-<generation>`.
 pub fn repair(dir: &Path) -> Result<RepairReport> {
     if let Some(holder) = super::lock::writer_holding(dir) {
         return Err(Error::MapLocked {
@@ -96,18 +149,35 @@ pub fn repair(dir: &Path) -> Result<RepairReport> {
     let lock = files.lock_writer()?;
     let manifest_path = dir.join(MANIFEST_FILE);
     let mut moved = None;
+    let mut notes = Vec::new();
+    // The newest commit generation any evidence shows: the rebuilt manifest commits past it.
+    let mut newest_generation = read_commit_mark(&*files)?.map_or(0, |(_, g)| g);
     if manifest_path.exists() {
         match read_manifest(dir) {
             Ok(m) => {
-                return Err(Error::bad_input(
-                    &manifest_path,
-                    format!(
-                        "is intact (generation {}, {} chunks): nothing to repair; `denser inspect {} --verify` checks the chunk files",
-                        m.header.generation,
-                        m.chunks.len(),
-                        dir.display()
-                    ),
-                ))
+                let Some(evidence) = rollback_evidence(&*files, &m)? else {
+                    return Err(Error::bad_input(
+                        &manifest_path,
+                        format!(
+                            "is intact (generation {}, {} chunks): nothing to repair; `denser inspect {} --verify` checks the chunk files",
+                            m.header.generation,
+                            m.chunks.len(),
+                            dir.display()
+                        ),
+                    ));
+                };
+                newest_generation = newest_generation.max(m.header.generation);
+                let to = dir.join(format!(
+                    "{MANIFEST_FILE}.rolled-back-{}",
+                    m.header.generation
+                ));
+                notes.push(format!(
+                    "the manifest (generation {}) was older than the map ({evidence}); moved to {} and rebuilt from the chunk files",
+                    m.header.generation,
+                    to.display()
+                ));
+                std::fs::rename(&manifest_path, &to).map_err(|e| Error::io(&manifest_path, e))?;
+                moved = Some(to);
             }
             Err(e) => {
                 let secs = std::time::SystemTime::now()
@@ -128,10 +198,10 @@ pub fn repair(dir: &Path) -> Result<RepairReport> {
         .collect();
     names.sort();
     let mut not_kept = Vec::new();
-    let mut notes = Vec::new();
     let mut candidates: Vec<Candidate> = Vec::new();
     let mut max_seq = 0u64;
-    let mut newest_name: HashMap<ChunkIndex, (u64, String)> = HashMap::new();
+    // Newest file of each chunk by (commit generation, number), intact or not.
+    let mut newest_name: HashMap<ChunkIndex, ((u64, u64), String)> = HashMap::new();
     let mut failed: HashMap<String, String> = HashMap::new();
     let mut files_examined = 0;
     for name in names {
@@ -148,11 +218,13 @@ pub fn repair(dir: &Path) -> Result<RepairReport> {
             continue;
         }
         files_examined += 1;
-        let newest = newest_name.entry(c).or_insert((seq, name.clone()));
-        if seq > newest.0 {
-            *newest = (seq, name.clone());
-        }
         let path = chunks_dir.join(&name);
+        let key = (header_commit_gen(&path), seq);
+        newest_generation = newest_generation.max(key.0);
+        let newest = newest_name.entry(c).or_insert((key, name.clone()));
+        if key > newest.0 {
+            *newest = (key, name.clone());
+        }
         let d = match read_chunk_file(&path) {
             Ok(d) => d,
             Err(e) => {
@@ -271,9 +343,11 @@ pub fn repair(dir: &Path) -> Result<RepairReport> {
     let mut older_versions_used = Vec::new();
     let mut chunks = BTreeMap::new();
     for (c, v) in by_chunk.iter_mut() {
-        v.sort_by_key(|k| std::cmp::Reverse(k.seq));
+        // By commit generation, then number: a shard's file (numbered far above the writer's,
+        // stamped with the manifest it was derived from) never beats a later commit's.
+        v.sort_by_key(|k| std::cmp::Reverse((k.origin.map_or(0, |o| o.commit_gen), k.seq)));
         let primary = &v[0];
-        if let Some((seq, name)) = newest_name.get(c) {
+        if let Some(((_, seq), name)) = newest_name.get(c) {
             if *seq != primary.seq {
                 older_versions_used.push(format!(
                     "chunk ({},{},{}): newest file {name} could not be kept ({}); kept {} (pass {})",
@@ -352,7 +426,7 @@ pub fn repair(dir: &Path) -> Result<RepairReport> {
         voxel_size_m,
         truncation_m,
         chunk_blocks,
-        generation: 0,
+        generation: newest_generation,
         frames_committed: FRAMES_UNKNOWN,
         next_file_seq: max_seq + 1,
         reg_pass: latest,

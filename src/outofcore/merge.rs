@@ -35,6 +35,8 @@ pub struct MergeStats {
     pub observed_voxels: u64,
     /// Largest decoded working set of one chunk (all inputs), bytes.
     pub peak_chunk_bytes: u64,
+    /// Chunks a stopped run of the same merge had committed already (a resumed run).
+    pub chunks_resumed: usize,
     /// Wall time, seconds.
     pub seconds: f64,
 }
@@ -66,6 +68,11 @@ pub fn merge_voxel(acc: &mut Block, add: &Block, i: usize) {
 /// Merges the maps at `inputs` (same voxel size, μ and chunk edge, else an error naming the
 /// map that differs) into a new map at `out`, one chunk at a time; a chunk whose decoded blocks
 /// from all inputs exceed `budget_bytes` is an error. Commits every 256 chunks and at the end.
+///
+/// All or nothing for its users: the output carries an incomplete mark naming the merge (its
+/// inputs' identities and generations) until the last commit, so every command refuses a map a
+/// stopped merge left; the same merge run again resumes it (chunks already committed are kept),
+/// and a merge of other inputs, or of these inputs after they changed, is refused.
 pub fn merge(inputs: &[MapLocation], out: &MapLocation, budget_bytes: u64) -> Result<MergeStats> {
     let t0 = std::time::Instant::now();
     if inputs.is_empty() {
@@ -122,13 +129,53 @@ pub fn merge(inputs: &[MapLocation], out: &MapLocation, budget_bytes: u64) -> Re
     for m in &maps {
         all.extend(m.chunk_indices());
     }
-    let mut store = MapStore::create_at(out, grid, cb)?;
+    let job = format!(
+        "denser merge of {} maps: {}",
+        maps.len(),
+        maps.iter()
+            .map(|m| {
+                let h = m.manifest().header;
+                format!("{:016x}@{}", h.map_id, h.generation)
+            })
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    let out_files = out.open_files()?;
+    let mut store = if out_files.exists(crate::map::layout::MANIFEST_FILE)? {
+        match MapStore::open_incomplete_at(out)? {
+            (s, Some(mark)) if mark.trim() == job => s,
+            (_, Some(mark)) => {
+                return Err(Error::bad_input(
+                    out.display_path(),
+                    format!(
+                        "holds an unfinished merge of other inputs ({}), or of these inputs before they changed; delete it and merge again",
+                        mark.trim()
+                    ),
+                ))
+            }
+            (_, None) => {
+                return Err(Error::bad_input(
+                    out.display_path(),
+                    "already holds a map (manifest.dmf exists); merge into a new location",
+                ))
+            }
+        }
+    } else {
+        MapStore::create_incomplete_at(out, grid, cb, &job)?
+    };
+    drop(out_files);
     let mut stats = MergeStats {
         inputs: maps.len(),
         ..Default::default()
     };
     let bar = crate::progress::bar(all.len() as u64, "merging");
     for (k, c) in all.iter().enumerate() {
+        if store.contains(*c) {
+            // Committed by a stopped run of this merge: its chunks are final.
+            stats.chunks_resumed += 1;
+            bar.inc(1);
+            continue;
+        }
         let mut blocks: BTreeMap<BlockIndex, Box<Block>> = BTreeMap::new();
         let mut bytes = 0u64;
         for m in &maps {
@@ -175,6 +222,7 @@ pub fn merge(inputs: &[MapLocation], out: &MapLocation, budget_bytes: u64) -> Re
     }
     bar.finish_and_clear();
     store.commit()?;
+    store.mark_complete()?;
     stats.seconds = t0.elapsed().as_secs_f64();
     Ok(stats)
 }

@@ -528,16 +528,34 @@ fn gather_states(
                 };
                 let index = decode_state_index(&path, &bytes)?;
                 let h = index.header;
-                if h.key != key || h.chunk != c.0 || h.step != step - 1 {
+                // Name only what differs (issue 36: a swapped file read "another pass (key K),
+                // expected key K").
+                let mut differs = Vec::new();
+                if h.key != key {
+                    differs.push(format!(
+                        "it belongs to another pass (key {:016x}, this pass {key:016x})",
+                        h.key
+                    ));
+                }
+                if h.chunk != c.0 {
+                    differs.push(format!(
+                        "it holds chunk {:?}, not {:?} (a file copied from another chunk?)",
+                        h.chunk, c.0
+                    ));
+                }
+                if h.step != step - 1 {
+                    differs.push(format!(
+                        "it is the state after step {}, not {}",
+                        h.step,
+                        step - 1
+                    ));
+                }
+                if !differs.is_empty() {
                     return Err(Error::bad_input(
                         &path,
                         format!(
-                            "holds chunk {:?} after step {} of another pass (key {:016x}), expected chunk {:?} after step {} of key {key:016x}; delete {SWEEPS_AREA}/ to restart the pass",
-                            h.chunk,
-                            h.step,
-                            h.key,
-                            c.0,
-                            step - 1
+                            "not the state this sweep needs: {}; delete {SWEEPS_AREA}/ to restart the pass",
+                            differs.join("; ")
                         ),
                     ));
                 }

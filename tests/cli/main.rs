@@ -8,6 +8,7 @@ mod depth_support;
 mod basics;
 mod devices;
 mod engine;
+mod faults;
 mod map;
 mod outputs;
 #[cfg(feature = "s3")]

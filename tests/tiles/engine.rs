@@ -83,14 +83,14 @@ pub(crate) fn store_layer(store: &MapStore) -> Layer {
     layer
 }
 
-fn assert_layers_identical(a: &Layer, b: &Layer) {
+pub(crate) fn assert_layers_identical(a: &Layer, b: &Layer) {
     assert_eq!(a.indices_sorted(), b.indices_sorted(), "block sets differ");
     for i in a.indices_sorted() {
         assert!(a.get(&i) == b.get(&i), "block {i:?} differs");
     }
 }
 
-fn files(dir: &Path) -> Vec<String> {
+pub(crate) fn files(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> = std::fs::read_dir(dir.join(CHUNKS_DIR))
         .expect("ls")
         .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
@@ -99,7 +99,7 @@ fn files(dir: &Path) -> Vec<String> {
     v
 }
 
-fn options() -> RegionalOptions {
+pub(crate) fn options() -> RegionalOptions {
     RegionalOptions {
         region_chunks: 1,
         budget_bytes: 1 << 30,
@@ -108,7 +108,7 @@ fn options() -> RegionalOptions {
     }
 }
 
-fn params(lambda: f32) -> TvParams {
+pub(crate) fn params(lambda: f32) -> TvParams {
     TvParams {
         lambda,
         iterations: 6,
@@ -654,7 +654,7 @@ fn maps_of_format_1_still_open_and_are_upgraded_by_their_next_commit() {
     for (c, e) in m.chunks.iter_mut() {
         let path = root.join(CHUNKS_DIR).join(chunk_file_name(*c, e.file_seq));
         let written = std::fs::read(&path).expect("read");
-        assert_eq!(&written[8..10], &[3, 0], "this build writes chunk format 3");
+        assert_eq!(&written[8..10], &[4, 0], "this build writes chunk format 4");
         let d = denser::map::store::read_chunk_file(&path).expect("read");
         let refs: Vec<(BlockIndex, &Block)> = d.blocks.iter().map(|(i, b)| (*i, &**b)).collect();
         let bytes = encode_chunk(&d.header, &refs, 3);
@@ -688,6 +688,6 @@ fn maps_of_format_1_still_open_and_are_upgraded_by_their_next_commit() {
     for (c, e) in &r.manifest().chunks {
         let path = root.join(CHUNKS_DIR).join(chunk_file_name(*c, e.file_seq));
         let head = std::fs::read(&path).expect("read");
-        assert_eq!(&head[8..10], &[3, 0], "rewritten in chunk format 3");
+        assert_eq!(&head[8..10], &[4, 0], "rewritten in chunk format 4");
     }
 }

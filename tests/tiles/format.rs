@@ -172,6 +172,7 @@ fn chunk_header_v2_golden_bytes() {
             lambda: 0.7,
             ..TvParams::paper(0.1)
         },
+        commit_gen: 0,
     };
     let b = encode_header_v2(&h, &o);
     assert_eq!(b.len(), CHUNK_HEADER_V2_BYTES);
@@ -368,7 +369,7 @@ proptest! {
         let mut b = encode_header(&h).to_vec();
         b.extend_from_slice(&z);
         let _ = decode_chunk(&b);
-        let o = ChunkOrigin { map_id: 7, file_seq: 9, reg_pass: 1, reg_params: TvParams::paper(0.1) };
+        let o = ChunkOrigin { map_id: 7, file_seq: 9, reg_pass: 1, reg_params: TvParams::paper(0.1), commit_gen: 0 };
         let mut b = encode_header_v2(&h, &o).to_vec();
         b.extend_from_slice(&z);
         let _ = decode_chunk(&b);

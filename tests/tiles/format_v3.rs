@@ -6,8 +6,8 @@
 use denser::grid::{Block, BlockIndex, OMEGA_BIT, VOXELS_PER_BLOCK};
 use denser::map::codec::{
     decode_chunk, decode_header_with_origin, encode_chunk, encode_chunk_v3,
-    encode_chunk_v3_reusing, encode_chunk_with, encode_header_v2, encode_header_v3, ChunkHeader,
-    ChunkOrigin, PreviousFrames, CHUNK_HEADER_V2_BYTES,
+    encode_chunk_v3_reusing, encode_chunk_v4_reusing, encode_chunk_with, encode_header_v2,
+    encode_header_v3, ChunkHeader, ChunkOrigin, PreviousFrames, CHUNK_HEADER_V2_BYTES,
 };
 use denser::map::ChunkIndex;
 use denser::regularize::TvParams;
@@ -33,6 +33,7 @@ fn origin() -> ChunkOrigin {
         file_seq: 42,
         reg_pass: 1,
         reg_params: TvParams::paper(0.1),
+        commit_gen: 0,
     }
 }
 
@@ -425,4 +426,58 @@ fn rewrite_reuses_the_frames_of_unchanged_parts() {
     assert!(PreviousFrames::of(&f2).is_empty());
     assert!(PreviousFrames::of(&old[..old.len() - 5]).is_empty());
     assert!(PreviousFrames::of(b"not a chunk").is_empty());
+}
+
+/// Format 4 (issue 36): format 3 with the commit generation at bytes 96..104. Same payload bytes
+/// as format 3, the header differs only in the version and those eight bytes; decoding returns
+/// the generation; a non-zero byte in the rest of the reserved range is refused; a format-3 file
+/// reads as generation 0; a format-4 file's frames are reused like a format-3 file's.
+#[test]
+fn format_4_carries_the_commit_generation() {
+    let h = header(ChunkIndex([1, -2, 3]));
+    let first = h.chunk.origin_block(h.chunk_blocks);
+    let at = |k: i32| BlockIndex([first[0] + k % 4, first[1] + k / 4 % 4, first[2] + k / 16]);
+    let blocks: Vec<(BlockIndex, Box<Block>)> = (0..12)
+        .map(|k| (at(k), random_block(k as u64 * 3 + 2, 4, k % 2 == 0, false)))
+        .collect();
+    let refs: Vec<(BlockIndex, &Block)> = blocks.iter().map(|(i, b)| (*i, &**b)).collect();
+    let o4 = ChunkOrigin {
+        commit_gen: 0x0102_0304_0506_0708,
+        ..origin()
+    };
+    let f4 = encode_chunk_v4_reusing(&h, &o4, &refs, 3, &PreviousFrames::default());
+    let f3 = encode_chunk_v3(&h, &origin(), &refs, 3);
+    assert_eq!(&f4[8..10], &[4, 0]);
+    assert_eq!(&f4[96..104], &0x0102_0304_0506_0708u64.to_le_bytes());
+    assert!(f4[104..124].iter().all(|b| *b == 0));
+    assert_eq!(
+        f4[CHUNK_HEADER_V2_BYTES..],
+        f3[CHUNK_HEADER_V2_BYTES..],
+        "same payload"
+    );
+    for k in (0..124).filter(|k| !(8..10).contains(k) && !(96..104).contains(k)) {
+        assert_eq!(f4[k], f3[k], "header byte {k}");
+    }
+    let d = decode_chunk(&f4).expect("decode");
+    assert_eq!(d.origin, Some(o4));
+    assert!(
+        d.blocks == decode_chunk(&f3).expect("v3").blocks,
+        "same blocks"
+    );
+    assert_round_trip(&f3, &blocks);
+    assert_eq!(
+        decode_chunk(&f3)
+            .expect("v3")
+            .origin
+            .expect("origin")
+            .commit_gen,
+        0
+    );
+    let mut bad = f4.clone();
+    bad[110] = 1;
+    let crc = crc32fast::hash(&bad[0..124]);
+    bad[124..128].copy_from_slice(&crc.to_le_bytes());
+    let e = decode_header_with_origin(&bad).unwrap_err().to_string();
+    assert!(e.contains("reserved") && e.contains("104..124"), "{e}");
+    assert_eq!(PreviousFrames::of(&f4).len(), PreviousFrames::of(&f3).len());
 }

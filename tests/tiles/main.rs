@@ -11,4 +11,5 @@ mod format_v3;
 mod paging;
 #[cfg(feature = "s3")]
 mod scaleout;
+mod survives;
 mod sweeps;

@@ -139,6 +139,18 @@ fn shard_and_location_arguments_parse() {
         MapLocation::Dir("maps/x".into())
     );
     assert!(MapLocation::parse("gs://bucket/x").is_err());
+    // Issue 36: relative segments were written as literal keys (`%2E%2E/x`).
+    for bad in ["s3://city/../x", "s3://city/a/./b", "s3://city/a//b"] {
+        let e = MapLocation::parse(bad).expect_err(bad).to_string();
+        assert!(e.contains("segments"), "{bad}: {e}");
+    }
+    assert_eq!(
+        MapLocation::parse("s3://city").expect("bucket only"),
+        MapLocation::S3 {
+            bucket: "city".into(),
+            prefix: String::new()
+        }
+    );
     assert_eq!(
         MapLocation::parse("s3://bucket/p").expect("s3").to_string(),
         "s3://bucket/p"

@@ -18,14 +18,14 @@ pub struct PreviousFrames<'a> {
 
 impl<'a> PreviousFrames<'a> {
     /// The frames of `file` (a complete chunk file). Empty, so that every part is compressed
-    /// afresh, when `file` is not format 3 or its payload does not split into frames.
+    /// afresh, when `file` is not format 3 or 4 or its payload does not split into frames.
     pub fn of(file: &'a [u8]) -> Self {
         Self::split(file).unwrap_or_default()
     }
 
     fn split(file: &'a [u8]) -> Option<Self> {
         let (h, origin) = decode_header_with_origin(file).ok()?;
-        if le_u16(file, 8) != CHUNK_VERSION_3 {
+        if le_u16(file, 8) < CHUNK_VERSION_3 {
             return None;
         }
         let start = header_len(origin.as_ref());

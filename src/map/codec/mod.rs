@@ -39,12 +39,15 @@ pub const CHUNK_MAGIC: [u8; 8] = *b"DNSRCHNK";
 pub const CHUNK_VERSION: u16 = 1;
 /// Chunk format version with an origin and the legacy payload ([`encode_chunk_with`]; still read).
 pub const CHUNK_VERSION_2: u16 = 2;
-/// Chunk format version with an origin and predicted voxel fields ([`encode_chunk_v3`]); the
-/// store writes this one.
+/// Chunk format version with an origin and predicted voxel fields ([`encode_chunk_v3`]; still
+/// read).
 pub const CHUNK_VERSION_3: u16 = 3;
+/// Format 3 with the file's commit generation in its header ([`encode_chunk_v4_reusing`]); the
+/// store writes this one.
+pub const CHUNK_VERSION_4: u16 = 4;
 /// Size of the fixed header of format 1, bytes.
 pub const CHUNK_HEADER_BYTES: usize = 64;
-/// Size of the fixed header of formats 2 and 3, bytes.
+/// Size of the fixed header of formats 2, 3 and 4, bytes.
 pub const CHUNK_HEADER_V2_BYTES: usize = 128;
 
 /// Where a chunk file comes from (format 2 only): what the store checks against the manifest
@@ -60,6 +63,12 @@ pub struct ChunkOrigin {
     pub reg_pass: u32,
     /// That pass's parameters (all zero when `reg_pass` is 0).
     pub reg_params: TvParams,
+    /// The commit generation (format 4; 0 in formats 2 and 3, "unknown"): for a file of the map's
+    /// writer, the generation of the commit that names it; for a regularisation shard's file,
+    /// the generation of the manifest it was derived from (a later commit adopts it). Versions
+    /// of a chunk order by (commit generation, file number): what `repair` keeps, and how a
+    /// writer tells a rolled-back manifest from a dead writer's leftovers.
+    pub commit_gen: u64,
 }
 
 /// TV parameters that are all zero: the "no pass" value stored in headers.
@@ -115,7 +124,7 @@ pub enum CodecError {
     BadMagic,
     /// A version this build cannot read.
     #[error(
-        "chunk format version {found} is not supported (this build reads versions {CHUNK_VERSION} to {CHUNK_VERSION_3})"
+        "chunk format version {found} is not supported (this build reads versions {CHUNK_VERSION} to {CHUNK_VERSION_4})"
     )]
     UnsupportedVersion {
         /// Version found in the header.
@@ -198,6 +207,26 @@ pub fn encode_chunk_v3(
     )
 }
 
+/// Format 4, what the store writes: format 3 with `origin.commit_gen` in the header, copying the
+/// compressed frames of `previous` (the file this one replaces) for every part that has not
+/// changed.
+pub fn encode_chunk_v4_reusing(
+    header: &ChunkHeader,
+    origin: &ChunkOrigin,
+    blocks: &[(BlockIndex, &Block)],
+    zstd_level: i32,
+    previous: &PreviousFrames,
+) -> Vec<u8> {
+    encode_chunk_version(
+        header,
+        Some(origin),
+        blocks,
+        zstd_level,
+        CHUNK_VERSION_4,
+        Some(previous),
+    )
+}
+
 /// [`encode_chunk_v3`] copying the compressed frames of `previous` (the file this one replaces)
 /// for every part that has not changed, instead of compressing those parts again.
 pub fn encode_chunk_v3_reusing(
@@ -260,11 +289,12 @@ fn encode_chunk_version(
         .iter()
         .filter(|(_, b)| b.regularized.is_some())
         .count();
-    let planes = payload_planes(&order, version == CHUNK_VERSION_3);
+    let predicted = version >= CHUNK_VERSION_3;
+    let planes = payload_planes(&order, predicted);
     let raw_len: usize = planes.iter().map(|(_, p)| p.len()).sum();
     let compress =
         |b: &[u8], level: i32| zstd::bulk::compress(b, level).expect("zstd of an in-memory buffer");
-    let zstd_payload = if version == CHUNK_VERSION_3 {
+    let zstd_payload = if predicted {
         // One frame per non-empty part, so that zstd's entropy tables fit each part. The low
         // bytes of the TSDF and of `u` are noise (no level shrinks them); the other parts get at
         // least STRUCTURED_ZSTD_LEVEL.
@@ -340,7 +370,15 @@ fn header_with_origin(
     b[84..88].copy_from_slice(&p.sigma.to_le_bytes());
     b[88..92].copy_from_slice(&p.tau.to_le_bytes());
     b[92..96].copy_from_slice(&p.theta.to_le_bytes());
-    // 96..124 reserved, zero.
+    if version >= CHUNK_VERSION_4 {
+        b[96..104].copy_from_slice(&origin.commit_gen.to_le_bytes());
+    } else {
+        debug_assert_eq!(
+            origin.commit_gen, 0,
+            "formats 2 and 3 carry no commit generation"
+        );
+    }
+    // The rest up to 124 reserved, zero.
     let crc = crc32fast::hash(&b[0..124]);
     b[124..128].copy_from_slice(&crc.to_le_bytes());
     b
@@ -413,7 +451,7 @@ pub fn decode_header_with_origin(
     let version = le_u16(bytes, 8);
     let len = match version {
         CHUNK_VERSION => CHUNK_HEADER_BYTES,
-        CHUNK_VERSION_2 | CHUNK_VERSION_3 => CHUNK_HEADER_V2_BYTES,
+        CHUNK_VERSION_2 | CHUNK_VERSION_3 | CHUNK_VERSION_4 => CHUNK_HEADER_V2_BYTES,
         _ => return Err(CodecError::UnsupportedVersion { found: version }),
     };
     if bytes.len() < len {
@@ -433,10 +471,10 @@ pub fn decode_header_with_origin(
             "header length {header_len}, expected {len}"
         )));
     }
-    let reserved = if version == CHUNK_VERSION {
-        56..60
-    } else {
-        96..124
+    let reserved = match version {
+        CHUNK_VERSION => 56..60,
+        CHUNK_VERSION_4 => 104..124,
+        _ => 96..124,
     };
     if bytes[reserved.clone()].iter().any(|x| *x != 0) {
         return Err(CodecError::Malformed(format!(
@@ -503,6 +541,11 @@ pub fn decode_header_with_origin(
             tau: f32::from_le_bytes(bytes[88..92].try_into().expect("4 bytes")),
             theta: f32::from_le_bytes(bytes[92..96].try_into().expect("4 bytes")),
         },
+        commit_gen: if version >= CHUNK_VERSION_4 {
+            u64::from_le_bytes(bytes[96..104].try_into().expect("8 bytes"))
+        } else {
+            0
+        },
     });
     Ok((h, origin))
 }
@@ -522,7 +565,7 @@ pub struct DecodedChunk {
 /// are an error).
 pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
     let (h, origin) = decode_header_with_origin(bytes)?;
-    let predicted = le_u16(bytes, 8) == CHUNK_VERSION_3;
+    let predicted = le_u16(bytes, 8) >= CHUNK_VERSION_3;
     let body = &bytes[header_len(origin.as_ref())..];
     let zlen = h.payload_zstd_bytes as usize;
     if body.len() < zlen {

@@ -201,6 +201,8 @@ pub struct ChunkWriter {
     pub(super) map_id: u64,
     /// The latest regularisation pass and its parameters when the writer was made.
     pub(super) pass: (u32, TvParams),
+    /// The commit generation to stamp, as the store advances it ([`MapStore::writer`]).
+    pub(super) commit_gen: Arc<std::sync::atomic::AtomicU64>,
 }
 
 impl ChunkWriter {
@@ -232,8 +234,9 @@ impl ChunkWriter {
             } else {
                 NO_PARAMS
             },
+            commit_gen: self.commit_gen.load(std::sync::atomic::Ordering::SeqCst),
         };
-        let bytes = encode_chunk_v3_reusing(&header, &origin, blocks, self.zstd_level, previous);
+        let bytes = encode_chunk_v4_reusing(&header, &origin, blocks, self.zstd_level, previous);
         let has_reg = blocks.iter().any(|(_, b)| b.regularized.is_some());
         let w = WrittenChunk {
             chunk: c,

@@ -77,3 +77,70 @@ pub fn read_manifest_at(files: &dyn MapFiles) -> Result<(Manifest, ObjectVersion
     })?;
     Ok((m, version))
 }
+
+/// The text of the commit mark ([`super::super::layout::COMMIT_MARK`]) for `h`.
+pub(super) fn commit_mark_text(h: &ManifestHeader) -> String {
+    format!(
+        "denser last commit\nmap_id {:016x}\ngeneration {}\n",
+        h.map_id, h.generation
+    )
+}
+
+/// The commit mark's map id and generation; `None` when there is none (a map made before the
+/// mark existed) or it cannot be parsed (reported: a damaged mark is no evidence).
+pub fn read_commit_mark(files: &dyn MapFiles) -> Result<Option<(u64, u64)>> {
+    let Some(bytes) = files.read(COMMIT_MARK)? else {
+        return Ok(None);
+    };
+    let text = String::from_utf8_lossy(&bytes);
+    let field = |key: &str| {
+        text.lines()
+            .find_map(|l| l.strip_prefix(key).map(str::trim).map(str::to_string))
+    };
+    let id = field("map_id ").and_then(|v| u64::from_str_radix(&v, 16).ok());
+    let gen = field("generation ").and_then(|v| v.parse::<u64>().ok());
+    match (text.starts_with("denser last commit"), id, gen) {
+        (true, Some(id), Some(gen)) => Ok(Some((id, gen))),
+        _ => {
+            tracing::warn!(
+                "{}: not a commit mark this denser reads; ignored",
+                files.path(COMMIT_MARK).display()
+            );
+            Ok(None)
+        }
+    }
+}
+
+/// An error when the commit mark says this map committed a generation newer than `m`'s.
+pub(super) fn check_commit_mark(
+    files: &dyn MapFiles,
+    m: &Manifest,
+    mark: Option<(u64, u64)>,
+) -> Result<()> {
+    match mark {
+        Some((id, gen)) if id == m.header.map_id && gen > m.header.generation => {
+            Err(Error::MapRolledBack {
+                map: files.location().display_path(),
+                manifest_generation: m.header.generation,
+                newer_generation: gen,
+                evidence: format!("{} records it", files.path(COMMIT_MARK).display()),
+            })
+        }
+        _ => Ok(()),
+    }
+}
+
+/// Refuses a map that carries an [`INCOMPLETE_MARK`]: a job that builds it over several commits
+/// (`merge`) has not finished; what is committed so far is not the map it was asked for.
+pub(super) fn refuse_incomplete(files: &dyn MapFiles) -> Result<()> {
+    match files.read(INCOMPLETE_MARK)? {
+        None => Ok(()),
+        Some(b) => Err(Error::bad_input(
+            files.location().display_path(),
+            format!(
+                "an unfinished map ({}): the job that builds it was stopped before it completed. Every command refuses it; run the same job again to resume it (or delete the map)",
+                String::from_utf8_lossy(&b).lines().next().unwrap_or("").trim()
+            ),
+        )),
+    }
+}

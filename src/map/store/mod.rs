@@ -19,12 +19,12 @@
 //! rebuilds the manifest.
 
 use super::codec::{
-    decode_chunk, decode_header_with_origin, encode_chunk_v3_reusing, ChunkHeader, ChunkOrigin,
+    decode_chunk, decode_header_with_origin, encode_chunk_v4_reusing, ChunkHeader, ChunkOrigin,
     DecodedChunk, PreviousFrames, CHUNK_HEADER_V2_BYTES, DEFAULT_ZSTD_LEVEL, FLAG_HAS_REGULARIZED,
     NO_PARAMS,
 };
 use super::files::{Conditional, MapFiles, ObjectBytes, ObjectVersion, ReaderHold, WriterHold};
-use super::layout::{CHUNKS_DIR, MANIFEST_FILE, MANIFEST_TMP};
+use super::layout::{CHUNKS_DIR, COMMIT_MARK, INCOMPLETE_MARK, MANIFEST_FILE, MANIFEST_TMP};
 use super::location::MapLocation;
 use super::manifest::{
     chunk_file_name, decode_manifest, encode_manifest, new_map_id, parse_chunk_file_name,
@@ -44,8 +44,13 @@ mod chunk_io;
 mod cleanup;
 mod manifest_io;
 
-use manifest_io::{chunk_object, lost_manifest, require_manifest};
-pub use manifest_io::{count_chunk_files, count_chunk_objects, read_manifest, read_manifest_at};
+use manifest_io::{
+    check_commit_mark, chunk_object, commit_mark_text, lost_manifest, refuse_incomplete,
+    require_manifest,
+};
+pub use manifest_io::{
+    count_chunk_files, count_chunk_objects, read_commit_mark, read_manifest, read_manifest_at,
+};
 
 use cache::ChunkCache;
 pub use cache::DEFAULT_OBJECT_CACHE_BYTES;
@@ -81,6 +86,10 @@ pub struct MapStore {
     zstd_level: i32,
     access: Access,
     cache: Option<Arc<ChunkCache>>,
+    /// The commit generation stamped into the chunk files this store's writers write
+    /// ([`ChunkOrigin::commit_gen`]): the next commit's for a writer, the manifest's own for a
+    /// reader (a shard), shared with every [`ChunkWriter`] and advanced by each commit.
+    commit_gen: Arc<std::sync::atomic::AtomicU64>,
 }
 
 /// A chunk file written but not yet committed: what [`MapStore::record`] needs.
@@ -138,8 +147,17 @@ pub struct OpenCleanup {
 
 impl MapLocation {
     /// Opens the location's objects: a directory ([`super::files::LocalFiles`]) or an
-    /// object-store prefix (`S3Files`).
+    /// object-store prefix (`S3Files`); under `DENSER_FAULT_INJECTION` (a testing hook), wrapped
+    /// in [`super::fault::FaultyFiles`].
     pub fn open_files(&self) -> Result<Arc<dyn MapFiles>> {
+        let files = self.open_files_plain()?;
+        Ok(match super::fault::FaultPlan::from_env()? {
+            Some(plan) => Arc::new(super::fault::FaultyFiles::new(files, plan)),
+            None => files,
+        })
+    }
+
+    fn open_files_plain(&self) -> Result<Arc<dyn MapFiles>> {
         match self {
             MapLocation::Dir(d) => Ok(Arc::new(super::files::LocalFiles::new(d))),
             #[cfg(feature = "s3")]
@@ -177,6 +195,50 @@ impl MapStore {
         grid: GridParams,
         chunk_blocks: u32,
     ) -> Result<Self> {
+        Self::create_files_marked(files, grid, chunk_blocks, None)
+    }
+
+    /// [`MapStore::create_at`] for a job that builds the map over several commits (`merge`): the
+    /// [`INCOMPLETE_MARK`] holding `job` is written before the first commit, so every opener
+    /// refuses the map (naming `job`) until [`MapStore::mark_complete`] removes it; the job
+    /// resumes through [`MapStore::open_incomplete_at`].
+    pub fn create_incomplete_at(
+        loc: &MapLocation,
+        grid: GridParams,
+        chunk_blocks: u32,
+        job: &str,
+    ) -> Result<Self> {
+        if let Some(dir) = loc.as_dir() {
+            grid.validate()?;
+            std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+        }
+        Self::create_files_marked(loc.open_files()?, grid, chunk_blocks, Some(job))
+    }
+
+    /// Opens a map for writing as [`MapStore::open_at`] does, also when it carries an
+    /// [`INCOMPLETE_MARK`]; returns the mark's text, so the job that wrote it can check that it
+    /// is its own before resuming.
+    pub fn open_incomplete_at(loc: &MapLocation) -> Result<(Self, Option<String>)> {
+        let files = loc.open_files()?;
+        let mark = files
+            .read(INCOMPLETE_MARK)?
+            .map(|b| String::from_utf8_lossy(&b).into_owned());
+        Ok((Self::open_writer(files, true)?.0, mark))
+    }
+
+    /// Removes the [`INCOMPLETE_MARK`] once the job that builds the map has committed its last
+    /// chunk: from then on the map opens as any other.
+    pub fn mark_complete(&mut self) -> Result<()> {
+        self.require_writer("completing a map")?;
+        self.files.delete(INCOMPLETE_MARK)
+    }
+
+    fn create_files_marked(
+        files: Arc<dyn MapFiles>,
+        grid: GridParams,
+        chunk_blocks: u32,
+        incomplete: Option<&str>,
+    ) -> Result<Self> {
         let loc = files.location().clone();
         grid.validate()?;
         if !(1..=256).contains(&chunk_blocks) {
@@ -198,6 +260,9 @@ impl MapStore {
         if let Some(dir) = loc.as_dir() {
             let chunks = dir.join(CHUNKS_DIR);
             std::fs::create_dir_all(&chunks).map_err(|e| Error::io(&chunks, e))?;
+        }
+        if let Some(job) = incomplete {
+            files.write(INCOMPLETE_MARK, job.as_bytes())?;
         }
         let mut store = MapStore::with_files(
             files,
@@ -234,6 +299,10 @@ impl MapStore {
         let cache = files
             .deletes_after_s()
             .map(|_| Arc::new(ChunkCache::new(DEFAULT_OBJECT_CACHE_BYTES)));
+        let next = matches!(access, Access::Writer(_)) as u64;
+        let commit_gen = Arc::new(std::sync::atomic::AtomicU64::new(
+            manifest.header.generation + next,
+        ));
         MapStore {
             dir: files.location().display_path(),
             files,
@@ -244,6 +313,7 @@ impl MapStore {
             zstd_level: DEFAULT_ZSTD_LEVEL,
             access,
             cache,
+            commit_gen,
         }
     }
 
@@ -279,8 +349,18 @@ impl MapStore {
 
     /// [`MapStore::open_at_with_cleanup`] over given objects.
     pub fn open_files_with_cleanup(files: Arc<dyn MapFiles>) -> Result<(Self, OpenCleanup)> {
+        Self::open_writer(files, false)
+    }
+
+    fn open_writer(
+        files: Arc<dyn MapFiles>,
+        allow_incomplete: bool,
+    ) -> Result<(Self, OpenCleanup)> {
         let loc = files.location().clone();
         require_manifest(&*files)?;
+        if !allow_incomplete {
+            refuse_incomplete(&*files)?;
+        }
         let lock = files.lock_writer()?;
         if let Some(h) = lock.stale_holder() {
             tracing::warn!(
@@ -288,7 +368,10 @@ impl MapStore {
             );
         }
         let (manifest, version) = read_manifest_at(&*files)?;
+        // Before anything is committed or deleted: is this manifest the map's latest?
+        check_commit_mark(&*files, &manifest, read_commit_mark(&*files)?)?;
         let mut store = MapStore::with_files(files, manifest, Some(version), Access::Writer(lock));
+        store.check_chunk_stamps()?;
         if store.files.needs_fencing() {
             store.commit()?;
         }
@@ -316,8 +399,13 @@ impl MapStore {
     /// caller).
     pub fn open_read_only_files(files: Arc<dyn MapFiles>) -> Result<Self> {
         require_manifest(&*files)?;
+        refuse_incomplete(&*files)?;
         let guard = files.hold_readers();
+        // The mark before the manifest: a commit between the two reads only makes the manifest
+        // newer than the mark, never older.
+        let mark = read_commit_mark(&*files)?;
         let (manifest, version) = read_manifest_at(&*files)?;
+        check_commit_mark(&*files, &manifest, mark)?;
         Ok(MapStore::with_files(
             files,
             manifest,
@@ -432,6 +520,7 @@ impl MapStore {
             zstd_level: self.zstd_level,
             map_id: h.map_id,
             pass: (h.reg_pass, h.reg_params),
+            commit_gen: self.commit_gen.clone(),
         }
     }
 
@@ -528,7 +617,13 @@ impl MapStore {
             .files
             .write_if(MANIFEST_FILE, &bytes, self.manifest_version.as_ref())?
         {
-            Conditional::Written(v) => self.manifest_version = Some(v),
+            Conditional::Written(v) => {
+                self.manifest_version = Some(v);
+                self.commit_gen.store(
+                    self.manifest.header.generation + 1,
+                    std::sync::atomic::Ordering::SeqCst,
+                );
+            }
             Conditional::Conflict => {
                 self.manifest.header.generation = read_generation;
                 return Err(Error::CommitConflict {
@@ -537,6 +632,22 @@ impl MapStore {
                 });
             }
         }
+        // The generation committed, recorded apart from the manifest: an older manifest put
+        // back later is then told from the latest (`layout.rs`).
+        self.files
+            .write(
+                COMMIT_MARK,
+                commit_mark_text(&self.manifest.header).as_bytes(),
+            )
+            .map_err(|e| {
+                Error::bad_input(
+                    self.files.path(COMMIT_MARK),
+                    format!(
+                        "generation {} was committed, but recording it here failed: {e}",
+                        self.manifest.header.generation
+                    ),
+                )
+            })?;
         self.deferred.append(&mut self.superseded);
         self.delete_deferred()
     }

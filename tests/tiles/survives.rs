@@ -1,0 +1,273 @@
+//! A map survives its users (issue 36), in the storage engine: a rolled-back manifest is refused
+//! by every opener and rebuilt by `repair` with nothing lost; `repair` keeps each chunk's version
+//! of the latest commit, not the highest-numbered file; a writer whose lock file was removed stops
+//! before its next commit.
+
+use super::engine::{
+    assert_layers_identical, files, grid, options, params, store_layer, surface_layer, write_layer,
+    CHUNK_BLOCKS,
+};
+use denser::grid::Layer;
+use denser::map::layout::{COMMIT_MARK, LOCK_FILE, MANIFEST_FILE};
+use denser::map::repair::repair;
+use denser::map::store::MapStore;
+use denser::outofcore::regional::regularize_shard;
+use denser::outofcore::shards::Shard;
+use denser::Error;
+use std::path::Path;
+
+/// `layer` with every TSDF value of every third block nudged by `k` steps and its colour
+/// changed: a later fusion's version of the same chunks.
+fn changed(layer: &Layer, k: i16) -> Layer {
+    let mut out = Layer::new(grid());
+    for (n, b) in layer.indices_sorted().into_iter().enumerate() {
+        let mut block = Box::new(layer.get(&b).expect("block").clone());
+        if n % 3 == 0 {
+            for t in block.tsdf.iter_mut() {
+                *t = t.saturating_add(k * 97);
+            }
+            block
+                .color
+                .iter_mut()
+                .for_each(|c| c[2] = c[2].wrapping_add(k as u8));
+        }
+        out.insert(b, block);
+    }
+    out
+}
+
+fn rolled_back(e: Error) -> (u64, u64) {
+    match e {
+        Error::MapRolledBack {
+            manifest_generation,
+            newer_generation,
+            ..
+        } => (manifest_generation, newer_generation),
+        other => panic!("expected a rolled-back manifest, got {other}"),
+    }
+}
+
+fn manifest_bytes(root: &Path) -> Vec<u8> {
+    std::fs::read(root.join(MANIFEST_FILE)).expect("manifest")
+}
+
+/// Item 1: an older manifest of the same map copied over the current one made the next writer
+/// delete every chunk file written after it ("removed 160 chunk files…"). Now every opener
+/// refuses it, nothing is deleted, and `repair` rebuilds the latest map.
+#[test]
+fn a_rolled_back_manifest_is_refused_and_repair_restores_the_latest_map() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let root = dir.path().join("map");
+    let a = surface_layer(3, 2, 5);
+    let mut w = MapStore::create(&root, grid(), CHUNK_BLOCKS).expect("create");
+    write_layer(&mut w, &a);
+    let backup_gen = w.manifest().header.generation;
+    let backup = manifest_bytes(&root);
+    let b = changed(&a, 1);
+    write_layer(&mut w, &b);
+    let c = changed(&b, 2);
+    write_layer(&mut w, &c);
+    let latest_gen = w.manifest().header.generation;
+    drop(w);
+    let before = files(&root);
+
+    // Several generations back: the commit mark and the chunk files both tell.
+    std::fs::write(root.join(MANIFEST_FILE), &backup).expect("restore an old manifest");
+    let (m, newer) = rolled_back(MapStore::open(&root).expect_err("writer"));
+    assert_eq!((m, newer), (backup_gen, latest_gen));
+    rolled_back(MapStore::open_read_only(&root).expect_err("reader"));
+    assert_eq!(files(&root), before, "nothing deleted");
+    // Without the commit mark, the chunk files written after the old manifest still tell.
+    let mark = std::fs::read(root.join(COMMIT_MARK)).expect("mark");
+    std::fs::remove_file(root.join(COMMIT_MARK)).expect("lose the mark");
+    let (m, newer) = rolled_back(MapStore::open(&root).expect_err("writer without mark"));
+    assert!(m == backup_gen && newer > backup_gen, "{m} {newer}");
+    assert_eq!(files(&root), before, "nothing deleted");
+    std::fs::write(root.join(COMMIT_MARK), mark).expect("mark back");
+
+    let report = repair(&root).expect("repair");
+    assert!(
+        report
+            .notes
+            .iter()
+            .any(|n| n.contains("older than the map")),
+        "{:?}",
+        report.notes
+    );
+    assert!(root
+        .join(format!("{MANIFEST_FILE}.rolled-back-{backup_gen}"))
+        .exists());
+    let r = MapStore::open_read_only(&root).expect("repaired");
+    assert!(r.verify().is_empty(), "{:?}", r.verify());
+    assert_layers_identical(&c, &store_layer(&r));
+    assert!(r.manifest().header.generation > latest_gen);
+    drop(r);
+    // The next writer removes only the superseded versions, and the map stays the latest.
+    let w = MapStore::open(&root).expect("writer after repair");
+    assert_layers_identical(&c, &store_layer(&w));
+}
+
+/// One generation back: no chunk file can tell a committed generation from a dead writer's
+/// leftovers, but the commit mark can.
+#[test]
+fn a_manifest_one_commit_old_is_refused_too() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let root = dir.path().join("map");
+    let a = surface_layer(2, 2, 6);
+    let mut w = MapStore::create(&root, grid(), CHUNK_BLOCKS).expect("create");
+    write_layer(&mut w, &a);
+    let backup = manifest_bytes(&root);
+    let b = changed(&a, 3);
+    write_layer(&mut w, &b);
+    drop(w);
+    let before = files(&root);
+    std::fs::write(root.join(MANIFEST_FILE), &backup).expect("restore");
+    rolled_back(MapStore::open(&root).expect_err("writer"));
+    assert_eq!(files(&root), before, "nothing deleted");
+    repair(&root).expect("repair");
+    let r = MapStore::open_read_only(&root).expect("repaired");
+    assert_layers_identical(&b, &store_layer(&r));
+}
+
+/// Item 2: after a shard wrote its files (numbered far above the writer's), the resumed writer
+/// committed newer versions, and the manifest was lost, `repair` kept the shard's stale files by
+/// their higher numbers. It orders versions by commit generation now.
+#[test]
+fn repair_keeps_the_latest_commit_not_the_highest_file_number() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let root = dir.path().join("map");
+    let a = surface_layer(3, 2, 7);
+    let mut w = MapStore::create(&root, grid(), CHUNK_BLOCKS).expect("create");
+    write_layer(&mut w, &a);
+    drop(w);
+    let mut r = MapStore::open_read_only(&root).expect("reader");
+    let shard = regularize_shard(
+        &mut r,
+        &params(0.8),
+        &options(),
+        Shard { index: 0, count: 1 },
+        |_, _| true,
+        |p, prm| {
+            p.solve(prm);
+            Ok(())
+        },
+    )
+    .expect("shard");
+    assert!(shard.regions > 0);
+    drop(r);
+    // The writer resumes fusion (the shard's files stay: their plan is open) and commits newer
+    // versions of every chunk.
+    let mut w = MapStore::open(&root).expect("writer");
+    let b = changed(&a, 4);
+    write_layer(&mut w, &b);
+    let newest = changed(&b, 5);
+    write_layer(&mut w, &newest);
+    drop(w);
+    std::fs::remove_file(root.join(MANIFEST_FILE)).expect("lose the manifest");
+    let report = repair(&root).expect("repair");
+    assert_eq!(report.chunks, store_chunks(&newest));
+    let r = MapStore::open_read_only(&root).expect("repaired");
+    assert!(r.verify().is_empty(), "{:?}", r.verify());
+    assert_layers_identical(&newest, &store_layer(&r));
+    assert!(
+        r.manifest().chunks.values().all(|e| e.reg_pass == 0),
+        "no shard file kept"
+    );
+}
+
+fn store_chunks(layer: &Layer) -> usize {
+    denser::map::group_by_chunk(layer.indices_sorted(), CHUNK_BLOCKS).len()
+}
+
+/// Item 6: with `MAP/lock` removed while a writer ran, a second writer was admitted and the
+/// first went on committing. The first now stops before its next commit.
+#[test]
+fn a_writer_whose_lock_file_was_removed_stops_before_committing() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let root = dir.path().join("map");
+    let a = surface_layer(2, 1, 8);
+    let mut w = MapStore::create(&root, grid(), CHUNK_BLOCKS).expect("create");
+    write_layer(&mut w, &a);
+    let generation = w.manifest().header.generation;
+    std::fs::remove_file(root.join(LOCK_FILE)).expect("remove the lock file");
+    let mut second = MapStore::open(&root).expect("a second writer takes a new lock file");
+    let err = w.commit().expect_err("the first writer's commit");
+    assert!(
+        matches!(&err, Error::LockLost { .. })
+            && err.to_string().contains("replaced by another file"),
+        "{err}"
+    );
+    assert_eq!(
+        MapStore::open_read_only(&root)
+            .expect("r")
+            .manifest()
+            .header
+            .generation,
+        generation,
+        "nothing committed by the first writer"
+    );
+    second.commit().expect("the second writer commits");
+}
+
+/// Item 5: a killed `merge` left a valid-looking map of 256 of 1123 chunks that every command
+/// accepted, and a rerun was refused ("already holds a map"). The output now carries an
+/// incomplete mark until its last commit: every opener refuses it, the same merge resumes it,
+/// and the result equals an uninterrupted merge.
+#[test]
+fn a_stopped_merge_is_refused_by_every_opener_and_resumed_by_the_same_merge() {
+    use denser::map::MapLocation;
+    use denser::outofcore::merge::merge;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    for (root, seed) in [(&a, 1), (&b, 2)] {
+        let mut w = MapStore::create(root, grid(), CHUNK_BLOCKS).expect("create");
+        write_layer(&mut w, &surface_layer(12, 12, seed));
+    }
+    let inputs = [MapLocation::Dir(a.clone()), MapLocation::Dir(b.clone())];
+    let whole = MapLocation::Dir(dir.path().join("whole"));
+    let reference = merge(&inputs, &whole, 1 << 30).expect("uninterrupted merge");
+    assert!(reference.chunks > 256, "{reference:?}");
+
+    // Input a's last chunk file damaged: the merge stops there, after its commit of 256 chunks.
+    let r = MapStore::open_read_only(&a).expect("a");
+    let last = *r.chunk_indices().last().expect("chunks");
+    let victim = r.chunk_path(last).expect("path");
+    drop(r);
+    let good = std::fs::read(&victim).expect("read");
+    let mut bad = good.clone();
+    let n = bad.len();
+    bad[n - 1] ^= 0xff;
+    std::fs::write(&victim, &bad).expect("damage");
+    let out = MapLocation::Dir(dir.path().join("out"));
+    merge(&inputs, &out, 1 << 30).expect_err("the merge stops at the damaged chunk");
+    let root = dir.path().join("out");
+    assert!(root.join(MANIFEST_FILE).exists(), "it had committed");
+    for e in [
+        MapStore::open_read_only(&root).expect_err("reader"),
+        MapStore::open(&root).expect_err("writer"),
+    ] {
+        assert!(e.to_string().contains("unfinished map"), "{e}");
+    }
+    // Another merge into it is refused; the same merge resumes.
+    let c = dir.path().join("c");
+    let mut w = MapStore::create(&c, grid(), CHUNK_BLOCKS).expect("create");
+    write_layer(&mut w, &surface_layer(12, 12, 3));
+    drop(w);
+    let other = [MapLocation::Dir(a.clone()), MapLocation::Dir(c)];
+    let e = merge(&other, &out, 1 << 30).expect_err("another merge");
+    assert!(
+        e.to_string().contains("unfinished merge of other inputs"),
+        "{e}"
+    );
+    std::fs::write(&victim, &good).expect("repair the input");
+    let resumed = merge(&inputs, &out, 1 << 30).expect("resume");
+    assert_eq!(resumed.chunks_resumed, 256, "{resumed:?}");
+    assert_eq!(resumed.chunks + resumed.chunks_resumed, reference.chunks);
+    let r = MapStore::open_read_only(&root).expect("complete: opens");
+    assert!(r.verify().is_empty(), "{:?}", r.verify());
+    let w = MapStore::open_read_only(&dir.path().join("whole")).expect("whole");
+    assert_layers_identical(&store_layer(&w), &store_layer(&r));
+    // A finished map is not merged into again.
+    let e = merge(&inputs, &out, 1 << 30).expect_err("rerun after completion");
+    assert!(e.to_string().contains("already holds a map"), "{e}");
+}
