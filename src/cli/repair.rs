@@ -1,23 +1,25 @@
-//! `denser repair`: rebuilds a lost or unreadable manifest from the chunk files' self-describing
-//! headers, keeping the newest intact version of each chunk and reporting what it could not keep.
+//! `denser repair`: rebuilds a lost, unreadable or rolled-back manifest from the chunk files'
+//! self-describing headers, keeping each chunk's intact version of the latest commit and reporting
+//! what it could not keep. Maps in a directory or on an object store.
 
 use super::Outcome;
 use anyhow::{Context, Result};
 use denser::map::repair::RepairReport;
+use denser::map::MapLocation;
 use std::fmt;
-use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub(crate) struct Args {
-    /// Map directory whose manifest is lost or unreadable.
-    dir: PathBuf,
+    /// The map (a directory or s3://bucket/prefix) whose manifest is lost, unreadable or older
+    /// than its last commit.
+    dir: MapLocation,
     /// Print JSON instead of text.
     #[arg(long)]
     json: bool,
 }
 
 struct Repaired {
-    dir: PathBuf,
+    dir: MapLocation,
     report: RepairReport,
     json: bool,
 }
@@ -31,15 +33,15 @@ impl fmt::Display for Repaired {
         }
         writeln!(
             f,
-            "repaired {}: new manifest from the newest intact version of each chunk: {} chunks, {} blocks ({} in Ω), from {} chunk files",
-            self.dir.display(),
+            "repaired {}: new manifest from each chunk's intact version of the latest commit: {} chunks, {} blocks ({} in Ω), from {} chunk files",
+            self.dir,
             r.chunks,
             r.blocks,
             r.observed_voxels,
             r.files_examined
         )?;
         if let Some(p) = &r.unreadable_manifest_moved_to {
-            writeln!(f, "  the unreadable manifest was moved to {}", p.display())?;
+            writeln!(f, "  the old manifest was moved to {}", p.display())?;
         }
         for l in &r.older_versions_used {
             writeln!(f, "  older version: {l}")?;
@@ -59,8 +61,8 @@ impl fmt::Display for Repaired {
 }
 
 pub(crate) fn run(a: Args) -> Result<Outcome> {
-    let report = denser::map::repair::repair(&a.dir)
-        .with_context(|| format!("repairing map {}", a.dir.display()))?;
+    let report = denser::map::repair::repair_at(&a.dir)
+        .with_context(|| format!("repairing map {}", a.dir))?;
     Ok(Box::new(Repaired {
         dir: a.dir,
         report,

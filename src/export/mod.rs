@@ -178,6 +178,11 @@ pub fn export_with(
     target: &ExportTarget,
 ) -> Result<ExportStats> {
     let t0 = std::time::Instant::now();
+    // Leftovers of an export that was killed (temporary files and folders of a dead process).
+    let target_path = match target {
+        ExportTarget::Mesh(p) | ExportTarget::Points(p) | ExportTarget::Tiles(p) => p,
+    };
+    crate::io::atomic::remove_stale_partials(target_path);
     let (path, mesh) = match target {
         ExportTarget::Mesh(p) => (p.clone(), true),
         ExportTarget::Points(p) => (p.clone(), false),

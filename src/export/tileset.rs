@@ -373,6 +373,17 @@ pub fn write_tileset_with(
                 "is not empty and holds no tileset.json: refusing to replace it with a tileset",
             ));
         }
+        // Replacing the folder deletes everything in it: only a tileset this export would write
+        // may be replaced (issue 36: other files of the user's in DIR were deleted).
+        if let Some(foreign) = foreign_entry(dir)? {
+            return Err(Error::bad_input(
+                dir,
+                format!(
+                    "holds {}, which a tileset export does not write: refusing to replace the folder (that would delete it); export into a new folder, or move that file out",
+                    foreign.display()
+                ),
+            ));
+        }
     }
     let build = TempPath::for_target(dir);
     std::fs::create_dir_all(build.path()).map_err(|e| Error::io(dir, e))?;
@@ -386,6 +397,47 @@ pub fn write_tileset_with(
         build.persist(dir)?;
     }
     Ok(stats)
+}
+
+/// The first entry of `dir` that is not part of a tileset as [`write_tileset`] writes it
+/// (`tileset.json`, `tiles/<level>/<x>_<y>_<z>.glb`), if any.
+fn foreign_entry(dir: &Path) -> Result<Option<std::path::PathBuf>> {
+    let ls = |d: &Path| -> Result<Vec<std::fs::DirEntry>> {
+        let mut v: Vec<_> = std::fs::read_dir(d)
+            .map_err(|e| Error::io(d, e))?
+            .flatten()
+            .collect();
+        v.sort_by_key(|e| e.file_name());
+        Ok(v)
+    };
+    let tile_name = |n: &str| {
+        n.strip_suffix(".glb").is_some_and(|s| {
+            let parts: Vec<&str> = s.split('_').collect();
+            parts.len() == 3 && parts.iter().all(|p| p.parse::<i64>().is_ok())
+        })
+    };
+    for e in ls(dir)? {
+        let n = e.file_name().to_string_lossy().into_owned();
+        let p = e.path();
+        match n.as_str() {
+            "tileset.json" if p.is_file() => {}
+            "tiles" if p.is_dir() => {
+                for level in ls(&p)? {
+                    let lp = level.path();
+                    if !lp.is_dir() || level.file_name().to_string_lossy().parse::<u32>().is_err() {
+                        return Ok(Some(lp));
+                    }
+                    for t in ls(&lp)? {
+                        if !t.path().is_file() || !tile_name(&t.file_name().to_string_lossy()) {
+                            return Ok(Some(t.path()));
+                        }
+                    }
+                }
+            }
+            _ => return Ok(Some(p)),
+        }
+    }
+    Ok(None)
 }
 
 /// [`write_tileset`] into the empty folder `dir`.

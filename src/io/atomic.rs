@@ -67,6 +67,69 @@ pub fn partial_name(target: &Path) -> PathBuf {
     }
 }
 
+/// Removes what killed runs (`SIGKILL`, a power loss) left beside `target`: hidden
+/// `.NAME.PID.partial[.EXT]` files and folders ([`partial_name`]) of `target` or of a sibling
+/// temporary of it (`target` with another extension: a COPC spill folder, a mesh's vertex
+/// stream, a replaced tileset), whose process `PID` no longer runs. A live process's files are
+/// never touched. Returns the paths removed.
+pub fn remove_stale_partials(target: &Path) -> Vec<PathBuf> {
+    let Some(name) = target.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return Vec::new();
+    };
+    let stem = target
+        .file_stem()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| name.clone());
+    let dir = match target.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        return Vec::new();
+    };
+    let mut removed = Vec::new();
+    for e in entries.flatten() {
+        let n = e.file_name().to_string_lossy().into_owned();
+        let Some(rest) = n.strip_prefix('.') else {
+            continue;
+        };
+        let Some(at) = rest.find(".partial") else {
+            continue;
+        };
+        let Some((of, pid)) = rest[..at].rsplit_once('.') else {
+            continue;
+        };
+        let Ok(pid) = pid.parse::<u32>() else {
+            continue;
+        };
+        let ours = of == name || of.starts_with(&format!("{stem}."));
+        if !ours || pid == std::process::id() || process_alive(pid) {
+            continue;
+        }
+        let p = e.path();
+        let gone = if p.is_dir() {
+            std::fs::remove_dir_all(&p).is_ok()
+        } else {
+            std::fs::remove_file(&p).is_ok()
+        };
+        if gone {
+            tracing::info!("removed {} (left by a stopped run, pid {pid})", p.display());
+            removed.push(p);
+        }
+    }
+    removed
+}
+
+/// Whether process `pid` runs (or exists but belongs to another user).
+fn process_alive(pid: u32) -> bool {
+    let Ok(pid) = libc::pid_t::try_from(pid) else {
+        return false;
+    };
+    // SAFETY: kill with signal 0 sends nothing; it only checks that the process exists.
+    let r = unsafe { libc::kill(pid, 0) };
+    r == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
+}
+
 /// A temporary path that belongs to this process until [`TempPath::persist`] renames it into
 /// place; dropped unpersisted, it is removed (file or folder). For writers that need a path
 /// rather than a `Write` (the LAS crate, a tileset folder).

@@ -29,25 +29,41 @@ use super::manifest::{
     new_map_id, parse_chunk_file_name, ChunkEntry, Manifest, ManifestHeader, PassStatus,
     ENTRY_HAS_REGULARIZED, FRAMES_UNKNOWN,
 };
-use super::store::{read_chunk_file, read_commit_mark, read_manifest, MapStore};
+use super::store::{read_chunk_object, read_commit_mark, read_manifest_at, MapStore};
 use super::ChunkIndex;
 use crate::error::{Error, Result};
 use crate::regularize::TvParams;
 use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
-/// The commit generation in the header of chunk file `path` (0 when it has none or cannot be
+/// The commit generation in the header of chunk object `name` (0 when it has none or cannot be
 /// read).
-fn header_commit_gen(path: &Path) -> u64 {
-    use std::io::Read;
-    let mut head = [0u8; CHUNK_HEADER_V2_BYTES];
-    let n = std::fs::File::open(path)
-        .and_then(|mut f| f.read(&mut head))
-        .unwrap_or(0);
-    decode_header_with_origin(&head[..n])
+fn header_commit_gen(files: &dyn MapFiles, name: &str) -> u64 {
+    files
+        .read_range(name, 0..CHUNK_HEADER_V2_BYTES as u64)
         .ok()
+        .and_then(|head| decode_header_with_origin(&head).ok())
         .and_then(|(_, o)| o)
         .map_or(0, |o| o.commit_gen)
+}
+
+/// Moves the manifest to `to` (kept for inspection): a rename in a directory, a copy and a
+/// delete on an object store. Returns where it went.
+fn move_aside(files: &dyn MapFiles, to: &str) -> Result<PathBuf> {
+    let from = files.path(MANIFEST_FILE);
+    match files.location().as_dir() {
+        Some(dir) => {
+            std::fs::rename(&from, dir.join(to)).map_err(|e| Error::io(&from, e))?;
+        }
+        None => {
+            let bytes = files
+                .read(MANIFEST_FILE)?
+                .ok_or_else(|| Error::bad_input(&from, "vanished while being moved aside"))?;
+            files.write(to, &bytes)?;
+            files.delete(MANIFEST_FILE)?;
+        }
+    }
+    Ok(files.path(to))
 }
 
 /// Why manifest `m` is older than its map, if it is: the commit mark records a newer
@@ -133,69 +149,82 @@ fn grid_key(h: &ChunkHeader) -> GridKey {
 /// one (older than the commit mark or than chunk files of this map, `layout.rs`) to
 /// `manifest.dmf.rolled-back-<generation>`.
 pub fn repair(dir: &Path) -> Result<RepairReport> {
-    if let Some(holder) = super::lock::writer_holding(dir) {
-        return Err(Error::MapLocked {
-            dir: dir.to_path_buf(),
-            holder,
-        });
-    }
     if !dir.join(CHUNKS_DIR).is_dir() {
         return Err(Error::bad_input(
             dir,
             "has no chunks/ folder: not a denser map, nothing to rebuild from",
         ));
     }
-    let files: std::sync::Arc<dyn MapFiles> = std::sync::Arc::new(LocalFiles::new(dir));
+    repair_files(std::sync::Arc::new(LocalFiles::new(dir)))
+}
+
+/// [`repair`] at any location (a directory or `s3://bucket/prefix`).
+pub fn repair_at(loc: &super::location::MapLocation) -> Result<RepairReport> {
+    match loc.as_dir() {
+        Some(dir) => repair(dir),
+        None => repair_files(loc.open_files()?),
+    }
+}
+
+/// [`repair`] over given objects. On an object store the manifest is moved aside by a copy and
+/// a delete, and the rebuilt one is committed create-only under the writer's lease.
+pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport> {
+    let loc = files.location().clone();
+    if let Some(holder) = files.writer_holding() {
+        return Err(Error::MapLocked {
+            dir: loc.display_path(),
+            holder,
+        });
+    }
+    let mut names: Vec<String> = files
+        .list(CHUNKS_DIR)?
+        .into_iter()
+        .map(|o| o.name)
+        .collect();
+    if names.is_empty() && !files.exists(MANIFEST_FILE)? {
+        return Err(Error::bad_input(
+            loc.display_path(),
+            "has no chunk files and no manifest: not a denser map, nothing to rebuild from",
+        ));
+    }
     let lock = files.lock_writer()?;
-    let manifest_path = dir.join(MANIFEST_FILE);
     let mut moved = None;
     let mut notes = Vec::new();
     // The newest commit generation any evidence shows: the rebuilt manifest commits past it.
     let mut newest_generation = read_commit_mark(&*files)?.map_or(0, |(_, g)| g);
-    if manifest_path.exists() {
-        match read_manifest(dir) {
-            Ok(m) => {
+    if files.exists(MANIFEST_FILE)? {
+        match read_manifest_at(&*files) {
+            Ok((m, _)) => {
                 let Some(evidence) = rollback_evidence(&*files, &m)? else {
                     return Err(Error::bad_input(
-                        &manifest_path,
+                        files.path(MANIFEST_FILE),
                         format!(
                             "is intact (generation {}, {} chunks): nothing to repair; `denser inspect {} --verify` checks the chunk files",
                             m.header.generation,
                             m.chunks.len(),
-                            dir.display()
+                            loc
                         ),
                     ));
                 };
                 newest_generation = newest_generation.max(m.header.generation);
-                let to = dir.join(format!(
-                    "{MANIFEST_FILE}.rolled-back-{}",
-                    m.header.generation
-                ));
+                let to = format!("{MANIFEST_FILE}.rolled-back-{}", m.header.generation);
                 notes.push(format!(
                     "the manifest (generation {}) was older than the map ({evidence}); moved to {} and rebuilt from the chunk files",
                     m.header.generation,
-                    to.display()
+                    files.path(&to).display()
                 ));
-                std::fs::rename(&manifest_path, &to).map_err(|e| Error::io(&manifest_path, e))?;
-                moved = Some(to);
+                moved = Some(move_aside(&*files, &to)?);
             }
             Err(e) => {
                 let secs = std::time::SystemTime::now()
                     .duration_since(std::time::UNIX_EPOCH)
                     .map_or(0, |d| d.as_secs());
-                let to = dir.join(format!("{MANIFEST_FILE}.unreadable-{secs}"));
-                tracing::warn!("{e}; moving it to {}", to.display());
-                std::fs::rename(&manifest_path, &to).map_err(|e| Error::io(&manifest_path, e))?;
-                moved = Some(to);
+                let to = format!("{MANIFEST_FILE}.unreadable-{secs}");
+                tracing::warn!("{e}; moving it to {}", files.path(&to).display());
+                moved = Some(move_aside(&*files, &to)?);
             }
         }
     }
-    let chunks_dir = dir.join(CHUNKS_DIR);
-    let mut names: Vec<String> = std::fs::read_dir(&chunks_dir)
-        .map_err(|e| Error::io(&chunks_dir, e))?
-        .filter_map(|e| e.ok())
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .collect();
     names.sort();
     let mut not_kept = Vec::new();
     let mut candidates: Vec<Candidate> = Vec::new();
@@ -218,14 +247,14 @@ pub fn repair(dir: &Path) -> Result<RepairReport> {
             continue;
         }
         files_examined += 1;
-        let path = chunks_dir.join(&name);
-        let key = (header_commit_gen(&path), seq);
+        let object = format!("{CHUNKS_DIR}/{name}");
+        let key = (header_commit_gen(&*files, &object), seq);
         newest_generation = newest_generation.max(key.0);
         let newest = newest_name.entry(c).or_insert((key, name.clone()));
         if key > newest.0 {
             *newest = (key, name.clone());
         }
-        let d = match read_chunk_file(&path) {
+        let (d, bytes) = match read_chunk_object(&*files, &object) {
             Ok(d) => d,
             Err(e) => {
                 let why = match &e {
@@ -259,7 +288,6 @@ pub fn repair(dir: &Path) -> Result<RepairReport> {
             .iter()
             .map(|(_, b)| b.observed_count() as u32)
             .sum();
-        let bytes = std::fs::metadata(&path).map_or(0, |m| m.len());
         let reg_pass = d.origin.map_or(0, |o| o.reg_pass);
         candidates.push(Candidate {
             chunk: c,
@@ -284,7 +312,7 @@ pub fn repair(dir: &Path) -> Result<RepairReport> {
     }
     if candidates.is_empty() {
         return Err(Error::bad_input(
-            &chunks_dir,
+            files.path(CHUNKS_DIR),
             format!(
                 "no intact chunk file among {files_examined}: nothing to rebuild a manifest from"
             ),

@@ -119,3 +119,64 @@ fn a_georeference_outside_its_crs_is_refused_before_any_output() {
         );
     }
 }
+
+/// Item 7: `export --tiles DIR` over an existing tileset deleted a user's other files in DIR, and
+/// a killed export's `.NAME.PID.partial` files and COPC spill folders stayed for good. Now an
+/// export never replaces a folder holding files it does not write, and removes what dead
+/// exports left beside its target (never a live process's).
+#[test]
+fn exports_delete_only_their_own_files_and_clean_up_after_killed_ones() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    small_map(d);
+    ok(&["export", "m", "--raw", "--tiles", "t"], d);
+    let tileset = std::fs::read(d.join("t/tileset.json")).expect("tileset");
+    std::fs::write(d.join("t/notes.txt"), "mine").expect("a user's file");
+    let o = denser(&["export", "m", "--raw", "--tiles", "t"], d);
+    let out = text(&o);
+    assert!(
+        !o.status.success(),
+        "replaced a folder with a user's file:\n{out}"
+    );
+    assert!(
+        out.contains("notes.txt") && out.contains("new folder"),
+        "{out}"
+    );
+    assert_eq!(std::fs::read(d.join("t/notes.txt")).expect("kept"), b"mine");
+    assert_eq!(
+        std::fs::read(d.join("t/tileset.json")).expect("kept"),
+        tileset
+    );
+    std::fs::remove_file(d.join("t/notes.txt")).expect("rm");
+    ok(&["export", "m", "--raw", "--tiles", "t"], d);
+
+    // Leftovers of a dead process (a finished child's pid) and of a live one (this test's).
+    let mut child = std::process::Command::new("true").spawn().expect("spawn");
+    let dead_pid = child.id();
+    child.wait().expect("wait");
+    let live_pid = std::process::id();
+    let stale = [
+        format!(".mesh.ply.{dead_pid}.partial.ply"),
+        format!(".mesh.vertices.{dead_pid}.partial.vertices"),
+        format!(".p.copc.spill.{dead_pid}.partial.spill"),
+    ];
+    for s in &stale[..2] {
+        std::fs::write(d.join(s), "partial").expect("leftover");
+    }
+    std::fs::create_dir_all(d.join(&stale[2])).expect("spill folder");
+    std::fs::write(d.join(&stale[2]).join("input.pts"), "x").expect("spill");
+    let live = format!(".mesh.ply.{live_pid}.partial.ply");
+    let unrelated = format!(".other.ply.{dead_pid}.partial.ply");
+    std::fs::write(d.join(&live), "running").expect("live");
+    std::fs::write(d.join(&unrelated), "another output's").expect("unrelated");
+    ok(&["export", "m", "--raw", "--mesh", "mesh.ply"], d);
+    ok(&["export", "m", "--raw", "--points", "p.copc.laz"], d);
+    for s in &stale {
+        assert!(!d.join(s).exists(), "{s} left");
+    }
+    assert!(d.join(&live).exists(), "a live process's file was removed");
+    assert!(
+        d.join(&unrelated).exists(),
+        "another output's leftover was removed"
+    );
+}

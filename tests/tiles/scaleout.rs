@@ -318,7 +318,12 @@ fn a_shard_file_with_a_flipped_payload_byte_is_not_adopted() {
     assert_layers_identical(&store_layer(&a), &store_layer(&w));
 }
 
-fn s3_files(moto: &Moto, bucket: &str, prefix: &str, extra: &[(&str, &str)]) -> Arc<dyn MapFiles> {
+pub(crate) fn s3_files(
+    moto: &Moto,
+    bucket: &str,
+    prefix: &str,
+    extra: &[(&str, &str)],
+) -> Arc<dyn MapFiles> {
     let opts = moto.options();
     let mut all: Vec<(&str, &str)> = opts.iter().map(|(k, v)| (*k, v.as_str())).collect();
     all.extend_from_slice(extra);

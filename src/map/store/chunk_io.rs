@@ -18,6 +18,12 @@ pub(super) fn read_chunk_file_len(path: &Path) -> Result<(DecodedChunk, u64)> {
     decode_object(&files, &name, files.read(&name)?)
 }
 
+/// Reads and decodes chunk object `name` of `files` (either format), with its size; errors name
+/// it. Checks only the object itself.
+pub fn read_chunk_object(files: &dyn MapFiles, name: &str) -> Result<(DecodedChunk, u64)> {
+    decode_object(files, name, files.read(name)?)
+}
+
 /// Decodes a chunk object read from `files`; errors name it.
 pub(super) fn decode_object(
     files: &dyn MapFiles,

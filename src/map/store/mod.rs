@@ -54,7 +54,7 @@ pub use manifest_io::{
 
 use cache::ChunkCache;
 pub use cache::DEFAULT_OBJECT_CACHE_BYTES;
-pub use chunk_io::{read_chunk_file, ChunkWriter};
+pub use chunk_io::{read_chunk_file, read_chunk_object, ChunkWriter};
 
 /// How a [`MapStore`] was opened.
 #[derive(Debug)]
