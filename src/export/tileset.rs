@@ -169,12 +169,26 @@ fn shift(c: [i32; 3], k: u32) -> [i32; 3] {
 }
 
 impl Writer<'_> {
+    /// The full-resolution mesh of the chunk of level-0 key `key`, and its own blocks.
+    fn chunk_mesh(&self, key: [i32; 3]) -> Result<(Mesh, usize)> {
+        let c = ChunkIndex([0, 1, 2].map(|a| key[a] + self.origin[a]));
+        super::parts::chunk_mesh(self.store, c, self.field, self.parts).map(|(m, _, own)| (m, own))
+    }
+
     /// Builds tile (level, key) and its subtree; returns the tile and its content mesh (map
-    /// frame) for the parent's clustering.
-    fn build(&mut self, level: u32, key: [i32; 3]) -> Result<Option<(TileNode, Mesh)>> {
+    /// frame) for the parent's clustering. A level-0 tile takes its chunk's mesh from `meshed`
+    /// when its parent made it (in parallel with its siblings').
+    fn build(
+        &mut self,
+        level: u32,
+        key: [i32; 3],
+        meshed: Option<(Mesh, usize)>,
+    ) -> Result<Option<(TileNode, Mesh)>> {
         let (mesh, mut lo, mut hi, children) = if level == 0 {
-            let c = ChunkIndex([0, 1, 2].map(|a| key[a] + self.origin[a]));
-            let (m, _, own) = super::parts::chunk_mesh(self.store, c, self.field, self.parts)?;
+            let (m, own) = match meshed {
+                Some(m) => m,
+                None => self.chunk_mesh(key)?,
+            };
             self.stats.voxels += own as u64 * 512;
             let m = self.crop(m);
             if m.triangles.is_empty() {
@@ -193,8 +207,19 @@ impl Writer<'_> {
                 .get(&(level, key))
                 .cloned()
                 .unwrap_or_default();
-            for child in kids {
-                if let Some((node, m)) = self.build(level - 1, child)? {
+            // The chunks under a level-1 tile are meshed at once, on every thread; the tiles are
+            // then built in their sorted order, so the tileset does not depend on the threads.
+            let mut meshed: Vec<Option<(Mesh, usize)>> = if level == 1 {
+                use rayon::prelude::*;
+                let this = &*self;
+                kids.par_iter()
+                    .map(|k| this.chunk_mesh(*k).map(Some))
+                    .collect::<Result<_>>()?
+            } else {
+                (0..kids.len()).map(|_| None).collect()
+            };
+            for (child, pre) in kids.into_iter().zip(meshed.drain(..)) {
+                if let Some((node, m)) = self.build(level - 1, child, pre)? {
                     clusters.add(&m);
                     drop(m);
                     for a in 0..3 {
@@ -488,7 +513,7 @@ fn build_tileset(
     };
     let root_key = level_keys.iter().next().copied();
     let root = match root_key {
-        Some(k) => w.build(root_level, k)?.map(|(n, _)| n),
+        Some(k) => w.build(root_level, k, None)?.map(|(n, _)| n),
         None => None,
     };
     let mut stats = w.stats;

@@ -99,6 +99,28 @@ pub(crate) fn files(dir: &Path) -> Vec<String> {
     v
 }
 
+/// Shard `shard` of a sharded pass with `params` over the local map at `path` (a reader),
+/// solved on the CPU to the end.
+pub(crate) fn run_local_shard(
+    path: &std::path::Path,
+    params: &TvParams,
+    shard: denser::outofcore::shards::Shard,
+) -> denser::outofcore::regional::MapRegularizeStats {
+    let mut r = MapStore::open_read_only(path).expect("reader");
+    denser::outofcore::regional::regularize_shard(
+        &mut r,
+        params,
+        &options(),
+        shard,
+        |_, _| true,
+        |p, prm| {
+            p.solve(prm);
+            Ok(())
+        },
+    )
+    .expect("shard")
+}
+
 pub(crate) fn options() -> RegionalOptions {
     RegionalOptions {
         region_chunks: 1,

@@ -658,3 +658,94 @@ fn tileset_has_levels_valid_glbs_and_draws_in_a_browser() {
     assert!(lit * 20 > total, "only {lit} of {total} pixels drawn");
     assert!(blue > 100, "no sphere pixels ({blue})");
 }
+
+/// Issue 40: chunks are meshed in parallel and stitched in their sorted order, so every format
+/// is byte for byte the same on 1, 2 and 5 threads (the mesh, PLY, LAS and COPC points, a box,
+/// and a small memory budget that narrows the meshing window to one chunk).
+#[test]
+fn exports_are_byte_identical_on_any_number_of_threads() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let store = analytic_map(&dir.path().join("map"), 2);
+    assert!(store.chunk_indices().len() > 50, "many chunks to share out");
+    let mut small = ExportOptions::new(Field::Raw);
+    small.memory_budget_bytes = 64 << 10;
+    let mut boxed = ExportOptions::new(Field::Raw);
+    boxed.bbox = Some(export::Bbox::parse("-3,-2,-1,3,3,20").expect("bbox"));
+    type Target = fn(PathBuf) -> ExportTarget;
+    let cases: Vec<(&str, ExportOptions, Target)> = vec![
+        (
+            "mesh.ply",
+            ExportOptions::new(Field::Raw),
+            ExportTarget::Mesh,
+        ),
+        (
+            "points.ply",
+            ExportOptions::new(Field::Raw),
+            ExportTarget::Points,
+        ),
+        (
+            "points.las",
+            ExportOptions::new(Field::Raw),
+            ExportTarget::Points,
+        ),
+        (
+            "points.copc.laz",
+            ExportOptions::new(Field::Raw),
+            ExportTarget::Points,
+        ),
+        ("boxed.ply", boxed, ExportTarget::Mesh),
+        ("small_budget.ply", small, ExportTarget::Mesh),
+    ];
+    for (name, options, target) in &cases {
+        let mut outputs = Vec::new();
+        for threads in [1, 2, 5] {
+            let path = dir.path().join(format!("{threads}_{name}"));
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("pool");
+            let st = pool
+                .install(|| export::export_with(&store, options, &target(path.clone())))
+                .expect("export");
+            assert!(st.vertices > 1000, "{name}: {st:?}");
+            outputs.push(std::fs::read(&path).expect("read"));
+        }
+        assert!(outputs[0] == outputs[1], "{name}: 1 and 2 threads differ");
+        assert!(outputs[0] == outputs[2], "{name}: 1 and 5 threads differ");
+    }
+    // A tileset: every file of the folder.
+    let mut trees = Vec::new();
+    for threads in [1, 2, 5] {
+        let out = dir.path().join(format!("tiles_{threads}"));
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        pool.install(|| {
+            export::export_with(
+                &store,
+                &ExportOptions::new(Field::Raw),
+                &ExportTarget::Tiles(out.clone()),
+            )
+        })
+        .expect("tileset");
+        let mut files = Vec::new();
+        let mut stack = vec![out.clone()];
+        while let Some(d) = stack.pop() {
+            for e in std::fs::read_dir(&d).expect("ls") {
+                let p = e.expect("entry").path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else {
+                    let rel = p.strip_prefix(&out).expect("under").to_path_buf();
+                    files.push((rel, std::fs::read(&p).expect("read")));
+                }
+            }
+        }
+        files.sort();
+        assert!(files.len() > 20, "{} tiles", files.len());
+        trees.push(files);
+    }
+    assert!(trees[0] == trees[1], "tilesets of 1 and 2 threads differ");
+    assert!(trees[0] == trees[2], "tilesets of 1 and 5 threads differ");
+}

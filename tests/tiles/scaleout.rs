@@ -14,7 +14,9 @@ use denser::map::s3::S3Files;
 use denser::map::store::MapStore;
 use denser::map::MapLocation;
 use denser::map::{group_by_chunk, ChunkIndex};
-use denser::outofcore::regional::{regularize_map, regularize_shard, RegionalOptions};
+use denser::outofcore::regional::{
+    regularize_map, regularize_shard, MapRegularizeStats, RegionalOptions,
+};
 use denser::outofcore::shards::Shard;
 use denser::regularize::TvParams;
 use std::sync::Arc;
@@ -85,6 +87,23 @@ fn assert_layers_identical(a: &Layer, b: &Layer) {
     for i in a.indices_sorted() {
         assert!(a.get(&i) == b.get(&i), "block {i:?} differs");
     }
+}
+
+/// The maps `one` (regularised by one process with [`params`] and [`options`]) and `sharded`
+/// (as written) of `layer` in `dir`, and the one-process pass's counters.
+fn one_and_sharded(
+    dir: &std::path::Path,
+    layer: &Layer,
+) -> (std::path::PathBuf, std::path::PathBuf, MapRegularizeStats) {
+    let one = dir.join("one");
+    let sharded = dir.join("sharded");
+    for d in [&one, &sharded] {
+        let mut s = MapStore::create(d, grid(), CHUNK_BLOCKS).expect("create");
+        write_layer(&mut s, layer);
+    }
+    let mut w = MapStore::open(&one).expect("open");
+    let single = regularize_map(&mut w, &params(), &options(), |_, _| true).expect("one process");
+    (one, sharded, single)
 }
 
 fn options() -> RegionalOptions {
@@ -163,18 +182,9 @@ fn shard_and_location_arguments_parse() {
 #[test]
 fn sharded_regularisation_equals_one_process_on_disk() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let layer = surface_layer(4, 3, 7);
-    let one = dir.path().join("one");
-    let sharded = dir.path().join("sharded");
-    for d in [&one, &sharded] {
-        let mut s = MapStore::create(d, grid(), CHUNK_BLOCKS).expect("create");
-        write_layer(&mut s, &layer);
-    }
-    let mut w = MapStore::open(&one).expect("open");
-    let single = regularize_map(&mut w, &params(), &options(), |_, _| true).expect("one process");
+    let (one, sharded, single) = one_and_sharded(dir.path(), &surface_layer(4, 3, 7));
     let regions = single.regions;
     assert!(regions >= 6, "{regions} regions");
-    drop(w);
 
     let run_shard = |index: u32, stop_after: Option<usize>| {
         let mut r = MapStore::open_read_only(&sharded).expect("reader");
@@ -256,30 +266,8 @@ fn sharded_regularisation_equals_one_process_on_disk() {
 #[test]
 fn a_shard_file_with_a_flipped_payload_byte_is_not_adopted() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let layer = surface_layer(4, 3, 11);
-    let one = dir.path().join("one");
-    let sharded = dir.path().join("sharded");
-    for d in [&one, &sharded] {
-        let mut s = MapStore::create(d, grid(), CHUNK_BLOCKS).expect("create");
-        write_layer(&mut s, &layer);
-    }
-    let mut w = MapStore::open(&one).expect("open");
-    let single = regularize_map(&mut w, &params(), &options(), |_, _| true).expect("one process");
-    drop(w);
-    let mut r = MapStore::open_read_only(&sharded).expect("reader");
-    let shard = regularize_shard(
-        &mut r,
-        &params(),
-        &options(),
-        Shard { index: 0, count: 1 },
-        |_, _| true,
-        |p, prm| {
-            p.solve(prm);
-            Ok(())
-        },
-    )
-    .expect("shard");
-    drop(r);
+    let (one, sharded, single) = one_and_sharded(dir.path(), &surface_layer(4, 3, 11));
+    let shard = super::engine::run_local_shard(&sharded, &params(), Shard { index: 0, count: 1 });
     assert_eq!(shard.regions, single.regions);
     // One of the shard's files (numbered in its plan's reserved range, far above the
     // manifest's) gets one payload byte flipped; its header and CRC fields stay as written.

@@ -4,14 +4,13 @@
 //! before its next commit.
 
 use super::engine::{
-    assert_layers_identical, files, grid, options, params, store_layer, surface_layer, write_layer,
+    assert_layers_identical, files, grid, params, store_layer, surface_layer, write_layer,
     CHUNK_BLOCKS,
 };
 use denser::grid::Layer;
 use denser::map::layout::{COMMIT_MARK, LOCK_FILE, MANIFEST_FILE};
 use denser::map::repair::repair;
 use denser::map::store::MapStore;
-use denser::outofcore::regional::regularize_shard;
 use denser::outofcore::shards::Shard;
 use denser::Error;
 use std::path::Path;
@@ -140,21 +139,8 @@ fn repair_keeps_the_latest_commit_not_the_highest_file_number() {
     let mut w = MapStore::create(&root, grid(), CHUNK_BLOCKS).expect("create");
     write_layer(&mut w, &a);
     drop(w);
-    let mut r = MapStore::open_read_only(&root).expect("reader");
-    let shard = regularize_shard(
-        &mut r,
-        &params(0.8),
-        &options(),
-        Shard { index: 0, count: 1 },
-        |_, _| true,
-        |p, prm| {
-            p.solve(prm);
-            Ok(())
-        },
-    )
-    .expect("shard");
+    let shard = super::engine::run_local_shard(&root, &params(0.8), Shard { index: 0, count: 1 });
     assert!(shard.regions > 0);
-    drop(r);
     // The writer resumes fusion (the shard's files stay: their plan is open) and commits newer
     // versions of every chunk.
     let mut w = MapStore::open(&root).expect("writer");
