@@ -107,6 +107,13 @@ pub struct Manifest {
 }
 
 impl Manifest {
+    /// Whether file `seq` of chunk `c` is one this manifest names (current or kept).
+    pub fn names(&self, c: ChunkIndex, seq: u64) -> bool {
+        [&self.chunks, &self.kept]
+            .iter()
+            .any(|m| m.get(&c).is_some_and(|e| e.file_seq == seq))
+    }
+
     /// Whether the latest regularisation pass has reached every chunk (true when none started).
     pub fn latest_pass_complete(&self) -> bool {
         self.header.reg_pass == 0

@@ -31,10 +31,7 @@ impl MapStore {
             let Some((c, seq)) = parse_chunk_file_name(&obj.name) else {
                 continue;
             };
-            let named = |m: &std::collections::BTreeMap<ChunkIndex, ChunkEntry>| {
-                m.get(&c).is_some_and(|e| e.file_seq == seq)
-            };
-            if seq < h.next_file_seq || named(&self.manifest.chunks) || named(&self.manifest.kept) {
+            if seq < h.next_file_seq || self.manifest.names(c, seq) {
                 continue;
             }
             let p = format!("{CHUNKS_DIR}/{}", obj.name);
@@ -95,10 +92,7 @@ impl MapStore {
                     .push(format!("{name}: not a chunk file name"));
                 continue;
             };
-            let named = |m: &std::collections::BTreeMap<ChunkIndex, ChunkEntry>| {
-                m.get(&c).is_some_and(|e| e.file_seq == seq)
-            };
-            if named(&self.manifest.chunks) || named(&self.manifest.kept) {
+            if self.manifest.names(c, seq) {
                 if tmp {
                     out.left_alone
                         .push(format!("{name}: temporary file of a committed version"));
@@ -183,14 +177,8 @@ impl MapStore {
             if !range.contains(&seq) {
                 continue;
             }
-            let named = |m: &std::collections::BTreeMap<ChunkIndex, ChunkEntry>| {
-                m.get(&c).is_some_and(|e| e.file_seq == seq)
-            };
             let name = format!("{CHUNKS_DIR}/{}", o.name);
-            if !named(&self.manifest.chunks)
-                && !named(&self.manifest.kept)
-                && self.header_is_ours(&name, c, seq)
-            {
+            if !self.manifest.names(c, seq) && self.header_is_ours(&name, c, seq) {
                 self.files.delete(&name)?;
                 removed += 1;
             }
