@@ -116,16 +116,8 @@ impl FaultyFiles {
     }
 
     fn step(&self, what: &str, name: &str) -> Result<Step> {
-        let dead = |n: u64| {
-            Error::io(
-                self.inner.path(name),
-                std::io::Error::other(format!(
-                    "{what}: the process crashed at map operation {n} (fault injection)"
-                )),
-            )
-        };
         if CRASHED.load(Ordering::SeqCst) {
-            return Err(dead(self.plan.at.unwrap_or(0)));
+            return Err(self.crashed(what, name));
         }
         let n = OPERATIONS.fetch_add(1, Ordering::SeqCst) + 1;
         if self.plan.at != Some(n) {
@@ -152,7 +144,7 @@ impl FaultyFiles {
         Error::io(
             self.inner.path(name),
             std::io::Error::other(format!(
-                "{what}: the process crashed here (fault injected at map operation {})",
+                "{what}: the process crashed at map operation {} (fault injection)",
                 self.plan.at.unwrap_or(0)
             )),
         )

@@ -24,12 +24,12 @@ use super::codec::{
     FLAG_HAS_REGULARIZED,
 };
 use super::files::{LocalFiles, MapFiles};
-use super::layout::{CHUNKS_DIR, COMMIT_MARK, MANIFEST_FILE};
+use super::layout::{CHUNKS_DIR, MANIFEST_FILE};
 use super::manifest::{
     new_map_id, parse_chunk_file_name, ChunkEntry, Manifest, ManifestHeader, PassStatus,
     ENTRY_HAS_REGULARIZED, FRAMES_UNKNOWN,
 };
-use super::store::{read_chunk_object, read_commit_mark, read_manifest_at, MapStore};
+use super::store::{check_latest, read_chunk_object, read_commit_mark, read_manifest_at, MapStore};
 use super::ChunkIndex;
 use crate::error::{Error, Result};
 use crate::regularize::TvParams;
@@ -64,37 +64,6 @@ fn move_aside(files: &dyn MapFiles, to: &str) -> Result<PathBuf> {
         }
     }
     Ok(files.path(to))
-}
-
-/// Why manifest `m` is older than its map, if it is: the commit mark records a newer
-/// generation, or a chunk file of this map was written after a commit `m` does not know
-/// (`layout.rs`). Reads the mark and the chunk files' headers.
-fn rollback_evidence(files: &dyn MapFiles, m: &Manifest) -> Result<Option<String>> {
-    let h = m.header;
-    if let Some((id, gen)) = read_commit_mark(files)? {
-        if id == h.map_id && gen > h.generation {
-            return Ok(Some(format!(
-                "{} records generation {gen}",
-                files.path(COMMIT_MARK).display()
-            )));
-        }
-    }
-    for obj in files.list(CHUNKS_DIR)? {
-        let name = format!("{CHUNKS_DIR}/{}", obj.name);
-        let Ok(head) = files.read_range(&name, 0..CHUNK_HEADER_V2_BYTES as u64) else {
-            continue;
-        };
-        if let Ok((_, Some(o))) = decode_header_with_origin(&head) {
-            if o.map_id == h.map_id && o.commit_gen > h.generation + 1 {
-                return Ok(Some(format!(
-                    "{} was written after generation {}",
-                    files.path(&name).display(),
-                    o.commit_gen - 1
-                )));
-            }
-        }
-    }
-    Ok(None)
 }
 
 /// What [`repair`] did.
@@ -195,7 +164,12 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
     if files.exists(MANIFEST_FILE)? {
         match read_manifest_at(&*files) {
             Ok((m, _)) => {
-                let Some(evidence) = rollback_evidence(&*files, &m)? else {
+                let evidence = match check_latest(&*files, &m) {
+                    Ok(()) => None,
+                    Err(Error::MapRolledBack { evidence, .. }) => Some(evidence),
+                    Err(other) => return Err(other),
+                };
+                let Some(evidence) = evidence else {
                     return Err(Error::bad_input(
                         files.path(MANIFEST_FILE),
                         format!(

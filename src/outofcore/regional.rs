@@ -24,11 +24,10 @@
 pub use super::region_plan::{
     check_budget_up_front, plan_region_chunks, MapRegularizeStats, RegionCosts, RegionalOptions,
 };
-use super::region_plan::{region_of, region_over_budget, resolve, SOLVER_BYTES_PER_VOXEL};
+use super::region_plan::{region_of, region_over_budget, resolve};
 use super::shards::{self, Shard, ShardPlan};
 use crate::error::Result;
-use crate::grid::BLOCK_RESIDENT_BYTES;
-use crate::grid::{Block, BlockIndex, Layer, VOXELS_PER_BLOCK};
+use crate::grid::{Block, BlockIndex, Layer};
 use crate::map::files::ObjectBytes;
 use crate::map::store::MapStore;
 use crate::map::ChunkIndex;
@@ -346,14 +345,12 @@ fn regularize_pass(
                     }
                 }
             }
-            let bytes = gathered.len() as u64
-                * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
+            let bytes = gathered.len() as u64 * RegionCosts::of(false).per_block;
             if bytes > options.budget_bytes {
                 return Err(region_over_budget(*key, halo, bytes, options.budget_bytes));
             }
         }
-        let bytes = gathered.len() as u64
-            * (BLOCK_RESIDENT_BYTES + SOLVER_BYTES_PER_VOXEL * VOXELS_PER_BLOCK as u64);
+        let bytes = gathered.len() as u64 * RegionCosts::of(false).per_block;
         stats.peak_region_bytes = stats.peak_region_bytes.max(bytes);
         let mut problem = TvProblem::gather(&layer, &gathered);
         problem.limit_updates_to_reach(

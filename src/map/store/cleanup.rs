@@ -19,49 +19,6 @@ impl MapStore {
         h.chunk == c && origin.is_none_or(|o| o.file_seq == seq && (id == 0 || o.map_id == id))
     }
 
-    /// An error when a chunk file of this map that the manifest does not name carries a commit
-    /// generation past the manifest's next one: it was written after a commit this manifest does
-    /// not know, so the manifest was rolled back (an older copy put back), and its "leftovers" are
-    /// the map's newest data. Reads the headers of the files numbered at or after the committed
-    /// next number only (those the clean-up would delete).
-    pub(super) fn check_chunk_stamps(&self) -> Result<()> {
-        let h = self.manifest.header;
-        let mut newest: Option<(u64, String)> = None;
-        for obj in self.files.list(CHUNKS_DIR)? {
-            let Some((c, seq)) = parse_chunk_file_name(&obj.name) else {
-                continue;
-            };
-            if seq < h.next_file_seq || self.manifest.names(c, seq) {
-                continue;
-            }
-            let p = format!("{CHUNKS_DIR}/{}", obj.name);
-            let Ok(head) = self.files.read_range(&p, 0..CHUNK_HEADER_V2_BYTES as u64) else {
-                continue;
-            };
-            let Ok((hd, Some(o))) = decode_header_with_origin(&head) else {
-                continue;
-            };
-            let ours =
-                hd.chunk == c && o.file_seq == seq && (h.map_id == 0 || o.map_id == h.map_id);
-            if ours
-                && o.commit_gen > h.generation + 1
-                && newest.as_ref().is_none_or(|(g, _)| o.commit_gen > *g)
-            {
-                newest = Some((o.commit_gen, p));
-            }
-        }
-        match newest {
-            None => Ok(()),
-            // A file stamped `gen` was written once commit `gen − 1` had happened.
-            Some((gen, name)) => Err(Error::MapRolledBack {
-                map: self.dir.clone(),
-                manifest_generation: h.generation,
-                newer_generation: gen - 1,
-                evidence: format!("{} was written after it", self.files.path(&name).display()),
-            }),
-        }
-    }
-
     /// The writer's cleanup at open: `*.tmp` chunk files and `manifest.tmp` (only writers make
     /// them), chunk files numbered at or after the committed next sequence number (allocated after
     /// the last commit by a writer that died) unless a shard plan still open reserves their
@@ -205,5 +162,50 @@ impl MapStore {
             }
         }
         problems
+    }
+}
+
+/// An error ([`Error::MapRolledBack`]) when manifest `m` is not the latest of its map: the commit
+/// mark records a newer generation, or a chunk file of this map that `m` does not name carries a
+/// commit generation past `m`'s generation + 1 (written after a commit `m` does not know). Reads
+/// the mark and the headers of the files numbered at or after `m`'s next number only (the
+/// files written after `m`, which a writer's clean-up would delete). Writers check this before
+/// anything is committed or deleted, and `repair` to tell a rolled-back manifest from an intact
+/// one.
+pub fn check_latest(files: &dyn MapFiles, m: &Manifest) -> Result<()> {
+    check_commit_mark(files, m, read_commit_mark(files)?)?;
+    let h = m.header;
+    let mut newest: Option<(u64, String)> = None;
+    for obj in files.list(CHUNKS_DIR)? {
+        let Some((c, seq)) = parse_chunk_file_name(&obj.name) else {
+            continue;
+        };
+        if seq < h.next_file_seq || m.names(c, seq) {
+            continue;
+        }
+        let p = format!("{CHUNKS_DIR}/{}", obj.name);
+        let Ok(head) = files.read_range(&p, 0..CHUNK_HEADER_V2_BYTES as u64) else {
+            continue;
+        };
+        let Ok((hd, Some(o))) = decode_header_with_origin(&head) else {
+            continue;
+        };
+        let ours = hd.chunk == c && o.file_seq == seq && (h.map_id == 0 || o.map_id == h.map_id);
+        if ours
+            && o.commit_gen > h.generation + 1
+            && newest.as_ref().is_none_or(|(g, _)| o.commit_gen > *g)
+        {
+            newest = Some((o.commit_gen, p));
+        }
+    }
+    match newest {
+        None => Ok(()),
+        // A file stamped `gen` was written once commit `gen − 1` had happened.
+        Some((gen, name)) => Err(Error::MapRolledBack {
+            map: files.location().display_path(),
+            manifest_generation: h.generation,
+            newer_generation: gen - 1,
+            evidence: format!("{} was written after it", files.path(&name).display()),
+        }),
     }
 }

@@ -56,6 +56,7 @@ pub use manifest_io::{
 use cache::ChunkCache;
 pub use cache::DEFAULT_OBJECT_CACHE_BYTES;
 pub use chunk_io::{read_chunk_file, read_chunk_object, ChunkWriter};
+pub use cleanup::check_latest;
 
 /// How a [`MapStore`] was opened.
 #[derive(Debug)]

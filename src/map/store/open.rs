@@ -228,9 +228,8 @@ impl MapStore {
         }
         let (manifest, version) = read_manifest_at(&*files)?;
         // Before anything is committed or deleted: is this manifest the map's latest?
-        check_commit_mark(&*files, &manifest, read_commit_mark(&*files)?)?;
+        check_latest(&*files, &manifest)?;
         let mut store = MapStore::with_files(files, manifest, Some(version), Access::Writer(lock));
-        store.check_chunk_stamps()?;
         if store.files.needs_fencing() {
             store.commit()?;
         }
