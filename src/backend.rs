@@ -23,7 +23,9 @@ use crate::fusion::{
     integrate_depth_plan, integrate_depth_resident, integrate_lidar_gpu, integrate_lidar_plan,
     DepthFusionParams, DepthPlan, FusionStats, LidarPlan,
 };
-use crate::gpu::{DeviceChoice, GpuContext, ResidentMap, ResidentOptions, ResidentStats};
+use crate::gpu::{
+    DeviceChoice, GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats,
+};
 use crate::grid::{BlockIndex, Layer, TouchedBlocks};
 use crate::regularize::{solve_gpu, CpuSolver, TvParams, TvProblem, TvSolver};
 use crate::store::UpperTier;
@@ -40,12 +42,83 @@ pub struct TvDevices {
     pub cpu: usize,
 }
 
+/// What a run's stages cost the GPU ([`GpuTraffic`] per stage, with the number of calls to
+/// divide by): the figures the run summary and `report.json` give per frame, scan and solve.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct StageTraffic {
+    /// Depth frames fused on the GPU.
+    pub depth_frames: u64,
+    /// Their traffic (residency, lookup, fusion, flags).
+    pub depth: GpuTraffic,
+    /// LiDAR scans fused on the GPU.
+    pub lidar_scans: u64,
+    /// Their traffic (resident blocks written back first included).
+    pub lidar: GpuTraffic,
+    /// TV solves on the GPU (global or per region).
+    pub tv_solves: u64,
+    /// Their traffic.
+    pub tv: GpuTraffic,
+    /// Write-backs of resident blocks to RAM before the CPU or the pager reads them.
+    pub write_backs: u64,
+    /// Their traffic.
+    pub write_back: GpuTraffic,
+    /// Everything the context did, the stages above, stereo and set-up included.
+    pub total: GpuTraffic,
+}
+
+/// Which stages a backend with a GPU runs there (the others run on the CPU).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct GpuStages {
+    /// Depth and LiDAR fusion (with the depth blocks resident on the GPU).
+    pub fusion: bool,
+    /// TV regularisation.
+    pub tv: bool,
+    /// The variational stereo matchers' kernels.
+    pub stereo: bool,
+}
+
+impl GpuStages {
+    /// Every stage that has a kernel (`--device gpu`).
+    pub const ALL: GpuStages = GpuStages {
+        fusion: true,
+        tv: true,
+        stereo: true,
+    };
+
+    /// The stages measured faster on a hardware GPU than on the same machine's CPU cores, what
+    /// `--device auto` runs there: TV (1.7–2.1× an H100 machine's 16 cores), not depth fusion
+    /// (2.8× slower), LiDAR fusion (3.5× slower) or stereo (`docs/bench/gpu.md`, run 11;
+    /// `docs/bench/stereo.md`).
+    pub const MEASURED_FASTER: GpuStages = GpuStages {
+        fusion: false,
+        tv: true,
+        stereo: false,
+    };
+}
+
 /// The device of a run and the state its stages keep on it (see the module documentation).
 pub struct Backend {
     gpu: Option<Arc<GpuContext>>,
+    stages: GpuStages,
     resident: Option<ResidentMap>,
     resident_options: ResidentOptions,
     tv: TvDevices,
+    traffic: StageTraffic,
+}
+
+/// The GPU traffic of `work` added to `into` (nothing without a GPU).
+fn counted<T>(
+    ctx: Option<&Arc<GpuContext>>,
+    into: &mut GpuTraffic,
+    calls: &mut u64,
+    work: impl FnOnce() -> T,
+) -> T {
+    let Some(ctx) = ctx else { return work() };
+    let before = ctx.traffic();
+    let out = work();
+    *into = into.plus(ctx.traffic().since(before));
+    *calls += 1;
+    out
 }
 
 impl std::fmt::Debug for Backend {
@@ -64,32 +137,71 @@ impl Backend {
         Backend {
             gpu: None,
             resident: None,
+            stages: GpuStages::ALL,
             resident_options: ResidentOptions::default(),
             tv: TvDevices::default(),
+            traffic: StageTraffic::default(),
         }
     }
 
     /// Every stage that has a kernel on `ctx`; depth blocks stay resident within `options`.
     pub fn gpu(ctx: Arc<GpuContext>, options: ResidentOptions) -> Self {
+        Backend::gpu_for(ctx, options, GpuStages::ALL)
+    }
+
+    /// The stages `stages` names on `ctx`, the others on the CPU.
+    pub fn gpu_for(ctx: Arc<GpuContext>, options: ResidentOptions, stages: GpuStages) -> Self {
         Backend {
             gpu: Some(ctx),
+            stages,
             resident_options: options,
             ..Backend::cpu()
         }
     }
 
-    /// The backend `choice` asks for ([`DeviceChoice::open`]).
+    /// The backend `choice` asks for ([`DeviceChoice::open`]): with `Auto` on a hardware GPU,
+    /// the stages measured faster there ([`GpuStages::MEASURED_FASTER`]); with `Gpu`, every
+    /// stage that has a kernel.
     pub fn open(choice: DeviceChoice, options: ResidentOptions) -> Result<Self> {
+        let stages = match choice {
+            DeviceChoice::Auto => GpuStages::MEASURED_FASTER,
+            _ => GpuStages::ALL,
+        };
         Ok(match choice.open()? {
-            Some(ctx) => Backend::gpu(Arc::new(ctx), options),
+            Some(ctx) => Backend::gpu_for(Arc::new(ctx), options, stages),
             None => Backend::cpu(),
         })
+    }
+
+    /// The stages that run on the GPU (none without one).
+    pub fn gpu_stages(&self) -> GpuStages {
+        match self.gpu {
+            Some(_) => self.stages,
+            None => GpuStages {
+                fusion: false,
+                tv: false,
+                stereo: false,
+            },
+        }
+    }
+
+    /// The GPU, for a stage placed there.
+    fn gpu_if(&self, on_gpu: bool) -> Option<&Arc<GpuContext>> {
+        self.gpu.as_ref().filter(|_| on_gpu)
     }
 
     /// The device in words, for summaries: "CPU" or the adapter, e.g. "llvmpipe (LLVM 15.0.6,
     /// 256 bits) (Vulkan)".
     pub fn device_name(&self) -> String {
         match &self.gpu {
+            Some(ctx) => ctx.name(),
+            None => "CPU".to_string(),
+        }
+    }
+
+    /// Where fusion runs, in words ("CPU" or the adapter).
+    pub fn fusion_device_name(&self) -> String {
+        match self.gpu_if(self.stages.fusion) {
             Some(ctx) => ctx.name(),
             None => "CPU".to_string(),
         }
@@ -103,6 +215,14 @@ impl Backend {
     /// Counters of the GPU-resident blocks, once a depth frame was fused on a GPU.
     pub fn resident_stats(&self) -> Option<ResidentStats> {
         self.resident.as_ref().map(|r| r.stats())
+    }
+
+    /// What the stages of this run cost the GPU so far (`None` on the CPU).
+    pub fn gpu_traffic(&self) -> Option<StageTraffic> {
+        self.gpu.as_ref().map(|ctx| StageTraffic {
+            total: ctx.traffic(),
+            ..self.traffic
+        })
     }
 
     /// Where the TV solves of this run went.
@@ -119,7 +239,7 @@ impl Backend {
         params: &DepthFusionParams,
         plan: &DepthPlan,
     ) -> Result<(TouchedBlocks, FusionStats)> {
-        let Some(ctx) = &self.gpu else {
+        let Some(ctx) = self.gpu.as_ref().filter(|_| self.stages.fusion) else {
             return Ok(integrate_depth_plan(layer, frame, params, plan));
         };
         if self.resident.is_none() {
@@ -130,7 +250,10 @@ impl Backend {
             )?);
         }
         let resident = self.resident.as_mut().expect("just created");
-        integrate_depth_resident(resident, layer, frame, params, plan)
+        let t = &mut self.traffic;
+        counted(Some(ctx), &mut t.depth, &mut t.depth_frames, || {
+            integrate_depth_resident(resident, layer, frame, params, plan)
+        })
     }
 
     /// Fuses one LiDAR scan planned by `plan` into `layer`; blocks of the scan resident on the
@@ -140,22 +263,40 @@ impl Backend {
         layer: &mut Layer,
         plan: &LidarPlan,
     ) -> Result<(TouchedBlocks, FusionStats)> {
-        if let Some(r) = self.resident.as_mut() {
-            r.flush_blocks(layer, &plan.blocks())?;
-        }
-        match &self.gpu {
-            Some(ctx) => integrate_lidar_gpu(ctx, layer, plan),
-            None => Ok(integrate_lidar_plan(layer, plan)),
-        }
+        let Some(ctx) = self.gpu.as_ref().filter(|_| self.stages.fusion) else {
+            return Ok(integrate_lidar_plan(layer, plan));
+        };
+        let resident = &mut self.resident;
+        let t = &mut self.traffic;
+        counted(Some(ctx), &mut t.lidar, &mut t.lidar_scans, || {
+            if let Some(r) = resident.as_mut() {
+                r.flush_blocks(layer, &plan.blocks())?;
+            }
+            integrate_lidar_gpu(ctx, layer, plan)
+        })
     }
 
     /// Writes every GPU-resident block back and releases them all (the GPU holds nothing
     /// after this).
     pub fn flush_all(&mut self, layer: &mut Layer) -> Result<usize> {
-        match self.resident.as_mut() {
-            Some(r) => r.flush_all(layer),
-            None => Ok(0),
-        }
+        self.write_back(|r| r.flush_all(layer))
+    }
+
+    /// Runs `work` on the GPU-resident blocks, if any, its traffic counted as a write-back.
+    fn write_back<T: Default>(
+        &mut self,
+        work: impl FnOnce(&mut ResidentMap) -> Result<T>,
+    ) -> Result<T> {
+        let Some(r) = self.resident.as_mut() else {
+            return Ok(T::default());
+        };
+        let t = &mut self.traffic;
+        counted(
+            self.gpu.as_ref(),
+            &mut t.write_back,
+            &mut t.write_backs,
+            || work(r),
+        )
     }
 
     /// A matcher for `method` with `fill` hole filling: the variational methods run on the GPU
@@ -167,7 +308,10 @@ impl Backend {
         sgm: SgmParams,
         fill: HoleFill,
     ) -> Result<Box<dyn DisparityEstimator>> {
-        match (method.tgv_matcher(sgm, fill)?, &self.gpu) {
+        match (
+            method.tgv_matcher(sgm, fill)?,
+            self.gpu_if(self.stages.stereo),
+        ) {
             (Some(m), Some(ctx)) => Ok(Box::new(TgvMatcherGpu::new(ctx.clone(), m))),
             (Some(m), None) => Ok(Box::new(m)),
             (None, _) => method.estimator_with_fill(sgm, fill),
@@ -176,8 +320,8 @@ impl Backend {
 
     /// The device each stereo method runs on with this backend.
     pub fn stereo_device(&self, method: StereoMethod) -> String {
-        if method.is_variational() {
-            self.device_name()
+        if let (true, Some(ctx)) = (method.is_variational(), self.gpu_if(self.stages.stereo)) {
+            ctx.name()
         } else {
             "CPU".to_string()
         }
@@ -186,17 +330,11 @@ impl Backend {
 
 impl UpperTier for Backend {
     fn release(&mut self, layer: &mut Layer, blocks: &[BlockIndex]) -> Result<()> {
-        match self.resident.as_mut() {
-            Some(r) => r.flush_blocks(layer, blocks).map(|_| ()),
-            None => Ok(()),
-        }
+        self.write_back(|r| r.flush_blocks(layer, blocks).map(|_| ()))
     }
 
     fn sync(&mut self, layer: &mut Layer) -> Result<()> {
-        match self.resident.as_mut() {
-            Some(r) => r.sync(layer).map(|_| ()),
-            None => Ok(()),
-        }
+        self.write_back(|r| r.sync(layer).map(|_| ()))
     }
 }
 
@@ -204,13 +342,19 @@ impl TvSolver for Backend {
     /// On the GPU when the problem fits one storage binding, else (or on a CPU backend) on the
     /// CPU; counted in [`Backend::tv_devices`].
     fn solve(&mut self, problem: &mut TvProblem, params: &TvParams) -> Result<()> {
-        if let Some(ctx) = &self.gpu {
-            match solve_gpu(ctx, problem, params) {
+        if let Some(ctx) = self.gpu.as_ref().filter(|_| self.stages.tv) {
+            let t = &mut self.traffic;
+            let solved = counted(Some(ctx), &mut t.tv, &mut t.tv_solves, || {
+                solve_gpu(ctx, problem, params)
+            });
+            match solved {
                 Ok(()) => {
                     self.tv.gpu += 1;
                     return Ok(());
                 }
                 Err(e @ Error::GpuCapacity { .. }) => {
+                    // Refused before any work: not a GPU solve.
+                    self.traffic.tv_solves -= 1;
                     tracing::warn!("{e}; solving this region on the CPU");
                 }
                 Err(e) => return Err(e),
@@ -220,9 +364,12 @@ impl TvSolver for Backend {
         CpuSolver.solve(problem, params)
     }
 
+    fn prefers_whole_solves(&self) -> bool {
+        self.gpu_if(self.stages.tv).is_some()
+    }
+
     fn max_voxels(&self) -> Option<usize> {
-        self.gpu
-            .as_ref()
+        self.gpu_if(self.stages.tv)
             .map(|ctx| (ctx.max_binding_bytes() / 12) as usize)
     }
 }

@@ -227,6 +227,11 @@ impl Reconstructor {
         self.backend.resident_stats()
     }
 
+    /// What the stages cost the GPU so far, per stage (`None` on the CPU).
+    pub fn gpu_traffic(&self) -> Option<crate::backend::StageTraffic> {
+        self.backend.gpu_traffic()
+    }
+
     /// Totals of the map.
     pub fn summary(&self) -> StoreSummary {
         self.store.summary()

@@ -201,7 +201,9 @@ pub trait BlockStore {
 
 /// A solver that runs its iterations in chunks of [`PROGRESS_ITERATIONS`], reporting
 /// `(iterations done, iterations)` of the current solve after each: the same result (the
-/// solver's state carries over between calls), a progress bar for a long global solve.
+/// solver's state carries over between calls, its iterates kept until the last chunk), a
+/// progress bar for a long global solve. A solver for which a split costs a round trip of the
+/// state ([`TvSolver::prefers_whole_solves`], a GPU) gets the solve whole, reported at its end.
 struct Chunked<'a> {
     inner: &'a mut dyn TvSolver,
     progress: &'a mut dyn FnMut(usize, usize) -> bool,
@@ -216,20 +218,34 @@ impl TvSolver for Chunked<'_> {
         problem: &mut crate::regularize::TvProblem,
         params: &TvParams,
     ) -> Result<()> {
+        if self.inner.prefers_whole_solves() {
+            self.inner.solve(problem, params)?;
+            (self.progress)(params.iterations as usize, params.iterations as usize);
+            return Ok(());
+        }
+        // The caller's wish for the iterates holds for the last chunk; the others continue.
+        let keep = problem.keeps_iterates();
         let mut done = 0;
         while done < params.iterations {
             let k = PROGRESS_ITERATIONS.min(params.iterations - done);
-            self.inner.solve(
+            problem.set_keep_iterates(keep || done + k < params.iterations);
+            let solved = self.inner.solve(
                 problem,
                 &TvParams {
                     iterations: k,
                     ..*params
                 },
-            )?;
+            );
+            problem.set_keep_iterates(keep);
+            solved?;
             done += k;
             (self.progress)(done as usize, params.iterations as usize);
         }
         Ok(())
+    }
+
+    fn prefers_whole_solves(&self) -> bool {
+        self.inner.prefers_whole_solves()
     }
 
     fn max_voxels(&self) -> Option<usize> {

@@ -88,6 +88,14 @@ impl fmt::Display for Problems {
 
 impl std::error::Error for Problems {}
 
+/// Whether the log may be coloured: only on a terminal, and not when `NO_COLOR` is set to
+/// anything (<https://no-color.org>). A log redirected to a file (Slurm, Kubernetes, `2>log`)
+/// holds no escape codes.
+fn colour_on_stderr() -> bool {
+    use std::io::IsTerminal;
+    std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty())
+}
+
 /// Parses the command line, runs the command, prints its outcome or its error once.
 pub fn main() -> ExitCode {
     ensure_runtime_dir();
@@ -100,6 +108,7 @@ pub fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(colour_on_stderr())
         .with_target(false)
         .init();
     let result = match cli.command {
@@ -241,18 +250,21 @@ pub(crate) fn mib(bytes: u64) -> f64 {
 /// Where the computing stages run.
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub(crate) enum DeviceArg {
-    /// A hardware GPU when wgpu finds one, else the CPU (one line says which).
+    /// On a hardware GPU, the stages measured faster there than on the CPU (today TV
+    /// regularisation; fusion and stereo stay on the CPU); without one, the CPU.
     Auto,
     /// The CPU.
     Cpu,
-    /// The GPU, software adapters (lavapipe) included; an error when no adapter exists.
+    /// Every stage that has a kernel on the GPU, software adapters (lavapipe) included; an
+    /// error when no adapter exists.
     Gpu,
 }
 
 /// `--device` and the GPU's memory.
 #[derive(Args, Clone, Copy, Debug)]
 pub(crate) struct DeviceArgs {
-    /// Where stereo (tv/tgv/tgv-tensor), fusion and regularisation run; meshing uses the CPU.
+    /// Where stereo (tv/tgv/tgv-tensor), fusion and regularisation run (`auto`: each where it
+    /// was measured faster, docs/bench/gpu.md); meshing uses the CPU.
     #[arg(long, value_enum, default_value = "auto")]
     pub device: DeviceArg,
     /// Largest GPU block pool (4 KiB per block; bounded by the device's largest buffer). Depth

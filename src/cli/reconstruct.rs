@@ -136,12 +136,14 @@ pub(crate) struct MapJob {
 pub(crate) struct Report {
     pub input: String,
     pub device: String,
+    pub fusion_device: String,
     pub stereo_device: Option<String>,
     pub frames: usize,
     pub resumed_from_frame: u64,
     pub timings: denser::reconstruct::StageTimings,
     pub summary: denser::store::StoreSummary,
     pub gpu: Option<denser::gpu::ResidentStats>,
+    pub gpu_traffic: Option<denser::backend::StageTraffic>,
     pub regularize: Option<RegularizeOutcome>,
     pub surfaces: Vec<SurfaceOutput>,
     pub evaluation: Option<EvaluationReport>,
@@ -289,7 +291,9 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     let (surfaces, regularize) = (results.surfaces, results.regularize);
     // The map is done with: free it before the evaluation loads the ground truth, so the two do
     // not add up.
-    let (run, gpu_stats) = (RunFacts::of(&rec), rec.resident_stats());
+    let (run, gpu_stats, gpu_traffic) =
+        (RunFacts::of(&rec), rec.resident_stats(), rec.gpu_traffic());
+    let fusion_device = rec.backend().fusion_device_name();
     drop(rec);
     // The map's blocks (3 KiB each) were freed into glibc's arenas, which keep them resident.
     denser::memory::release_free_memory();
@@ -313,12 +317,14 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     let report = Report {
         input,
         device: run.device,
+        fusion_device,
         stereo_device,
         frames: frames.len(),
         resumed_from_frame: resumed,
         timings: run.timings,
         summary: run.summary,
         gpu: gpu_stats,
+        gpu_traffic,
         regularize,
         surfaces,
         evaluation,
@@ -485,6 +491,26 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
     ))
 }
 
+/// The GPU traffic of a run, per stage: a line per stage that ran, then the whole run.
+struct TrafficLines<'a>(&'a denser::backend::StageTraffic);
+
+impl fmt::Display for TrafficLines<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let g = self.0;
+        for (what, n, t) in [
+            ("depth frame", g.depth_frames, &g.depth),
+            ("LiDAR scan", g.lidar_scans, &g.lidar),
+            ("TV solve", g.tv_solves, &g.tv),
+            ("write-back to RAM", g.write_backs, &g.write_back),
+        ] {
+            if n > 0 {
+                writeln!(f, "GPU traffic per {what} ({n}): {}", t.describe_per(n))?;
+            }
+        }
+        writeln!(f, "GPU traffic, whole run: {}", g.total.describe_per(1))
+    }
+}
+
 impl Report {
     fn json(&self) -> serde_json::Value {
         serde_json::json!({
@@ -495,6 +521,7 @@ impl Report {
             "timings": self.timings,
             "map": self.summary,
             "gpu": self.gpu,
+            "gpu_traffic": self.gpu_traffic,
             "regularize": self.regularize,
             "surfaces": self.surfaces.iter().map(|s| serde_json::json!({
                 "field": format!("{:?}", s.field).to_lowercase(),
@@ -529,10 +556,11 @@ impl fmt::Display for Report {
         }
         writeln!(
             f,
-            "fused {} frames of {} on {}: {:.1} ms/frame, {:.2} M voxel updates/s; {} blocks, {} voxels in Ω",
+            "fused {} frame{} of {} on {}: {:.1} ms/frame, {:.2} M voxel updates/s; {} blocks, {} voxels in Ω",
             t.frames_fused,
+            if t.frames_fused == 1 { "" } else { "s" },
             self.input,
-            self.device,
+            self.fusion_device,
             t.fusion_ms_per_frame(),
             t.voxel_updates_per_s() / 1e6,
             s.blocks,
@@ -589,6 +617,9 @@ impl fmt::Display for Report {
                 per(g.kernel_s),
                 per(g.download_s)
             )?;
+        }
+        if let Some(g) = &self.gpu_traffic {
+            write!(f, "{}", TrafficLines(g))?;
         }
         match &self.regularize {
             None => writeln!(

@@ -183,7 +183,7 @@ impl<'c> TgvProblemGpu<'c> {
                 ctx.record_dispatch(&mut encoder, &dual_kernel.pipeline, &bind_dual, n)?;
                 ctx.record_dispatch(&mut encoder, &primal_kernel.pipeline, &bind_primal, n)?;
             }
-            ctx.queue.submit([encoder.finish()]);
+            ctx.submit(encoder);
         }
         scope.pop("running the TGV kernels")
     }
@@ -333,7 +333,7 @@ pub fn pointwise_search_gpu(
             label: Some("pointwise"),
         });
     data.record_search(ctx, &mut encoder, &buf_u, 1, &buf_a, lambda, theta)?;
-    ctx.queue.submit([encoder.finish()]);
+    ctx.submit(encoder);
     scope.pop("running the point-wise search")?;
     ctx.read_back_as(&buf_a, n as usize)
 }
@@ -438,7 +438,7 @@ pub fn census_transform_gpu(
             label: Some("census"),
         });
     let sig = record_census(ctx, &mut encoder, image, params, words)?;
-    ctx.queue.submit([encoder.finish()]);
+    ctx.submit(encoder);
     scope.pop("running the census kernel")?;
     // `words` u32 per pixel, read back as u64 words.
     let data = ctx.read_back_as::<u64>(&sig, n as usize * words as usize / 2)?;
@@ -509,7 +509,7 @@ pub fn cost_volume_gpu(
         &[&buf_uniforms, &sig_left, &sig_right, &buf_volume],
     );
     ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, packed_words)?;
-    ctx.queue.submit([encoder.finish()]);
+    ctx.submit(encoder);
     scope.pop("running the census cost kernels")?;
     let mut cost: Vec<u8> = ctx.read_back_as(&buf_volume, packed_words as usize * 4)?;
     cost.truncate(entries as usize);
@@ -558,7 +558,7 @@ pub fn refine_gpu(
             p.lambda,
             theta,
         )?;
-        ctx.queue.submit([encoder.finish()]);
+        ctx.submit(encoder);
         scope.pop("running the point-wise search")?;
         gpu.run(theta, p.inner_iterations)?;
     }

@@ -18,8 +18,10 @@ use super::depth::{usable, DepthFusionParams, DepthPlan};
 use super::FusionStats;
 use crate::frame::DepthFrame;
 use crate::gpu::layout::PIXEL_VALID;
-use crate::gpu::layout::{apply_updated, pack_block_into, pack_rgb, FuseUniforms, GpuVoxel};
-use crate::gpu::resident::{lookup_buffers, ResidentMap};
+use crate::gpu::layout::{
+    apply_updated, pack_block_into, pack_rgb, FuseUniforms, GpuVoxel, LookupUniforms,
+};
+use crate::gpu::resident::ResidentMap;
 use crate::gpu::{shaders, ErrorScopes, GpuContext};
 use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::{Error, Result};
@@ -103,7 +105,7 @@ fn fuse_blocks(
                 label: Some("fuse_depth"),
             });
         ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, voxel_count)?;
-        ctx.queue.submit([encoder.finish()]);
+        ctx.submit(encoder);
         scope.pop("running the fusion kernel")?;
         let (voxels, counted) =
             ctx.read_back_voxels(&buf_voxels, &buf_counters, voxel_count as usize)?;
@@ -170,15 +172,20 @@ pub fn integrate_depth_resident(
 
 /// Resolves `blocks` (resident) to slots on the GPU and fuses the frame into them. Returns, per
 /// block, whether any voxel was updated, and the number of voxel updates.
+///
+/// Per frame: the keys and block bases (16 bytes per block each), the depth image and the
+/// pixel words (4 bytes per pixel each) and the uniforms are written into buffers the map
+/// keeps; the lookup, the fusion and the copy of the counters and flags (4 bytes per block)
+/// into a kept staging buffer are one submit, followed by one wait. No buffer or bind group is
+/// created once the kept ones have grown to the frames' size.
 fn run_resident(
-    map: &ResidentMap,
+    map: &mut ResidentMap,
     blocks: &[BlockIndex],
     frame: &DepthFrame,
     params: &DepthFusionParams,
     plan: &DepthPlan,
 ) -> Result<(Vec<bool>, usize)> {
-    let ctx = map.context().clone();
-    let grid = map.grid();
+    let (ctx, grid, pool, (table, mask), kept) = map.frame_parts();
     let n = blocks.len() as u64;
     let voxel_count = n * VOXELS_PER_BLOCK as u64;
     if voxel_count > u32::MAX as u64 {
@@ -197,25 +204,37 @@ fn run_resident(
         frame.depth_m.data.len() as u64 * 4,
     )?;
     ctx.check_binding("block bases (16 bytes per block)", n * 16)?;
+    ctx.check_binding("block keys (16 bytes per block)", n * 16)?;
     let bases: Vec<[f32; 4]> = blocks.iter().map(|b| base_words(&grid, plan, *b)).collect();
+    let keys: Vec<[i32; 4]> = blocks.iter().map(|k| [k.0[0], k.0[1], k.0[2], 0]).collect();
     let pixels = pixel_words(frame, params);
     let lookup = ctx.kernel(&shaders::BLOCK_LOOKUP)?;
     let fuse = ctx.kernel(&shaders::FUSE_DEPTH_RESIDENT)?;
-    let (table, mask) = map.table_buffer();
+    let lookup_uniforms = LookupUniforms {
+        key_count: n as u32,
+        mask,
+        pad: [0; 2],
+    };
     let scope = ErrorScopes::push(&ctx.device);
-    let (buf_keys, buf_slots, buf_lookup) = lookup_buffers(&ctx, mask, blocks)?;
-    let buf_uniforms = ctx.uniform("fuse_uniforms", bytemuck::bytes_of(&uniforms));
-    let buf_bases = ctx.storage("fuse_block_base", bytemuck::cast_slice(&bases));
-    let buf_depth = ctx.storage("fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
-    let buf_pixel = ctx.storage("fuse_pixel", bytemuck::cast_slice(&pixels));
-    let buf_counters = ctx.storage("fuse_counters", bytemuck::cast_slice(&[0u32; 4]));
-    let buf_updated = ctx.storage("block_updated", bytemuck::cast_slice(&vec![0u32; n as _]));
-    let bind_lookup = ctx.bind_group(
+    let buf_lookup =
+        kept.uniform_with(ctx, "lookup_uniforms", bytemuck::bytes_of(&lookup_uniforms));
+    let buf_keys = kept.storage_with(ctx, "lookup_keys", bytemuck::cast_slice(&keys));
+    // Every listed key's slot is written by the lookup.
+    let buf_slots = kept.scratch(ctx, "lookup_slots", n * 4);
+    let buf_uniforms = kept.uniform_with(ctx, "fuse_uniforms", bytemuck::bytes_of(&uniforms));
+    let buf_bases = kept.storage_with(ctx, "fuse_block_base", bytemuck::cast_slice(&bases));
+    let buf_depth = kept.storage_with(ctx, "fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
+    let buf_pixel = kept.storage_with(ctx, "fuse_pixel", bytemuck::cast_slice(&pixels));
+    let buf_counters = kept.scratch(ctx, "fuse_counters", 16);
+    let buf_updated = kept.scratch(ctx, "block_updated", n * 4);
+    let bind_lookup = kept.bind_group(
+        ctx,
         "block_lookup",
         &lookup.layout,
         &[&buf_lookup, table, &buf_keys, &buf_slots],
     );
-    let bind_fuse = ctx.bind_group(
+    let bind_fuse = kept.bind_group(
+        ctx,
         "fuse_depth_resident",
         &fuse.layout,
         &[
@@ -223,7 +242,7 @@ fn run_resident(
             &buf_bases,
             &buf_depth,
             &buf_pixel,
-            map.pool_buffer(),
+            pool,
             &buf_counters,
             &buf_slots,
             &buf_updated,
@@ -234,16 +253,22 @@ fn run_resident(
         .create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("fuse_depth_resident"),
         });
+    // Counters and flags start at zero on the device, not uploaded.
+    encoder.clear_buffer(&buf_counters, 0, Some(16));
+    encoder.clear_buffer(&buf_updated, 0, Some((n * 4).next_multiple_of(4)));
     ctx.record_dispatch(&mut encoder, &lookup.pipeline, &bind_lookup, n)?;
     ctx.record_dispatch(&mut encoder, &fuse.pipeline, &bind_fuse, voxel_count)?;
-    ctx.queue.submit([encoder.finish()]);
-    scope.pop("running the resident fusion kernel")?;
     let mut counters = [0u32; 2];
     let mut flags: Vec<u32> = bytemuck::zeroed_vec(n as usize);
-    ctx.read_back_into(&mut [
-        (&buf_counters, bytemuck::cast_slice_mut(&mut counters)),
-        (&buf_updated, bytemuck::cast_slice_mut(&mut flags)),
-    ])?;
+    ctx.submit_and_read_back(
+        encoder,
+        kept,
+        &mut [
+            (&buf_counters, bytemuck::cast_slice_mut(&mut counters)),
+            (&buf_updated, bytemuck::cast_slice_mut(&mut flags)),
+        ],
+    )?;
+    scope.pop("running the resident fusion kernel")?;
     if counters[1] != 0 {
         return Err(Error::Gpu(format!(
             "the GPU hash table could not resolve {} of {} resident blocks",

@@ -315,7 +315,7 @@ fn fuse_blocks(
             ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, active as u64)?;
             first_ray += rays_per_pass;
         }
-        ctx.queue.submit([encoder.finish()]);
+        ctx.submit(encoder);
         scope.pop("running the LiDAR fusion kernel")?;
         let (voxels, counted) =
             ctx.read_back_voxels(&buf_voxels, &buf_counters, voxel_count as usize)?;

@@ -4,6 +4,7 @@
 
 use super::shaders::ShaderSource;
 use crate::{Error, Result};
+use std::sync::atomic::{AtomicU64, Ordering};
 use wgpu::util::DeviceExt;
 
 /// Invocations per workgroup of every kernel. Keep in sync with `WORKGROUP_SIZE` in
@@ -13,8 +14,9 @@ pub const WORKGROUP_SIZE: u32 = 64;
 /// Where a command runs its fusion and regularisation.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DeviceChoice {
-    /// The GPU when a hardware adapter exists, else the CPU (with a one-line message). A
-    /// software adapter (lavapipe/llvmpipe: the CPU behind wgpu) is slower than the CPU code
+    /// The GPU when a hardware adapter exists, for the stages measured faster there
+    /// (`crate::backend::GpuStages::MEASURED_FASTER`), else the CPU (with a one-line message).
+    /// A software adapter (lavapipe/llvmpipe: the CPU behind wgpu) is slower than the CPU code
     /// (`benches/gpu.rs`), so `Auto` does not pick it.
     #[default]
     Auto,
@@ -41,7 +43,11 @@ impl DeviceChoice {
                     Ok(None)
                 }
                 Ok(Some(c)) => {
-                    tracing::info!("device: GPU ({})", c.describe());
+                    tracing::info!(
+                        "device: GPU ({}) for the stages measured faster there (TV), the CPU \
+                         for the others (--device gpu puts every stage on the GPU)",
+                        c.describe()
+                    );
                     Ok(Some(c))
                 }
                 Ok(None) => {
@@ -82,6 +88,106 @@ impl std::str::FromStr for DeviceChoice {
     }
 }
 
+/// What a [`GpuContext`] has cost since it was opened: the bytes it moved across the bus and the
+/// calls that cost the host time or a round trip. Every upload, readback, submit, blocking wait,
+/// buffer and bind-group creation and dispatch of the crate goes through the context's methods,
+/// which count them here (`tests/gpu/traffic.rs` fails on a raw wgpu call elsewhere); a stage's
+/// figures are the difference of two snapshots ([`GpuTraffic::since`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct GpuTraffic {
+    /// Bytes written from the host into device buffers (initial contents included).
+    pub upload_bytes: u64,
+    /// Bytes copied from the device into host memory.
+    pub readback_bytes: u64,
+    /// Command buffers submitted to the queue.
+    pub submits: u64,
+    /// Times the host blocked until the device finished its work.
+    pub waits: u64,
+    /// Buffers created (staging buffers included).
+    pub buffers_created: u64,
+    /// Bind groups created.
+    pub bind_groups_created: u64,
+    /// Compute dispatches recorded.
+    pub dispatches: u64,
+}
+
+impl GpuTraffic {
+    /// What happened between `earlier` (a snapshot of the same context) and `self`.
+    pub fn since(self, earlier: GpuTraffic) -> GpuTraffic {
+        GpuTraffic {
+            upload_bytes: self.upload_bytes - earlier.upload_bytes,
+            readback_bytes: self.readback_bytes - earlier.readback_bytes,
+            submits: self.submits - earlier.submits,
+            waits: self.waits - earlier.waits,
+            buffers_created: self.buffers_created - earlier.buffers_created,
+            bind_groups_created: self.bind_groups_created - earlier.bind_groups_created,
+            dispatches: self.dispatches - earlier.dispatches,
+        }
+    }
+
+    /// The sum of two counts.
+    pub fn plus(self, other: GpuTraffic) -> GpuTraffic {
+        GpuTraffic {
+            upload_bytes: self.upload_bytes + other.upload_bytes,
+            readback_bytes: self.readback_bytes + other.readback_bytes,
+            submits: self.submits + other.submits,
+            waits: self.waits + other.waits,
+            buffers_created: self.buffers_created + other.buffers_created,
+            bind_groups_created: self.bind_groups_created + other.bind_groups_created,
+            dispatches: self.dispatches + other.dispatches,
+        }
+    }
+
+    /// One line for summaries, each count divided by `per` (frames, scans, solves): "4.1 MiB up,
+    /// 12.0 KiB down, 3.0 submits, 1.0 waits, 14.0 buffers, 2.0 bind groups, 2.0 dispatches".
+    pub fn describe_per(&self, per: u64) -> String {
+        let n = per.max(1) as f64;
+        format!(
+            "{} up, {} down, {:.1} submits, {:.1} waits, {:.1} buffers and {:.1} bind groups \
+             created, {:.1} dispatches",
+            human_bytes(self.upload_bytes as f64 / n),
+            human_bytes(self.readback_bytes as f64 / n),
+            self.submits as f64 / n,
+            self.waits as f64 / n,
+            self.buffers_created as f64 / n,
+            self.bind_groups_created as f64 / n,
+            self.dispatches as f64 / n,
+        )
+    }
+}
+
+/// Bytes in B, KiB, MiB or GiB with one decimal.
+fn human_bytes(bytes: f64) -> String {
+    const UNITS: [&str; 4] = ["B", "KiB", "MiB", "GiB"];
+    let mut v = bytes;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < UNITS.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{v:.0} B")
+    } else {
+        format!("{v:.1} {}", UNITS[u])
+    }
+}
+
+/// The live counters behind [`GpuTraffic`] (the context is shared between threads).
+#[derive(Debug, Default)]
+struct TrafficCounters {
+    upload_bytes: AtomicU64,
+    readback_bytes: AtomicU64,
+    submits: AtomicU64,
+    waits: AtomicU64,
+    buffers_created: AtomicU64,
+    bind_groups_created: AtomicU64,
+    dispatches: AtomicU64,
+}
+
+fn bump(counter: &AtomicU64, by: u64) {
+    counter.fetch_add(by, Ordering::Relaxed);
+}
+
 /// A wgpu device and queue with the kernels' pipelines.
 #[derive(Debug)]
 pub struct GpuContext {
@@ -92,6 +198,8 @@ pub struct GpuContext {
     binding_cap_bytes: Option<u64>,
     /// Kernels compiled on first use ([`GpuContext::kernel`]), by file name.
     kernels: std::sync::Mutex<std::collections::HashMap<&'static str, std::sync::Arc<Kernel>>>,
+    /// What the context has cost so far ([`GpuContext::traffic`]).
+    traffic: TrafficCounters,
 }
 
 /// Readbacks above this many bytes are copied out of the mapping by several threads: the copy
@@ -191,6 +299,7 @@ impl GpuContext {
             limits,
             binding_cap_bytes: None,
             kernels: Default::default(),
+            traffic: TrafficCounters::default(),
         }))
     }
 
@@ -291,6 +400,8 @@ impl GpuContext {
         } else {
             data
         };
+        bump(&self.traffic.buffers_created, 1);
+        bump(&self.traffic.upload_bytes, contents.len() as u64);
         self.device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),
@@ -307,7 +418,7 @@ impl GpuContext {
     /// the point-wise search's output, the TGV target and the resident flags measured slower
     /// this way (`docs/bench/gpu.md`, run 5; cause not established).
     pub(crate) fn storage_zeroed(&self, label: &str, bytes: u64) -> wgpu::Buffer {
-        self.device.create_buffer(&wgpu::BufferDescriptor {
+        self.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
             size: bytes.max(4).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT),
             usage: wgpu::BufferUsages::STORAGE
@@ -345,6 +456,7 @@ impl GpuContext {
         layout: &wgpu::BindGroupLayout,
         buffers: &[&wgpu::Buffer],
     ) -> wgpu::BindGroup {
+        bump(&self.traffic.bind_groups_created, 1);
         let entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
             .enumerate()
@@ -370,6 +482,7 @@ impl GpuContext {
         invocations: u64,
     ) -> Result<()> {
         let (wx, wy) = self.workgroups_2d(invocations)?;
+        bump(&self.traffic.dispatches, 1);
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: None,
             timestamp_writes: None,
@@ -382,12 +495,57 @@ impl GpuContext {
 
     /// A uniform buffer holding `data`.
     pub(crate) fn uniform(&self, label: &str, data: &[u8]) -> wgpu::Buffer {
+        bump(&self.traffic.buffers_created, 1);
+        bump(&self.traffic.upload_bytes, data.len() as u64);
         self.device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),
                 contents: data,
                 usage: wgpu::BufferUsages::UNIFORM,
             })
+    }
+
+    /// A buffer as `desc` describes it (counted).
+    pub(crate) fn create_buffer(&self, desc: &wgpu::BufferDescriptor) -> wgpu::Buffer {
+        bump(&self.traffic.buffers_created, 1);
+        self.device.create_buffer(desc)
+    }
+
+    /// Writes `data` into `buffer` at `offset` through the queue (counted as an upload; it
+    /// reaches the device with the next submit).
+    pub(crate) fn write_buffer(&self, buffer: &wgpu::Buffer, offset: u64, data: &[u8]) {
+        bump(&self.traffic.upload_bytes, data.len() as u64);
+        self.queue.write_buffer(buffer, offset, data);
+    }
+
+    /// Submits one command buffer (counted).
+    pub(crate) fn submit(&self, encoder: wgpu::CommandEncoder) {
+        bump(&self.traffic.submits, 1);
+        self.queue.submit([encoder.finish()]);
+    }
+
+    /// Blocks until the device has finished everything submitted (counted as a wait).
+    pub(crate) fn wait(&self) -> Result<()> {
+        bump(&self.traffic.waits, 1);
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| Error::Gpu(format!("waiting for the GPU: {e}")))
+    }
+
+    /// What this context has cost since it was opened (see [`GpuTraffic`]).
+    pub fn traffic(&self) -> GpuTraffic {
+        let c = &self.traffic;
+        let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
+        GpuTraffic {
+            upload_bytes: get(&c.upload_bytes),
+            readback_bytes: get(&c.readback_bytes),
+            submits: get(&c.submits),
+            waits: get(&c.waits),
+            buffers_created: get(&c.buffers_created),
+            bind_groups_created: get(&c.bind_groups_created),
+            dispatches: get(&c.dispatches),
+        }
     }
 
     /// The first `count` elements of a buffer, read back straight into a typed vector (one
@@ -422,6 +580,53 @@ impl GpuContext {
         Ok((out, updates[0]))
     }
 
+    /// Appends to `encoder` copies of the first `target.len()` bytes of each buffer into the
+    /// kept staging buffer of `kept`, submits it, waits, and copies each result into its target:
+    /// the work and its small results in one submit and one wait, with no buffer created once
+    /// the staging buffer has grown to the size the results need.
+    pub(crate) fn submit_and_read_back(
+        &self,
+        mut encoder: wgpu::CommandEncoder,
+        kept: &mut super::kept::Kept,
+        buffers: &mut [(&wgpu::Buffer, &mut [u8])],
+    ) -> Result<()> {
+        // Each result at an offset aligned for both copying and mapping.
+        let align = wgpu::MAP_ALIGNMENT.max(wgpu::COPY_BUFFER_ALIGNMENT);
+        let mut offsets = Vec::with_capacity(buffers.len());
+        let mut end = 0u64;
+        for (_, target) in buffers.iter() {
+            offsets.push(end);
+            end += (target.len() as u64).next_multiple_of(align);
+        }
+        let staging = kept.staging(self, end.max(align));
+        for ((buf, target), &at) in buffers.iter().zip(&offsets) {
+            let bytes = (target.len() as u64).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+            if bytes > 0 {
+                encoder.copy_buffer_to_buffer(buf, 0, &staging, at, bytes);
+            }
+        }
+        self.submit(encoder);
+        let slice = staging.slice(..end.max(align));
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| drop(tx.send(r)));
+        self.wait()?;
+        rx.recv()
+            .map_err(|_| Error::Gpu("the readback was never mapped".into()))?
+            .map_err(|e| Error::Gpu(format!("mapping the readback buffer: {e}")))?;
+        {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| Error::Gpu(format!("reading a mapped buffer: {e}")))?;
+            for ((_, target), &at) in buffers.iter_mut().zip(&offsets) {
+                let at = at as usize;
+                copy_into(target, &view[at..at + target.len()]);
+                bump(&self.traffic.readback_bytes, target.len() as u64);
+            }
+        }
+        staging.unmap();
+        Ok(())
+    }
+
     /// Copies the first `target.len()` bytes of each buffer into its target, in one submission
     /// (no intermediate host copy). A target may be partly written when this fails.
     pub(crate) fn read_back_into(&self, buffers: &mut [(&wgpu::Buffer, &mut [u8])]) -> Result<()> {
@@ -435,7 +640,7 @@ impl GpuContext {
             .iter()
             .map(|(buf, target)| {
                 let bytes = target.len() as u64;
-                let s = self.device.create_buffer(&wgpu::BufferDescriptor {
+                let s = self.create_buffer(&wgpu::BufferDescriptor {
                     label: Some("staging"),
                     size: bytes.max(4),
                     usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
@@ -445,7 +650,7 @@ impl GpuContext {
                 s
             })
             .collect();
-        self.queue.submit([encoder.finish()]);
+        self.submit(encoder);
         let (tx, rx) = std::sync::mpsc::channel();
         for (k, s) in staging.iter().enumerate() {
             let tx = tx.clone();
@@ -453,9 +658,7 @@ impl GpuContext {
                 .map_async(wgpu::MapMode::Read, move |r| drop(tx.send((k, r))));
         }
         drop(tx);
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| Error::Gpu(format!("waiting for the GPU: {e}")))?;
+        self.wait()?;
         for (k, r) in rx.iter() {
             r.map_err(|e| Error::Gpu(format!("mapping readback buffer {k}: {e}")))?;
         }
@@ -466,6 +669,7 @@ impl GpuContext {
                 .get_mapped_range()
                 .map_err(|e| Error::Gpu(format!("reading a mapped buffer: {e}")))?;
             copy_into(target, &view[..target.len()]);
+            bump(&self.traffic.readback_bytes, target.len() as u64);
             drop(view);
             s.unmap();
         }

@@ -116,6 +116,16 @@ pub struct LookupUniforms {
     pub pad: [u32; 2],
 }
 
+/// Uniforms of `shaders/clear_updated.wgsl` (WGSL twin: `SlotListUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct SlotListUniforms {
+    /// Slots listed.
+    pub slot_count: u32,
+    /// Padding to 16 bytes.
+    pub pad: [u32; 3],
+}
+
 /// Uniforms of `shaders/tgv_dual.wgsl` and `shaders/tgv_primal.wgsl` (WGSL twin: `TgvUniforms`
 /// in `shaders/shared/tgv_common.wgsl`).
 #[repr(C)]
@@ -277,6 +287,7 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("FuseUniforms", std::mem::size_of::<FuseUniforms>()),
     ("GpuVoxel", std::mem::size_of::<GpuVoxel>()),
     ("LookupUniforms", std::mem::size_of::<LookupUniforms>()),
+    ("SlotListUniforms", std::mem::size_of::<SlotListUniforms>()),
     ("LidarUniforms", std::mem::size_of::<LidarUniforms>()),
     ("LidarRay", std::mem::size_of::<GpuLidarRay>()),
     ("TgvUniforms", std::mem::size_of::<TgvUniforms>()),

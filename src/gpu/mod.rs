@@ -3,7 +3,9 @@
 //! `src/fusion/depth_gpu.rs` and `lidar_gpu.rs` (fusion), `src/regularize/gpu.rs` (TV),
 //! `src/depth/gpu.rs` (stereo); the kernels are in `shaders/`.
 //!
-//! - [`GpuContext`]: adapter, device, queue, the kernel cache and buffer helpers;
+//! - [`GpuContext`]: adapter, device, queue, the kernel cache and buffer helpers, and the
+//!   counters of what the device costs ([`GpuTraffic`]: bytes up and down, submits, waits,
+//!   buffers and bind groups created, dispatches);
 //!   [`GpuContext::new`] returns `None` where no adapter exists (lavapipe, Mesa's software
 //!   Vulkan, counts as one). [`DeviceChoice`] is the `--device auto|cpu|gpu` policy.
 //! - [`shaders`]: every kernel declared once (file, shared files, bindings), assembled at compile
@@ -15,10 +17,11 @@
 //! run), or know about chunks, files or the pager.
 
 mod context;
+pub(crate) mod kept;
 pub mod layout;
 pub mod resident;
 pub mod shaders;
 
 pub(crate) use context::ErrorScopes;
-pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
+pub use context::{DeviceChoice, GpuContext, GpuTraffic, WORKGROUP_SIZE};
 pub use resident::{ResidentMap, ResidentOptions, ResidentStats};

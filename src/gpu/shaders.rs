@@ -101,6 +101,17 @@ pub const BLOCK_LOOKUP: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite]
 );
 
+/// Clears the updated marks of listed pool slots after a write-back.
+pub const CLEAR_UPDATED: ShaderSource = kernel!(
+    "clear_updated.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/rounding.wgsl",
+        "shared/voxel_fuse.wgsl"
+    ],
+    [Uniform, Read, ReadWrite]
+);
+
 /// LiDAR fusion (ray-wise, inside the truncation band) over uploaded blocks.
 pub const FUSE_LIDAR: ShaderSource = kernel!(
     "fuse_lidar.wgsl",
@@ -156,8 +167,9 @@ pub const ALL: &[ShaderSource] = &[
     FUSE_DEPTH,
     FUSE_DEPTH_RESIDENT,
     FUSE_LIDAR,
-    // The GPU hash table.
+    // The GPU hash table and pool.
     BLOCK_LOOKUP,
+    CLEAR_UPDATED,
     // Stereo.
     TGV_DUAL,
     TGV_PRIMAL,

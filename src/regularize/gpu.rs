@@ -24,8 +24,15 @@ use rayon::prelude::*;
 /// Iterations recorded per command buffer (bounds the size of one submission).
 const ITERATIONS_PER_SUBMIT: u32 = 64;
 
-/// Runs `params.iterations` primal–dual iterations of `problem` on the GPU and writes the state
-/// (`u`, `ū`, `p`) back, so that the problem can continue on either device.
+/// Runs `params.iterations` primal–dual iterations of `problem` on the GPU, chained in as few
+/// submits as [`ITERATIONS_PER_SUBMIT`] allows, and reads the result back: `u` alone when the
+/// caller does not keep the iterates ([`TvProblem::keeps_iterates`]; `ū` and `p` are then
+/// released), else `u`, `ū` and `p`, so that the problem can continue on either device.
+///
+/// What crosses the bus: `f`, `w`, `u`, the link masks and the neighbour table go up (40 bytes
+/// per voxel); `ū` and `p` too unless the problem is fresh ([`TvProblem::iterates_fresh`]:
+/// then `ū` is copied from `f` on the device and `p` starts as zeros there). Down: 4 bytes per
+/// voxel, or 20 with the iterates kept.
 pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -> Result<()> {
     params.validate()?;
     let n = problem.masks().len();
@@ -46,6 +53,7 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
         voxel_count: n as u32,
         pad: [0; 3],
     };
+    let fresh = problem.iterates_fresh();
     let scope = ErrorScopes::push(&ctx.device);
     let (u, ubar, p) = problem.state();
     let buf_uniforms = ctx.uniform("tv_uniforms", bytemuck::bytes_of(&uniforms));
@@ -58,8 +66,20 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
     let buf_f = ctx.storage("tv_f", bytemuck::cast_slice(&problem.f));
     let buf_w = ctx.storage("tv_w", bytemuck::cast_slice(&problem.w));
     let buf_u = ctx.storage("tv_u", bytemuck::cast_slice(u));
-    let buf_ubar = ctx.storage("tv_ubar", bytemuck::cast_slice(ubar));
-    let buf_p = ctx.storage("tv_p", bytemuck::cast_slice(p));
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("tv") });
+    let (buf_ubar, buf_p) = if fresh {
+        // ū = f and p = 0: made where they are used.
+        let ubar = ctx.storage_zeroed("tv_ubar", n64 * 4);
+        encoder.copy_buffer_to_buffer(&buf_f, 0, &ubar, 0, n64 * 4);
+        (ubar, ctx.storage_zeroed("tv_p", n64 * 12))
+    } else {
+        (
+            ctx.storage("tv_ubar", bytemuck::cast_slice(ubar)),
+            ctx.storage("tv_p", bytemuck::cast_slice(p)),
+        )
+    };
     let buffers = [
         &buf_uniforms,
         &buf_neighbors,
@@ -78,24 +98,31 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
     while left > 0 {
         let batch = left.min(ITERATIONS_PER_SUBMIT);
         left -= batch;
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("tv") });
         for _ in 0..batch {
             // One pass per step: a pass boundary orders the dual writes before the primal reads.
             ctx.record_dispatch(&mut encoder, &dual.pipeline, &bind_dual, n64)?;
             ctx.record_dispatch(&mut encoder, &primal.pipeline, &bind_primal, n64)?;
         }
-        ctx.queue.submit([encoder.finish()]);
+        ctx.submit(encoder);
+        encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("tv") });
     }
+    drop(encoder);
     scope.pop("running the TV kernels")?;
     // Straight into the problem's arrays (one copy, no intermediate vectors).
-    let (u, ubar, p) = problem.state_mut();
-    ctx.read_back_into(&mut [
-        (&buf_u, bytemuck::cast_slice_mut(u)),
-        (&buf_ubar, bytemuck::cast_slice_mut(ubar)),
-        (&buf_p, bytemuck::cast_slice_mut(p)),
-    ])?;
+    if problem.keeps_iterates() {
+        let (u, ubar, p) = problem.state_mut();
+        ctx.read_back_into(&mut [
+            (&buf_u, bytemuck::cast_slice_mut(u)),
+            (&buf_ubar, bytemuck::cast_slice_mut(ubar)),
+            (&buf_p, bytemuck::cast_slice_mut(p)),
+        ])?;
+    } else {
+        // The iterates on the host are stale from here: released, so nothing can read them.
+        problem.release_iterates();
+        ctx.read_back_into(&mut [(&buf_u, bytemuck::cast_slice_mut(&mut problem.u))])?;
+    }
     Ok(())
 }
 
@@ -143,5 +170,9 @@ impl TvSolver for GpuSolver<'_> {
 
     fn max_voxels(&self) -> Option<usize> {
         Some((self.ctx.max_binding_bytes() / 12) as usize)
+    }
+
+    fn prefers_whole_solves(&self) -> bool {
+        true
     }
 }

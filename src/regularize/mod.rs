@@ -114,6 +114,12 @@ pub struct TvProblem {
     /// Per block, the iterations left during which it is updated (`None`: every iteration);
     /// see [`TvProblem::limit_updates`].
     horizon: Option<Vec<u32>>,
+    /// Whether `ū` still equals `f` and `p` is zero (a problem gathered, not yet iterated): a
+    /// GPU solver then makes them on the device instead of uploading them.
+    iterates_fresh: bool,
+    /// Whether the caller reads `ū` and `p` after a solve (a swept pass stores them); when not,
+    /// a GPU solver reads back `u` alone and releases the iterates.
+    keep_iterates: bool,
 }
 
 impl TvProblem {
@@ -159,12 +165,16 @@ impl TvProblem {
     ) -> Self {
         let n = blocks.len() * VOXELS_PER_BLOCK;
         let (u, ubar) = (f.clone(), f.clone());
-        Self::from_state(blocks, [f, w, u, ubar], omega, vec![0.0; 3 * n])
+        let mut problem = Self::from_state(blocks, [f, w, u, ubar], omega, vec![0.0; 3 * n]);
+        problem.iterates_fresh = true;
+        problem.keep_iterates = false;
+        problem
     }
 
     /// A problem over `blocks` (sorted, no duplicates) starting from a solver state: `[f, w, u,
     /// ū]` and `omega` of `blocks.len() × 512` voxels each, `p` as three such planes (x, y, z).
-    /// What a swept pass builds from the state it stored after the previous sweep.
+    /// What a swept pass builds from the state it stored after the previous sweep; its iterates
+    /// are kept after a solve ([`TvProblem::keeps_iterates`]).
     pub fn from_state(
         blocks: Vec<BlockIndex>,
         fields: [Vec<f32>; 4],
@@ -210,7 +220,27 @@ impl TvProblem {
             mask,
             p,
             horizon: None,
+            iterates_fresh: false,
+            keep_iterates: true,
         }
+    }
+
+    /// Whether `ū` and `p` are still the starting ones (`ū = f`, `p = 0`): true for a gathered
+    /// problem until it is iterated or its state is taken mutably.
+    pub fn iterates_fresh(&self) -> bool {
+        self.iterates_fresh
+    }
+
+    /// Whether a solve must leave `ū` and `p` readable (see [`TvProblem::set_keep_iterates`]).
+    pub fn keeps_iterates(&self) -> bool {
+        self.keep_iterates
+    }
+
+    /// Says whether the caller reads `ū` and `p` after a solve (the default: not for a gathered
+    /// problem, yes for one built [`TvProblem::from_state`]). When not, a GPU solver reads
+    /// back `u` alone and releases them ([`TvProblem::release_iterates`]).
+    pub fn set_keep_iterates(&mut self, keep: bool) {
+        self.keep_iterates = keep;
     }
 
     /// Updates block `b` during the next `horizon[b]` iterations only, leaving it as it is
@@ -248,6 +278,7 @@ impl TvProblem {
 
     /// The solver state, mutably (a GPU twin writes its result back here).
     pub fn state_mut(&mut self) -> (&mut [f32], &mut [f32], &mut [f32]) {
+        self.iterates_fresh = false;
         (&mut self.u, &mut self.ubar, &mut self.p)
     }
 
@@ -340,6 +371,7 @@ impl TvProblem {
     /// Per voxel the arithmetic of [`TvProblem::iterate_reference`], bit for bit; the loops are
     /// those of `sweep.rs` (block-sized arrays, selects instead of branches, vectorised).
     pub fn iterate(&mut self, params: &TvParams) {
+        self.iterates_fresh = false;
         let n = self.u.len();
         if n == 0 {
             return;
@@ -407,6 +439,7 @@ impl TvProblem {
     /// reference [`TvProblem::iterate`] is tested against bit for bit, the form the GPU kernels
     /// follow, and the "before" of `cargo bench --bench core -- tv_`.
     pub fn iterate_reference(&mut self, params: &TvParams) {
+        self.iterates_fresh = false;
         let n = self.u.len();
         let vb = VOXELS_PER_BLOCK;
         let sigma = params.sigma;
@@ -486,6 +519,7 @@ impl TvProblem {
     /// and Ω: what [`TvProblem::scatter`] and [`TvProblem::energy`] read. Call it when done: the
     /// problem cannot be iterated afterwards.
     pub fn release_iterates(&mut self) {
+        self.iterates_fresh = false;
         self.ubar = Vec::new();
         self.p = Vec::new();
     }
@@ -587,6 +621,12 @@ pub trait TvSolver {
     /// driver splits larger maps into regions with the exact halo (the same result).
     fn max_voxels(&self) -> Option<usize> {
         None
+    }
+
+    /// Whether splitting one solve into several calls costs this solver a round trip of the
+    /// state between host and device (a GPU): callers that report progress then call it once.
+    fn prefers_whole_solves(&self) -> bool {
+        false
     }
 }
 

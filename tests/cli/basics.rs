@@ -334,3 +334,66 @@ fn a_closed_stdout_ends_quietly_and_errors_exit_2() {
     let o = denser(&["reconstruct"], dir.path());
     assert_eq!(o.status.code(), Some(2));
 }
+
+#[test]
+fn the_readmes_first_run_works_and_a_redirected_log_holds_no_escape_codes() {
+    // The commands of the README's "A first run" block, as written, in a fresh folder (their
+    // `/tmp/` paths moved into it); stderr goes to a file, as under Slurm or Kubernetes.
+    let readme = include_str!("../../README.md");
+    let block = readme
+        .split("## A first run")
+        .nth(1)
+        .and_then(|s| s.split("```sh").nth(1))
+        .and_then(|s| s.split("```").next())
+        .expect("README: a sh block under \"## A first run\"");
+    let commands: Vec<Vec<String>> = block
+        .lines()
+        .map(|l| l.split('#').next().unwrap_or("").trim())
+        .filter(|l| l.starts_with("denser "))
+        .map(|l| l.split_whitespace().skip(1).map(str::to_string).collect())
+        .collect();
+    assert_eq!(commands.len(), 2, "{block}");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let mut logged = 0;
+    for (k, args) in commands.iter().enumerate() {
+        let args: Vec<String> = args
+            .iter()
+            .map(|a| a.replace("/tmp/", &format!("{}/", d.display())))
+            .collect();
+        let log_path = d.join(format!("log{k}.txt"));
+        let log = std::fs::File::create(&log_path).expect("log file");
+        let o = Command::new(env!("CARGO_BIN_EXE_denser"))
+            .args(&args)
+            .current_dir(d)
+            .env_remove("NO_COLOR")
+            .stderr(log)
+            .output()
+            .expect("run denser");
+        let log = std::fs::read(&log_path).expect("read log");
+        assert!(
+            o.status.success(),
+            "{args:?}: {}{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&log)
+        );
+        logged += log.len();
+        assert!(
+            !log.contains(&0x1b),
+            "{args:?}: escape codes in a redirected log:\n{}",
+            String::from_utf8_lossy(&log)
+        );
+    }
+    assert!(
+        logged > 0,
+        "the runs logged nothing: the check would be empty"
+    );
+    for f in [
+        "mesh_raw.ply",
+        "mesh_regularized.ply",
+        "points_regularized.ply",
+        "report.md",
+    ] {
+        assert!(d.join("run").join(f).is_file(), "{f}");
+    }
+}

@@ -42,7 +42,7 @@ use std::sync::Arc;
 
 /// A random problem: a 4×3×3 slab of blocks with two holes, random f ∈ [−1, 1], integer
 /// weights 0–20, Ω on ~85 % of voxels.
-fn random_problem(seed: u64) -> TvProblem {
+pub(crate) fn random_problem(seed: u64) -> TvProblem {
     let mut rng = Rng(seed);
     let mut blocks = Vec::new();
     for z in -1..2 {
@@ -80,6 +80,8 @@ fn tv_gpu_matches_cpu_on_a_random_problem() {
     let mut cpu = initial.clone();
     cpu.solve(&params);
     let mut gpu = initial.clone();
+    // The iterates compared too: read back with u (a swept pass's problems keep them).
+    gpu.set_keep_iterates(true);
     solve_gpu(&ctx, &mut gpu, &params).expect("GPU solve");
     let (u_cpu, ubar_cpu, p_cpu) = cpu.state();
     let (u_gpu, ubar_gpu, p_gpu) = gpu.state();
@@ -108,6 +110,28 @@ fn tv_gpu_matches_cpu_on_a_random_problem() {
     eprintln!("energy {e0:.6e} -> CPU {e_cpu:.6e}, GPU {e_gpu:.6e}");
     assert!(e_gpu < 0.9 * e0);
     assert!(((e_gpu - e_cpu) / e_cpu).abs() < 1e-5);
+}
+
+#[test]
+fn tv_gpu_reads_back_u_alone_and_releases_the_iterates_unless_kept() {
+    let Some(ctx) = gpu() else { return };
+    let params = TvParams::paper(0.1);
+    let initial = random_problem(7);
+    let mut kept = initial.clone();
+    kept.set_keep_iterates(true);
+    solve_gpu(&ctx, &mut kept, &params).expect("GPU solve");
+    let mut alone = initial.clone();
+    assert!(alone.iterates_fresh() && !alone.keeps_iterates());
+    solve_gpu(&ctx, &mut alone, &params).expect("GPU solve");
+    // The same u (the same kernels, the same device), and no stale iterates left to read.
+    assert_eq!(alone.state().0, kept.state().0);
+    assert!(alone.state().1.is_empty() && alone.state().2.is_empty());
+    assert!(!alone.iterates_fresh());
+    assert_eq!(
+        alone.energy(params.lambda),
+        kept.energy(params.lambda),
+        "energy reads u only"
+    );
 }
 
 #[test]
@@ -168,17 +192,7 @@ fn regularize_layer_gpu_matches_cpu_on_the_sphere_scene() {
     let rel = (stats_gpu.energy_after - stats_cpu.energy_after) / stats_cpu.energy_after;
     assert!(rel.abs() < 1e-5, "energy differs by {rel:e}");
     // Stored i16: within 1e-4 / (1/32767) ≈ 3.3 → 4 quantisation steps everywhere.
-    let mut worst = 0i32;
-    for b in &blocks_cpu {
-        let (rc, rg) = (cpu.get(b).expect("cpu"), gpu.get(b).expect("gpu"));
-        let (uc, ug) = (
-            rc.regularized.as_ref().expect("cpu u"),
-            rg.regularized.as_ref().expect("gpu u"),
-        );
-        for i in 0..VOXELS_PER_BLOCK {
-            worst = worst.max((uc[i] as i32 - ug[i] as i32).abs());
-        }
-    }
+    let worst = worst_u_step(&cpu, &gpu, &blocks_cpu);
     eprintln!(
         "{} blocks, {} Ω voxels: worst |Δu| = {worst} steps",
         blocks_cpu.len(),
@@ -300,6 +314,53 @@ fn depth_fusion_gpu_keeps_the_regularised_field_in_step() {
     assert!(differ as f64 <= 1e-3 * voxels as f64, "{differ}");
 }
 
+/// The largest difference of the regularised field between two layers over `blocks`, in
+/// quantisation steps (every block must have one in both).
+fn worst_u_step(a: &Layer, b: &Layer, blocks: &[BlockIndex]) -> i32 {
+    let u = |l: &Layer, k: &BlockIndex| l.get(k).and_then(|x| x.regularized.clone()).expect("u");
+    let mut worst = 0;
+    for k in blocks {
+        let (ua, ub) = (u(a, k), u(b, k));
+        for i in 0..VOXELS_PER_BLOCK {
+            worst = worst.max((ua[i] as i32 - ub[i] as i32).abs());
+        }
+    }
+    worst
+}
+
+#[test]
+fn reconstructor_regularises_on_the_gpu_as_on_the_cpu() {
+    // The run's own path: the reconstructor's solver with its progress reports (iterations in
+    // chunks on the CPU, one solve on the GPU), more iterations than one chunk.
+    let Some(ctx) = gpu() else { return };
+    let grid = GridParams {
+        voxel_size_m: 0.1,
+        truncation_m: 0.8,
+    };
+    let layer = sphere_layer(grid, 3, 0.01, None);
+    let mut config = denser::reconstruct::ReconstructionConfig::paper(0.1);
+    config.grid = grid;
+    config.tv.iterations = 60;
+    let backend = Backend::gpu(Arc::new(ctx), ResidentOptions::default());
+    let mut on_gpu = reconstructor_over(config, layer.clone(), backend);
+    let mut on_cpu = reconstructor_over(config, layer, Backend::cpu());
+    let (g, c) = (
+        on_gpu.regularize().expect("GPU"),
+        on_cpu.regularize().expect("CPU"),
+    );
+    assert_eq!(g.devices.gpu, 1, "{:?}", g.devices);
+    let ((before, eg), (_, ec)) = (
+        g.summary.energy.expect("energies"),
+        c.summary.energy.expect("energies"),
+    );
+    eprintln!("energy: {before:.6e} -> GPU {eg:.6e}, CPU {ec:.6e}");
+    assert!(eg < 0.95 * before, "the GPU solve did nothing");
+    assert!(((eg - ec) / ec).abs() < 1e-4, "{eg} vs {ec}");
+    let blocks = on_cpu.layer().indices_sorted();
+    let worst = worst_u_step(on_cpu.layer(), on_gpu.layer(), &blocks);
+    assert!(worst <= 4, "{worst} steps");
+}
+
 #[test]
 fn tv_regions_on_the_gpu_equal_the_global_cpu_solve() {
     // A cap that the global problem exceeds but each region with its exact halo fits.
@@ -328,20 +389,7 @@ fn tv_regions_on_the_gpu_equal_the_global_cpu_solve() {
     eprintln!("{blocks} blocks, cap {cap} bytes: {stats:?}");
     assert_eq!(written, cpu.indices_sorted());
     assert!(stats.regions > 1);
-    let mut worst = 0i32;
-    for b in &written {
-        let uc = cpu
-            .get(b)
-            .and_then(|x| x.regularized.clone())
-            .expect("cpu u");
-        let ug = gpu
-            .get(b)
-            .and_then(|x| x.regularized.clone())
-            .expect("gpu u");
-        for i in 0..VOXELS_PER_BLOCK {
-            worst = worst.max((uc[i] as i32 - ug[i] as i32).abs());
-        }
-    }
+    let worst = worst_u_step(&cpu, &gpu, &written);
     assert!(worst <= 4, "{worst} steps");
 }
 
@@ -471,7 +519,7 @@ fn fuse_resident(
     (layer, touched, stats, map)
 }
 
-fn orbit_frames(n: usize, noise_m: f64) -> Vec<denser::frame::DepthFrame> {
+pub(crate) fn orbit_frames(n: usize, noise_m: f64) -> Vec<denser::frame::DepthFrame> {
     let scene = SphereScene::standard();
     let mut rng = Rng(5);
     orbit(n, 3.0, -1.2, scene.center)

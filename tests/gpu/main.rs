@@ -11,3 +11,4 @@ mod compare;
 mod lidar;
 mod shaders;
 mod stereo;
+mod traffic;

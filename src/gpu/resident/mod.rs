@@ -32,11 +32,11 @@ mod pool;
 mod table;
 
 pub use pool::SLOT_BYTES;
-pub(crate) use table::lookup_buffers;
 pub use table::{block_hash, lookup_table_on_gpu, mix32, BlockTable, SLOT_EMPTY, SLOT_TOMBSTONE};
 
 use super::context::GpuContext;
-use super::layout::{apply_updated, pack_block_into, GpuVoxel, UPDATED_BIT};
+use super::kept::Kept;
+use super::layout::{apply_updated, pack_block_into, GpuVoxel};
 use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::{Error, Result};
 use pool::BlockPool;
@@ -107,6 +107,8 @@ pub struct ResidentMap {
     table: DeviceTable,
     frame: u64,
     stats: ResidentStats,
+    /// The frame kernels' buffers and bind groups, kept between frames.
+    kept: Kept,
 }
 
 impl std::fmt::Debug for ResidentMap {
@@ -134,6 +136,7 @@ impl ResidentMap {
             pool,
             table,
             frame: 0,
+            kept: Kept::default(),
             stats: ResidentStats {
                 capacity_blocks: capacity,
                 max_blocks,
@@ -189,14 +192,24 @@ impl ResidentMap {
         table::run_lookup(&self.ctx, self.table.buffer(), self.table.host.mask(), keys)
     }
 
-    /// The pool's device buffer (every slot; `512 · slot + i` is voxel `i` of a slot).
-    pub(crate) fn pool_buffer(&self) -> &wgpu::Buffer {
-        self.pool.device_buffer()
-    }
-
-    /// The device table and its probe mask, current after [`ResidentMap::make_resident`].
-    pub(crate) fn table_buffer(&self) -> (&wgpu::Buffer, u32) {
-        (self.table.buffer(), self.table.host.mask())
+    /// What a frame's kernels need at once: the context, the grid, the pool and table buffers
+    /// with the table's mask, and the buffers and bind groups the frames keep.
+    pub(crate) fn frame_parts(
+        &mut self,
+    ) -> (
+        &GpuContext,
+        GridParams,
+        &wgpu::Buffer,
+        (&wgpu::Buffer, u32),
+        &mut Kept,
+    ) {
+        (
+            &self.ctx,
+            self.grid,
+            self.pool.device_buffer(),
+            (self.table.buffer(), self.table.host.mask()),
+            &mut self.kept,
+        )
     }
 
     /// Counts a frame of `blocks` blocks (before any other work on it).
@@ -334,8 +347,7 @@ impl ResidentMap {
             self.table.host.insert(*b, slot);
             slots.push(slot);
         }
-        self.pool
-            .write_slots(&self.ctx, &slots, &data, "uploading blocks to the GPU pool")?;
+        self.pool.write_slots(&self.ctx, &slots, &data);
         self.stats.blocks_uploaded += blocks.len() as u64;
         Ok(())
     }
@@ -350,19 +362,16 @@ impl ResidentMap {
             .filter(|&s| self.pool.key(s).is_some() && self.pool.is_dirty(s))
             .collect();
         if !dirty.is_empty() {
-            let mut voxels = self.pool.read_slots(&self.ctx, &dirty)?;
-            for (&slot, vox) in dirty.iter().zip(voxels.chunks_exact_mut(VOXELS_PER_BLOCK)) {
+            let voxels = self.pool.read_slots(&self.ctx, &dirty)?;
+            for (&slot, vox) in dirty.iter().zip(voxels.chunks_exact(VOXELS_PER_BLOCK)) {
                 let key = self.pool.key(slot).expect("resident");
                 apply_updated(layer.get_or_allocate(key), vox);
-                for v in vox.iter_mut() {
-                    v.tsdf_weight &= !UPDATED_BIT;
-                }
                 self.pool.mark_clean(slot);
             }
             self.stats.blocks_downloaded += dirty.len() as u64;
             if !release {
-                self.pool
-                    .write_slots(&self.ctx, &dirty, &voxels, "clearing updated marks")?;
+                // The blocks stay: their marks must say again what changes after this.
+                self.pool.clear_updated(&self.ctx, &dirty)?;
             }
         }
         if release {

@@ -5,7 +5,9 @@
 //! to spill.
 
 use crate::gpu::context::{ErrorScopes, GpuContext};
-use crate::gpu::layout::GpuVoxel;
+use crate::gpu::kept::Kept;
+use crate::gpu::layout::{GpuVoxel, SlotListUniforms};
+use crate::gpu::shaders;
 use crate::grid::{BlockIndex, VOXELS_PER_BLOCK};
 use crate::Result;
 
@@ -20,6 +22,8 @@ pub(crate) struct BlockPool {
     free: Vec<u32>,
     dirty: Vec<bool>,
     last_used: Vec<u64>,
+    /// The gather, staging and slot-list buffers of the copies, kept between calls.
+    kept: Kept,
 }
 
 impl BlockPool {
@@ -32,13 +36,14 @@ impl BlockPool {
             free: (0..capacity).rev().collect(),
             dirty: vec![false; capacity as usize],
             last_used: vec![0; capacity as usize],
+            kept: Kept::default(),
         })
     }
 
     fn buffer(ctx: &GpuContext, capacity: u32) -> Result<wgpu::Buffer> {
         let bytes = capacity as u64 * SLOT_BYTES;
         ctx.check_binding("GPU block pool (4 KiB per block)", bytes)?;
-        Ok(ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        Ok(ctx.create_buffer(&wgpu::BufferDescriptor {
             label: Some("block_pool"),
             size: bytes,
             usage: wgpu::BufferUsages::STORAGE
@@ -140,7 +145,7 @@ impl BlockPool {
             0,
             self.capacity as u64 * SLOT_BYTES,
         );
-        ctx.queue.submit([encoder.finish()]);
+        ctx.submit(encoder);
         scope.pop("growing the GPU block pool")?;
         self.buffer = buffer;
         let old = self.capacity;
@@ -154,51 +159,30 @@ impl BlockPool {
         Ok(())
     }
 
-    /// Writes `data` (512 voxels per slot, in `slots` order) into the pool: one staging buffer,
-    /// one copy per run of consecutive slots.
-    pub(crate) fn write_slots(
-        &self,
-        ctx: &GpuContext,
-        slots: &[u32],
-        data: &[GpuVoxel],
-        doing: &str,
-    ) -> Result<()> {
-        let scope = ErrorScopes::push(&ctx.device);
-        let staging = ctx.storage("pool_upload", bytemuck::cast_slice(data));
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("pool_upload"),
-            });
+    /// Writes `data` (512 voxels per slot, in `slots` order) into the pool: one queue write per
+    /// run of consecutive slots, reaching the device with the next submit (no buffer created).
+    pub(crate) fn write_slots(&self, ctx: &GpuContext, slots: &[u32], data: &[GpuVoxel]) {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
         for (k, run) in runs(slots) {
-            encoder.copy_buffer_to_buffer(
-                &staging,
-                k as u64 * SLOT_BYTES,
+            let from = k * SLOT_BYTES as usize;
+            ctx.write_buffer(
                 &self.buffer,
                 slots[k] as u64 * SLOT_BYTES,
-                run as u64 * SLOT_BYTES,
+                &bytes[from..from + run * SLOT_BYTES as usize],
             );
         }
-        ctx.queue.submit([encoder.finish()]);
-        scope.pop(doing)
     }
 
-    /// Reads `slots` back (512 voxels per slot, in `slots` order).
-    pub(crate) fn read_slots(&self, ctx: &GpuContext, slots: &[u32]) -> Result<Vec<GpuVoxel>> {
+    /// Reads `slots` back (512 voxels per slot, in `slots` order): gathered on the device into a
+    /// kept buffer, copied through a kept staging buffer, one submit and one wait.
+    pub(crate) fn read_slots(&mut self, ctx: &GpuContext, slots: &[u32]) -> Result<Vec<GpuVoxel>> {
         if slots.is_empty() {
             return Ok(Vec::new());
         }
         let bytes = slots.len() as u64 * SLOT_BYTES;
         ctx.check_binding("block readback", bytes)?;
         let scope = ErrorScopes::push(&ctx.device);
-        let gather = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("pool_download"),
-            size: bytes,
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_SRC
-                | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let gather = self.kept.scratch(ctx, "pool_gather", bytes);
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -213,9 +197,54 @@ impl BlockPool {
                 run as u64 * SLOT_BYTES,
             );
         }
-        ctx.queue.submit([encoder.finish()]);
-        scope.pop("gathering blocks for readback")?;
-        ctx.read_back_as(&gather, slots.len() * VOXELS_PER_BLOCK)
+        let mut out: Vec<GpuVoxel> = bytemuck::zeroed_vec(slots.len() * VOXELS_PER_BLOCK);
+        ctx.submit_and_read_back(
+            encoder,
+            &mut self.kept,
+            &mut [(&gather, bytemuck::cast_slice_mut(&mut out))],
+        )?;
+        scope.pop("reading blocks back from the GPU pool")?;
+        Ok(out)
+    }
+
+    /// Clears the updated marks of every voxel of `slots` on the device
+    /// (`shaders/clear_updated.wgsl`): after their blocks were copied back, instead of uploading
+    /// the copies again. Reaches the device with this submit; nothing waits for it.
+    pub(crate) fn clear_updated(&mut self, ctx: &GpuContext, slots: &[u32]) -> Result<()> {
+        if slots.is_empty() {
+            return Ok(());
+        }
+        let kernel = ctx.kernel(&shaders::CLEAR_UPDATED)?;
+        let scope = ErrorScopes::push(&ctx.device);
+        let uniforms = SlotListUniforms {
+            slot_count: slots.len() as u32,
+            pad: [0; 3],
+        };
+        let buf_uniforms =
+            self.kept
+                .uniform_with(ctx, "clear_uniforms", bytemuck::bytes_of(&uniforms));
+        let buf_slots = self
+            .kept
+            .storage_with(ctx, "clear_slots", bytemuck::cast_slice(slots));
+        let bind = self.kept.bind_group(
+            ctx,
+            "clear_updated",
+            &kernel.layout,
+            &[&buf_uniforms, &buf_slots, &self.buffer],
+        );
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("clear_updated"),
+            });
+        ctx.record_dispatch(
+            &mut encoder,
+            &kernel.pipeline,
+            &bind,
+            slots.len() as u64 * VOXELS_PER_BLOCK as u64,
+        )?;
+        ctx.submit(encoder);
+        scope.pop("clearing updated marks on the GPU")
     }
 }
 

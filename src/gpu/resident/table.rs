@@ -226,11 +226,7 @@ impl DeviceTable {
                 for (k, run) in super::pool::runs(&positions) {
                     let start = positions[k] as usize;
                     let e = &self.host.entries()[start..start + run];
-                    ctx.queue.write_buffer(
-                        &self.buffer,
-                        start as u64 * 16,
-                        bytemuck::cast_slice(e),
-                    );
+                    ctx.write_buffer(&self.buffer, start as u64 * 16, bytemuck::cast_slice(e));
                 }
             }
         }
@@ -272,7 +268,7 @@ pub(crate) fn run_lookup(
             label: Some("block_lookup"),
         });
     ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, keys.len() as u64)?;
-    ctx.queue.submit([encoder.finish()]);
+    ctx.submit(encoder);
     scope.pop("looking blocks up on the GPU")?;
     let slots: Vec<u32> = ctx.read_back_as(&buf_slots, keys.len())?;
     Ok(slots

@@ -1,0 +1,130 @@
+//! Buffers and bind groups a stage keeps between calls, by name, so that a frame creates nothing
+//! once the first frames have sized them: a buffer grows (to the next power of two, never
+//! shrinking) when a call needs more, and a bind group is rebuilt only when one of its buffers
+//! is not the one it was built over. Inputs are written into kept buffers through the queue
+//! ([`GpuContext::write_buffer`]); small results come back through a kept staging buffer
+//! ([`GpuContext::submit_and_read_back`]).
+
+use super::context::GpuContext;
+use std::collections::HashMap;
+
+/// Smallest kept buffer, bytes.
+const MIN_KEPT_BYTES: u64 = 256;
+
+/// A stage's kept buffers and bind groups (see the module documentation).
+#[derive(Debug, Default)]
+pub(crate) struct Kept {
+    buffers: HashMap<&'static str, wgpu::Buffer>,
+    binds: HashMap<&'static str, (Vec<wgpu::Buffer>, wgpu::BindGroup)>,
+}
+
+impl Kept {
+    /// The kept buffer `name`, at least `bytes` long with `usage` (created, or replaced by a
+    /// larger one, when it is smaller; the contents of a replaced buffer are not copied).
+    pub(crate) fn buffer(
+        &mut self,
+        ctx: &GpuContext,
+        name: &'static str,
+        bytes: u64,
+        usage: wgpu::BufferUsages,
+    ) -> wgpu::Buffer {
+        if let Some(b) = self.buffers.get(name) {
+            if b.size() >= bytes && b.usage() == usage {
+                return b.clone();
+            }
+        }
+        let size = bytes
+            .max(MIN_KEPT_BYTES)
+            .next_power_of_two()
+            .next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+        let b = ctx.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(name),
+            size,
+            usage,
+            mapped_at_creation: false,
+        });
+        self.buffers.insert(name, b.clone());
+        b
+    }
+
+    /// The kept storage buffer `name` holding `data` at its start (written through the queue;
+    /// it reaches the device with the next submit).
+    pub(crate) fn storage_with(
+        &mut self,
+        ctx: &GpuContext,
+        name: &'static str,
+        data: &[u8],
+    ) -> wgpu::Buffer {
+        let b = self.buffer(ctx, name, data.len() as u64, STORAGE);
+        write_padded(ctx, &b, data);
+        b
+    }
+
+    /// The kept uniform buffer `name` holding `data`.
+    pub(crate) fn uniform_with(
+        &mut self,
+        ctx: &GpuContext,
+        name: &'static str,
+        data: &[u8],
+    ) -> wgpu::Buffer {
+        let usage = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
+        let b = self.buffer(ctx, name, data.len() as u64, usage);
+        write_padded(ctx, &b, data);
+        b
+    }
+
+    /// The kept storage buffer `name` of at least `bytes`, contents unspecified (a kernel
+    /// writes it, or the caller clears it in its encoder).
+    pub(crate) fn scratch(
+        &mut self,
+        ctx: &GpuContext,
+        name: &'static str,
+        bytes: u64,
+    ) -> wgpu::Buffer {
+        self.buffer(ctx, name, bytes, STORAGE)
+    }
+
+    /// The kept staging buffer for readbacks of up to `bytes`.
+    pub(crate) fn staging(&mut self, ctx: &GpuContext, bytes: u64) -> wgpu::Buffer {
+        let usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
+        self.buffer(ctx, "readback_staging", bytes, usage)
+    }
+
+    /// The kept bind group `name` over `buffers` (binding `k` the whole of `buffers[k]`),
+    /// rebuilt when any buffer differs from the last call's.
+    pub(crate) fn bind_group(
+        &mut self,
+        ctx: &GpuContext,
+        name: &'static str,
+        layout: &wgpu::BindGroupLayout,
+        buffers: &[&wgpu::Buffer],
+    ) -> wgpu::BindGroup {
+        if let Some((over, bind)) = self.binds.get(name) {
+            if over.len() == buffers.len() && over.iter().zip(buffers).all(|(a, b)| a == *b) {
+                return bind.clone();
+            }
+        }
+        let bind = ctx.bind_group(name, layout, buffers);
+        let over = buffers.iter().map(|b| (*b).clone()).collect();
+        self.binds.insert(name, (over, bind.clone()));
+        bind
+    }
+}
+
+const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
+    .union(wgpu::BufferUsages::COPY_SRC)
+    .union(wgpu::BufferUsages::COPY_DST);
+
+/// Writes `data` at the start of `buffer`, padded with zeros to the copy alignment.
+fn write_padded(ctx: &GpuContext, buffer: &wgpu::Buffer, data: &[u8]) {
+    let align = wgpu::COPY_BUFFER_ALIGNMENT as usize;
+    if data.len().is_multiple_of(align) {
+        if !data.is_empty() {
+            ctx.write_buffer(buffer, 0, data);
+        }
+        return;
+    }
+    let mut padded = data.to_vec();
+    padded.resize(data.len().next_multiple_of(align), 0);
+    ctx.write_buffer(buffer, 0, &padded);
+}

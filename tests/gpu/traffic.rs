@@ -1,0 +1,283 @@
+//! What the GPU stages cost, from the context's counters ([`denser::gpu::GpuTraffic`]): every
+//! wgpu call of the crate goes through `GpuContext` (checked here on the source, no GPU needed),
+//! and a resident depth frame, a TV solve and a run's stages stay within stated bounds (on
+//! lavapipe in CI: the counts do not depend on the device).
+
+use crate::common::{self, gpu, Rng, SphereScene};
+use crate::compare::{orbit_frames, random_problem};
+use denser::backend::Backend;
+use denser::gpu::resident::SLOT_BYTES;
+use denser::gpu::{GpuTraffic, ResidentOptions};
+use denser::grid::{GridParams, VOXELS_PER_BLOCK};
+use denser::reconstruct::{ReconstructionConfig, Reconstructor};
+use denser::regularize::{solve_gpu, TvParams};
+use std::path::Path;
+use std::sync::Arc;
+
+/// Raw wgpu calls that move data, submit, wait or create resources: only `GpuContext`'s own
+/// methods may make them, so that its counters see everything.
+const RAW_CALLS: [&str; 7] = [
+    "queue.submit",
+    "queue.write_buffer",
+    "device.poll",
+    "device.create_buffer",
+    "device.create_bind_group(",
+    "create_buffer_init",
+    "dispatch_workgroups",
+];
+
+/// The raw calls in `source` (comment lines left out), as `line: call`.
+fn raw_calls(source: &str) -> Vec<String> {
+    let mut found = Vec::new();
+    for (k, line) in source.lines().enumerate() {
+        let code = line.split("//").next().unwrap_or("");
+        for call in RAW_CALLS {
+            if code.contains(call) {
+                found.push(format!("{}: {call}", k + 1));
+            }
+        }
+    }
+    found
+}
+
+fn rust_files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
+    for entry in std::fs::read_dir(dir).expect("read src/") {
+        let path = entry.expect("entry").path();
+        if path.is_dir() {
+            rust_files(&path, out);
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            out.push(path);
+        }
+    }
+}
+
+#[test]
+fn every_gpu_call_goes_through_the_context() {
+    // The check itself finds a planted call and ignores a commented one.
+    assert_eq!(
+        raw_calls("let x = 1;\n    ctx.queue.submit([e.finish()]); // ok\n// device.poll(x)\n"),
+        ["2: queue.submit"]
+    );
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let context = src.join("gpu").join("context.rs");
+    let mut offenders = Vec::new();
+    for f in files.iter().filter(|f| **f != context) {
+        let text = std::fs::read_to_string(f).expect("read");
+        for hit in raw_calls(&text) {
+            offenders.push(format!("{}:{hit}", f.display()));
+        }
+    }
+    assert!(files.len() > 50, "{} files", files.len());
+    assert!(
+        offenders.is_empty(),
+        "uncounted wgpu calls (use GpuContext's methods):\n{}",
+        offenders.join("\n")
+    );
+}
+
+#[test]
+fn a_resident_depth_frame_after_warm_up_creates_nothing_and_submits_once() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let grid = GridParams {
+        voxel_size_m: 0.05,
+        truncation_m: 0.4,
+    };
+    let mut config = ReconstructionConfig::paper(0.05);
+    config.grid = grid;
+    let mut rec = Reconstructor::in_memory(
+        config,
+        Backend::gpu(ctx.clone(), ResidentOptions::default()),
+    )
+    .expect("config");
+    // Two laps of an orbit: the second lap revisits the first one's blocks.
+    let frames = orbit_frames(6, 0.01);
+    for f in &frames[..3] {
+        rec.fuse_depth(f).expect("warm-up");
+    }
+    let mut checked = 0;
+    for f in frames.iter().chain(&frames).skip(3) {
+        let before_stats = rec.resident_stats().expect("resident");
+        let before = ctx.traffic();
+        rec.fuse_depth(f).expect("fuse");
+        let t = ctx.traffic().since(before);
+        let stats = rec.resident_stats().expect("resident");
+        let uploaded_blocks = stats.blocks_uploaded - before_stats.blocks_uploaded;
+        let listed = stats.largest_frame_blocks as u64;
+        let pixels = f.depth_m.data.len() as u64;
+        eprintln!(
+            "frame: {t:?}, {uploaded_blocks} blocks uploaded, ≤ {listed} listed, grows {}",
+            stats.grows
+        );
+        if stats.grows != before_stats.grows {
+            continue; // a grown pool or table is a new buffer: not the steady state
+        }
+        checked += 1;
+        assert_eq!(t.buffers_created, 0, "{t:?}");
+        assert_eq!(t.bind_groups_created, 0, "{t:?}");
+        assert_eq!(t.submits, 1, "{t:?}");
+        assert_eq!(t.waits, 1, "{t:?}");
+        assert_eq!(t.dispatches, 2, "{t:?}");
+        // Up: depth and pixel words (4 bytes per pixel each), keys and bases (16 bytes per
+        // listed block each), the blocks new to the pool, table entries and uniforms.
+        let up_bound = 8 * pixels + 32 * listed + SLOT_BYTES * uploaded_blocks + (64 << 10);
+        assert!(
+            t.upload_bytes <= up_bound,
+            "{} > {up_bound}",
+            t.upload_bytes
+        );
+        // Down: the counters and one flag per listed block; no block.
+        assert!(t.readback_bytes <= 4 * listed + 16, "{t:?}");
+    }
+    assert!(checked >= 6, "{checked} steady frames");
+}
+
+#[test]
+fn a_sync_reads_dirty_blocks_back_and_uploads_nothing() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let mut config = ReconstructionConfig::paper(0.1);
+    config.grid.truncation_m = 0.8;
+    let mut rec = Reconstructor::in_memory(
+        config,
+        Backend::gpu(ctx.clone(), ResidentOptions::default()),
+    )
+    .expect("config");
+    for f in &orbit_frames(3, 0.01) {
+        rec.fuse_depth(f).expect("fuse");
+    }
+    let before = ctx.traffic();
+    rec.sync().expect("sync");
+    let t = ctx.traffic().since(before);
+    let dirty = rec.resident_stats().expect("resident").resident_blocks as u64;
+    eprintln!("sync of ≤ {dirty} blocks: {t:?}");
+    // The blocks come down once; their marks are cleared on the device (a slot list and
+    // uniforms go up, not the blocks).
+    assert!(
+        t.readback_bytes > 0 && t.readback_bytes <= dirty * SLOT_BYTES,
+        "{t:?}"
+    );
+    assert!(t.upload_bytes <= 4 * dirty + 256, "{t:?}");
+    assert_eq!(t.waits, 1, "{t:?}");
+}
+
+#[test]
+fn a_tv_solve_moves_16_bytes_per_voxel_up_and_4_down() {
+    let Some(ctx) = gpu() else { return };
+    let params = TvParams {
+        iterations: 100,
+        ..TvParams::paper(0.1)
+    };
+    let problem = random_problem(3);
+    let n = problem.masks().len() as u64;
+    let blocks = problem.blocks().len() as u64;
+    assert_eq!(n, blocks * VOXELS_PER_BLOCK as u64);
+    let uniforms = std::mem::size_of::<denser::gpu::layout::TvUniforms>() as u64;
+
+    let mut fresh = problem.clone();
+    let before = ctx.traffic();
+    solve_gpu(&ctx, &mut fresh, &params).expect("solve");
+    let t = ctx.traffic().since(before);
+    eprintln!("fresh, u alone: {t:?}");
+    // f, w, u and the masks (4 bytes per voxel each), the neighbour table (24 bytes per block).
+    assert_eq!(t.upload_bytes, 16 * n + 24 * blocks + uniforms, "{t:?}");
+    assert_eq!(t.readback_bytes, 4 * n, "{t:?}");
+    assert_eq!(t.waits, 1, "{t:?}");
+    assert_eq!(t.dispatches, 2 * params.iterations as u64, "{t:?}");
+    // 100 iterations in two submits (64 per submit), then the readback's.
+    assert_eq!(t.submits, 3, "{t:?}");
+
+    // A problem that continues (iterated, iterates kept): ū and p go up and come back.
+    let mut going_on = problem.clone();
+    going_on.iterate(&params);
+    going_on.set_keep_iterates(true);
+    let before = ctx.traffic();
+    solve_gpu(&ctx, &mut going_on, &params).expect("solve");
+    let t = ctx.traffic().since(before);
+    assert_eq!(t.upload_bytes, 32 * n + 24 * blocks + uniforms, "{t:?}");
+    assert_eq!(t.readback_bytes, 20 * n, "{t:?}");
+}
+
+#[test]
+fn a_run_counts_its_stages_traffic() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let mut config = ReconstructionConfig::paper(0.1);
+    config.grid.truncation_m = 0.8;
+    config.tv.iterations = 10;
+    let mut rec = Reconstructor::in_memory(
+        config,
+        Backend::gpu(ctx.clone(), ResidentOptions::default()),
+    )
+    .expect("config");
+    let frames = orbit_frames(3, 0.01);
+    for f in &frames {
+        rec.fuse_depth(f).expect("fuse");
+    }
+    let scene = SphereScene::standard();
+    let scan = scene.lidar([0.0, -0.5, -4.5], 16, 360, 0.0, &mut Rng(3));
+    rec.fuse_lidar(&scan).expect("lidar");
+    rec.regularize().expect("tv");
+    let g = rec.gpu_traffic().expect("on a GPU");
+    eprintln!("{g:#?}");
+    assert_eq!(g.depth_frames, 3);
+    assert_eq!(g.lidar_scans, 1);
+    assert!(g.tv_solves >= 1);
+    assert!(
+        g.write_backs >= 1,
+        "the TV solve reads the layer after a sync"
+    );
+    let stages = [g.depth, g.lidar, g.tv, g.write_back]
+        .into_iter()
+        .fold(GpuTraffic::default(), GpuTraffic::plus);
+    assert_eq!(g.total, ctx.traffic());
+    for (part, whole) in [
+        (stages.upload_bytes, g.total.upload_bytes),
+        (stages.readback_bytes, g.total.readback_bytes),
+        (stages.submits, g.total.submits),
+        (stages.waits, g.total.waits),
+    ] {
+        assert!(part > 0 && part <= whole, "{part} of {whole}");
+    }
+    // A CPU backend has no traffic to report.
+    assert!(common::reconstructor_over(
+        config,
+        denser::grid::Layer::new(config.grid),
+        Backend::cpu()
+    )
+    .gpu_traffic()
+    .is_none());
+}
+
+#[test]
+fn a_placement_runs_each_stage_where_it_says() {
+    // `--device auto`'s placement on a GPU: TV there, fusion on the CPU (no resident blocks, no
+    // fusion traffic), with the same fused map as a CPU backend.
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let mut config = ReconstructionConfig::paper(0.1);
+    config.grid.truncation_m = 0.8;
+    config.tv.iterations = 10;
+    let backend = Backend::gpu_for(
+        ctx.clone(),
+        ResidentOptions::default(),
+        denser::backend::GpuStages::MEASURED_FASTER,
+    );
+    assert_eq!(backend.fusion_device_name(), "CPU");
+    let mut rec = Reconstructor::in_memory(config, backend).expect("config");
+    let mut cpu = Reconstructor::in_memory(config, Backend::cpu()).expect("config");
+    for f in &orbit_frames(3, 0.01) {
+        rec.fuse_depth(f).expect("fuse");
+        cpu.fuse_depth(f).expect("fuse");
+    }
+    assert!(rec.resident_stats().is_none(), "fusion stayed on the CPU");
+    for b in cpu.layer().indices_sorted() {
+        assert!(cpu.layer().get(&b) == rec.layer().get(&b), "block {b:?}");
+    }
+    let outcome = rec.regularize().expect("tv");
+    assert_eq!(outcome.devices.gpu, 1, "{:?}", outcome.devices);
+    let g = rec.gpu_traffic().expect("a GPU backend");
+    assert_eq!((g.depth_frames, g.tv_solves), (0, 1));
+}

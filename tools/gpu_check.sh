@@ -1,0 +1,86 @@
+#!/usr/bin/env bash
+# The GPU tier on a hardware GPU, two builds side by side on one machine: the GPU tests, then
+# `reconstruct` of a 60 m synthetic drive's ground-truth depth (fusion per frame, the GPU tier's
+# steps, the TV solve, the GPU traffic per stage) and of a 150 m LiDAR drive, with `--device gpu`
+# for both builds and `--device cpu` for the second, in alternating rounds; the meshes of the two
+# builds are compared byte for byte. Everything goes to one log (docs/bench/gpu.md quotes it).
+#
+#   [GPU_TESTS=GPU_TEST_BINARY] tools/gpu_check.sh BEFORE_DENSER AFTER_DENSER OUT_DIR [ROUNDS]
+#
+# GPU_TESTS: the release build of `tests/gpu` (`cargo test --release --test gpu --no-run`), run
+# first.
+# The binaries may be zstd- or gzip-compressed (`.zst`, `.gz`: unpacked to a temporary folder).
+# GPU_CHECK_DEPTH_M and GPU_CHECK_LIDAR_M shorten the drives (60 and 150 m) for a trial run.
+# On the lent machines: carry .gl (Debian's libvulkan1, see the device notes) and the binaries.
+set -uo pipefail
+[ $# -ge 3 ] || { echo "usage: [GPU_TESTS=BIN] $0 BEFORE AFTER OUT [ROUNDS]" >&2; exit 2; }
+before=$1 after=$2 out=$3 rounds=${4:-3} tests=${GPU_TESTS:-}
+mkdir -p "$out"
+work=$(mktemp -d)
+log=$out/gpu_check.log
+: >"$log"
+say() { echo "$*" | tee -a "$log"; }
+
+unpack() { # FILE NAME -> path of an executable
+    case $1 in
+    *.zst) zstd -dq "$1" -o "$work/$2" ;;
+    *.gz) gzip -dc "$1" >"$work/$2" ;;
+    *) cp "$1" "$work/$2" ;;
+    esac
+    chmod +x "$work/$2"
+    echo "$work/$2"
+}
+before=$(unpack "$before" before)
+after=$(unpack "$after" after)
+[ -n "$tests" ] && tests=$(unpack "$tests" gpu-tests)
+
+say "## machine"
+{ nvidia-smi --query-gpu=name,driver_version,memory.total,clocks.max.sm --format=csv 2>&1
+  echo "cores: $(nproc)"; uname -r; date -u; } | tee -a "$log"
+say "before: $("$before" --version)   after: $("$after" --version)"
+
+if [ -n "$tests" ]; then
+    # One test at a time: with four at once (four devices in one process) the binary did not
+    # finish on the H100 (docs/bench/gpu.md, run 11).
+    say "## GPU tests (after)"
+    (cd "$work" && "$tests" --test-threads 1 2>&1) | grep -E "^test |test result|GPU:|SKIPPED" | tee -a "$log"
+fi
+
+say "## drives"
+depth_m=${GPU_CHECK_DEPTH_M:-60} lidar_m=${GPU_CHECK_LIDAR_M:-150}
+"$after" synth --length-m "$depth_m" --seed 1 --out "$work/d60" >/dev/null 2>&1 ||
+    say "synth $depth_m m failed"
+"$after" synth --length-m "$lidar_m" --lidar-only --seed 8 --out "$work/d150" >/dev/null 2>&1 ||
+    say "synth $lidar_m m failed"
+
+run() { # NAME BINARY ARGS...: one reconstruct, its summary into the log
+    local name=$1 bin=$2
+    shift 2
+    say "### $name: reconstruct $*"
+    local t0=$(date +%s%N)
+    "$bin" reconstruct "$@" --no-eval --out "$work/$name" 2>&1 | tee -a "$log" >/dev/null
+    say "wall: $(( ($(date +%s%N) - t0) / 1000000 )) ms"
+}
+
+for r in $(seq 1 "$rounds"); do
+    for b in after before; do
+        bin=$after; [ $b = before ] && bin=$before
+        run "depth-$b-gpu-$r" "$bin" "$work/d60/sequences/00" --depth gt --device gpu
+    done
+    run "depth-after-cpu-$r" "$after" "$work/d60/sequences/00" --depth gt --device cpu
+done
+for b in after before; do
+    bin=$after; [ $b = before ] && bin=$before
+    run "lidar-$b-gpu" "$bin" "$work/d150/sequences/00" --depth lidar --device gpu
+done
+run "lidar-after-cpu" "$after" "$work/d150/sequences/00" --depth lidar --device cpu
+
+say "## meshes, before against after (GPU)"
+for pair in depth-%s-gpu-1 lidar-%s-gpu; do
+    a=$work/$(printf "$pair" after) b=$work/$(printf "$pair" before)
+    for f in "$a"/*.ply; do
+        if cmp -s "$f" "$b/$(basename "$f")"; then say "identical: $(basename "$a")/$(basename "$f")"
+        else say "DIFFERENT: $(basename "$a")/$(basename "$f")"; fi
+    done
+done
+rm -rf "$work"
