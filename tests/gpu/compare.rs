@@ -314,6 +314,19 @@ fn depth_fusion_gpu_keeps_the_regularised_field_in_step() {
     assert!(differ as f64 <= 1e-3 * voxels as f64, "{differ}");
 }
 
+/// The sphere scene fused at 10 cm (μ 0.8 m) from three views, and a run's configuration for
+/// it with `iterations` TV iterations.
+fn sphere_run(iterations: u32) -> (Layer, denser::reconstruct::ReconstructionConfig) {
+    let grid = GridParams {
+        voxel_size_m: 0.1,
+        truncation_m: 0.8,
+    };
+    let mut config = denser::reconstruct::ReconstructionConfig::paper(0.1);
+    config.grid = grid;
+    config.tv.iterations = iterations;
+    (sphere_layer(grid, 3, 0.01, None), config)
+}
+
 /// The largest difference of the regularised field between two layers over `blocks`, in
 /// quantisation steps (every block must have one in both).
 fn worst_u_step(a: &Layer, b: &Layer, blocks: &[BlockIndex]) -> i32 {
@@ -333,14 +346,7 @@ fn reconstructor_regularises_on_the_gpu_as_on_the_cpu() {
     // The run's own path: the reconstructor's solver with its progress reports (iterations in
     // chunks on the CPU, one solve on the GPU), more iterations than one chunk.
     let Some(ctx) = gpu() else { return };
-    let grid = GridParams {
-        voxel_size_m: 0.1,
-        truncation_m: 0.8,
-    };
-    let layer = sphere_layer(grid, 3, 0.01, None);
-    let mut config = denser::reconstruct::ReconstructionConfig::paper(0.1);
-    config.grid = grid;
-    config.tv.iterations = 60;
+    let (layer, config) = sphere_run(60);
     let backend = Backend::gpu(Arc::new(ctx), ResidentOptions::default());
     let mut on_gpu = reconstructor_over(config, layer.clone(), backend);
     let mut on_cpu = reconstructor_over(config, layer, Backend::cpu());
@@ -396,14 +402,7 @@ fn tv_regions_on_the_gpu_equal_the_global_cpu_solve() {
 #[test]
 fn reconstructor_falls_back_to_the_cpu_when_the_map_does_not_fit() {
     let Some(ctx) = gpu() else { return };
-    let grid = GridParams {
-        voxel_size_m: 0.1,
-        truncation_m: 0.8,
-    };
-    let layer = sphere_layer(grid, 3, 0.01, None);
-    let mut config = denser::reconstruct::ReconstructionConfig::paper(0.1);
-    config.grid = grid;
-    config.tv.iterations = 10;
+    let (layer, config) = sphere_run(10);
     let backend = Backend::gpu(
         Arc::new(ctx.with_max_binding_bytes(4096)),
         ResidentOptions::default(),
