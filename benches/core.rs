@@ -1,5 +1,5 @@
 //! Criterion benchmarks of the core stages on the analytic scene (a sphere above a floor, rendered
-//! at 640×480 by `tests/common`), plus the TV regulariser on the problems of issue 14: a dense,
+//! at 640×480 by `tests/common`), plus the TV regularizer on the problems of issue 14: a dense,
 //! all-Ω 128³ volume (the one `tools/bench_skimage_tv.py` gives scikit-image) and the sparse,
 //! Ω-masked map of a synthetic LiDAR drive. Settings are fixed: do not modify, or results are
 //! not comparable.

@@ -3,7 +3,7 @@
 //! Do not modify the scene or parameters, or results are not comparable across runs.
 use criterion::{criterion_group, criterion_main, Criterion};
 use denser::depth::sgm::SgmMatcher;
-use denser::depth::tgv::{Regulariser, TgvMatcher, TgvParams};
+use denser::depth::tgv::{Regularizer, TgvMatcher, TgvParams};
 use denser::depth::SgmParams;
 use std::hint::black_box;
 
@@ -39,9 +39,9 @@ fn bench_tgv(c: &mut Criterion) {
         })
     });
     let init = sgm.estimate_from_volume(&left, &volume).expect("sgm");
-    for reg in [Regulariser::Tv, Regulariser::Tgv, Regulariser::TgvTensor] {
+    for reg in [Regularizer::Tv, Regularizer::Tgv, Regularizer::TgvTensor] {
         let m = TgvMatcher::new(TgvParams {
-            regulariser: reg,
+            regularizer: reg,
             ..params
         })
         .expect("valid parameters");
@@ -69,11 +69,11 @@ fn bench_tgv(c: &mut Criterion) {
     group.finish();
 }
 
-fn m_name(reg: Regulariser) -> &'static str {
+fn m_name(reg: Regularizer) -> &'static str {
     match reg {
-        Regulariser::Tv => "tv",
-        Regulariser::Tgv => "tgv",
-        Regulariser::TgvTensor => "tgv_tensor",
+        Regularizer::Tv => "tv",
+        Regularizer::Tgv => "tgv",
+        Regularizer::TgvTensor => "tgv_tensor",
     }
 }
 

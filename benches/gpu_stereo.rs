@@ -85,7 +85,7 @@ fn bench_stereo(c: &mut Criterion) {
         &u0,
         w as usize,
         h as usize,
-        params.regulariser,
+        params.regularizer,
         params.alpha1,
         params.alpha2,
         tensors,

@@ -1,4 +1,4 @@
-//! Compares codings of the regularised field on a stored map: compressed bytes of the `u` planes
+//! Compares codings of the regularized field on a stored map: compressed bytes of the `u` planes
 //! as `u − f` (chunk format 1) vs. as deltas of `u` along the coded voxels. Usage:
 //! `chunk_levels MAP_DIR [MAX_CHUNKS]`.
 

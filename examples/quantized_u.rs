@@ -1,9 +1,9 @@
-//! How far the regularised mesh moves when `u` is kept in fewer bits (a decision aid for issue
+//! How far the regularized mesh moves when `u` is kept in fewer bits (a decision aid for issue
 //! 14, item 7: at most 6 bytes per voxel in RAM with `u` needs a lossy field; not a format).
 //!
 //! `cargo run --release --example quantized_u -- SEQ`, SEQ a `denser synth` drive's
 //! `sequences/00`: its ground-truth depth fused in memory at 10 and 5 cm (the paper's μ),
-//! regularised, meshed; then `u` rounded to 127 and to 63 levels per sign (8 and 7 bits) and
+//! regularized, meshed; then `u` rounded to 127 and to 63 levels per sign (8 and 7 bits) and
 //! meshed again. Prints the distance from each vertex of the rounded mesh to the nearest vertex
 //! of the exact one (median, 90th, 99th percentile, maximum) and the vertex counts.
 

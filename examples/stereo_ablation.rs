@@ -1,5 +1,5 @@
 //! Stereo ablation on the real pairs under ../shared/data: SGM, the dense variational result and
-//! the final map (invalid pixels marked) for one regulariser, on Middlebury 2014 Motorcycle (bad-2
+//! the final map (invalid pixels marked) for one regularizer, on Middlebury 2014 Motorcycle (bad-2
 //! over all and non-occluded GT pixels, missing = bad) and KITTI 00 frame 0 vs its projected LiDAR
 //! (D1, EPE, density). Parameters from the environment (defaults = `TgvParams::default()`):
 //! `REG=tv|tgv|tgv-tensor DATA=mb,kitti LAMBDA A1 A2 GAMMA BETA WIN OUTER INNER T0 T1 MAXC OCC`,
@@ -7,7 +7,7 @@
 //! Run: `REG=tgv-tensor DATA=mb,kitti cargo run --release --example stereo_ablation`.
 use denser::depth::metrics::mask_from_middlebury;
 use denser::depth::sgm::SgmPaths;
-use denser::depth::tgv::{HoleFill, Regulariser, TgvMatcher, TgvParams};
+use denser::depth::tgv::{HoleFill, Regularizer, TgvMatcher, TgvParams};
 use denser::depth::{disparity_from_points, evaluate_disparity, SgmParams};
 use denser::io::kitti::KittiSequence;
 fn env<T: std::str::FromStr>(k: &str, d: T) -> T {
@@ -41,13 +41,13 @@ fn sgm_params(nd: usize) -> SgmParams {
 }
 fn main() {
     let reg = match std::env::var("REG").unwrap_or("tgv-tensor".into()).as_str() {
-        "tv" => Regulariser::Tv,
-        "tgv" => Regulariser::Tgv,
-        _ => Regulariser::TgvTensor,
+        "tv" => Regularizer::Tv,
+        "tgv" => Regularizer::Tgv,
+        _ => Regularizer::TgvTensor,
     };
     let mk = |nd: usize| {
         TgvMatcher::new(TgvParams {
-            regulariser: reg,
+            regularizer: reg,
             lambda: env("LAMBDA", 0.5),
             alpha1: env("A1", 1.0),
             alpha2: env("A2", 5.0),

@@ -12,7 +12,7 @@ use denser::depth::sgm::{
     SgmMatcher, SgmParams, SgmPaths,
 };
 use denser::depth::tgv::{
-    box_filtered_costs, decoupling_search, diffusion_tensors, fill_from_background, Regulariser,
+    box_filtered_costs, decoupling_search, diffusion_tensors, fill_from_background, Regularizer,
     TgvMatcher, TgvParams, TgvProblem,
 };
 use denser::depth::DisparityEstimator;
@@ -150,7 +150,7 @@ fn main() {
     let tensors = time("tensors", runs, || diffusion_tensors(&l, 4.0, 1.0));
     let (w, h) = (l.width as usize, l.height as usize);
     let mut pb =
-        TgvProblem::new(&u0, w, h, Regulariser::TgvTensor, 1.0, 5.0, tensors).expect("problem");
+        TgvProblem::new(&u0, w, h, Regularizer::TgvTensor, 1.0, 5.0, tensors).expect("problem");
     time("10 TGV-tensor iterations", runs, || {
         pb.iterate(&u0, 0.1, 10).expect("iterate")
     });

@@ -1,8 +1,8 @@
-//! The global in-memory TV solve of a stored map, the reference that regional regularisation
+//! The global in-memory TV solve of a stored map, the reference that regional regularization
 //! (`denser regularize MAP`) is measured against (`docs/bench/regularize.md`): every block loaded
 //! into one `Layer`, one `TvProblem`, the iterations, `u` quantised as the map stores it. Prints
 //! the CPU seconds (user + sys, `getrusage`) and wall seconds of loading and of the solve; given a
-//! regularised map, also the largest |u − u_global| over its Ω voxels (the parameters are then that
+//! regularized map, also the largest |u − u_global| over its Ω voxels (the parameters are then that
 //! map's latest pass). Usage: `tv_global MAP [REGULARISED_MAP]`.
 
 use denser::grid::{decode_tsdf, Layer};

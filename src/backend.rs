@@ -71,7 +71,7 @@ pub struct StageTraffic {
 pub struct GpuStages {
     /// Depth and LiDAR fusion (with the depth blocks resident on the GPU).
     pub fusion: bool,
-    /// TV regularisation.
+    /// TV regularization.
     pub tv: bool,
     /// The variational stereo matchers' kernels.
     pub stereo: bool,

@@ -3,21 +3,21 @@
 //!
 //! Pipeline (module → stage): [`io`] and [`synth`] read or generate sensor data; [`depth`] turns
 //! stereo pairs into depth maps; [`fusion`] integrates depth maps and LiDAR scans into the hashed
-//! voxel grid ([`grid`]); [`regularize`] runs the Ω-aware TV regulariser; [`mesh`] extracts
+//! voxel grid ([`grid`]); [`regularize`] runs the Ω-aware TV regularizer; [`mesh`] extracts
 //! coloured surfaces; [`eval`] scores them against ground truth. [`reconstruct`] drives the
 //! stages over a [`store::BlockStore`] (the map in RAM, or paged through chunk files by
 //! [`outofcore`]) with the stages of one [`backend::Backend`] (CPU, or GPU through [`gpu`]).
 //!
 //! Out of core, three rooms, each importing only from the rooms below it: [`map`], the storage
 //! engine (chunk files, manifest, commits, locks, repair; it knows nothing above it);
-//! [`outofcore`], the algorithms over a stored map (pager, regional and swept regularisation,
+//! [`outofcore`], the algorithms over a stored map (pager, regional and swept regularization,
 //! shards, merge); [`export`], the map's surfaces as meshes, point clouds and 3D Tiles. The rule
 //! is checked by `tests/core/rooms.rs`.
 //!
-//! # Example: fuse, regularise, mesh
+//! # Example: fuse, regularize, mesh
 //!
 //! A wall 2 m in front of a camera, seen in three noisy depth frames, fused at 5 cm into a map
-//! in RAM, regularised and meshed on the CPU (`Backend::open(DeviceChoice::Auto, …)` would place
+//! in RAM, regularized and meshed on the CPU (`Backend::open(DeviceChoice::Auto, …)` would place
 //! the stages as `--device auto` does):
 //!
 //! ```
@@ -52,9 +52,9 @@
 //! assert!(raw.positions_m.iter().all(|p| (p[2] - 2.0).abs() < 0.005));
 //! let outcome = rec.regularize()?;
 //! assert!(outcome.summary.omega_voxels > 0);
-//! let regularised = rec.mesh(Field::Regularized);
-//! // Regularised: the wall again (the rim of the observed patch moves by a few centimetres).
-//! let mut off_m: Vec<f32> = regularised.positions_m.iter().map(|p| (p[2] - 2.0).abs()).collect();
+//! let regularized = rec.mesh(Field::Regularized);
+//! // Regularized: the wall again (the rim of the observed patch moves by a few centimetres).
+//! let mut off_m: Vec<f32> = regularized.positions_m.iter().map(|p| (p[2] - 2.0).abs()).collect();
 //! off_m.sort_by(f32::total_cmp);
 //! assert!(off_m[off_m.len() / 2] < 0.01);
 //! # Ok(())

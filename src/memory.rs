@@ -3,7 +3,7 @@
 //!
 //! Why the allocator needs a policy here: the map's working sets (a frame's chunks, a region's
 //! solver arrays) are large, short-lived and of varying size. glibc keeps freed memory in its
-//! arenas for reuse, so a process that fused a drive and then regularises it can hold hundreds
+//! arenas for reuse, so a process that fused a drive and then regularizes it can hold hundreds
 //! of MiB that are free but resident (measured: 560 MiB free of a 561 MiB arena between two
 //! regions of a 1200 m drive at a 512 MiB budget, `docs/bench/memory.md`). [`TrimAbove`] hands
 //! free pages back whenever the resident set passes the budget, at region and frame boundaries,
@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 pub const PROCESS_RESERVE_MAX_BYTES: u64 = 64 << 20;
 
 /// The part of a memory budget of `budget_bytes` that the map's data may use: resident blocks
-/// during fusion, one region's arrays during regularisation. The rest, a quarter of the budget up
+/// during fusion, one region's arrays during regularization. The rest, a quarter of the budget up
 /// to [`PROCESS_RESERVE_MAX_BYTES`], is the process's own: code and libraries, thread stacks,
 /// the manifest, the frame being fused, the chunk writers' buffers and the allocator's slack
 /// between two trims ([`TrimAbove`]). Measured (`docs/bench/memory.md`): about 80 MiB beside the

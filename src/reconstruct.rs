@@ -1,4 +1,4 @@
-//! The [`Reconstructor`]: one driver of fusion, regularisation and meshing over any
+//! The [`Reconstructor`]: one driver of fusion, regularization and meshing over any
 //! [`BlockStore`] (the map in RAM, or a map directory paged around the camera) with the stages
 //! of one [`Backend`] (CPU or GPU, chosen once). It keeps per-stage timings and work counters,
 //! commits checkpoints every so many frames, and holds no I/O of its own: callers feed it
@@ -22,7 +22,7 @@ use std::time::Instant;
 pub struct ReconstructionConfig {
     /// Voxel size and truncation μ.
     pub grid: GridParams,
-    /// TV regulariser.
+    /// TV regularizer.
     pub tv: TvParams,
     /// Depth-map fusion options.
     #[serde(skip, default)]
@@ -57,9 +57,9 @@ pub struct StageTimings {
     pub frames_fused: usize,
     /// Voxel updates applied by fusion.
     pub voxel_updates: usize,
-    /// Seconds spent regularising.
+    /// Seconds spent regularizing.
     pub regularize_s: f64,
-    /// Voxel-iterations of the regulariser (Ω voxels × iterations).
+    /// Voxel-iterations of the regularizer (Ω voxels × iterations).
     pub voxel_iterations: u64,
     /// Seconds spent in marching cubes and writing surfaces.
     pub mesh_s: f64,
@@ -76,7 +76,7 @@ impl StageTimings {
         self.voxel_updates as f64 / self.fusion_s.max(1e-12)
     }
 
-    /// Regulariser throughput, voxel-iterations per second.
+    /// Regularizer throughput, voxel-iterations per second.
     pub fn voxel_iterations_per_s(&self) -> f64 {
         self.voxel_iterations as f64 / self.regularize_s.max(1e-12)
     }
@@ -96,9 +96,9 @@ pub struct RegularizeOutcome {
 /// What [`Reconstructor::write_results`] wrote.
 #[derive(Clone, Debug)]
 pub struct Results {
-    /// The raw surface, then the regularised one (when regularised).
+    /// The raw surface, then the regularized one (when regularized).
     pub surfaces: Vec<SurfaceOutput>,
-    /// The regularisation, when it ran.
+    /// The regularization, when it ran.
     pub regularize: Option<RegularizeOutcome>,
 }
 
@@ -344,7 +344,7 @@ impl Reconstructor {
         Ok(())
     }
 
-    /// Regularises the whole map with the backend's solver (`progress(done, total)` after each
+    /// Regularizes the whole map with the backend's solver (`progress(done, total)` after each
     /// region; returning false stops early, what was done is kept).
     pub fn regularize_with_progress(
         &mut self,
@@ -392,7 +392,7 @@ impl Reconstructor {
     }
 
     /// The outputs of a reconstruction in `out_dir` (created): `mesh_raw.ply`, then, unless
-    /// `regularize` is false, the regularisation and `mesh_regularized.ply` with its vertices
+    /// `regularize` is false, the regularization and `mesh_regularized.ply` with its vertices
     /// as `points_regularized.ply`.
     pub fn write_results(
         &mut self,
@@ -404,7 +404,7 @@ impl Reconstructor {
         let mut surfaces =
             vec![self.write_surface(Field::Raw, &out_dir.join("mesh_raw.ply"), None)?];
         let regularize = if regularize {
-            // The raw mesh is on disk: not held beside the regulariser's arrays (an evaluation
+            // The raw mesh is on disk: not held beside the regularizer's arrays (an evaluation
             // reads it back, as it does a paged map's), and the allocator's pages it and marching
             // cubes used handed back (measured on a 200 m drive: 420 MiB resident but free).
             surfaces[0].mesh = None;

@@ -1,12 +1,12 @@
 //! The seam between the stages and where blocks live: a [`BlockStore`] holds the map and makes
 //! resident, in a RAM [`Layer`], every block a frame may update; the [`Reconstructor`] drives
-//! fusion, regularisation and meshing over any store, so an in-memory run and a `--map` run share
+//! fusion, regularization and meshing over any store, so an in-memory run and a `--map` run share
 //! every line above this trait.
 //!
 //! - [`MemoryStore`]: the whole map is one layer in RAM; nothing to page, commits are no-ops.
 //! - [`crate::outofcore::PagedStore`]: the map is a directory of chunk files; blocks are paged in
 //!   around the camera within a byte budget, commits are checkpoints a killed run resumes from,
-//!   regularisation runs region by region with exact halos, meshes are exported tile by tile.
+//!   regularization runs region by region with exact halos, meshes are exported tile by tile.
 //!
 //! A tier above RAM (the GPU's resident blocks) may hold newer copies of blocks than the layer;
 //! stores call its [`UpperTier`] hooks before blocks leave RAM and before they read the layer
@@ -27,7 +27,7 @@ pub trait UpperTier {
     /// Writes `blocks` back into `layer` and forgets them: they are about to leave RAM.
     fn release(&mut self, layer: &mut Layer, blocks: &[BlockIndex]) -> Result<()>;
     /// Writes every changed block back into `layer` (blocks stay): the layer is about to be
-    /// read whole (a checkpoint, regularisation, meshing).
+    /// read whole (a checkpoint, regularization, meshing).
     fn sync(&mut self, layer: &mut Layer) -> Result<()>;
 }
 
@@ -44,10 +44,10 @@ impl UpperTier for NoUpperTier {
     }
 }
 
-/// What a store's regularisation did.
+/// What a store's regularization did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct RegularizeSummary {
-    /// Blocks written with a regularised field.
+    /// Blocks written with a regularized field.
     pub blocks: usize,
     /// Ω voxels written.
     pub omega_voxels: u64,
@@ -175,7 +175,7 @@ pub trait BlockStore {
     /// run resumes from). `tier` is synced first.
     fn commit(&mut self, frames_fused: u64, tier: &mut dyn UpperTier) -> Result<()>;
 
-    /// Regularises the whole map with `solver` (`progress(done, total)` after each region;
+    /// Regularizes the whole map with `solver` (`progress(done, total)` after each region;
     /// returning false stops early, what was done is kept). No tier above RAM may hold blocks
     /// (the caller writes them back first).
     fn regularize(
@@ -209,7 +209,7 @@ struct Chunked<'a> {
     progress: &'a mut dyn FnMut(usize, usize) -> bool,
 }
 
-/// Iterations between two progress reports of an in-memory regularisation.
+/// Iterations between two progress reports of an in-memory regularization.
 const PROGRESS_ITERATIONS: u32 = 25;
 
 impl TvSolver for Chunked<'_> {
@@ -254,7 +254,7 @@ impl TvSolver for Chunked<'_> {
 }
 
 /// RAM the in-memory path needs per allocated block for the whole run: the block with a
-/// regularised field (8 B/voxel and its hash slot) and the regulariser's arrays over it
+/// regularized field (8 B/voxel and its hash slot) and the regularizer's arrays over it
 /// (`outofcore::regional::SOLVER_BYTES_PER_VOXEL`, 30 B/voxel), bytes.
 pub const MEMORY_RUN_BYTES_PER_BLOCK: u64 = (VOXELS_PER_BLOCK as u64) * (8 + 30) + 32;
 
@@ -283,7 +283,7 @@ impl MemoryStore {
     }
 
     /// Stops fusion with an error once the run would need more than `bytes` of RAM to fuse,
-    /// regularise and mesh the map ([`MEMORY_RUN_BYTES_PER_BLOCK`] per block), before the
+    /// regularize and mesh the map ([`MEMORY_RUN_BYTES_PER_BLOCK`] per block), before the
     /// machine runs out: the map belongs in a map directory then.
     pub fn with_limit(mut self, bytes: u64) -> Self {
         self.limit_bytes = Some(bytes);
@@ -329,7 +329,7 @@ impl BlockStore for MemoryStore {
         let need = blocks * MEMORY_RUN_BYTES_PER_BLOCK;
         if need > limit {
             return Err(crate::Error::InvalidArgument(format!(
-                "the map in RAM has grown to {blocks} blocks: fusing, regularising and meshing it in memory would need about {} MiB, more than the {} MiB available; stream it through a map directory instead (--map DIR --memory-budget B)",
+                "the map in RAM has grown to {blocks} blocks: fusing, regularizing and meshing it in memory would need about {} MiB, more than the {} MiB available; stream it through a map directory instead (--map DIR --memory-budget B)",
                 need >> 20,
                 limit >> 20
             )));

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Wall time of a regularisation pass run by 1, 2 and 4 shards (`regularize --shard i/N`, all
+# Wall time of a regularization pass run by 1, 2 and 4 shards (`regularize --shard i/N`, all
 # started at once, then the committing `regularize`), with the map on disk and on an S3 server
 # (moto on the loopback address), and of `merge`; per-chunk costs for the estimate in
 # docs/bench/scaleout.md. Usage (release binary):
@@ -48,7 +48,7 @@ for where in disk s3://bench/city; do
     "$BIN" regularize "$where" "${flags[@]}" >final.txt 2>&1
     t2=$(date +%s.%N)
     python3 -c "print(f'regularize {\"$where\":<18} {$n} shards: {($t2-$t0):7.1f} s wall (shards {($t1-$t0):7.1f} s, commit {($t2-$t1):5.1f} s); load {open(\"/proc/loadavg\").read().split()[0]}')"
-    grep -h "regularisation pass" final.txt | sed 's/^/    /'
+    grep -h "regularization pass" final.txt | sed 's/^/    /'
   done
 done
 "$BIN" reconstruct drive/sequences/00 --depth lidar --map half_a --out o --last $(( LEN / 4 )) \

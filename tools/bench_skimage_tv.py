@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Side-by-side peer benchmark: scikit-image's `denoise_tv_chambolle` on the dense 128^3 float32
-volume that `cargo bench --bench core -- tv_dense_128` regularises with denser's solver. Never a
+volume that `cargo bench --bench core -- tv_dense_128` regularizes with denser's solver. Never a
 dependency of denser.
 
 The volume (same formula as `dense_tv_volume` in benches/core.rs): a sphere of radius 40 voxels

@@ -6,10 +6,10 @@
 #
 # The pipeline (do not modify, or earlier records are not comparable): a 40 m synthetic LiDAR
 # drive (seed 8); `reconstruct --map` in two halves into two maps (8³-block chunks, 96 MiB budget,
-# swept regularisation, its meshes and evaluation); `regularize` of the first map (another λ, swept
+# swept regularization, its meshes and evaluation); `regularize` of the first map (another λ, swept
 # and with the exact halo) and a sharded pass (`--shard 0/2`, `1/2`, then the committing run);
 # `merge` of the two maps; `export` of the merged map to every format (PLY mesh raw and
-# regularised, PLY / LAS / LAZ / COPC points, a georeferenced LAS, a 3D Tiles tileset, a boxed
+# regularized, PLY / LAS / LAZ / COPC points, a georeferenced LAS, a 3D Tiles tileset, a boxed
 # mesh) and an `export --shard` pass. Maps carry a random identity, so they are compared by what
 # they hold: every output above plus `inspect --json` without the identity and timings.
 # Prints one line per output and exits 1 if any differ.

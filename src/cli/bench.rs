@@ -1,4 +1,4 @@
-//! `denser bench`: fusion, regularisation and marching-cubes throughput on real RGB-D frames (or
+//! `denser bench`: fusion, regularization and marching-cubes throughput on real RGB-D frames (or
 //! any depth sequence `--rgbd` names, e.g. a synthetic drive's ground-truth depth), at 10 cm and
 //! 5 cm voxels with μ = 8 voxels (Open3D's default, so `tools/bench_open3d.py` runs the same
 //! settings). Frames are loaded once; each pass re-fuses all of them.
@@ -20,8 +20,7 @@ pub(crate) struct Args {
     /// Passes over the frames per voxel size.
     #[arg(long, default_value_t = 10)]
     passes: usize,
-    /// Depths beyond this are not fused, metres (`tools/bench_open3d.py --depth-max`).
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, help = super::help::MAX_DEPTH_M)]
     max_depth_m: f32,
 }
 

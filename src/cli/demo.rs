@@ -1,9 +1,9 @@
 //! `denser demo`: a synthetic city drive (KITTI layout, with LiDAR) reconstructed from its
-//! stereo pairs (census + TGV-tensor or SGM → depth → fusion → regularisation → meshes) and
+//! stereo pairs (census + TGV-tensor or SGM → depth → fusion → regularization → meshes) and
 //! scored against its merged LiDAR scans, as the paper does.
 
 use super::reconstruct::{run_job, Job, Report};
-use super::{DeviceArgs, EvaluationTable, Outcome, StereoArg};
+use super::{help, DeviceArgs, EvaluationTable, GpuPoolArgs, Outcome, StereoArg};
 use anyhow::{Context, Result};
 use denser::eval::GroundTruth;
 use denser::io::sequence::{FrameRange, RangeSource};
@@ -13,8 +13,7 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub(crate) struct Args {
-    /// Output folder.
-    #[arg(long, default_value = "out/demo")]
+    #[arg(long, default_value = "out/demo", help = help::OUT)]
     out: PathBuf,
     /// Length of the drive, metres.
     #[arg(long, default_value_t = 200.0)]
@@ -22,17 +21,17 @@ pub(crate) struct Args {
     /// Distance between frames, metres.
     #[arg(long, default_value_t = 2.0)]
     frame_spacing_m: f64,
-    /// Seed of the city.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, help = help::SEED)]
     seed: u64,
     /// Primal–dual iterations.
     #[arg(long, default_value_t = 100)]
     iterations: u32,
     #[command(flatten)]
     device: DeviceArgs,
-    /// Stereo matcher.
-    #[arg(long, value_enum, default_value = "tgv-tensor")]
-    stereo_method: StereoArg,
+    #[command(flatten)]
+    gpu_pool: GpuPoolArgs,
+    #[arg(long, alias = "stereo-method", value_enum, default_value = "tgv-tensor", help = help::METHOD)]
+    method: StereoArg,
 }
 
 struct DemoOutcome {
@@ -44,7 +43,7 @@ struct DemoOutcome {
 pub(crate) fn run(a: Args) -> Result<Outcome> {
     let started = std::time::Instant::now();
     // The device first: `--device gpu` without an adapter fails before any work.
-    let backend = a.device.backend()?;
+    let backend = a.device.backend_with(a.gpu_pool.options())?;
     denser::io::atomic::check_output_dir(&a.out)
         .with_context(|| format!("checking the output folder {}", a.out.display()))?;
     let drive_dir = a.out.join("drive");
@@ -72,7 +71,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         source: RangeSource::Stereo,
         range: FrameRange::ALL,
         config,
-        stereo_method: a.stereo_method.into(),
+        stereo_method: a.method.into(),
         num_disparities: 128,
         map: None,
         regularize: true,
@@ -81,6 +80,8 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
             poses: None,
             frames: FrameRange::ALL,
         }),
+        holdout: None,
+        evaluation_notes: Vec::new(),
         earlier_timings_s: vec![(
             "synthesising the drive".into(),
             summary.build_s + summary.frames_s + summary.surface_s,

@@ -1,6 +1,6 @@
 //! `denser evaluate`: the paper's evaluation of any meshes against ground truth.
 
-use super::{EvaluationTable, Outcome, RangeArgs, Written};
+use super::{help, EvaluationTable, Outcome, RangeArgs, Written};
 use anyhow::{Context, Result};
 use denser::eval::{evaluate_meshes, EvaluationReport, GroundTruth};
 use std::fmt;
@@ -8,21 +8,16 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub(crate) struct Args {
-    /// Meshes to score, as `LABEL=PATH.ply` or `PATH.ply` (label = file stem); the first is the
-    /// baseline for relative changes.
-    #[arg(long = "mesh", required = true)]
+    #[arg(long = "mesh", required = true, help = super::help::MESH)]
     meshes: Vec<String>,
-    /// Ground truth: .las/.laz/.ply, or a KITTI sequence folder (its scans, merged in the world frame).
-    #[arg(long)]
+    #[arg(long, help = help::GT)]
     gt: PathBuf,
-    /// KITTI poses file, when not at `<root>/poses/NN.txt`.
-    #[arg(long)]
+    #[arg(long, help = help::POSES)]
     poses: Option<PathBuf>,
     /// The KITTI scans used (with a sequence folder as ground truth).
     #[command(flatten)]
     range: RangeArgs,
-    /// Output folder for report.json, report.md and the pictures.
-    #[arg(long, default_value = "out")]
+    #[arg(long, default_value = "out", help = help::OUT)]
     out: PathBuf,
 }
 

@@ -17,8 +17,7 @@ pub(crate) struct Args {
     /// Map directory or s3://bucket/prefix.
     #[arg(value_name = "MAP")]
     dir: MapLocation,
-    /// Write a mesh (binary PLY).
-    #[arg(long, conflicts_with_all = ["points", "tiles"])]
+    #[arg(long, conflicts_with_all = ["points", "tiles"], help = super::help::MESH)]
     mesh: Option<PathBuf>,
     /// Write surface points (.ply, .las, .laz, or COPC as .copc.laz).
     #[arg(long, conflicts_with = "tiles")]
@@ -29,7 +28,7 @@ pub(crate) struct Args {
     /// Export the raw field f.
     #[arg(long, conflicts_with = "regularized")]
     raw: bool,
-    /// Export the regularised field u (the default).
+    /// Export the regularized field u (the default).
     #[arg(long)]
     regularized: bool,
     /// Only this box: xmin,ymin,zmin,xmax,ymax,zmax (metres, in the output's frame: the map frame
@@ -44,21 +43,17 @@ pub(crate) struct Args {
     /// Write PLY in the local z-up world frame (LAS/LAZ/COPC/3D Tiles always use it).
     #[arg(long)]
     world_frame: bool,
-    /// RAM for building the COPC octree (e.g. 1GiB); larger clouds spill to disk.
-    #[arg(long, default_value = "1GiB", value_parser = super::parse_bytes)]
+    #[arg(long, default_value = "1GiB", value_parser = super::parse_bytes, help = super::help::MEMORY_BUDGET)]
     memory_budget: u64,
-    /// Export the regularised field even though the latest regularisation pass has not reached
+    /// Export the regularized field even though the latest regularization pass has not reached
     /// every chunk (chunks of different passes mixed; the chunks of each pass are listed).
     #[arg(long, conflicts_with = "raw")]
     allow_incomplete_pass: bool,
-    /// Export the regularised field of this pass: the latest, or the last complete one while a
+    /// Export the regularized field of this pass: the latest, or the last complete one while a
     /// newer pass is incomplete (its files are kept until the newer pass completes).
     #[arg(long, conflicts_with_all = ["raw", "allow_incomplete_pass"])]
     pass: Option<u32>,
-    /// Mesh only this share of the chunks, as task I of an array job of N (or auto/N), and store
-    /// the meshes as a part in the map's store; the same command without --shard afterwards
-    /// writes the output from the parts (meshing what is missing) and removes them.
-    #[arg(long, value_name = "I/N")]
+    #[arg(long, value_name = "I/N", help = super::help::SHARD)]
     shard: Option<String>,
 }
 
@@ -85,8 +80,10 @@ impl fmt::Display for PartWritten {
 
 struct Exported {
     path: PathBuf,
+    /// Points, not a mesh: the summary counts points.
+    points: bool,
     stats: ExportStats,
-    /// Which regularisation pass was exported, when not simply the latest complete one.
+    /// Which regularization pass was exported, when not simply the latest complete one.
     notes: Vec<String>,
 }
 
@@ -112,12 +109,15 @@ impl fmt::Display for Exported {
                 s.seconds
             );
         }
+        let content = if self.points {
+            format!("{} points", s.vertices)
+        } else {
+            format!("{} vertices, {} triangles", s.vertices, s.triangles)
+        };
         writeln!(
             f,
-            "wrote {}: {} vertices, {} triangles from {} chunks ({} voxels) in {:.2} s ({:.2} s per million voxels)",
+            "wrote {}: {content} from {} chunks ({} voxels) in {:.2} s ({:.2} s per million voxels)",
             self.path.display(),
-            s.vertices,
-            s.triangles,
             s.chunks,
             s.voxels,
             s.seconds,
@@ -147,6 +147,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     } else {
         Field::Regularized
     };
+    let points = a.points.is_some();
     let target = match (a.mesh, a.points, a.tiles) {
         (Some(m), None, None) => ExportTarget::Mesh(m),
         (None, Some(p), None) => ExportTarget::Points(p),
@@ -180,7 +181,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
                     String::new()
                 };
                 bail!(
-                    "{}: regularisation {}. Finish it with `denser regularize {} --lambda {} --iterations {}`{previous}, or mix the passes with --allow-incomplete-pass",
+                    "{}: regularization {}. Finish it with `denser regularize {} --lambda {} --iterations {}`{previous}, or mix the passes with --allow-incomplete-pass",
                     a.dir,
                     status.describe(),
                     a.dir,
@@ -189,7 +190,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
                 );
             }
             notes.push(format!(
-                "exporting an incomplete regularisation ({}):",
+                "exporting an incomplete regularization ({}):",
                 status.describe()
             ));
             notes.extend(
@@ -210,9 +211,16 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         (None, true) => Some(WorldFrame::local_z_up()),
         (None, false) => None,
     };
+    if matches!(target, ExportTarget::Tiles(_)) && a.georef.is_none() {
+        tracing::warn!(
+            "no --georef: the tileset is in the map's local z-up frame with no placement on the \
+             globe, so a globe viewer (Cesium, Google Earth) draws it at the Earth's centre; give \
+             --georef EPSG:<code>@E,N,H to place it (formats/georef.md)"
+        );
+    }
     if field == Field::Regularized && store.summary().regularized_chunks == 0 {
         tracing::warn!(
-            "{} has no regularised chunks: exporting f (run `denser regularize` first)",
+            "{} has no regularized chunks: exporting f (run `denser regularize` first)",
             a.dir
         );
     }
@@ -264,5 +272,10 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     let path = match target {
         ExportTarget::Mesh(p) | ExportTarget::Points(p) | ExportTarget::Tiles(p) => p,
     };
-    Ok(Box::new(Exported { path, stats, notes }))
+    Ok(Box::new(Exported {
+        path,
+        points,
+        stats,
+        notes,
+    }))
 }

@@ -15,8 +15,7 @@ pub(crate) struct Args {
     /// Read every chunk and check its checksums against the manifest.
     #[arg(long)]
     verify: bool,
-    /// Print JSON instead of text.
-    #[arg(long)]
+    #[arg(long, help = super::help::JSON)]
     json: bool,
 }
 
@@ -43,9 +42,39 @@ struct Inspected {
     json: bool,
 }
 
+/// The map's extent from its chunks' bounds, metres: in the map frame and in the local z-up
+/// world frame that LAS, COPC and 3D Tiles exports use (`--bbox` is given in the export's
+/// frame). `None` for an empty map.
+fn extent_m(store: &MapStore) -> Option<[([f64; 3], [f64; 3]); 2]> {
+    use denser::export::{chunk_bounds_m, frame_bounds};
+    let z_up = denser::geo::WorldFrame::local_z_up();
+    let mut out: Option<[([f64; 3], [f64; 3]); 2]> = None;
+    for c in store.chunk_indices() {
+        let map = chunk_bounds_m(store, c);
+        let world = frame_bounds(&z_up, map.0, map.1);
+        let boxes = out.get_or_insert([map, world]);
+        for (b, (lo, hi)) in boxes.iter_mut().zip([map, world]) {
+            for a in 0..3 {
+                b.0[a] = b.0[a].min(lo[a]);
+                b.1[a] = b.1[a].max(hi[a]);
+            }
+        }
+    }
+    out
+}
+
+/// `x a..b, y c..d, z e..f m`.
+fn describe_box((lo, hi): ([f64; 3], [f64; 3])) -> String {
+    format!(
+        "x {:.1}..{:.1}, y {:.1}..{:.1}, z {:.1}..{:.1} m",
+        lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+    )
+}
+
 impl fmt::Display for Inspected {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let s = self.store.summary();
+        let extent = extent_m(&self.store);
         let h = self.store.manifest().header;
         let passes = self.store.manifest().pass_status();
         let frames = if h.frames_committed == denser::map::manifest::FRAMES_UNKNOWN {
@@ -69,6 +98,10 @@ impl fmt::Display for Inspected {
                     "pass": p.pass, "regions_recorded": p.recorded, "regions": p.regions,
                     "key": p.key, "current": p.current,
                 })).collect::<Vec<_>>(),
+                "extent_m": extent.map(|[map, world]| serde_json::json!({
+                    "map_frame": { "min": map.0, "max": map.1 },
+                    "local_z_up": { "min": world.0, "max": world.1 },
+                })),
                 "verified": self.verified,
                 "problems": self.problems,
             });
@@ -81,13 +114,22 @@ impl fmt::Display for Inspected {
             "  voxel {} m, μ {} m, chunks of {}³ blocks; generation {}, frames committed: {frames}",
             h.voxel_size_m, h.truncation_m, h.chunk_blocks, h.generation
         )?;
-        writeln!(f, "  regularisation: {}", passes.describe())?;
+        if let Some([map, world]) = extent {
+            writeln!(
+                f,
+                "  extent (chunk bounds): {} in the map frame; {} in the local z-up frame of \
+                 LAS/COPC/3D Tiles exports",
+                describe_box(map),
+                describe_box(world)
+            )?;
+        }
+        writeln!(f, "  regularization: {}", passes.describe())?;
         for p in &self.shard_plans {
             let (pass, done, total, key) = (p.pass, p.recorded, p.regions, &p.key);
             if !p.current {
                 writeln!(
                     f,
-                    "  stale shard plan {key} of pass {pass} ({done} of {total} regions recorded): the map changed after its shards read it, so none will be adopted; it is removed when a regularisation pass completes"
+                    "  stale shard plan {key} of pass {pass} ({done} of {total} regions recorded): the map changed after its shards read it, so none will be adopted; it is removed when a regularization pass completes"
                 )?;
             } else if done == 0 {
                 writeln!(

@@ -1,6 +1,6 @@
 //! `denser merge`: maps of the same grid and world frame (drives, or slices of one drive fused
 //! on different machines) combined chunk by chunk into a new map: weighted TSDF and colour
-//! average, Ω as the union, `u` dropped (regularise the result).
+//! average, Ω as the union, `u` dropped (regularize the result).
 
 use super::{mib, parse_bytes, Outcome};
 use anyhow::{Context, Result};
@@ -13,12 +13,9 @@ pub(crate) struct Args {
     /// Input maps (directories or s3://bucket/prefix), same voxel size, μ and chunk edge.
     #[arg(value_name = "MAP", required = true, num_args = 1..)]
     inputs: Vec<MapLocation>,
-    /// The new map (a directory or s3://bucket/prefix that holds no map yet, or the unfinished
-    /// output of this same merge, which is resumed).
-    #[arg(long, value_name = "MAP")]
+    #[arg(long, value_name = "MAP", help = super::help::OUT)]
     out: MapLocation,
-    /// Memory for one chunk of every input, decoded.
-    #[arg(long, default_value = "1GiB", value_parser = parse_bytes)]
+    #[arg(long, default_value = "1GiB", value_parser = parse_bytes, help = super::help::MEMORY_BUDGET)]
     memory_budget: u64,
 }
 
@@ -51,7 +48,7 @@ impl fmt::Display for Merged {
         }
         writeln!(
             f,
-            "not regularised: run `denser regularize {}` (or shard it with --shard I/N)",
+            "not regularized: run `denser regularize {}` (or shard it with --shard I/N)",
             self.out
         )
     }

@@ -2,7 +2,8 @@
 //! it over the library and returns an outcome that implements `Display` (printed once, on
 //! stdout), errors are printed once with their chain on stderr, and a closed stdout (`denser …
 //! | head`) ends the program quietly. Flags that several commands share are groups defined here
-//! once ([`GridArgs`], [`TvArgs`], [`RangeArgs`], [`DeviceArgs`], [`BudgetArgs`]).
+//! once ([`GridArgs`], [`TvArgs`], [`RangeArgs`], [`DeviceArgs`], [`GpuPoolArgs`],
+//! [`BudgetArgs`]), and the help text of every flag several commands share once ([`help`]).
 //!
 //! Exit codes: 0 success; 1 the command ran and found a problem it reports (`inspect --verify`
 //! with damaged chunks); 2 an error (bad input, I/O, GPU) or a usage error.
@@ -43,29 +44,57 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Fuse a sequence (KITTI odometry, TUM RGB-D or simple RGB-D), regularise, mesh and report.
+    /// Fuse a sequence (KITTI odometry, TUM RGB-D or simple RGB-D), regularize, mesh and report.
+    #[command(
+        after_help = "Example:\n  denser reconstruct data/sequences/00 --depth lidar --out out/run\n  denser reconstruct data/sequences/00 --depth stereo --last 200 --out out/stereo\n  denser reconstruct data/sequences/00 --depth lidar --map maps/city --memory-budget 1GiB --out out/city"
+    )]
     Reconstruct(reconstruct::Args),
-    /// Print fusion, regularisation and meshing throughput on real RGB-D frames.
+    /// Print fusion, regularization and meshing throughput on real RGB-D frames.
+    #[command(
+        after_help = "Example:\n  denser bench --rgbd drive/sequences/00 --passes 3 --max-depth-m 40"
+    )]
     Bench(bench::Args),
-    /// Synthesise a short city drive, reconstruct it from stereo, regularise, mesh and evaluate.
+    /// Synthesise a short city drive, reconstruct it from stereo, regularize, mesh and evaluate.
+    #[command(after_help = "Example:\n  denser demo --out out/demo --method sgm")]
     Demo(demo::Args),
     /// Score meshes against ground truth (distance to the nearest ground-truth point, as the paper).
+    #[command(
+        after_help = "Example:\n  denser evaluate --mesh raw=out/run/mesh_raw.ply --mesh out/run/mesh_regularized.ply --gt data/sequences/00 --out out/eval"
+    )]
     Evaluate(evaluate::Args),
     /// Generate a synthetic city drive with exact ground truth, in the KITTI odometry layout.
+    #[command(
+        after_help = "Example:\n  denser synth --out drives/d60 --length-m 60 --lidar-only\n  denser synth --out drives/kitti00 --trajectory poses/00.txt --length-m 5000 --lidar-only"
+    )]
     Synth(synth::Args),
-    /// Re-regularise a stored map region by region within a memory budget (resumable).
+    /// Re-regularize a stored map region by region within a memory budget (resumable).
+    #[command(
+        after_help = "Example:\n  denser regularize maps/city --lambda 0.6 --iterations 200 --memory-budget 512MiB\n  denser regularize s3://city/maps/city --shard auto/16     # one task of an array job"
+    )]
     Regularize(regularize::Args),
     /// Convert a stored map, tile by tile, to one mesh (PLY) or point cloud (PLY, LAS, LAZ).
+    #[command(
+        after_help = "Example:\n  denser export maps/city --mesh city.ply --regularized\n  denser export maps/city --points city.copc.laz --georef EPSG:32632@691000,5335000,500\n  denser export maps/city --tiles city_tiles"
+    )]
     Export(export::Args),
     /// Summarise a stored map (chunks, blocks, voxels, bytes) and verify its checksums.
+    #[command(after_help = "Example:\n  denser inspect maps/city --verify")]
     Inspect(inspect::Args),
     /// Combine maps of one grid and world frame (drives fused apart) into a new map, chunk by chunk.
+    #[command(after_help = "Example:\n  denser merge maps/drive1 maps/drive2 --out maps/both")]
     Merge(merge::Args),
     /// Rebuild a lost or unreadable map manifest from the chunk files (newest intact versions).
+    #[command(after_help = "Example:\n  denser repair maps/city")]
     Repair(repair::Args),
     /// Disparity (and depth) of one rectified stereo pair, written as Middlebury PFM.
+    #[command(
+        after_help = "Example:\n  denser stereo left.png right.png --out disp.pfm --calib calib.txt --depth-out depth.png"
+    )]
     Stereo(stereo::Args),
     /// Score a disparity map against ground truth (bad-1/2/3, D1, EPE, density).
+    #[command(
+        after_help = "Example:\n  denser stereo-eval gt.pfm disp.pfm --mask nonocc.png --json-out scores.json"
+    )]
     StereoEval(stereo::EvalArgs),
     /// Print the first GPU adapter as JSON and exit (what `--device auto` asks in a child
     /// process, so that probing costs the main process no memory).
@@ -251,7 +280,7 @@ pub(crate) fn mib(bytes: u64) -> f64 {
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub(crate) enum DeviceArg {
     /// On a hardware GPU, the stages measured faster there than on the CPU (today TV
-    /// regularisation; fusion and stereo stay on the CPU); without one, the CPU.
+    /// regularization; fusion and stereo stay on the CPU); without one, the CPU.
     Auto,
     /// The CPU.
     Cpu,
@@ -260,28 +289,49 @@ pub(crate) enum DeviceArg {
     Gpu,
 }
 
-/// `--device` and the GPU's memory.
+/// `--device`.
 #[derive(Args, Clone, Copy, Debug)]
 pub(crate) struct DeviceArgs {
-    /// Where stereo (tv/tgv/tgv-tensor), fusion and regularisation run (`auto`: each where it
+    /// Where stereo (tv/tgv/tgv-tensor), fusion and regularization run (`auto`: each where it
     /// was measured faster, docs/bench/gpu.md); meshing uses the CPU.
-    #[arg(long, value_enum, default_value = "auto")]
+    #[arg(long, value_enum, default_value = "auto", help_heading = "Device")]
     pub device: DeviceArg,
+}
+
+/// The GPU block pool of the commands that fuse (`reconstruct`, `demo`).
+#[derive(Args, Clone, Copy, Debug)]
+pub(crate) struct GpuPoolArgs {
     /// Largest GPU block pool (4 KiB per block; bounded by the device's largest buffer). Depth
     /// blocks stay on the GPU between frames; beyond this they spill to RAM.
-    #[arg(long, default_value = "2GiB", value_parser = parse_bytes)]
+    #[arg(long, default_value = "2GiB", value_parser = parse_bytes, help_heading = "Device")]
     pub gpu_memory_budget: u64,
 }
 
-impl DeviceArgs {
-    /// The backend these flags ask for. `auto` asks a child process (`denser probe-gpu`) which
-    /// adapter exists, and opens it here only when it is a hardware GPU: loading a software
-    /// driver to find out would cost this process its memory (~80 MiB of llvmpipe) for nothing.
-    pub fn backend(&self) -> denser::Result<denser::backend::Backend> {
-        let options = ResidentOptions {
+impl GpuPoolArgs {
+    /// The pool these flags ask for.
+    pub fn options(&self) -> ResidentOptions {
+        ResidentOptions {
             max_bytes: self.gpu_memory_budget,
             ..Default::default()
-        };
+        }
+    }
+}
+
+impl DeviceArgs {
+    /// The backend these flags ask for, with the default GPU pool (the commands that do not
+    /// fuse): [`DeviceArgs::backend_with`].
+    pub fn backend(&self) -> denser::Result<denser::backend::Backend> {
+        self.backend_with(ResidentOptions::default())
+    }
+
+    /// The backend these flags ask for, its GPU block pool within `options`. `auto` asks a
+    /// child process (`denser probe-gpu`) which adapter exists, and opens it here only when it
+    /// is a hardware GPU: loading a software driver to find out would cost this process its
+    /// memory (~80 MiB of llvmpipe) for nothing.
+    pub fn backend_with(
+        &self,
+        options: ResidentOptions,
+    ) -> denser::Result<denser::backend::Backend> {
         let choice = match self.device {
             DeviceArg::Cpu => DeviceChoice::Cpu,
             DeviceArg::Gpu => DeviceChoice::Gpu,
@@ -325,14 +375,14 @@ fn probe_in_child() -> Option<Option<(String, bool)>> {
     serde_json::from_slice(&out.stdout).ok()
 }
 
-/// The TV regulariser's parameters.
+/// The TV regularizer's parameters.
 #[derive(Args, Clone, Copy, Debug)]
 pub(crate) struct TvArgs {
     /// TV data weight λ (default: the paper's, 0.8 at 10 cm, 0.4 at 20 cm).
-    #[arg(long)]
+    #[arg(long, help_heading = "Regularization")]
     pub lambda: Option<f32>,
     /// Primal–dual iterations.
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = 100, help_heading = "Regularization")]
     pub iterations: u32,
 }
 
@@ -352,26 +402,29 @@ impl TvArgs {
 #[derive(Args, Clone, Copy, Debug)]
 pub(crate) struct GridArgs {
     /// Voxel edge, metres (paper: 0.10 or 0.20).
-    #[arg(long, default_value_t = 0.1)]
-    pub voxel_size: f32,
+    #[arg(
+        long = "voxel-size-m",
+        alias = "voxel-size",
+        default_value_t = 0.1,
+        help_heading = "Map"
+    )]
+    pub voxel_size_m: f32,
     /// Truncation μ, metres (default: the paper's, 1.0 at 10 cm and 1.6 at 20 cm, else 10 voxels).
-    #[arg(long)]
-    pub truncation: Option<f32>,
-    /// Ignore depths (and LiDAR returns) beyond this, metres [default: 40 for depth maps, 80 for
-    /// LiDAR].
-    #[arg(long)]
-    pub max_depth: Option<f32>,
+    #[arg(long = "truncation-m", alias = "truncation", help_heading = "Map")]
+    pub truncation_m: Option<f32>,
+    #[arg(long = "max-depth-m", alias = "max-depth", help = help::MAX_DEPTH_M, help_heading = "Map")]
+    pub max_depth_m: Option<f32>,
 }
 
 impl GridArgs {
-    /// The reconstruction settings for these flags and the regulariser's.
+    /// The reconstruction settings for these flags and the regularizer's.
     pub fn config(&self, tv: &TvArgs) -> ReconstructionConfig {
-        let mut c = ReconstructionConfig::paper(self.voxel_size);
-        if let Some(t) = self.truncation {
+        let mut c = ReconstructionConfig::paper(self.voxel_size_m);
+        if let Some(t) = self.truncation_m {
             c.grid.truncation_m = t;
         }
-        c.tv = tv.params(self.voxel_size);
-        if let Some(d) = self.max_depth {
+        c.tv = tv.params(self.voxel_size_m);
+        if let Some(d) = self.max_depth_m {
             c.depth_fusion.max_depth_m = d;
             c.lidar_fusion.max_range_m = d;
         }
@@ -379,17 +432,58 @@ impl GridArgs {
     }
 }
 
+/// Help texts of flags that several commands share, written once (a test checks that a flag
+/// has one help text wherever it appears).
+pub(crate) mod help {
+    /// `--gt`.
+    pub const GT: &str = "Ground truth: a .las/.laz/.ply file, or a KITTI sequence folder whose \
+        scans are merged in the world frame (reconstruct's default for KITTI-layout input: the \
+        sequence's own scans, as the paper)";
+    /// `--poses`.
+    pub const POSES: &str = "KITTI poses file, when not at `<root>/poses/NN.txt`";
+    /// `--method`.
+    pub const METHOD: &str = "Stereo matcher";
+    /// `--num-disparities`.
+    pub const NUM_DISPARITIES: &str =
+        "Disparity search range from 0, pixels (128 sees down to ~3 m on KITTI)";
+    /// `--seed`.
+    pub const SEED: &str = "Seed of the city (same seed, same bytes)";
+    /// `--out`.
+    pub const OUT: &str = "Where the command writes: a folder (reconstruct, demo, evaluate, \
+        synth), the disparity file (stereo: PFM) or the new map (merge); see the command's help";
+    /// `--mesh`.
+    pub const MESH: &str = "A mesh (binary PLY): the meshes evaluate scores (`LABEL=PATH.ply` or \
+        `PATH.ply`, the first the baseline), or the mesh export writes";
+    /// `--memory-budget`.
+    pub const MEMORY_BUDGET: &str = "Memory budget of the process (e.g. 1GiB, 512MiB): a \
+        quarter of it, at most 64 MiB, is kept for the process itself, the rest holds the \
+        command's data (resident voxel blocks, one regularization region, the chunks being \
+        merged or meshed, the COPC octree before it spills to disk). In reconstruct --map, \
+        regularize and export, peak RSS stays within this + 64 MiB (docs/bench/memory.md)";
+    /// `--shard`.
+    pub const SHARD: &str = "Do only this task's share of the work (regularize: regions; \
+        export: chunks) as task I of an array job of N, or auto/N (the index from \
+        JOB_COMPLETION_INDEX, SLURM_ARRAY_TASK_ID or AWS_BATCH_JOB_ARRAY_INDEX). Shards take no \
+        lock and commit nothing; the same command without --shard afterwards adopts their \
+        results, does what is missing and finishes";
+    /// `--json`.
+    pub const JSON: &str = "Print JSON instead of text";
+    /// `--max-depth-m`.
+    pub const MAX_DEPTH_M: &str = "Ignore depths (and LiDAR returns) beyond this, metres \
+        [reconstruct's default: 40 for depth maps, 80 for LiDAR; bench's: 10]";
+}
+
 /// Which frames of a sequence.
 #[derive(Args, Clone, Copy, Debug)]
 pub(crate) struct RangeArgs {
     /// First frame.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, help_heading = "Frames")]
     pub first: usize,
     /// One past the last frame (default: all).
-    #[arg(long)]
+    #[arg(long, help_heading = "Frames")]
     pub last: Option<usize>,
     /// Use every n-th frame.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, help_heading = "Frames")]
     pub step: usize,
 }
 
@@ -407,24 +501,21 @@ impl RangeArgs {
 /// The memory budget of out-of-core work.
 #[derive(Args, Clone, Copy, Debug)]
 pub(crate) struct BudgetArgs {
-    /// Memory budget of the process (e.g. 1GiB, 512MiB): a quarter of it, at most 64 MiB, is
-    /// kept for the process itself, the rest holds resident voxel blocks (fusion) or one
-    /// regularisation region. Peak RSS stays within this + 64 MiB (docs/bench/memory.md).
-    #[arg(long, default_value = "1GiB", value_parser = parse_bytes)]
+    #[arg(long, default_value = "1GiB", value_parser = parse_bytes, help = help::MEMORY_BUDGET, help_heading = "Out of core")]
     pub memory_budget: u64,
-    /// Regularisation region edge, chunks (bigger regions spend less on halos, need more
+    /// Regularization region edge, chunks (bigger regions spend less on halos, need more
     /// memory); by default the largest whose working memory fits --memory-budget.
-    #[arg(long)]
+    #[arg(long, help_heading = "Out of core")]
     pub region_chunks: Option<u32>,
-    /// Regularisation iterations per sweep: every region this many iterations at a time, the
+    /// Regularization iterations per sweep: every region this many iterations at a time, the
     /// solver state kept in the map between sweeps, a halo of (this + 1) voxels (15: two blocks, 7: one);
     /// 0 solves each region with all iterations at once and the exact halo.
-    #[arg(long, default_value_t = denser::outofcore::sweeps::DEFAULT_SWEEP_ITERATIONS)]
+    #[arg(long, default_value_t = denser::outofcore::sweeps::DEFAULT_SWEEP_ITERATIONS, help_heading = "Out of core")]
     pub sweep_iterations: u32,
 }
 
 impl BudgetArgs {
-    /// Regional regularisation within this budget.
+    /// Regional regularization within this budget.
     pub fn regional(&self) -> denser::Result<denser::outofcore::regional::RegionalOptions> {
         if self.region_chunks == Some(0) {
             return Err(denser::Error::InvalidArgument(
@@ -472,6 +563,9 @@ pub(crate) struct EvaluationTable<'a>(pub &'a denser::eval::EvaluationReport);
 impl fmt::Display for EvaluationTable<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let report = self.0;
+        for n in &report.notes {
+            writeln!(f, "note: {n}")?;
+        }
         writeln!(
             f,
             "{:<12} {:>10} {:>10} {:>10} {:>12} {:>12}",
@@ -518,5 +612,71 @@ impl fmt::Display for Written<'_> {
             writeln!(f, "wrote {}", p.display())?;
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Cli;
+    use clap::CommandFactory;
+    use std::collections::BTreeMap;
+
+    /// `(command, long flag, help text)` of every flag of every command.
+    fn flags() -> Vec<(String, String, String)> {
+        let cli = Cli::command();
+        let mut out = Vec::new();
+        for sub in cli.get_subcommands() {
+            for arg in sub.get_arguments() {
+                if let Some(long) = arg.get_long() {
+                    let help = arg.get_help().map(|h| h.to_string()).unwrap_or_default();
+                    out.push((sub.get_name().to_string(), long.to_string(), help));
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn a_flag_shared_by_several_commands_has_one_help_text() {
+        let mut by_flag: BTreeMap<String, BTreeMap<String, Vec<String>>> = BTreeMap::new();
+        for (cmd, long, help) in flags() {
+            by_flag
+                .entry(long)
+                .or_default()
+                .entry(help)
+                .or_default()
+                .push(cmd);
+        }
+        let differing: Vec<String> = by_flag
+            .iter()
+            .filter(|(_, helps)| helps.len() > 1)
+            .map(|(flag, helps)| format!("--{flag}: {helps:#?}"))
+            .collect();
+        assert!(differing.is_empty(), "{}", differing.join("\n"));
+    }
+
+    #[test]
+    fn one_name_per_concept() {
+        // Spellings replaced by one name (still accepted as hidden aliases): none may come back
+        // as a flag's name; lengths carry their unit; one spelling of "regularize".
+        let replaced = [
+            ("stereo-method", "method"),
+            ("max-depth", "max-depth-m"),
+            ("voxel-size", "voxel-size-m"),
+            ("truncation", "truncation-m"),
+        ];
+        let all = flags();
+        for (old, new) in replaced {
+            assert!(
+                all.iter().all(|(_, long, _)| long != old),
+                "--{old} is back: it is --{new}"
+            );
+        }
+        for (cmd, long, help) in &all {
+            assert!(
+                !long.contains("regularis") && !help.contains("regularis"),
+                "{cmd} --{long}: one spelling, regularize"
+            );
+        }
     }
 }

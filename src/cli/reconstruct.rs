@@ -1,10 +1,10 @@
-//! `denser reconstruct`: a sequence through fusion, regularisation, meshing and evaluation, the
+//! `denser reconstruct`: a sequence through fusion, regularization, meshing and evaluation, the
 //! map in RAM or, with `--map`, in a directory of chunk files paged within a budget (resumable).
 //! Both run the same lines over a different store.
 
 use super::{
-    mib, BudgetArgs, DeviceArgs, EvaluationTable, GridArgs, Outcome, RangeArgs, StereoArg, TvArgs,
-    Written,
+    help, mib, BudgetArgs, DeviceArgs, EvaluationTable, GpuPoolArgs, GridArgs, Outcome, RangeArgs,
+    StereoArg, TvArgs, Written,
 };
 use anyhow::{Context, Result};
 use clap::ValueEnum;
@@ -34,32 +34,33 @@ use std::path::PathBuf;
 pub(crate) struct Args {
     /// Sequence folder: KITTI `sequences/NN`, TUM RGB-D, or numbered RGB-D (`pose.txt`, `depth/`).
     input: PathBuf,
-    /// Output folder.
-    #[arg(long, default_value = "out")]
+    #[arg(long, default_value = "out", help = help::OUT)]
     out: PathBuf,
     /// Range source for KITTI-layout input.
     #[arg(long, value_enum, default_value = "lidar")]
     depth: DepthArg,
-    /// KITTI poses file (default: `<root>/poses/NN.txt`).
-    #[arg(long)]
+    #[arg(long, help = help::POSES)]
     poses: Option<PathBuf>,
     #[command(flatten)]
     range: RangeArgs,
-    /// Ground truth for the report: a .las/.laz/.ply file, or a KITTI sequence folder whose scans
-    /// are merged (default for KITTI-layout input: its own scans, as the paper).
-    #[arg(long)]
+    #[arg(long, help = help::GT, help_heading = "Evaluation")]
     gt: Option<PathBuf>,
     /// Skip the evaluation.
-    #[arg(long)]
+    #[arg(long, help_heading = "Evaluation")]
     no_eval: bool,
-    /// Stereo matcher (with `--depth stereo`).
-    #[arg(long, value_enum, default_value = "tgv-tensor")]
+    /// Leave every K-th frame's LiDAR scan out of fusion and score against those scans alone
+    /// (with --depth lidar, scoring against the fused scans measures consistency, not
+    /// accuracy). KITTI-layout input, in RAM (not with --map or --gt); K ≥ 2.
+    #[arg(long, value_name = "K", help_heading = "Evaluation")]
+    holdout: Option<usize>,
+    #[arg(long, value_enum, default_value = "tgv-tensor", help = help::METHOD, help_heading = "Stereo (--depth stereo)")]
     method: StereoArg,
-    /// Disparity search range, pixels (128 sees down to ~3 m on KITTI).
-    #[arg(long, default_value_t = 128)]
+    #[arg(long, default_value_t = 128, help = help::NUM_DISPARITIES, help_heading = "Stereo (--depth stereo)")]
     num_disparities: usize,
     #[command(flatten)]
     device: DeviceArgs,
+    #[command(flatten)]
+    gpu_pool: GpuPoolArgs,
     #[command(flatten)]
     grid: GridArgs,
     #[command(flatten)]
@@ -84,23 +85,23 @@ enum DepthArg {
 pub(crate) struct MapArgs {
     /// Stream the map through this directory (or s3://bucket/prefix) of compressed chunk files
     /// (created, or resumed when it holds a map of the same job) instead of keeping it in RAM.
-    #[arg(long, value_name = "MAP")]
+    #[arg(long, value_name = "MAP", help_heading = "Out of core")]
     map: Option<MapLocation>,
     #[command(flatten)]
     budget: BudgetArgs,
     /// Chunk edge in blocks (a chunk is one file; 16 blocks = 12.8 m at 10 cm voxels). Default:
-    /// 16, or 8 or 4 when regularising one chunk of 16 (or 8) with its halo might not fit the
+    /// 16, or 8 or 4 when regularizing one chunk of 16 (or 8) with its halo might not fit the
     /// memory budget.
-    #[arg(long)]
+    #[arg(long, help_heading = "Out of core")]
     chunk_blocks: Option<u32>,
     /// Commit a resumable checkpoint every this many frames (0: only at the end).
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = 50, help_heading = "Out of core")]
     checkpoint_every: u64,
     /// Go on (with a warning) when one frame needs more than the budget, instead of stopping.
-    #[arg(long)]
+    #[arg(long, help_heading = "Out of core")]
     allow_overrun: bool,
-    /// Fuse (and mesh the raw field) only; regularise later with `denser regularize`.
-    #[arg(long)]
+    /// Fuse (and mesh the raw field) only; regularize later with `denser regularize`.
+    #[arg(long, help_heading = "Out of core")]
     skip_regularize: bool,
 }
 
@@ -119,6 +120,10 @@ pub(crate) struct Job {
     pub regularize: bool,
     /// Ground truth for the report (`None`: no evaluation).
     pub ground_truth: Option<GroundTruth>,
+    /// With `Some(k)`, every k-th selected frame is not fused (its scan is the ground truth).
+    pub holdout: Option<usize>,
+    /// Sentences the report must carry about its ground truth.
+    pub evaluation_notes: Vec<String>,
     /// Stages before the reconstruction, for the report (the demo's synthesis).
     pub earlier_timings_s: Vec<(String, f64)>,
 }
@@ -154,16 +159,51 @@ pub(crate) struct Report {
 pub(crate) fn run(a: Args) -> Result<Outcome> {
     let config = a.grid.config(&a.tv);
     let range = a.range.range();
-    let ground_truth = if a.no_eval {
+    let mut evaluation_notes = Vec::new();
+    let ground_truth = if let Some(k) = a.holdout {
+        let kitti = matches!(detect_input(&a.input), Ok(InputKind::Kitti));
+        let refused = if k < 2 {
+            Some("K must be at least 2 (every K-th frame is left out)")
+        } else if a.no_eval || a.gt.is_some() {
+            Some("it is the ground truth: not with --no-eval or --gt")
+        } else if a.map.map.is_some() {
+            Some("held-out runs are evaluations in RAM: not with --map")
+        } else if !kitti {
+            Some("it needs a KITTI-layout sequence (its scans are the ground truth)")
+        } else {
+            None
+        };
+        if let Some(why) = refused {
+            anyhow::bail!("--holdout {k}: {why}");
+        }
+        evaluation_notes.push(format!(
+            "Ground truth: the LiDAR scans of one selected frame in {k}, left out of fusion (--holdout {k})."
+        ));
+        Some(GroundTruth::KittiLidar {
+            sequence: a.input.clone(),
+            poses: a.poses.clone(),
+            frames: held_out_range(range, k),
+        })
+    } else if a.no_eval {
         None
     } else {
         match (&a.gt, detect_input(&a.input)) {
             (Some(p), _) => Some(GroundTruth::from_path(p.clone(), a.poses.clone(), range)),
-            (None, Ok(InputKind::Kitti)) => Some(GroundTruth::KittiLidar {
-                sequence: a.input.clone(),
-                poses: a.poses.clone(),
-                frames: range,
-            }),
+            (None, Ok(InputKind::Kitti)) => {
+                if matches!(a.depth, DepthArg::Lidar) {
+                    evaluation_notes.push(
+                        "The ground truth is the LiDAR that was fused: these scores measure how \
+                         well the map agrees with its own input, not its accuracy. `--holdout K` \
+                         scores against scans left out of fusion."
+                            .to_string(),
+                    );
+                }
+                Some(GroundTruth::KittiLidar {
+                    sequence: a.input.clone(),
+                    poses: a.poses.clone(),
+                    frames: range,
+                })
+            }
             _ => None,
         }
     };
@@ -193,11 +233,24 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         }),
         regularize: !a.map.skip_regularize,
         ground_truth,
+        holdout: a.holdout,
+        evaluation_notes,
         earlier_timings_s: Vec::new(),
     };
-    let backend = a.device.backend()?;
+    let backend = a.device.backend_with(a.gpu_pool.options())?;
     let report = run_job(&job, backend)?;
     Ok(Box::new(report))
+}
+
+/// The frames `--holdout k` leaves out of `range`: every k-th selected frame, the first at
+/// position k − 1 (the fusion keeps the others).
+fn held_out_range(range: FrameRange, k: usize) -> FrameRange {
+    let step = range.step.max(1);
+    FrameRange {
+        first: range.first + (k - 1) * step,
+        last: range.last,
+        step: k * step,
+    }
 }
 
 /// Every file a reconstruction may write into its output folder (besides `top_view_*.png`).
@@ -230,7 +283,7 @@ fn remove_stale_outputs(out_dir: &std::path::Path, written: &[PathBuf]) -> std::
     Ok(())
 }
 
-/// Runs `job` with `backend`'s stages: fusion (resuming a map), regularisation, surfaces,
+/// Runs `job` with `backend`'s stages: fusion (resuming a map), regularization, surfaces,
 /// evaluation.
 pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     let context = || match &job.map {
@@ -271,14 +324,24 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     let checkpoint_every = job.map.as_ref().map_or(0, |m| m.checkpoint_every);
     let mut rec = Reconstructor::with_store(job.config, store, backend, checkpoint_every)?;
     let resumed = rec.frames_committed();
+    let frames: Vec<usize> = match job.holdout {
+        // The k-th selected frame is held out when k ≡ K − 1 (mod K): `held_out_range`'s frames.
+        Some(k) => frames
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i % k != k - 1)
+            .map(|(_, f)| *f)
+            .collect(),
+        None => frames,
+    };
     rec.fuse_sequence(seq.as_ref(), &frames)
         .with_context(context)?;
     // The input (with the stereo matcher's cost volumes) is done with: free it before the
-    // regulariser allocates its arrays, so their memory does not add up.
+    // regularizer allocates its arrays, so their memory does not add up.
     let input = seq.describe();
     drop(seq);
     denser::memory::release_free_memory();
-    let bar = denser::progress::bar(0, "regularising");
+    let bar = denser::progress::bar(0, "regularizing");
     let results = rec
         .write_results(&job.out_dir, job.regularize, &mut |done, total| {
             bar.set_length(total as u64);
@@ -309,6 +372,13 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
                 &job.out_dir,
             )
             .context("evaluating")?;
+            let mut report = report;
+            if !job.evaluation_notes.is_empty() {
+                // The notes belong in the written report too: rewritten with them.
+                report.notes = job.evaluation_notes.clone();
+                report.write_json(job.out_dir.join("report.json"))?;
+                report.write_markdown(job.out_dir.join("report.md"))?;
+            }
             written.extend(files);
             Some(report)
         }
@@ -373,7 +443,7 @@ fn ram_limit_bytes() -> u64 {
 }
 
 /// The chunk edge of a new map when `--chunk-blocks` is not given: the default, halved while
-/// regularising one chunk with its halo might not fit the budget (`check`), down to 4 blocks
+/// regularizing one chunk with its halo might not fit the budget (`check`), down to 4 blocks
 /// (whose refusal, if even that does not fit, names the budget that would do).
 fn planned_chunk_blocks(check: impl Fn(u32) -> denser::Result<()>) -> denser::Result<u32> {
     let mut c = denser::map::DEFAULT_CHUNK_BLOCKS;
@@ -382,7 +452,7 @@ fn planned_chunk_blocks(check: impl Fn(u32) -> denser::Result<()>) -> denser::Re
             Ok(()) => {
                 if c != denser::map::DEFAULT_CHUNK_BLOCKS {
                     tracing::info!(
-                        "chunks of {c}³ blocks, so that regularising one region fits the memory budget"
+                        "chunks of {c}³ blocks, so that regularizing one region fits the memory budget"
                     );
                 }
                 return Ok(c);
@@ -397,7 +467,7 @@ fn planned_chunk_blocks(check: impl Fn(u32) -> denser::Result<()>) -> denser::Re
 fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedStore> {
     // Fusion within the budget: large buffers go straight back to the kernel.
     denser::memory::map_large_allocations();
-    // Regularisation's memory is checked before any frame is fused (issue 15): a run never fuses
+    // Regularization's memory is checked before any frame is fused (issue 15): a run never fuses
     // for minutes and then finds its budget too small for one region.
     let regional = m.budget.regional()?;
     let check = |chunk_blocks: u32| -> denser::Result<()> {
@@ -624,7 +694,7 @@ impl fmt::Display for Report {
         match &self.regularize {
             None => writeln!(
                 f,
-                "regularisation skipped (run `denser regularize` on the map)"
+                "regularization skipped (run `denser regularize` on the map)"
             )?,
             Some(r) => write!(f, "{}", RegularizeLine(r, &self.device, t))?,
         }
@@ -638,7 +708,7 @@ impl fmt::Display for Report {
             if let Some(reg) = surface(Field::Regularized) {
                 write!(
                     f,
-                    "; regularised {} triangles, {:.1} m²",
+                    "; regularized {} triangles, {:.1} m²",
                     reg.triangles, reg.area_m2
                 )?;
             }
@@ -655,7 +725,7 @@ impl fmt::Display for Report {
     }
 }
 
-/// The regularisation summary line: which device solved how much, how fast.
+/// The regularization summary line: which device solved how much, how fast.
 pub(crate) struct RegularizeLine<'a>(
     pub &'a RegularizeOutcome,
     pub &'a str,
@@ -678,7 +748,7 @@ impl fmt::Display for RegularizeLine<'_> {
         };
         write!(
             f,
-            "regularised on {on}: {} iterations over {} Ω voxels in {:.1} s, {:.1} M voxel-iterations/s",
+            "regularized on {on}: {} iterations over {} Ω voxels in {:.1} s, {:.1} M voxel-iterations/s",
             s.iterations,
             s.omega_voxels,
             r.seconds,

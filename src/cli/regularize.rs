@@ -1,4 +1,4 @@
-//! `denser regularize`: re-regularise a stored map region by region within a memory budget
+//! `denser regularize`: re-regularize a stored map region by region within a memory budget
 //! (seam-free, resumable), on the device `--device` chooses; with `--shard I/N` only this
 //! process's share of the regions, recorded for the next plain run to adopt (array jobs).
 
@@ -19,11 +19,7 @@ pub(crate) struct Args {
     /// Map directory or s3://bucket/prefix.
     #[arg(value_name = "MAP")]
     dir: MapLocation,
-    /// Solve only this share of the regions, as task I of an array job of N (or auto/N: the
-    /// index from JOB_COMPLETION_INDEX, SLURM_ARRAY_TASK_ID or AWS_BATCH_JOB_ARRAY_INDEX). Shards
-    /// take no lock and commit nothing; a plain `denser regularize MAP` afterwards adopts their
-    /// results, solves what is missing and commits the pass.
-    #[arg(long, value_name = "I/N")]
+    #[arg(long, value_name = "I/N", help = super::help::SHARD)]
     shard: Option<String>,
     #[command(flatten)]
     tv: TvArgs,
@@ -46,7 +42,7 @@ impl fmt::Display for Regularized {
         let s = &self.outcome.summary;
         writeln!(
             f,
-            "regularisation pass {} (λ {}, {} iterations in {} {}, regions of {}³ chunks, halo {} blocks): {} regions solved, {} adopted from shards, {} already done; {} blocks written, {} solved with halos ({:.2}×)",
+            "regularization pass {} (λ {}, {} iterations in {} {}, regions of {}³ chunks, halo {} blocks): {} regions solved, {} adopted from shards, {} already done; {} blocks written, {} solved with halos ({:.2}×)",
             s.pass,
             self.lambda,
             s.iterations,
@@ -122,7 +118,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
             .with_context(|| format!("opening map {}", a.dir))?;
         store.set_cache_budget(a.budget.memory_budget / 4);
         let tv = a.tv.params(store.grid().voxel_size_m);
-        let bar = denser::progress::bar(0, "regularising");
+        let bar = denser::progress::bar(0, "regularizing");
         let stats = regularize_shard(
             &mut store,
             &tv,
@@ -135,7 +131,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
             },
             |p, tv| backend.solve(p, tv),
         )
-        .with_context(|| format!("regularising shard {shard} of {}", a.dir))?;
+        .with_context(|| format!("regularizing shard {shard} of {}", a.dir))?;
         bar.finish_and_clear();
         return Ok(Box::new(ShardDone {
             map: a.dir,
@@ -162,14 +158,14 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         backend,
         0,
     )?;
-    let bar = denser::progress::bar(0, "regularising");
+    let bar = denser::progress::bar(0, "regularizing");
     let outcome = rec
         .regularize_with_progress(&mut |done, total| {
             bar.set_length(total as u64);
             bar.set_position(done as u64);
             true
         })
-        .with_context(|| format!("regularising {}", a.dir))?;
+        .with_context(|| format!("regularizing {}", a.dir))?;
     bar.finish_and_clear();
     Ok(Box::new(Regularized {
         outcome,

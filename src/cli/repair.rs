@@ -13,8 +13,7 @@ pub(crate) struct Args {
     /// The map (a directory or s3://bucket/prefix) whose manifest is lost, unreadable or older
     /// than its last commit.
     dir: MapLocation,
-    /// Print JSON instead of text.
-    #[arg(long)]
+    #[arg(long, help = super::help::JSON)]
     json: bool,
 }
 
@@ -52,7 +51,7 @@ impl fmt::Display for Repaired {
         for l in &r.notes {
             writeln!(f, "  note: {l}")?;
         }
-        writeln!(f, "  regularisation: {}", r.passes.describe())?;
+        writeln!(f, "  regularization: {}", r.passes.describe())?;
         writeln!(
             f,
             "  fusion progress was in the lost manifest: `reconstruct --map` cannot resume this map; regularize, export and inspect work"

@@ -1,7 +1,7 @@
 //! `denser stereo` (disparity, and depth, of one rectified pair) and `denser stereo-eval`
 //! (scores against ground truth).
 
-use super::{DeviceArgs, Outcome, StereoArg};
+use super::{help, DeviceArgs, Outcome, StereoArg};
 use anyhow::{bail, Context, Result};
 use denser::depth::sgm::SgmPaths;
 use denser::depth::tgv::HoleFill;
@@ -19,8 +19,7 @@ pub(crate) struct Args {
     left: PathBuf,
     /// Right image.
     right: PathBuf,
-    /// Disparity output: PFM (float32, rows bottom-up, inf = invalid).
-    #[arg(long)]
+    #[arg(long, help = help::OUT)]
     out: PathBuf,
     /// Calibration for depth: KITTI odometry or Middlebury 2014 `calib.txt`.
     #[arg(long)]
@@ -28,11 +27,9 @@ pub(crate) struct Args {
     /// Depth output: 16-bit PNG, depth_m = value / 256, 0 = invalid (needs --calib).
     #[arg(long)]
     depth_out: Option<PathBuf>,
-    /// Matcher.
-    #[arg(long, value_enum, default_value = "tgv-tensor")]
+    #[arg(long, value_enum, default_value = "tgv-tensor", help = help::METHOD)]
     method: StereoArg,
-    /// Disparity search range from 0, pixels.
-    #[arg(long, default_value_t = 128)]
+    #[arg(long, default_value_t = 128, help = help::NUM_DISPARITIES)]
     num_disparities: usize,
     /// SGM aggregation directions (of sgm, and of the variational methods' SGM initialisation):
     /// 4 (→ ← ↓ ↑), 5 (→ ← ↓ ↘ ↙, OpenCV StereoSGBM's 3-way mode: faster, see
@@ -67,8 +64,8 @@ pub(crate) struct EvalArgs {
     /// Optional Middlebury-style mask PNG: only pixels of value 255 are scored.
     #[arg(long)]
     mask: Option<PathBuf>,
-    /// Also write the scores as JSON here.
-    #[arg(long)]
+    /// Also write the scores as JSON to this file.
+    #[arg(long = "json-out", alias = "json")]
     json: Option<PathBuf>,
 }
 

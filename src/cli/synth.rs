@@ -7,8 +7,7 @@ use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub(crate) struct Args {
-    /// Output root (gets `sequences/00/...`, `poses/00.txt`, `ground_truth/surface.ply`).
-    #[arg(long)]
+    #[arg(long, help = super::help::OUT)]
     out: PathBuf,
     /// Length of the drive, metres.
     #[arg(long, default_value_t = 300.0)]
@@ -16,8 +15,7 @@ pub(crate) struct Args {
     /// Drive along a KITTI trajectory (3×4 world_from_cam0 per line) at its real scale.
     #[arg(long)]
     trajectory: Option<PathBuf>,
-    /// Seed of the city (same seed, same bytes).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, help = super::help::SEED)]
     seed: u64,
     /// Distance between frames, metres.
     #[arg(long, default_value_t = 0.9)]

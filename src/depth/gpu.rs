@@ -27,7 +27,7 @@
 
 use crate::depth::census::{CensusImage, CensusKind, CensusParams};
 use crate::depth::sgm::{CostVolume, SgmMatcher};
-use crate::depth::tgv::{check_search, DataCost, Regulariser, TgvMatcher, TgvProblem, TgvStages};
+use crate::depth::tgv::{check_search, DataCost, Regularizer, TgvMatcher, TgvProblem, TgvStages};
 use crate::depth::{DisparityEstimator, DisparityMap};
 use crate::frame::GreyImage;
 use crate::gpu::layout::{CensusUniforms, CostUniforms, PointwiseUniforms, TgvUniforms};
@@ -45,7 +45,7 @@ pub struct TgvProblemGpu<'c> {
     ctx: &'c GpuContext,
     width: usize,
     height: usize,
-    regulariser: Regulariser,
+    regularizer: Regularizer,
     alpha1: f32,
     alpha2: f32,
     tau: f32,
@@ -77,7 +77,7 @@ impl<'c> TgvProblemGpu<'c> {
             ctx,
             width: problem.width,
             height: problem.height,
-            regulariser: problem.regulariser,
+            regularizer: problem.regularizer,
             alpha1: problem.alpha1,
             alpha2: problem.alpha2,
             tau,
@@ -146,7 +146,7 @@ impl<'c> TgvProblemGpu<'c> {
         let uniforms = TgvUniforms {
             width: self.width as u32,
             height: self.height as u32,
-            tv: (self.regulariser == Regulariser::Tv) as u32,
+            tv: (self.regularizer == Regularizer::Tv) as u32,
             pad0: 0,
             sigma: self.sigma,
             tau: self.tau,
@@ -525,7 +525,7 @@ pub fn cost_volume_gpu(
 
 /// [`TgvMatcher::refine`] on the GPU: the same rounds (point-wise search, then
 /// `inner_iterations` primal–dual iterations, θ annealed) with the costs, `a` and the TGV state
-/// resident on the GPU; returns the dense regularised disparity, pixels. Window averaging of the
+/// resident on the GPU; returns the dense regularized disparity, pixels. Window averaging of the
 /// costs, the tensors and the initialisation are computed on the CPU.
 pub fn refine_gpu(
     ctx: &GpuContext,

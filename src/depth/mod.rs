@@ -29,7 +29,7 @@ pub use gpu::{
 pub use ground_truth::disparity_from_points;
 pub use metrics::{evaluate_disparity, StereoMetrics};
 pub use sgm::{SgmMatcher, SgmParams};
-pub use tgv::{Regulariser, TgvMatcher, TgvParams};
+pub use tgv::{Regularizer, TgvMatcher, TgvParams};
 
 use crate::error::{Error, Result};
 use crate::frame::{DepthImage, GreyImage, Image};
@@ -108,12 +108,12 @@ pub trait DisparityEstimator: Send + Sync {
 pub enum StereoMethod {
     /// Census + semi-global matching ([`sgm::SgmMatcher`]).
     Sgm,
-    /// Census + first-order TV, variational ([`tgv::TgvMatcher`] with [`Regulariser::Tv`]).
+    /// Census + first-order TV, variational ([`tgv::TgvMatcher`] with [`Regularizer::Tv`]).
     Tv,
-    /// Census + isotropic second-order TGV ([`Regulariser::Tgv`]).
+    /// Census + isotropic second-order TGV ([`Regularizer::Tgv`]).
     Tgv,
     /// Census + TGV with the anisotropic diffusion tensor, the paper's estimator
-    /// ([`Regulariser::TgvTensor`]).
+    /// ([`Regularizer::TgvTensor`]).
     TgvTensor,
 }
 
@@ -167,14 +167,14 @@ impl StereoMethod {
         sgm: SgmParams,
         hole_fill: tgv::HoleFill,
     ) -> Result<Option<TgvMatcher>> {
-        let regulariser = match self {
+        let regularizer = match self {
             StereoMethod::Sgm => return Ok(None),
-            StereoMethod::Tv => Regulariser::Tv,
-            StereoMethod::Tgv => Regulariser::Tgv,
-            StereoMethod::TgvTensor => Regulariser::TgvTensor,
+            StereoMethod::Tv => Regularizer::Tv,
+            StereoMethod::Tgv => Regularizer::Tgv,
+            StereoMethod::TgvTensor => Regularizer::TgvTensor,
         };
         Ok(Some(TgvMatcher::new(TgvParams {
-            regulariser,
+            regularizer,
             hole_fill,
             sgm,
             ..TgvParams::default()

@@ -108,7 +108,7 @@ impl Default for SgmParams {
     /// 1 px, median on, speckles ≤ 100 px (tuned on Middlebury 2014 Motorcycle, quarter size).
     /// Strict validity on purpose: fusion wants fewer, surer pixels. With 5 paths, the LR check
     /// at 2 px and no uniqueness test, disparity benchmarks that count missing pixels score
-    /// better (KITTI 00/0 bad-2.0 32.2 → 26.9 %), but the 200 m synthetic drive's regularised
+    /// better (KITTI 00/0 bad-2.0 32.2 → 26.9 %), but the 200 m synthetic drive's regularized
     /// map is less accurate (median 3.7 → 6.3 cm; `docs/bench/stereo.md`, run of 2026-11-26).
     fn default() -> Self {
         SgmParams {

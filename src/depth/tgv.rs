@@ -1,4 +1,4 @@
-//! Variational disparity estimation: census data term + (anisotropic) TGV regulariser, after the
+//! Variational disparity estimation: census data term + (anisotropic) TGV regularizer, after the
 //! DENSER paper (Sec. V), Ranftl et al. 2012 ("Pushing the limits of stereo using variational
 //! stereo estimation") and Kuschk & Cremers 2013 ("Fast and accurate large-scale stereo
 //! reconstruction using variational methods").
@@ -12,11 +12,11 @@
 //!
 //! - `C(x, d)`: census Hamming cost of left pixel `x` against right pixel `x − d`, **in bits**,
 //!   optionally averaged over a square window ([`TgvParams::cost_window`]). λ multiplies these
-//!   bit counts directly, so λ = 0.5 means half a unit of regulariser per differing census bit
+//!   bit counts directly, so λ = 0.5 means half a unit of regularizer per differing census bit
 //!   (a 9×7 binary census has 62 bits).
 //! - `T = exp(−γ|∇I|^β)·n nᵀ + n⊥ n⊥ᵀ`, `n = ∇I/|∇I|`, with `I` the left image scaled to [0, 1]
-//!   and `∇I` central differences; `T = 1` where `|∇I| < 1e-6`. [`Regulariser::Tv`] and
-//!   [`Regulariser::Tgv`] use `T = 1` (the ablation of the paper's Fig. 3); TV also fixes `v = 0`.
+//!   and `∇I` central differences; `T = 1` where `|∇I| < 1e-6`. [`Regularizer::Tv`] and
+//!   [`Regularizer::Tgv`] use `T = 1` (the ablation of the paper's Fig. 3); TV also fixes `v = 0`.
 //! - `∇`: forward differences with Neumann boundary (0 on the last column/row); `ε(v)`: the
 //!   symmetrised gradient with backward differences (0 on the first column/row), a symmetric
 //!   2×2 matrix whose Frobenius norm counts the off-diagonal twice (Bredies et al. 2010).
@@ -62,7 +62,7 @@ use steps::*;
 /// Largest cost window: `21² · 128` bits (the largest census) still fits the `u16` sums.
 pub const MAX_COST_WINDOW: u32 = 21;
 
-/// Which of the pixels SGM left invalid the variational matcher fills with its regularised
+/// Which of the pixels SGM left invalid the variational matcher fills with its regularized
 /// disparity.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum HoleFill {
@@ -72,14 +72,14 @@ pub enum HoleFill {
     /// [`TgvParams::max_cost_fraction`] of the bits (the default for `denser stereo`).
     Visible,
     /// All, including pixels whose match falls outside the right image (their disparity is
-    /// the regulariser's extrapolation): a dense map, for benchmarks that count missing pixels
+    /// the regularizer's extrapolation): a dense map, for benchmarks that count missing pixels
     /// as errors.
     All,
 }
 
-/// Which regulariser the variational matcher uses (the ablation of the paper's Fig. 3).
+/// Which regularizer the variational matcher uses (the ablation of the paper's Fig. 3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Regulariser {
+pub enum Regularizer {
     /// First-order total variation `α₁|∇u|` (piecewise constant).
     Tv,
     /// Second-order TGV, isotropic (`T = 1`; piecewise planar).
@@ -91,8 +91,8 @@ pub enum Regulariser {
 /// Parameters of [`TgvMatcher`]. Disparities in pixels, costs in census bits.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TgvParams {
-    /// Regulariser (TV, TGV, TGV with tensor).
-    pub regulariser: Regulariser,
+    /// Regularizer (TV, TGV, TGV with tensor).
+    pub regularizer: Regularizer,
     /// Data weight λ per census bit (paper: 0.5).
     pub lambda: f32,
     /// Weight of the first-order term α₁ (paper: 1.0).
@@ -121,7 +121,7 @@ pub struct TgvParams {
     /// `x − u(x)` lies more than this right of the leftmost right-image position of the pixels
     /// to its right (see [`occluded`]).
     pub occlusion_tolerance_px: f32,
-    /// Which pixels that SGM left invalid get the regularised disparity (module docs).
+    /// Which pixels that SGM left invalid get the regularized disparity (module docs).
     pub hole_fill: HoleFill,
     /// The SGM initialisation (its census window is also the data term's).
     pub sgm: SgmParams,
@@ -135,7 +135,7 @@ impl Default for TgvParams {
     /// defaults.
     fn default() -> Self {
         TgvParams {
-            regulariser: Regulariser::TgvTensor,
+            regularizer: Regularizer::TgvTensor,
             lambda: 0.5,
             alpha1: 1.0,
             alpha2: 5.0,
@@ -275,7 +275,7 @@ pub fn occluded(u: &[f32], w: usize, h: usize, tol: f32) -> Vec<bool> {
     occ
 }
 
-/// Census + TGV (or TV) variational matcher ([`Regulariser`]), initialised by SGM.
+/// Census + TGV (or TV) variational matcher ([`Regularizer`]), initialised by SGM.
 #[derive(Clone, Debug, Default)]
 pub struct TgvMatcher {
     /// Parameters.
@@ -297,7 +297,7 @@ struct TgvScratch {
 pub struct TgvStages {
     /// The SGM initialisation (NaN invalid).
     pub sgm: DisparityMap,
-    /// The regularised disparity before invalidation, pixels (every pixel finite).
+    /// The regularized disparity before invalidation, pixels (every pixel finite).
     pub dense_px: Vec<f32>,
     /// The final map.
     pub result: DisparityMap,
@@ -319,7 +319,7 @@ impl TgvMatcher {
     }
 
     /// Runs the variational refinement from an SGM map `init` over `volume` (left image `left`):
-    /// returns the dense regularised disparity (pixels).
+    /// returns the dense regularized disparity (pixels).
     pub fn refine(
         &self,
         left: &GreyImage,
@@ -369,11 +369,11 @@ impl TgvMatcher {
         }
         let dmin = volume.min_disparity_px as f32;
         let u0 = fill_from_background(&init.disparity_px, dmin);
-        let tensors = match p.regulariser {
-            Regulariser::TgvTensor => diffusion_tensors(left, p.gamma, p.beta),
-            Regulariser::Tv | Regulariser::Tgv => vec![[1.0, 0.0, 1.0]; w * h],
+        let tensors = match p.regularizer {
+            Regularizer::TgvTensor => diffusion_tensors(left, p.gamma, p.beta),
+            Regularizer::Tv | Regularizer::Tgv => vec![[1.0, 0.0, 1.0]; w * h],
         };
-        let problem = TgvProblem::new(&u0, w, h, p.regulariser, p.alpha1, p.alpha2, tensors)?;
+        let problem = TgvProblem::new(&u0, w, h, p.regularizer, p.alpha1, p.alpha2, tensors)?;
         Ok((problem, u0))
     }
 
@@ -449,10 +449,10 @@ impl TgvMatcher {
 
 impl DisparityEstimator for TgvMatcher {
     fn name(&self) -> &str {
-        match self.params.regulariser {
-            Regulariser::Tv => "tv",
-            Regulariser::Tgv => "tgv",
-            Regulariser::TgvTensor => "tgv-tensor",
+        match self.params.regularizer {
+            Regularizer::Tv => "tv",
+            Regularizer::Tgv => "tgv",
+            Regularizer::TgvTensor => "tgv-tensor",
         }
     }
 

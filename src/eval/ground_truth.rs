@@ -82,8 +82,27 @@ impl GroundTruth {
     /// A short description for reports.
     pub fn describe(&self) -> String {
         match self {
-            GroundTruth::KittiLidar { sequence, .. } => {
-                format!("LiDAR scans of {}", sequence.display())
+            GroundTruth::KittiLidar {
+                sequence, frames, ..
+            } => {
+                let mut which = Vec::new();
+                if frames.first > 0 || frames.step > 1 {
+                    which.push(format!("frames from {}", frames.first));
+                }
+                if frames.step > 1 {
+                    which.push(format!("step {}", frames.step));
+                }
+                if let Some(l) = frames.last {
+                    which.push(format!("before {l}"));
+                }
+                match which.is_empty() {
+                    true => format!("LiDAR scans of {}", sequence.display()),
+                    false => format!(
+                        "LiDAR scans of {} ({})",
+                        sequence.display(),
+                        which.join(", ")
+                    ),
+                }
             }
             GroundTruth::File(p) => p.display().to_string(),
         }

@@ -18,7 +18,7 @@
 //! * **Completeness**: for every ground-truth point in a region ([`CompletenessRegion`]: all, the
 //!   reconstruction's bounding box grown by a margin — the default, 1 m — or an explicit box), the
 //!   distance to the nearest reconstructed point. It penalises holes and surfaces removed by the
-//!   regulariser, which accuracy cannot see. These queries (tens of millions, mostly centimetres
+//!   regularizer, which accuracy cannot see. These queries (tens of millions, mostly centimetres
 //!   from the surface) are answered a grid cell at a time from the reconstructed points of the
 //!   cells around it, exactly; only those farther than a few cells reach a tree.
 //! * **Statistics** ([`ErrorStats`]): count, mean, RMSE, median, 75th and 90th percentiles (exact,
@@ -26,7 +26,7 @@
 //!   overflow, and the mode = centre of the fullest regular bin.
 //! * **Per surface** ([`SurfaceReport`]): the above plus vertex and triangle counts, surface area
 //!   (m²) and, when the caller supplies them, voxel count and bytes per voxel.
-//! * **Per run** ([`EvaluationReport`]): every surface (raw vs. regularised), stage timings,
+//! * **Per run** ([`EvaluationReport`]): every surface (raw vs. regularized), stage timings,
 //!   memory figures and parameters, as JSON and as a Markdown table with relative changes.
 //! * **Pictures** ([`plot_error_histograms_png`], [`plot_top_view_png`]): overlaid histograms
 //!   (x = error in m, y = fraction of points) and a top view coloured by error.

@@ -1,6 +1,6 @@
 //! Evaluation reports: per-surface summaries ([`SurfaceReport`]) gathered with timings, memory
 //! figures and parameters into an [`EvaluationReport`], written as JSON (machine-readable, round
-//! trips) and Markdown (raw vs. regularised side by side, like the paper's Table I).
+//! trips) and Markdown (raw vs. regularized side by side, like the paper's Table I).
 
 use crate::error::{Error, Result};
 use crate::eval::stats::ErrorStats;
@@ -77,6 +77,10 @@ pub struct EvaluationReport {
     /// The pictures written beside the report (file names).
     #[serde(default)]
     pub pictures: Vec<String>,
+    /// What a reader must know to read the scores right (e.g. that the ground truth is the
+    /// LiDAR that was fused), one sentence each.
+    #[serde(default)]
+    pub notes: Vec<String>,
 }
 
 impl EvaluationReport {
@@ -96,6 +100,7 @@ impl EvaluationReport {
                 .collect::<Vec<_>>()
                 .join(" "),
             pictures: Vec::new(),
+            notes: Vec::new(),
         }
     }
 
@@ -146,6 +151,9 @@ impl EvaluationReport {
                  (every point) are the \"all points\" rows.\n",
                 v.range_max_m, v.elevation_min_deg, v.elevation_max_deg
             );
+        }
+        for n in &self.notes {
+            let _ = writeln!(md, "**Note.** {}\n", escape(n));
         }
         if !self.surfaces.is_empty() {
             md.push_str(&self.surface_table());

@@ -168,7 +168,7 @@ pub struct RunFacts {
     pub summary: StoreSummary,
     /// Voxel size and truncation.
     pub grid: GridParams,
-    /// The regulariser's parameters.
+    /// The regularizer's parameters.
     pub tv: TvParams,
     /// Where the stages ran ("CPU" or the adapter's name).
     pub device: String,
@@ -219,7 +219,7 @@ pub fn evaluate_reconstruction(
         ),
         ("fusion".to_string(), timings.fusion_s),
         ("paging".to_string(), timings.paging_s),
-        ("regularisation".to_string(), timings.regularize_s),
+        ("regularization".to_string(), timings.regularize_s),
         ("marching cubes (both fields)".to_string(), timings.mesh_s),
         ("loading ground truth".to_string(), load_s),
     ]);

@@ -234,7 +234,7 @@ fn fuse_lanes<const COLOR: bool>(
         );
     }
     if let Some(u) = regularized {
-        // The raw field changed, so the regularised value follows it (`Block::store_fused`).
+        // The raw field changed, so the regularized value follows it (`Block::store_fused`).
         for i in 0..VOXELS_PER_BLOCK {
             if d_m[i] - z_m[i] >= -mu {
                 u[i] = tsdf[i];

@@ -11,7 +11,7 @@ use wgpu::util::DeviceExt;
 /// `shaders/shared/dispatch.wgsl` and the kernels' `@workgroup_size`.
 pub const WORKGROUP_SIZE: u32 = 64;
 
-/// Where a command runs its fusion and regularisation.
+/// Where a command runs its fusion and regularization.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DeviceChoice {
     /// The GPU when a hardware adapter exists, for the stages measured faster there

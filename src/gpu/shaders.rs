@@ -160,7 +160,7 @@ pub const CENSUS_COST: ShaderSource = kernel!(
 
 /// Every kernel (one per line, so additions merge cleanly).
 pub const ALL: &[ShaderSource] = &[
-    // TV regularisation.
+    // TV regularization.
     TV_DUAL,
     TV_PRIMAL,
     // Fusion.

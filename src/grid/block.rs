@@ -1,7 +1,7 @@
 //! A block of 8×8×8 voxels stored as a structure of arrays.
 //!
 //! Bytes per voxel: TSDF `i16` (2) + weight and Ω packed in one `u8` (1) + RGB (3) = 6, plus 2 for
-//! the regularised field `u` once a block has been regularised (8 in all), plus the hash entry
+//! the regularized field `u` once a block has been regularized (8 in all), plus the hash entry
 //! shared by 512 voxels.
 
 use super::index::VOXELS_PER_BLOCK;
@@ -64,7 +64,7 @@ pub struct Block {
     pub weight_omega: [u8; VOXELS_PER_BLOCK],
     /// Running mean colour (sRGB).
     pub color: [[u8; 3]; VOXELS_PER_BLOCK],
-    /// Regularised TSDF `u` (same quantisation as `tsdf`), present once the block was regularised.
+    /// Regularized TSDF `u` (same quantisation as `tsdf`), present once the block was regularized.
     pub regularized: Option<Box<[i16; VOXELS_PER_BLOCK]>>,
 }
 
@@ -130,7 +130,7 @@ impl Block {
         }
     }
 
-    /// The regularised value of voxel `i` if present, else the raw one.
+    /// The regularized value of voxel `i` if present, else the raw one.
     #[inline]
     pub fn regularized_or_raw(&self, i: usize) -> f32 {
         match &self.regularized {
@@ -182,8 +182,8 @@ impl Block {
 
     /// Stores the result of fusing voxel `i` (by [`Block::fuse`], or read back from a GPU kernel
     /// that runs its twin): quantised TSDF, weight with the Ω bit, colour. The raw field changed,
-    /// so a stored regularised value follows it (it no longer matches the data; the next
-    /// regularisation recomputes it).
+    /// so a stored regularized value follows it (it no longer matches the data; the next
+    /// regularization recomputes it).
     #[inline]
     pub fn store_fused(&mut self, i: usize, tsdf: i16, weight_omega: u8, color: [u8; 3]) {
         self.tsdf[i] = tsdf;

@@ -13,7 +13,7 @@ use std::hash::{BuildHasherDefault, Hasher};
 /// RAM bytes of a block's slot in the layer's hash table: its key, the box, one control byte.
 const SLOT_BYTES: usize = std::mem::size_of::<BlockIndex>() + std::mem::size_of::<Box<Block>>() + 1;
 
-/// RAM bytes of one resident block with its hash slot (regularised field not included), the unit
+/// RAM bytes of one resident block with its hash slot (regularized field not included), the unit
 /// of every memory budget over resident blocks (the pager's residency, a region's working memory).
 pub const BLOCK_RESIDENT_BYTES: u64 = (std::mem::size_of::<Block>() + SLOT_BYTES) as u64;
 
@@ -235,7 +235,7 @@ impl Layer {
         self.blocks.insert(index, block)
     }
 
-    /// Drops every block's regularised field (e.g. before re-regularising with other settings).
+    /// Drops every block's regularized field (e.g. before re-regularizing with other settings).
     pub fn clear_regularized(&mut self) {
         for b in self.blocks.values_mut() {
             b.regularized = None;

@@ -4,7 +4,7 @@
 //!
 //! Data only: the plain [`Block`] (structure of arrays), the index maths ([`BlockIndex`],
 //! [`VoxelIndex`], [`GridParams`]) and the [`Layer`] that owns the blocks. Algorithms (fusion,
-//! regularisation, meshing, paging) take a layer as an argument and report the blocks they touched.
+//! regularization, meshing, paging) take a layer as an argument and report the blocks they touched.
 //!
 //! Units and normalisation: the stored TSDF `f` is the truncated signed distance divided by the
 //! truncation `μ`, so `f ∈ [−1, 1]` (positive in front of the surface, in free space), quantised to

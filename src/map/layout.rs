@@ -14,7 +14,7 @@
 //! | [`LEASE_OBJECT`], `gc/*` ([`GC_FOLDER`]) | the object-store writer (`s3`) | the lease is renewed and released by its holder; deletion records are carried out when due |
 //! | [`JOB_FILE`], [`LEGACY_JOB_FILE`] | `reconstruct --map` ([`super::job`]) | never deleted |
 //! | `shards/…` ([`SHARDS_AREA`]) | array-job shards (`crate::outofcore::shards`) | the engine reads only the reservations ([`super::reserve`]); the owner removes its records |
-//! | `sweeps/…` ([`SWEEPS_AREA`]) | swept regularisation (`crate::outofcore::sweeps`) | never read or deleted by the engine; the owner removes it |
+//! | `sweeps/…` ([`SWEEPS_AREA`]) | swept regularization (`crate::outofcore::sweeps`) | never read or deleted by the engine; the owner removes it |
 //! | `exports/…` ([`EXPORTS_AREA`]) | `export --shard` (`crate::export::parts`) | never read or deleted by the engine; the owner removes it |
 //! | anything else | — | reported and left alone |
 //!
@@ -70,7 +70,7 @@ pub const JOB_FILE: &str = "job.djr";
 pub const LEGACY_JOB_FILE: &str = "job.json";
 /// Area of array-job plans (reservations) and region records (`formats/shards.md`).
 pub const SHARDS_AREA: &str = "shards";
-/// Area of a swept regularisation pass's state and progress (`formats/sweep-state.md`).
+/// Area of a swept regularization pass's state and progress (`formats/sweep-state.md`).
 pub const SWEEPS_AREA: &str = "sweeps";
 /// Area of the chunk meshes made by `export --shard` runs.
 pub const EXPORTS_AREA: &str = "exports";

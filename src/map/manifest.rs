@@ -8,7 +8,7 @@
 //! Pure encode/decode functions; the I/O lives in [`super::store`].
 //!
 //! Format 2 (written by this build; format 1 is still read) adds the map's identity, the last
-//! *complete* regularisation pass beside the pass in progress, and a second table of **kept**
+//! *complete* regularization pass beside the pass in progress, and a second table of **kept**
 //! files: for each chunk that the pass in progress has already rewritten, the file it had in the
 //! last complete pass, so that pass stays readable until the new one completes.
 
@@ -42,7 +42,7 @@ pub const FRAMES_UNKNOWN: u64 = u64::MAX;
 pub const MANIFEST_HEADER_BYTES: usize = 128;
 /// Size of one chunk entry, bytes.
 pub const MANIFEST_ENTRY_BYTES: usize = 48;
-/// Entry flag bit 0: the chunk file carries a regularised field.
+/// Entry flag bit 0: the chunk file carries a regularized field.
 pub const ENTRY_HAS_REGULARIZED: u32 = 1;
 
 /// One chunk as the manifest records it.
@@ -60,7 +60,7 @@ pub struct ChunkEntry {
     pub file_bytes: u64,
     /// The chunk file's payload CRC-32 (as in its header): `inspect --verify` compares them.
     pub payload_crc32: u32,
-    /// The regularisation pass that wrote this chunk's `u` (0: never regularised).
+    /// The regularization pass that wrote this chunk's `u` (0: never regularized).
     pub reg_pass: u32,
 }
 
@@ -79,7 +79,7 @@ pub struct ManifestHeader {
     pub frames_committed: u64,
     /// The next chunk file sequence number (file names are never reused).
     pub next_file_seq: u64,
-    /// Latest regularisation pass started (0: none); chunks with `reg_pass` equal to it are done,
+    /// Latest regularization pass started (0: none); chunks with `reg_pass` equal to it are done,
     /// and it is complete when every chunk is.
     pub reg_pass: u32,
     /// Parameters of the latest pass (meaningful when `reg_pass > 0`).
@@ -114,7 +114,7 @@ impl Manifest {
             .any(|m| m.get(&c).is_some_and(|e| e.file_seq == seq))
     }
 
-    /// Whether the latest regularisation pass has reached every chunk (true when none started).
+    /// Whether the latest regularization pass has reached every chunk (true when none started).
     pub fn latest_pass_complete(&self) -> bool {
         self.header.reg_pass == 0
             || self
@@ -129,7 +129,7 @@ impl Manifest {
         self.kept.get(&c).or_else(|| self.chunks.get(&c))
     }
 
-    /// Where regularisation stands: the latest pass and how many chunks it reached, the last
+    /// Where regularization stands: the latest pass and how many chunks it reached, the last
     /// complete pass, and the chunks by the pass that wrote their current file.
     pub fn pass_status(&self) -> PassStatus {
         let h = &self.header;
@@ -151,10 +151,10 @@ impl Manifest {
     }
 }
 
-/// Where a map's regularisation stands ([`Manifest::pass_status`]).
+/// Where a map's regularization stands ([`Manifest::pass_status`]).
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct PassStatus {
-    /// The latest pass started (0: never regularised).
+    /// The latest pass started (0: never regularized).
     pub pass: u32,
     /// Its parameters.
     pub params: TvParams,
@@ -176,16 +176,16 @@ pub struct PassStatus {
 }
 
 impl PassStatus {
-    /// Whether the latest pass reached every chunk (true for a map never regularised).
+    /// Whether the latest pass reached every chunk (true for a map never regularized).
     pub fn is_complete(&self) -> bool {
         self.pass == 0 || self.done_chunks == self.total_chunks
     }
 
     /// One line: "pass 3, λ 0.7: 64 of 164 chunks (incomplete); pass 2, λ 0.8 complete and
-    /// still readable", "pass 2, λ 0.8: 164 of 164 chunks (complete)", or "not regularised".
+    /// still readable", "pass 2, λ 0.8: 164 of 164 chunks (complete)", or "not regularized".
     pub fn describe(&self) -> String {
         if self.pass == 0 {
-            return "not regularised".into();
+            return "not regularized".into();
         }
         let mut s = format!(
             "pass {}, λ {}: {} of {} chunks ({}, {} iterations)",
@@ -225,7 +225,7 @@ impl PassStatus {
                     list.push(format!("… and {} more", cs.len() - shown));
                 }
                 let what = if *p == 0 {
-                    "not regularised since fusion".to_string()
+                    "not regularized since fusion".to_string()
                 } else if *p == self.pass {
                     format!("pass {p}, λ {}", self.params.lambda)
                 } else if *p == self.complete_pass {

@@ -1,15 +1,15 @@
 //! Rebuilding a lost or unreadable manifest from the chunk files alone (`denser repair MAP`).
 //!
 //! Chunk files are self-describing: the header of every file (format 2, `formats/chunk.md`) names
-//! its chunk, grid, map, sequence number and the regularisation pass (with its parameters) that
+//! its chunk, grid, map, sequence number and the regularization pass (with its parameters) that
 //! wrote its `u`. [`repair`] reads and checks every file in `chunks/` (both CRCs and the whole
 //! payload), keeps for each chunk the **newest intact version** — the largest (commit generation,
-//! file number) that decodes: the commit generation of format-4 headers orders a regularisation
+//! file number) that decodes: the commit generation of format-4 headers orders a regularization
 //! shard's files (numbered far above the writer's) below any later commit, and files without one
 //! (formats 1–3) count as generation 0 — and writes a new manifest naming those, committed past
 //! every generation the files and the commit mark show. Files whose grid (voxel size, μ, chunk edge)
 //! or map id disagree with the majority are not kept, nor are damaged files; each is reported with
-//! the reason. The regularisation state is rebuilt from the kept files: the latest pass and its
+//! the reason. The regularization state is rebuilt from the kept files: the latest pass and its
 //! parameters, and — where the chunks that pass did not reach all stand at one older pass and the
 //! others still have an intact file of it — that older pass as the last complete one, with those
 //! files kept. Nothing is deleted: files not kept stay where they are (the next writer removes
@@ -17,7 +17,7 @@
 //!
 //! What cannot be rebuilt: how many frames of the reconstruct job every chunk contains. The new
 //! manifest says "unknown" ([`FRAMES_UNKNOWN`]), which `reconstruct --map` refuses to resume;
-//! regularize, export and inspect work. Format-1 files carry no pass: they count as unregularised.
+//! regularize, export and inspect work. Format-1 files carry no pass: they count as unregularized.
 
 use super::codec::{
     decode_header_with_origin, ChunkHeader, ChunkOrigin, CHUNK_HEADER_V2_BYTES,
@@ -87,7 +87,7 @@ pub struct RepairReport {
     pub notes: Vec<String>,
     /// The map id of the new manifest.
     pub map_id: u64,
-    /// The regularisation state of the new manifest.
+    /// The regularization state of the new manifest.
     pub passes: PassStatus,
 }
 
@@ -364,7 +364,7 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
         }
         chunks.insert(*c, primary.entry);
     }
-    // Regularisation passes, from the kept files' origins.
+    // Regularization passes, from the kept files' origins.
     let mut params: BTreeMap<u32, TvParams> = BTreeMap::new();
     let mut disagreeing: BTreeMap<u32, usize> = BTreeMap::new();
     for v in by_chunk.values() {
@@ -445,7 +445,7 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
         .any(|v| v[0].origin.is_none() && v[0].entry.flags & ENTRY_HAS_REGULARIZED != 0)
     {
         notes.push(
-            "some kept files are of chunk format 1 and carry u of an unknown pass: they count as not regularised".into(),
+            "some kept files are of chunk format 1 and carry u of an unknown pass: they count as not regularized".into(),
         );
     }
     let manifest = Manifest {

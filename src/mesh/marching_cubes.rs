@@ -18,7 +18,7 @@ use std::collections::HashMap;
 pub enum Field {
     /// The raw fused TSDF `f`.
     Raw,
-    /// The regularised TSDF `u` (falls back to `f` in blocks not regularised).
+    /// The regularized TSDF `u` (falls back to `f` in blocks not regularized).
     Regularized,
 }
 

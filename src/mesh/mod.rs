@@ -1,4 +1,4 @@
-//! Surface extraction: marching cubes over the raw (`f`) or regularised (`u`) field, and the
+//! Surface extraction: marching cubes over the raw (`f`) or regularized (`u`) field, and the
 //! mesh and point types that exporters write.
 
 mod marching_cubes;

@@ -3,8 +3,8 @@
 //!
 //! Every voxel is the weighted running average of the inputs, as fusion would have left it had
 //! it seen their observations one after the other: `f = Σ wᵢ fᵢ / Σ wᵢ`, colour likewise, weight
-//! `min(Σ wᵢ, 127)` (fusion's cap), Ω the union. The regularised field `u` is dropped: the merged
-//! map needs a new regularisation pass. Only one chunk of every input is in memory at a time.
+//! `min(Σ wᵢ, 127)` (fusion's cap), Ω the union. The regularized field `u` is dropped: the merged
+//! map needs a new regularization pass. Only one chunk of every input is in memory at a time.
 //!
 //! What differs from fusing all frames into one map (`formats/shards.md` gives the measured
 //! figures): depth fusion carves free space in every *allocated* block a frame sees, so a frame of

@@ -1,5 +1,5 @@
 //! The out-of-core algorithms over a stored map ([`crate::map`]): fusion paged around the camera,
-//! regularisation region by region (sweeps, or one solve with the exact halo), regions as array
+//! regularization region by region (sweeps, or one solve with the exact halo), regions as array
 //! jobs, and maps merged. They store everything through the engine's API, and keep their own
 //! records in the areas the engine reserves for them ([`crate::map::layout`]). Nothing here
 //! imports the exports ([`crate::export`]) or the command line (checked by `tests/core/rooms.rs`).
@@ -7,10 +7,10 @@
 //! - [`pager`]: residency around the camera within a byte budget; evicted chunks are encoded and
 //!   written by background workers; revisited chunks are read back.
 //! - [`paged`]: a map as a [`crate::store::BlockStore`] ([`PagedStore`]): fusion through the
-//!   pager, regularisation region by region, surfaces through a [`SurfaceWriter`] handed in.
+//!   pager, regularization region by region, surfaces through a [`SurfaceWriter`] handed in.
 //! - [`region_plan`]: regions planned to a memory budget, and the counters and options every
 //!   regional pass shares. A leaf: both passes below use it, neither uses the other's internals.
-//! - [`regional`]: offline regularisation of a stored map region by region with exact halos (and
+//! - [`regional`]: offline regularization of a stored map region by region with exact halos (and
 //!   the entry point that runs a pass as [`sweeps`] by default); [`sweeps`] and [`sweep_state`]:
 //!   the swept pass and its state records.
 //! - [`shards`]: regions as array jobs (plans that reserve file numbers, region records,
@@ -18,7 +18,7 @@
 //! - [`merge`]: several maps of one world frame combined chunk by chunk (weighted TSDF average).
 //!
 //! Nothing here changes voxel values beyond what the stage computes: fusing with paging gives the
-//! same bits as fusing in memory, the tiled regularisation the same bits as a global solve
+//! same bits as fusing in memory, the tiled regularization the same bits as a global solve
 //! (tested).
 
 pub mod merge;

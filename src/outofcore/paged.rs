@@ -1,7 +1,7 @@
 //! [`PagedStore`]: a map directory as a [`BlockStore`]. Fusion runs on the pager's resident
 //! layer; before each frame the store pages in every chunk the frame can update, after it the
 //! pager evicts down to the budget around the camera; commits are the pager's checkpoints.
-//! Regularisation runs region by region with exact halos over the chunk files, and surfaces are
+//! Regularization runs region by region with exact halos over the chunk files, and surfaces are
 //! exported tile by tile, so memory stays bounded by the budget whatever the map's size.
 //!
 //! Working set of a depth frame: the chunks of its truncation band plus every existing chunk
@@ -71,7 +71,7 @@ pub struct PagedStore {
 }
 
 impl PagedStore {
-    /// Fusion into `store` through a pager with `pager` settings; later regularisation uses
+    /// Fusion into `store` through a pager with `pager` settings; later regularization uses
     /// `regional`, surfaces are written by `surfaces`.
     pub fn new(
         store: MapStore,
@@ -95,7 +95,7 @@ impl PagedStore {
         }
     }
 
-    /// A stored map, to regularise or export (no fusion: frames cannot be added).
+    /// A stored map, to regularize or export (no fusion: frames cannot be added).
     pub fn stored(store: MapStore, regional: RegionalOptions, surfaces: SurfaceWriter) -> Self {
         let grid = store.grid();
         let frames = store.manifest().header.frames_committed;
@@ -139,7 +139,7 @@ impl PagedStore {
             let (store, stats) = pager.finish(self.frames_last_commit)?;
             self.pager_stats = stats;
             crate::memory::release_free_memory();
-            // Regularisation next: its regions reuse freed arrays (bounded by its trims).
+            // Regularization next: its regions reuse freed arrays (bounded by its trims).
             crate::memory::keep_freed_memory();
             self.state = State::Stored(store);
         }
@@ -164,7 +164,7 @@ impl PagedStore {
         match &mut self.state {
             State::Paging(p) => Ok(p),
             _ => Err(Error::InvalidArgument(
-                "this map is open for regularisation or export only: fusion has ended".into(),
+                "this map is open for regularization or export only: fusion has ended".into(),
             )),
         }
     }

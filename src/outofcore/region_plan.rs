@@ -30,7 +30,7 @@ pub const SWEEP_BYTES_PER_CORE_BLOCK: u64 =
 /// What a region's own Ω voxel adds: its state record encoded for writing, bytes.
 pub const SWEEP_BYTES_PER_CORE_OMEGA_VOXEL: u64 = STATE_BYTES_PER_OMEGA_VOXEL as u64;
 
-/// Counters of an offline regularisation run.
+/// Counters of an offline regularization run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct MapRegularizeStats {
     /// Pass number written into the manifest.
@@ -63,7 +63,7 @@ pub struct MapRegularizeStats {
     pub region_chunks: u32,
 }
 
-/// How a stored map's regularisation ([`super::regional::regularize_map`]) tiles and bounds its
+/// How a stored map's regularization ([`super::regional::regularize_map`]) tiles and bounds its
 /// work.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RegionalOptions {
@@ -207,7 +207,7 @@ pub fn plan_region_chunks(
     let first = bound(1);
     if first > budget_bytes {
         return Err(Error::InvalidArgument(format!(
-            "regularising this map needs about {} MiB for its fullest chunk with a {halo}-block halo, over the {} MiB a region may use: use a --memory-budget of at least {} MiB",
+            "regularizing this map needs about {} MiB for its fullest chunk with a {halo}-block halo, over the {} MiB a region may use: use a --memory-budget of at least {} MiB",
             first.div_ceil(1 << 20),
             budget_bytes >> 20,
             crate::memory::budget_for_data_bytes(first).div_ceil(1 << 20)
@@ -225,7 +225,7 @@ pub fn plan_region_chunks(
     Ok((best as u32, best_bytes))
 }
 
-/// Checks, before anything is fused, that regularising a map of `chunk_blocks`-block chunks with
+/// Checks, before anything is fused, that regularizing a map of `chunk_blocks`-block chunks with
 /// `options` for `iterations` iterations fits `options.budget_bytes` whatever the map holds: the
 /// bound of one region of full chunks (the given `region_chunks`, else one chunk) with its halo.
 /// Returns that bound; the error names it and what would fit.
@@ -256,7 +256,7 @@ pub fn check_budget_up_front(
         );
     }
     Err(Error::InvalidArgument(format!(
-        "regularising a region of {r}³ chunks of {chunk_blocks}³ blocks with its {halo}-block halo may need up to {} MiB, over the {} MiB a region may use: give a --memory-budget of at least {} MiB{smaller}{}, or --skip-regularize and then `denser regularize MAP`, which plans regions to the map's real block counts",
+        "regularizing a region of {r}³ chunks of {chunk_blocks}³ blocks with its {halo}-block halo may need up to {} MiB, over the {} MiB a region may use: give a --memory-budget of at least {} MiB{smaller}{}, or --skip-regularize and then `denser regularize MAP`, which plans regions to the map's real block counts",
         bytes.div_ceil(1 << 20),
         options.budget_bytes >> 20,
         crate::memory::budget_for_data_bytes(bytes).div_ceil(1 << 20),

@@ -1,4 +1,4 @@
-//! Offline regularisation of a stored map, region by region, within a memory budget, resumable.
+//! Offline regularization of a stored map, region by region, within a memory budget, resumable.
 //!
 //! A region is a cube of `region_chunks`³ chunks (by default the largest whose working memory fits
 //! the budget, [`super::region_plan`]). By default the pass runs as sweeps ([`super::sweeps`]):
@@ -34,7 +34,7 @@ use crate::map::ChunkIndex;
 use crate::regularize::{RegionPlan, TvParams, TvProblem};
 use std::collections::BTreeMap;
 
-/// Regularises every chunk of `store` with `params`, regions of `region_chunks`³ chunks, keeping
+/// Regularizes every chunk of `store` with `params`, regions of `region_chunks`³ chunks, keeping
 /// each region's working memory under `budget_bytes` (an error says so when one region does not
 /// fit: use smaller regions). `progress(done, total)` is called after each region; returning
 /// false stops the run there (everything done so far is committed, a later call resumes).
@@ -181,7 +181,7 @@ enum Mode {
     },
 }
 
-/// Regularises this process's share of the regions of `store` (opened read-only: no lock, no
+/// Regularizes this process's share of the regions of `store` (opened read-only: no lock, no
 /// commit) as shard `shard` of an array job: each region is written as create-only chunk files
 /// with the numbers the pass's plan reserves, then a region record (`formats/shards.md`). Regions
 /// already committed at the pass, or recorded by any shard, are skipped, so a killed shard is

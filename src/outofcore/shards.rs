@@ -1,4 +1,4 @@
-//! Regions as an array job: the records that let many processes regularise one map without a
+//! Regions as an array job: the records that let many processes regularize one map without a
 //! lock or a commit, and the committing run adopt their results (`formats/shards.md`).
 //!
 //! A `regularize --shard I/N` process reads the committed manifest, works out the pass exactly as

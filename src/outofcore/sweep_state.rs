@@ -1,4 +1,4 @@
-//! The solver state a swept regularisation pass keeps between sweeps (`formats/sweep-state.md`):
+//! The solver state a swept regularization pass keeps between sweeps (`formats/sweep-state.md`):
 //! one file per chunk and sweep parity holding, for each of the chunk's blocks, its Ω voxels'
 //! stored TSDF and weight and the Chambolle–Pock state `u`, `ū`, `p` (f32), behind a block index
 //! so that a halo read takes only the blocks it needs (each block record has its own CRC); and a

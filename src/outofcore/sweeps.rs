@@ -1,4 +1,4 @@
-//! Swept regional regularisation: every region `K` iterations at a time, the solver state kept
+//! Swept regional regularization: every region `K` iterations at a time, the solver state kept
 //! in the map's store between sweeps, so a region needs a halo of `K + 1` voxels (one block at
 //! `K = 7`, two at the default `K = 15`) instead of `iterations + 1`.
 //!

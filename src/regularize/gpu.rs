@@ -140,7 +140,7 @@ pub fn regularize_layer_gpu(
 }
 
 /// [`crate::regularize::regularize_regions`] on the GPU: each region (with its halo) is one GPU
-/// solve, so maps larger than one storage binding can be regularised; with
+/// solve, so maps larger than one storage binding can be regularized; with
 /// [`RegionPlan::exact`] the result equals the global solve. A region whose gathered blocks do
 /// not fit is an [`crate::Error::GpuCapacity`] (regions written before it keep their result).
 pub fn regularize_regions_gpu(

@@ -1,4 +1,4 @@
-//! Ω-aware TV regularisation of the fused TSDF (DENSER Sec. III-B, III-C).
+//! Ω-aware TV regularization of the fused TSDF (DENSER Sec. III-B, III-C).
 //!
 //! Minimises `E(u) = Σ_Ω |∇u| + (λ/2) Σ_Ω w (u − f)²` over the voxels in Ω (directly observed)
 //! with the first-order primal–dual method of Chambolle & Pock (2011):
@@ -546,7 +546,7 @@ impl TvProblem {
     }
 }
 
-/// Work counters of a regularisation run.
+/// Work counters of a regularization run.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct RegularizeStats {
     /// Blocks solved.
@@ -561,7 +561,7 @@ pub struct RegularizeStats {
     pub energy_after: f64,
 }
 
-/// Regularises every block of `layer` in one global solve and stores `u` in each block's
+/// Regularizes every block of `layer` in one global solve and stores `u` in each block's
 /// `regularized` field. Returns the touched blocks (sorted) and counters.
 pub fn regularize_layer(
     layer: &mut Layer,
@@ -584,16 +584,16 @@ pub fn regularize_layer_with(
     params.validate()?;
     let blocks = layer.indices_sorted();
     let resident_mib = || crate::memory::rss_bytes().unwrap_or(0) as f64 / (1 << 20) as f64;
-    tracing::debug!(resident_mib = resident_mib(), "regularisation: gathering");
+    tracing::debug!(resident_mib = resident_mib(), "regularization: gathering");
     let mut problem = TvProblem::gather(layer, &blocks);
     tracing::debug!(
         resident_mib = resident_mib(),
         voxels = problem.u.len(),
-        "regularisation: gathered"
+        "regularization: gathered"
     );
     let energy_before = problem.energy(params.lambda);
     solve(&mut problem)?;
-    tracing::debug!(resident_mib = resident_mib(), "regularisation: solved");
+    tracing::debug!(resident_mib = resident_mib(), "regularization: solved");
     let energy_after = problem.energy(params.lambda);
     // ū and p (16 of the solver's 29 bytes per voxel) are not needed to write u back: freed
     // first, the blocks' new `regularized` arrays do not add to them.
@@ -611,7 +611,7 @@ pub fn regularize_layer_with(
 
 /// Runs Chambolle–Pock iterations on a gathered [`TvProblem`]: the CPU ([`CpuSolver`]), a GPU
 /// twin ([`GpuSolver`]), or a device policy with fallbacks (`crate::backend::Backend`). Every
-/// regularisation driver (global, regional in RAM, regional over a stored map) takes one, so
+/// regularization driver (global, regional in RAM, regional over a stored map) takes one, so
 /// the choice of device is made once, by the caller.
 pub trait TvSolver {
     /// Runs `params.iterations` iterations from the problem's current state (`u`, `ū`, `p`).
@@ -645,7 +645,7 @@ impl TvSolver for CpuSolver {
 /// [`TvSolver::max_voxels`], blocks.
 pub const FALLBACK_REGION_BLOCKS: i32 = 32;
 
-/// Regularises every block of `layer` with `solver`: one global solve when the map fits the
+/// Regularizes every block of `layer` with `solver`: one global solve when the map fits the
 /// solver, else regions of [`FALLBACK_REGION_BLOCKS`]³ blocks with the exact halo (the same
 /// result, so the choice is invisible in the output). Energies are those of the stored result.
 pub fn regularize_layer_by(
@@ -662,7 +662,7 @@ pub fn regularize_layer_by(
     let mut problem = TvProblem::gather(layer, &blocks);
     let energy_before = problem.energy(params.lambda);
     tracing::info!(
-        "regularisation: {voxels} voxels exceed one solve's {} voxels; solving regions of {}³ \
+        "regularization: {voxels} voxels exceed one solve's {} voxels; solving regions of {}³ \
          blocks with the exact halo",
         solver.max_voxels().unwrap_or(0),
         FALLBACK_REGION_BLOCKS

@@ -82,7 +82,7 @@ impl TvProblem {
     }
 }
 
-/// Regularises `layer` region by region: each region of `plan.region_blocks`³ blocks is solved
+/// Regularizes `layer` region by region: each region of `plan.region_blocks`³ blocks is solved
 /// together with every allocated block within `plan.halo_blocks` of it, and only the region's
 /// own blocks are written. With [`RegionPlan::exact`] the result equals [`super::regularize_layer`]'s
 /// global solve (the same arithmetic on the same inputs); with a thinner halo, voxels near region

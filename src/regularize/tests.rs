@@ -313,7 +313,7 @@ fn outside_omega_is_untouched_and_scatter_round_trips() {
     assert!(stats.energy_after < stats.energy_before);
     let mut changed = 0;
     for (_, b) in layer.iter_unsorted() {
-        let u = b.regularized.as_ref().expect("every block regularised");
+        let u = b.regularized.as_ref().expect("every block regularized");
         for i in 0..VOXELS_PER_BLOCK {
             if !b.omega(i) {
                 assert_eq!(u[i], b.tsdf[i]);
@@ -361,7 +361,7 @@ fn max_regularized_difference(a: &Layer, b: &Layer) -> f32 {
             a.get(&index).and_then(|x| x.regularized.clone()),
             b.get(&index).and_then(|x| x.regularized.clone()),
         );
-        let (ua, ub) = (ua.expect("regularised"), ub.expect("regularised"));
+        let (ua, ub) = (ua.expect("regularized"), ub.expect("regularized"));
         for i in 0..VOXELS_PER_BLOCK {
             worst = worst.max((decode_tsdf(ua[i]) - decode_tsdf(ub[i])).abs());
         }

@@ -397,3 +397,82 @@ fn the_readmes_first_run_works_and_a_redirected_log_holds_no_escape_codes() {
         assert!(d.join("run").join(f).is_file(), "{f}");
     }
 }
+
+#[test]
+fn holdout_scores_against_scans_left_out_and_self_scoring_says_so() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let o = denser(
+        &[
+            "synth",
+            "--out",
+            "drive",
+            "--length-m",
+            "24",
+            "--frame-spacing-m",
+            "4",
+            "--lidar-only",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let seq = "drive/sequences/00";
+    let run = |extra: &[&str], out: &str| {
+        let mut args = vec!["reconstruct", seq, "--depth", "lidar", "--iterations", "5"];
+        args.extend(extra);
+        args.extend(["--out", out]);
+        denser(&args, d)
+    };
+    // Scored against the fused scans: the report says what that measures.
+    let o = run(&[], "self");
+    assert!(o.status.success(), "{}", text(&o));
+    let report = |out: &str| -> serde_json::Value {
+        let t = std::fs::read_to_string(d.join(out).join("report.json")).expect("report");
+        serde_json::from_str(&t).expect("json")
+    };
+    let notes = report("self")["notes"].to_string();
+    assert!(notes.contains("the LiDAR that was fused"), "{notes}");
+    assert!(
+        std::fs::read_to_string(d.join("self/report.md"))
+            .expect("md")
+            .contains("the LiDAR that was fused"),
+        "report.md carries the note"
+    );
+    let frames = std::fs::read_dir(d.join(seq).join("velodyne"))
+        .expect("velodyne")
+        .count();
+    // --holdout 3: one frame in three is not fused and is the ground truth.
+    let o = run(&["--holdout", "3"], "held");
+    assert!(o.status.success(), "{}", text(&o));
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    let fused = frames - frames / 3;
+    assert!(
+        out.contains(&format!("fused {fused} frames")),
+        "{frames} frames: {out}"
+    );
+    let r = report("held");
+    assert!(r["notes"].to_string().contains("left out of fusion"), "{r}");
+    assert!(
+        r["source"].to_string().contains("frames from 2, step 3"),
+        "{}",
+        r["source"]
+    );
+    let gt_self = report("self")["ground_truth_points"]
+        .as_u64()
+        .expect("points");
+    let gt_held = r["ground_truth_points"].as_u64().expect("points");
+    assert!(
+        gt_held > 0 && 2 * gt_held < gt_self,
+        "{gt_held} of {gt_self}"
+    );
+    // Refused where it cannot be an honest held-out score.
+    for (extra, why) in [
+        (vec!["--holdout", "1"], "at least 2"),
+        (vec!["--holdout", "2", "--map", "m"], "--map"),
+        (vec!["--holdout", "2", "--gt", "x.ply"], "--gt"),
+    ] {
+        let o = run(&extra, "refused");
+        assert_eq!(o.status.code(), Some(2), "{extra:?}: {}", text(&o));
+        assert!(text(&o).contains(why), "{extra:?}: {}", text(&o));
+    }
+}

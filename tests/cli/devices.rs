@@ -1,5 +1,5 @@
 //! One backend, chosen once (issue 11): with `--device gpu`, every stage that has a kernel runs on
-//! the GPU in every command — stereo, fusion and regularisation in `reconstruct` (in RAM and with
+//! the GPU in every command — stereo, fusion and regularization in `reconstruct` (in RAM and with
 //! `--map`) and in `regularize` — and each summary line names the device it ran on. On lavapipe
 //! (Mesa's Vulkan on the CPU, installed by tools/setup.sh) the kernels equal their CPU twins bit
 //! for bit, so the meshes equal the CPU run's byte for byte. Skipped, counted, without an adapter.
@@ -74,7 +74,7 @@ fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
         "--max-depth",
         "20",
     ];
-    // Ground-truth depth through a map directory: fusion and the regional regularisation on the
+    // Ground-truth depth through a map directory: fusion and the regional regularization on the
     // GPU (depth fusion and TV equal their CPU twins bit for bit on lavapipe; LiDAR differs from
     // its f64 reference within the tolerance of tests/gpu/lidar.rs).
     let mut args = vec![
@@ -102,7 +102,7 @@ fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
         "{out}"
     );
     assert!(
-        line(&out, "regularised on").starts_with(&format!("regularised on {gpu}:")),
+        line(&out, "regularized on").starts_with(&format!("regularized on {gpu}:")),
         "{out}"
     );
     let mut args = vec![
@@ -127,7 +127,7 @@ fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
     let out = ok(&args, d);
     assert!(line(&out, "fused").contains(" on CPU:"), "{out}");
     assert!(
-        line(&out, "regularised on").starts_with("regularised on CPU:"),
+        line(&out, "regularized on").starts_with("regularized on CPU:"),
         "{out}"
     );
     for mesh in ["mesh_raw.ply", "mesh_regularized.ply"] {
@@ -137,7 +137,7 @@ fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
         );
         assert!(g == c, "{mesh}: the GPU map differs from the CPU map");
     }
-    // Offline re-regularisation of the stored map on the GPU.
+    // Offline re-regularization of the stored map on the GPU.
     let out = ok(
         &[
             "regularize",
@@ -152,10 +152,10 @@ fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
         d,
     );
     assert!(
-        line(&out, "regularised on").starts_with(&format!("regularised on {gpu}:")),
+        line(&out, "regularized on").starts_with(&format!("regularized on {gpu}:")),
         "{out}"
     );
-    // Stereo in RAM: the variational matcher, fusion and regularisation on the GPU.
+    // Stereo in RAM: the variational matcher, fusion and regularization on the GPU.
     let mut args = vec![
         "reconstruct",
         seq,
@@ -178,7 +178,7 @@ fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
         "{out}"
     );
     assert!(
-        line(&out, "regularised on").starts_with(&format!("regularised on {gpu}:")),
+        line(&out, "regularized on").starts_with(&format!("regularized on {gpu}:")),
         "{out}"
     );
     assert!(

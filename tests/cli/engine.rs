@@ -2,7 +2,7 @@
 //! synthetic LiDAR drive: two concurrent writers (the second refused at once naming the holder,
 //! the map intact and verified); a chunk file swapped for the same chunk of an older map refused by
 //! `export` and `regularize`; a deleted manifest refused by every command and rebuilt by
-//! `denser repair`; a killed re-regularisation reported by `inspect`, refused by `export`, its
+//! `denser repair`; a killed re-regularization reported by `inspect`, refused by `export`, its
 //! previous complete pass still exportable, and finished by the next run (which recovers the
 //! killed run's stale lock).
 
@@ -238,7 +238,7 @@ fn two_concurrent_writers_one_refused_naming_the_holder_the_map_intact() {
     // The writer exited cleanly: its lock file is empty, and a new writer gets the lock.
     assert_eq!(std::fs::read_to_string(d.join("m/lock")).expect("lock"), "");
     let out = ok(&["regularize", "m", "--iterations", "5"], d);
-    assert!(out.contains("regularisation pass 1"), "{out}");
+    assert!(out.contains("regularization pass 1"), "{out}");
 }
 
 #[test]
@@ -380,7 +380,7 @@ fn a_deleted_manifest_is_refused_then_repaired() {
 }
 
 #[test]
-fn a_killed_re_regularisation_is_reported_and_refused_by_export() {
+fn a_killed_re_regularization_is_reported_and_refused_by_export() {
     let dir = tempfile::tempdir().expect("tempdir");
     let d = dir.path();
     synth(d, "60");
@@ -428,7 +428,7 @@ fn a_killed_re_regularisation_is_reported_and_refused_by_export() {
     }
     assert!(k > 0 && k < n, "{k} of {n}");
 
-    // inspect reports the incomplete pass (not "n chunks (n regularised)").
+    // inspect reports the incomplete pass (not "n chunks (n regularized)").
     let t = ok(&["inspect", "m"], d);
     assert!(
         t.contains(&format!("pass 2, λ 0.7: {k} of {n} chunks (incomplete"))
@@ -485,7 +485,7 @@ fn a_killed_re_regularisation_is_reported_and_refused_by_export() {
         t.contains(&format!("recovered the writer lock of pid {pid}")),
         "{t}"
     );
-    assert!(t.contains("regularisation pass 2"), "{t}");
+    assert!(t.contains("regularization pass 2"), "{t}");
     let t = ok(&["inspect", "m", "--verify"], d);
     assert!(
         t.contains(&format!("pass 2, λ 0.7: {n} of {n} chunks (complete")),

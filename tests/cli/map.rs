@@ -153,7 +153,7 @@ fn killed_reconstruction_resumes_to_the_same_map() {
         "no kill landed between two checkpoints; the test could not check resuming"
     );
 
-    // Offline re-regularisation with other parameters, then exports of the archived map.
+    // Offline re-regularization with other parameters, then exports of the archived map.
     let out = ok(
         &[
             "regularize",
@@ -167,7 +167,7 @@ fn killed_reconstruction_resumes_to_the_same_map() {
         ],
         d,
     );
-    assert!(out.contains("regularisation pass 2"), "{out}");
+    assert!(out.contains("regularization pass 2"), "{out}");
     let out = ok(&["export", "ref", "--points", "p.laz", "--regularized"], d);
     assert!(out.contains("wrote p.laz"), "{out}");
     let cloud = denser::io::las::read_point_cloud(d.join("p.laz")).expect("laz");
@@ -243,7 +243,7 @@ fn map_errors_are_clear() {
 }
 
 /// Issue 15's budget and issue 14 item 5 through the binary: `reconstruct --map` refuses a budget
-/// too small for regularising one region of full chunks before it fuses anything; `regularize`
+/// too small for regularizing one region of full chunks before it fuses anything; `regularize`
 /// without `--region-chunks` plans regions to its budget and runs sweeps, and the result equals
 /// the exact-halo pass's (`--sweep-iterations 0`) voxel for voxel.
 #[test]
@@ -296,7 +296,7 @@ fn regularize_plans_regions_to_the_budget_and_reconstruct_checks_it_before_fusio
     let i = denser(&["inspect", "planned"], d);
     assert!(text(&i).contains("chunks of 8³ blocks"), "{}", text(&i));
 
-    // Fused without regularising, then regularised with a small budget, planned.
+    // Fused without regularizing, then regularized with a small budget, planned.
     let o = run("m", "64MiB", &["--chunk-blocks", "4", "--skip-regularize"]);
     assert!(o.status.success(), "{}", text(&o));
     copy_dir(&d.join("m"), &d.join("exact"));
@@ -359,7 +359,7 @@ pub(crate) fn copy_dir(from: &Path, to: &Path) {
 /// stated fixed overhead: the process keeps `min(B/4, 64 MiB)` of B for itself
 /// (`denser::memory::data_share_bytes`), its peak RSS stays within B + 64 MiB. Here the budget
 /// binds (chunks are evicted during fusion and regions are planned to it), and the peaks of
-/// `reconstruct --map` (fusion, regularisation, meshes) and `regularize` are read from the
+/// `reconstruct --map` (fusion, regularization, meshes) and `regularize` are read from the
 /// process's own `VmHWM`.
 #[test]
 fn memory_budget_bounds_the_process_peak() {

@@ -1,7 +1,7 @@
 //! Issue 12 with the real `denser` binary: a map reconstructed onto an S3 server (moto, started by
 //! the test on the loopback address) equals the same map on disk chunk by chunk; four
 //! `regularize --shard i/4` processes at once, one killed and run again, then the plain
-//! `regularize`, export a mesh byte-identical to a one-process regularisation; a second writer is
+//! `regularize`, export a mesh byte-identical to a one-process regularization; a second writer is
 //! refused while the lease is held; export shards give the same files as one export; `merge` of
 //! the two halves of a drive against the whole drive's map (stated tolerances).
 
@@ -146,7 +146,7 @@ fn s3_map_equals_disk_map_and_four_shards_one_killed_equal_one_process() {
     let out = ok(&["inspect", "s3://maps/city/drive0", "--verify"], d, &env);
     assert!(out.contains("verified: all"), "{out}");
 
-    // The oracle: one process regularises the disk map.
+    // The oracle: one process regularizes the disk map.
     let mut args = vec!["regularize", "disk"];
     args.extend_from_slice(&REG);
     ok(&args, d, &[]);

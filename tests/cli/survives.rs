@@ -5,7 +5,7 @@
 use super::map::{copy_dir, denser, lidar_drive, map_json, ok, reconstruct_args, text};
 use std::path::Path;
 
-/// A small finished map `m` in `d` (three scans fused, not regularised), with its drive.
+/// A small finished map `m` in `d` (three scans fused, not regularized), with its drive.
 fn small_map(d: &Path) {
     lidar_drive(d, "30", "6");
     let mut args = reconstruct_args("m", "o");

@@ -1,6 +1,6 @@
 //! The core pipeline on an analytic scene (a sphere above a floor), rendered to depth maps and
 //! LiDAR scans by the test itself: fused TSDF vs. the exact signed distance, mesh vertices vs. the
-//! exact surface, mesh topology, and raw vs. regularised error under depth noise.
+//! exact surface, mesh topology, and raw vs. regularized error under depth noise.
 
 use crate::common;
 

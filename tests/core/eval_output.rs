@@ -43,7 +43,7 @@ fn surface(label: &str, d: &[f32], area: f64, voxels: u64) -> SurfaceReport {
 
 fn sample_report() -> EvaluationReport {
     let mut r = EvaluationReport::new("synthetic | test scene", 123_456);
-    // raw: median 0.10; regularised: median 0.062 → −38 %.
+    // raw: median 0.10; regularized: median 0.062 → −38 %.
     r.surfaces
         .push(surface("raw", &spread(1001, 0.10, 0.05), 1000.0, 2_000_000));
     r.surfaces.push(surface(
@@ -172,7 +172,7 @@ fn histogram_png_overlays_series() {
     assert!(mean_x_of(&img, SERIES_COLOURS[0], 1000).1 > 300);
     assert!(mean_x_of(&img, SERIES_COLOURS[1], 1000).1 > 300);
     // Filled bars are pale tints, below the legend: raw (red, errors 0.15–0.35 m) lies right of
-    // regularised (blue, 0.04–0.12 m).
+    // regularized (blue, 0.04–0.12 m).
     let tinted = |red: bool| {
         let (mut sx, mut n) = (0.0f64, 0usize);
         for (x, y, p) in img.enumerate_pixels() {
@@ -195,7 +195,7 @@ fn histogram_png_overlays_series() {
         raw_n > 10_000 && reg_n > 10_000,
         "tinted pixels: raw {raw_n}, reg {reg_n}"
     );
-    // x pixel ≈ 100 + 1760·error: raw centre 0.25 m → ~540, regularised 0.08 m → ~240.
+    // x pixel ≈ 100 + 1760·error: raw centre 0.25 m → ~540, regularized 0.08 m → ~240.
     assert!(
         (raw_x - 540.0).abs() < 30.0 && (reg_x - 240.0).abs() < 30.0,
         "{raw_x} {reg_x}"

@@ -1,4 +1,4 @@
-//! Core pipeline tests: analytic scenes with exact oracles (fusion, regularisation, meshing),
+//! Core pipeline tests: analytic scenes with exact oracles (fusion, regularization, meshing),
 //! the evaluation's statistics and outputs, and the pipeline on the real data in ../shared/data.
 
 #[path = "../common/mod.rs"]

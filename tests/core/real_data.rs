@@ -51,13 +51,13 @@ fn kitti_lidar_fusion_against_its_scans() {
     .expect("evaluation");
     let (raw, reg) = (&report.surfaces[0], &report.surfaces[1]);
     eprintln!(
-        "KITTI LiDAR 20 cm: raw median {:.3} p75 {:.3} area {:.0}; regularised median {:.3} p75 {:.3} area {:.0}; {} GT points",
+        "KITTI LiDAR 20 cm: raw median {:.3} p75 {:.3} area {:.0}; regularized median {:.3} p75 {:.3} area {:.0}; {} GT points",
         raw.accuracy.median_m, raw.accuracy.p75_m, raw.surface_area_m2, reg.accuracy.median_m, reg.accuracy.p75_m, reg.surface_area_m2, report.ground_truth_points
     );
     assert!(report.ground_truth_points > 700_000);
     assert!(raw.triangles > 50_000, "{} triangles", raw.triangles);
     // Surfaces fused from the scans lie within a voxel (0.2 m) of them; measured 0.112 m raw,
-    // 0.091 m regularised (point-to-point distances include the LiDAR's own point spacing).
+    // 0.091 m regularized (point-to-point distances include the LiDAR's own point spacing).
     assert!(
         raw.accuracy.median_m < 0.2 && reg.accuracy.median_m < raw.accuracy.median_m,
         "{} / {}",

@@ -22,7 +22,7 @@ enum Room {
     Base,
     /// `src/map`: chunk files, manifest, commits, locks, repair.
     Engine,
-    /// `src/outofcore`: pager, paged store, regional and swept regularisation, shards, merge.
+    /// `src/outofcore`: pager, paged store, regional and swept regularization, shards, merge.
     Solvers,
     /// `src/export`: stitched meshes and point clouds, export parts, 3D Tiles.
     Exports,

@@ -6,7 +6,7 @@ use crate::depth_support;
 
 use denser::depth::metrics::mask_from_middlebury;
 use denser::depth::tgv::{
-    diffusion_tensors, divergence, gradient, sym_divergence, sym_gradient, HoleFill, Regulariser,
+    diffusion_tensors, divergence, gradient, sym_divergence, sym_gradient, HoleFill, Regularizer,
     TgvMatcher, TgvParams, TgvProblem,
 };
 use denser::depth::{
@@ -147,9 +147,9 @@ fn primal_dual_decreases_the_convex_energy() {
             .map(|i| if i % w < w / 2 { 40u8 } else { 200 })
             .collect(),
     };
-    for reg in [Regulariser::Tv, Regulariser::Tgv, Regulariser::TgvTensor] {
+    for reg in [Regularizer::Tv, Regularizer::Tgv, Regularizer::TgvTensor] {
         let tensors = match reg {
-            Regulariser::TgvTensor => diffusion_tensors(&img, 4.0, 1.0),
+            Regularizer::TgvTensor => diffusion_tensors(&img, 4.0, 1.0),
             _ => vec![[1.0, 0.0, 1.0]; w * h],
         };
         let theta = 0.5;
@@ -189,7 +189,7 @@ fn tgv_reproduces_a_plane_that_tv_flattens() {
         .collect();
     let theta = 1.0;
     let mut errs = vec![];
-    for reg in [Regulariser::Tgv, Regulariser::Tv] {
+    for reg in [Regularizer::Tgv, Regularizer::Tv] {
         let mut pb = TgvProblem::new(
             &vec![10.0; w * h],
             w,
@@ -214,9 +214,9 @@ fn tgv_reproduces_a_plane_that_tv_flattens() {
     assert!(errs[1] > 0.5, "TV max error {}", errs[1]);
 }
 
-fn tgv(reg: Regulariser, nd: usize) -> TgvMatcher {
+fn tgv(reg: Regularizer, nd: usize) -> TgvMatcher {
     TgvMatcher::new(TgvParams {
-        regulariser: reg,
+        regularizer: reg,
         sgm: SgmParams {
             num_disparities: nd,
             ..SgmParams::default()
@@ -226,7 +226,7 @@ fn tgv(reg: Regulariser, nd: usize) -> TgvMatcher {
     .unwrap()
 }
 
-/// Point-wise winner-take-all on the raw census costs (no regularisation): the noisy baseline.
+/// Point-wise winner-take-all on the raw census costs (no regularization): the noisy baseline.
 fn wta(
     m: &TgvMatcher,
     left: &denser::frame::GreyImage,
@@ -272,7 +272,7 @@ fn piecewise_planar_pair_is_recovered_sub_pixel() {
             *interior.at_mut(x, y) &= ok;
         }
     }
-    let m = tgv(Regulariser::TgvTensor, 48);
+    let m = tgv(Regularizer::TgvTensor, 48);
     let st = m.estimate_with_stages(&left, &right).unwrap();
     let noisy = evaluate_disparity(&wta(&m, &left, &right), &gt, Some(&inside)).unwrap();
     let sgm = evaluate_disparity(&st.sgm.disparity_px, &gt, Some(&inside)).unwrap();
@@ -327,9 +327,9 @@ fn piecewise_planar_pair_is_recovered_sub_pixel() {
 #[test]
 fn method_names_build_the_variational_matchers() {
     for (name, reg) in [
-        ("tv", Regulariser::Tv),
-        ("tgv", Regulariser::Tgv),
-        ("tgv-tensor", Regulariser::TgvTensor),
+        ("tv", Regularizer::Tv),
+        ("tgv", Regularizer::Tgv),
+        ("tgv-tensor", Regularizer::TgvTensor),
     ] {
         let m: StereoMethod = name.parse().unwrap();
         assert_eq!(m.as_str(), name);
@@ -350,7 +350,7 @@ fn method_names_build_the_variational_matchers() {
         &[0.0; 6],
         3,
         2,
-        Regulariser::Tgv,
+        Regularizer::Tgv,
         1.0,
         5.0,
         vec![[1.0, 0.0, 1.0]; 6],
@@ -373,7 +373,7 @@ fn middlebury_motorcycle_tgv_beats_sgm() {
     let gt = denser::io::pfm::read_pfm(dir.join("disp0GT.pfm")).unwrap();
     let nocc =
         mask_from_middlebury(&denser::io::image::read_grey(dir.join("mask0nocc.png")).unwrap());
-    let st = tgv(Regulariser::TgvTensor, 70)
+    let st = tgv(Regularizer::TgvTensor, 70)
         .estimate_with_stages(&left, &right)
         .unwrap();
     let sgm = evaluate_disparity(&st.sgm.disparity_px, &gt, None).unwrap();
@@ -436,7 +436,7 @@ fn kitti_frame0_tgv_beats_sgm() {
         })
         .collect();
     let gt = disparity_from_points(&points, &k, baseline);
-    let st = tgv(Regulariser::TgvTensor, 128)
+    let st = tgv(Regularizer::TgvTensor, 128)
         .estimate_with_stages(&left, &right)
         .unwrap();
     let sgm = evaluate_disparity(&st.sgm.disparity_px, &gt, None).unwrap();
@@ -475,7 +475,7 @@ fn hole_fill_policies_nest() {
     let visible = run(HoleFill::Visible);
     let all = run(HoleFill::All);
     // None keeps SGM's validity exactly (values refined), All fills every pixel, Visible lies
-    // between; where two policies both have a value it is the same regularised disparity.
+    // between; where two policies both have a value it is the same regularized disparity.
     let valid = |m: &Image<f32>| m.data.iter().map(|d| d.is_finite()).collect::<Vec<_>>();
     assert_eq!(
         valid(&none.result.disparity_px),

@@ -263,7 +263,7 @@ fn tv_capacity_overflow_is_an_error_not_a_truncation() {
 }
 
 #[test]
-fn depth_fusion_gpu_keeps_the_regularised_field_in_step() {
+fn depth_fusion_gpu_keeps_the_regularized_field_in_step() {
     // Block::fuse sets u = f on every voxel it updates; the GPU path must do the same.
     let Some(ctx) = gpu() else { return };
     let grid = GridParams {
@@ -271,7 +271,7 @@ fn depth_fusion_gpu_keeps_the_regularised_field_in_step() {
         truncation_m: 0.8,
     };
     let mut cpu = sphere_layer(grid, 4, 0.01, None);
-    regularize_layer(&mut cpu, &TvParams::paper(0.1)).expect("regularise");
+    regularize_layer(&mut cpu, &TvParams::paper(0.1)).expect("regularize");
     let mut gpu = cpu.clone();
     let scene = SphereScene::standard();
     let frame = scene.render(
@@ -308,7 +308,7 @@ fn depth_fusion_gpu_keeps_the_regularised_field_in_step() {
         }
     }
     eprintln!(
-        "{voxels} voxels: {reset} regularised values reset by the CPU, {differ} differ on the GPU"
+        "{voxels} voxels: {reset} regularized values reset by the CPU, {differ} differ on the GPU"
     );
     assert!(reset > 1000, "{reset}");
     assert!(differ as f64 <= 1e-3 * voxels as f64, "{differ}");
@@ -327,7 +327,7 @@ fn sphere_run(iterations: u32) -> (Layer, denser::reconstruct::ReconstructionCon
     (sphere_layer(grid, 3, 0.01, None), config)
 }
 
-/// The largest difference of the regularised field between two layers over `blocks`, in
+/// The largest difference of the regularized field between two layers over `blocks`, in
 /// quantisation steps (every block must have one in both).
 fn worst_u_step(a: &Layer, b: &Layer, blocks: &[BlockIndex]) -> i32 {
     let u = |l: &Layer, k: &BlockIndex| l.get(k).and_then(|x| x.regularized.clone()).expect("u");
@@ -342,7 +342,7 @@ fn worst_u_step(a: &Layer, b: &Layer, blocks: &[BlockIndex]) -> i32 {
 }
 
 #[test]
-fn reconstructor_regularises_on_the_gpu_as_on_the_cpu() {
+fn reconstructor_regularizes_on_the_gpu_as_on_the_cpu() {
     // The run's own path: the reconstructor's solver with its progress reports (iterations in
     // chunks on the CPU, one solve on the GPU), more iterations than one chunk.
     let Some(ctx) = gpu() else { return };
@@ -408,7 +408,7 @@ fn reconstructor_falls_back_to_the_cpu_when_the_map_does_not_fit() {
         ResidentOptions::default(),
     );
     let mut on_gpu = reconstructor_over(config, layer.clone(), backend);
-    let outcome = on_gpu.regularize().expect("regularise");
+    let outcome = on_gpu.regularize().expect("regularize");
     let mut cpu = layer;
     let (_, cpu_stats) = regularize_layer(&mut cpu, &config.tv).expect("CPU");
     // Every region too large for the capped GPU: all on the CPU, the same result.
@@ -599,9 +599,9 @@ fn resident_fusion_matches_the_cpu_through_grows_spills_and_oversize_frames() {
 }
 
 #[test]
-fn resident_sync_keeps_the_regularised_field_in_step() {
+fn resident_sync_keeps_the_regularized_field_in_step() {
     // Per-call GPU fusion (`integrate_depth_gpu`) resets `u` voxel by voxel exactly as the CPU;
-    // the resident map must give the same bits across two sync rounds with a regularisation in
+    // the resident map must give the same bits across two sync rounds with a regularization in
     // between (so updated-voxel marks must be cleared at each sync).
     let Some(ctx) = gpu() else { return };
     let ctx = Arc::new(ctx);

@@ -400,7 +400,7 @@ fn gpu_batches_give_the_same_voxels() {
 }
 
 #[test]
-fn gpu_keeps_the_regularised_field_in_step() {
+fn gpu_keeps_the_regularized_field_in_step() {
     // Block::fuse sets u = f on every voxel it updates; the GPU path must do the same.
     let Some(ctx) = gpu() else { return };
     let grid = GRIDS[0];
@@ -410,7 +410,7 @@ fn gpu_keeps_the_regularised_field_in_step() {
         iterations: 5,
         ..denser::regularize::TvParams::paper(0.1)
     };
-    denser::regularize::regularize_layer(&mut twin, &tv).expect("regularise");
+    denser::regularize::regularize_layer(&mut twin, &tv).expect("regularize");
     let mut on_gpu = twin.clone();
     let before = twin.clone();
     let plan = LidarPlan::new(&grid, &scans[1], &PARAMS);
@@ -430,10 +430,10 @@ fn gpu_keeps_the_regularised_field_in_step() {
                 .count()
         })
         .sum::<usize>();
-    eprintln!("{reset} regularised values reset to f by the GPU");
+    eprintln!("{reset} regularized values reset to f by the GPU");
     assert!(reset > 1000, "{reset}");
     if ctx.is_software() {
-        assert_layers_identical("regularised map, GPU vs twin", &twin, &on_gpu);
+        assert_layers_identical("regularized map, GPU vs twin", &twin, &on_gpu);
     }
 }
 

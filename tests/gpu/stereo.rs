@@ -25,7 +25,7 @@ use denser::depth::census::{census_transform, CensusKind, CensusParams};
 use denser::depth::metrics::mask_from_middlebury;
 use denser::depth::sgm::CostVolume;
 use denser::depth::tgv::{
-    decoupling_search, diffusion_tensors, Regulariser, TgvMatcher, TgvParams, TgvProblem,
+    decoupling_search, diffusion_tensors, Regularizer, TgvMatcher, TgvParams, TgvProblem,
 };
 use denser::depth::{
     census_transform_gpu, cost_volume_gpu, estimate_tgv_gpu, pointwise_search_gpu, TgvProblemGpu,
@@ -134,7 +134,7 @@ fn check_iterate(
     // With identity tensors (TV, TGV) the kernels are bit-identical on llvmpipe; with the
     // image tensors 1-ulp differences appear in u (Mesa's compiler evaluates some of T p's
     // products differently, e.g. fused), so TGV-tensor is held to the tolerance only.
-    if is_llvmpipe(ctx) && initial.regulariser != Regulariser::TgvTensor {
+    if is_llvmpipe(ctx) && initial.regularizer != Regularizer::TgvTensor {
         assert_eq!(
             (p_bits, b_bits, d_bits),
             (0, 0, 0),
@@ -145,11 +145,11 @@ fn check_iterate(
 }
 
 /// A TGV problem on `left` (tensors from the image for `TgvTensor`) starting at `u0`.
-fn problem_on(left: &GreyImage, u0: &[f32], reg: Regulariser) -> TgvProblem {
+fn problem_on(left: &GreyImage, u0: &[f32], reg: Regularizer) -> TgvProblem {
     let p = TgvParams::default();
     let (w, h) = (left.width as usize, left.height as usize);
     let tensors = match reg {
-        Regulariser::TgvTensor => diffusion_tensors(left, p.gamma, p.beta),
+        Regularizer::TgvTensor => diffusion_tensors(left, p.gamma, p.beta),
         _ => vec![[1.0, 0.0, 1.0]; w * h],
     };
     TgvProblem::new(u0, w, h, reg, p.alpha1, p.alpha2, tensors).expect("problem")
@@ -164,13 +164,13 @@ fn tgv_iterations_match_the_cpu_on_a_generated_pair() {
         .cost_volume(&left, &right)
         .unwrap();
     let a = wta(&volume);
-    for reg in [Regulariser::TgvTensor, Regulariser::Tgv, Regulariser::Tv] {
+    for reg in [Regularizer::TgvTensor, Regularizer::Tgv, Regularizer::Tv] {
         let initial = problem_on(&left, &a, reg);
         check_iterate(&ctx, &format!("generated {reg:?}"), &initial, &a, 0.2, 50);
     }
     // Two calls with different θ continue from the GPU state: 20 + 30 iterations on the GPU
     // equal the same on the CPU.
-    let initial = problem_on(&left, &a, Regulariser::TgvTensor);
+    let initial = problem_on(&left, &a, Regularizer::TgvTensor);
     let mut cpu = initial.clone();
     cpu.iterate(&a, 0.5, 20).unwrap();
     cpu.iterate(&a, 0.1, 30).unwrap();
@@ -207,7 +207,7 @@ fn tgv_iterations_match_the_cpu_on_middlebury() {
         .cost_volume(&left, &right)
         .unwrap();
     let a = wta(&volume);
-    let initial = problem_on(&left, &a, Regulariser::TgvTensor);
+    let initial = problem_on(&left, &a, Regularizer::TgvTensor);
     check_iterate(&ctx, "Motorcycle TgvTensor", &initial, &a, 0.2, 50);
 }
 
@@ -440,7 +440,7 @@ fn check_matcher(
         changed > n / 100,
         "{what}: TGV changed only {changed} pixels"
     );
-    if is_llvmpipe(ctx) && m.params.regulariser != Regulariser::TgvTensor {
+    if is_llvmpipe(ctx) && m.params.regularizer != Regularizer::TgvTensor {
         assert_eq!(bits, 0, "{what}: not bit-identical on llvmpipe");
     }
 }
@@ -449,9 +449,9 @@ fn check_matcher(
 fn tgv_matcher_on_the_gpu_matches_the_cpu() {
     let Some(ctx) = gpu() else { return };
     let (left, right, gt) = generated_pair();
-    for reg in [Regulariser::TgvTensor, Regulariser::Tv] {
+    for reg in [Regularizer::TgvTensor, Regularizer::Tv] {
         let m = TgvMatcher::new(TgvParams {
-            regulariser: reg,
+            regularizer: reg,
             sgm: sgm_params(48),
             ..TgvParams::default()
         })

@@ -2,8 +2,8 @@
 //! map (a second is refused naming the holder; a dead holder's lock is recovered); readers keep
 //! the files of their manifest while a writer commits; a writer's cleanup removes only provable
 //! leftovers; every read checks the file against its manifest entry (a swapped chunk is refused by
-//! reads, `verify` and regularisation); a lost manifest is refused by every opener and rebuilt by
-//! `repair` with the same entries; an interrupted regularisation pass keeps the last complete pass
+//! reads, `verify` and regularization); a lost manifest is refused by every opener and rebuilt by
+//! `repair` with the same entries; an interrupted regularization pass keeps the last complete pass
 //! readable whole until it completes; format-1 maps still open. The same through the CLI, with
 //! real processes: `tests/cli_engine.rs`.
 
@@ -371,7 +371,7 @@ fn every_read_checks_the_file_against_its_manifest_entry() {
     let problems = w.verify();
     assert_eq!(problems.len(), 1, "{problems:?}");
     assert!(problems[0].contains(&name));
-    // Regularisation stops at the swapped chunk; the chunk is never rewritten (laundered).
+    // Regularization stops at the swapped chunk; the chunk is never rewritten (laundered).
     let gen = w.manifest().header.generation;
     let r = regularize_map(&mut w, &params(0.5), &options(), |_, _| true);
     let err = r.expect_err("regularize refuses").to_string();
@@ -695,7 +695,7 @@ fn maps_of_format_1_still_open_and_are_upgraded_by_their_next_commit() {
     assert_layers_identical(&layer, &store_layer(&r));
     drop(r);
     let mut w = MapStore::open(&root).expect("open for writing");
-    regularize_map(&mut w, &params(0.5), &options(), |_, _| true).expect("regularise");
+    regularize_map(&mut w, &params(0.5), &options(), |_, _| true).expect("regularize");
     drop(w);
     let bytes = std::fs::read(root.join(MANIFEST_FILE)).expect("r");
     assert_eq!(bytes[8], 2, "the next commit writes format 2");

@@ -100,7 +100,7 @@ fn chunk_round_trip_is_exact_and_sorted() {
     let d = decode_chunk(&bytes).expect("decode");
     assert_eq!(d.header.chunk, h.chunk);
     assert_eq!(d.header.block_count, 4);
-    assert_eq!(d.header.flags, 1, "has regularised blocks");
+    assert_eq!(d.header.flags, 1, "has regularized blocks");
     let mut want = blocks.clone();
     want.sort_by_key(|(i, _)| *i);
     assert_eq!(d.blocks.len(), 4);

@@ -382,7 +382,7 @@ fn v3_predicts_across_blocks() {
     assert_round_trip(&file, &blocks);
 }
 
-/// A chunk rewritten with `u` added (what a regularisation pass writes) copies the unchanged
+/// A chunk rewritten with `u` added (what a regularization pass writes) copies the unchanged
 /// parts' frames from the file it replaces: the result is byte for byte the fresh encoding, and
 /// frames of another chunk's file, or of a format-2 file, are never taken for parts they do not
 /// hold.
@@ -394,7 +394,7 @@ fn rewrite_reuses_the_frames_of_unchanged_parts() {
     let fused: Vec<(BlockIndex, Box<Block>)> = (0..40)
         .map(|k| (at(k), random_block(k as u64 * 7 + 1, 5, false, false)))
         .collect();
-    let regularised: Vec<(BlockIndex, Box<Block>)> = fused
+    let regularized: Vec<(BlockIndex, Box<Block>)> = fused
         .iter()
         .enumerate()
         .map(|(k, (i, b))| {
@@ -404,7 +404,7 @@ fn rewrite_reuses_the_frames_of_unchanged_parts() {
             (*i, b)
         })
         .collect();
-    let refs: Vec<(BlockIndex, &Block)> = regularised.iter().map(|(i, b)| (*i, &**b)).collect();
+    let refs: Vec<(BlockIndex, &Block)> = regularized.iter().map(|(i, b)| (*i, &**b)).collect();
     let old = v3(&h, &fused);
     let fresh = encode_chunk_v3(&h, &origin(), &refs, 3);
     let frames = PreviousFrames::of(&old);
@@ -412,7 +412,7 @@ fn rewrite_reuses_the_frames_of_unchanged_parts() {
     assert_eq!(frames.len(), 8, "one frame per non-empty part");
     let reused = encode_chunk_v3_reusing(&h, &origin(), &refs, 3, &frames);
     assert_eq!(reused, fresh, "byte-identical to the fresh encoding");
-    assert_round_trip(&reused, &regularised);
+    assert_round_trip(&reused, &regularized);
 
     // Another chunk's file: only parts that are equal byte for byte could be taken.
     let other: Vec<(BlockIndex, Box<Block>)> = (0..40)
@@ -420,7 +420,7 @@ fn rewrite_reuses_the_frames_of_unchanged_parts() {
         .collect();
     let other_file = v3(&h, &other);
     let r = encode_chunk_v3_reusing(&h, &origin(), &refs, 3, &PreviousFrames::of(&other_file));
-    assert_round_trip(&r, &regularised);
+    assert_round_trip(&r, &regularized);
     // A format-2 file, truncated bytes, garbage: nothing to reuse.
     let f2 = encode_chunk_with(&h, Some(&origin()), &refs, 3);
     assert!(PreviousFrames::of(&f2).is_empty());

@@ -1,4 +1,4 @@
-//! The map on disk: chunk and manifest formats, crash safety, paging, regional regularisation,
+//! The map on disk: chunk and manifest formats, crash safety, paging, regional regularization,
 //! and the exports (LAS/LAZ in a world frame, COPC, 3D Tiles) checked by independent readers.
 
 #[path = "../common/mod.rs"]

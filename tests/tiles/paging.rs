@@ -1,7 +1,7 @@
 //! Out of core on an analytic scene spanning many chunks: fusing through the pager with constant
 //! eviction gives bit-identical voxels to fusing in memory (depth maps with revisits, and LiDAR);
-//! regional regularisation of the stored map equals the global in-memory solve, and without halos
-//! it leaves seams; an interrupted regularisation resumes to the same result; the tile-by-tile
+//! regional regularization of the stored map equals the global in-memory solve, and without halos
+//! it leaves seams; an interrupted regularization resumes to the same result; the tile-by-tile
 //! export stitches into the same mesh as a whole-map extraction.
 
 use crate::common;
@@ -206,7 +206,7 @@ pub(crate) fn max_u_difference(a: &Layer, b: &Layer) -> (f32, usize) {
 }
 
 #[test]
-fn regional_regularisation_of_the_store_equals_the_global_solve() {
+fn regional_regularization_of_the_store_equals_the_global_solve() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (mut mem, mut store) = fused_store(&dir.path().join("map"));
     let params = TvParams {
@@ -258,7 +258,7 @@ fn regional_regularisation_of_the_store_equals_the_global_solve() {
 }
 
 #[test]
-fn interrupted_regularisation_resumes_to_the_same_result() {
+fn interrupted_regularization_resumes_to_the_same_result() {
     let params = TvParams {
         iterations: 10,
         ..TvParams::paper(0.05)
@@ -464,7 +464,7 @@ fn gpu_tier_paged_fusion_equals_in_memory_gpu_fusion() {
 }
 
 #[test]
-fn regional_regularisation_on_the_gpu_equals_the_global_cpu_solve() {
+fn regional_regularization_on_the_gpu_equals_the_global_cpu_solve() {
     use denser::outofcore::regional::regularize_map_with;
     use denser::regularize::solve_gpu;
     let Some(ctx) = common::gpu() else { return };

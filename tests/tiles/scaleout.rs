@@ -89,7 +89,7 @@ fn assert_layers_identical(a: &Layer, b: &Layer) {
     }
 }
 
-/// The maps `one` (regularised by one process with [`params`] and [`options`]) and `sharded`
+/// The maps `one` (regularized by one process with [`params`] and [`options`]) and `sharded`
 /// (as written) of `layer` in `dir`, and the one-process pass's counters.
 fn one_and_sharded(
     dir: &std::path::Path,
@@ -180,7 +180,7 @@ fn shard_and_location_arguments_parse() {
 /// (files written, record not: a kill between the two), then run again; the committing run adopts
 /// every record, solves nothing itself, and leaves exactly the blocks of a one-process pass.
 #[test]
-fn sharded_regularisation_equals_one_process_on_disk() {
+fn sharded_regularization_equals_one_process_on_disk() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (one, sharded, single) = one_and_sharded(dir.path(), &surface_layer(4, 3, 7));
     let regions = single.regions;

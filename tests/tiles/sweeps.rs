@@ -1,4 +1,4 @@
-//! Swept regional regularisation (issue 14 item 5): every region K iterations at a time with a
+//! Swept regional regularization (issue 14 item 5): every region K iterations at a time with a
 //! (K+1)-voxel halo, the solver state (u, ū, p) kept in the map between sweeps. Checked against
 //! the global in-memory solve bit for bit: the stored state after each sweep, and the final `u`;
 //! through kills at any point (a reopened map resumes from the progress record); regions planned

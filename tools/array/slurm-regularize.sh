@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Regularise a map on S3 (or on a shared file system) as a Slurm job array, then commit:
+# Regularize a map on S3 (or on a shared file system) as a Slurm job array, then commit:
 #
 #   sbatch tools/array/slurm-regularize.sh s3://my-city-bucket/maps/city
 #

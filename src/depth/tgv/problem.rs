@@ -20,8 +20,8 @@ pub struct TgvProblem {
     pub width: usize,
     /// Height, pixels.
     pub height: usize,
-    /// Regulariser (TV keeps `v = 0`; TGV uses identity tensors).
-    pub regulariser: Regulariser,
+    /// Regularizer (TV keeps `v = 0`; TGV uses identity tensors).
+    pub regularizer: Regularizer,
     /// α₁.
     pub alpha1: f32,
     /// α₂.
@@ -49,7 +49,7 @@ impl TgvProblem {
         u0: &[f32],
         width: usize,
         height: usize,
-        regulariser: Regulariser,
+        regularizer: Regularizer,
         alpha1: f32,
         alpha2: f32,
         tensors: Vec<Tensor>,
@@ -67,7 +67,7 @@ impl TgvProblem {
         Ok(TgvProblem {
             width,
             height,
-            regulariser,
+            regularizer,
             alpha1,
             alpha2,
             tensors,
@@ -131,7 +131,7 @@ impl TgvProblem {
 
     /// The step sizes `(τ, σ)` of [`TgvProblem::iterate`]: `1/√8` for TV, `1/√12` otherwise.
     pub fn steps(&self) -> (f32, f32) {
-        let step = if self.regulariser == Regulariser::Tv {
+        let step = if self.regularizer == Regularizer::Tv {
             1.0 / 8f32.sqrt()
         } else {
             1.0 / 12f32.sqrt()
@@ -183,7 +183,7 @@ impl TgvProblem {
         for i in 0..w * h {
             let r = apply(self.tensors[i], [g[i][0] - v[i][0], g[i][1] - v[i][1]]);
             sum += self.alpha1 as f64 * (r[0] as f64).hypot(r[1] as f64);
-            if self.regulariser != Regulariser::Tv {
+            if self.regularizer != Regularizer::Tv {
                 let [e11, e22, e12] = e[i].map(|c| c as f64);
                 sum += self.alpha2 as f64 * (e11 * e11 + e22 * e22 + 2.0 * e12 * e12).sqrt();
             }
@@ -207,7 +207,7 @@ impl TgvProblem {
         if w == 0 || h == 0 {
             return Ok(());
         }
-        let tv = self.regulariser == Regulariser::Tv;
+        let tv = self.regularizer == Regularizer::Tv;
         let (tau, sigma) = self.steps();
         let k = StepConsts {
             w,

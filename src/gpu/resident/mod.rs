@@ -17,7 +17,7 @@
 //! every allocated block. Every voxel a kernel updates carries a mark
 //! ([`crate::gpu::layout::UPDATED_BIT`]) until it is copied back with
 //! [`crate::grid::Block::store_fused`], the rule `Block::fuse` itself stores voxels by (a stored
-//! regularised value follows the raw one), so the shadow is exact after a write-back.
+//! regularized value follows the raw one), so the shadow is exact after a write-back.
 //!
 //! **Overflow** is never silent: the pool grows up to `max_bytes` (and the device's binding
 //! limit), then spills; a frame whose own blocks exceed the largest pool is the caller's to fuse
@@ -384,7 +384,7 @@ impl ResidentMap {
     }
 
     /// Copies every dirty block back to the layer; blocks stay resident. Returns the number of
-    /// blocks copied. Call before any CPU stage reads the layer (meshing, regularisation,
+    /// blocks copied. Call before any CPU stage reads the layer (meshing, regularization,
     /// checkpoints).
     pub fn sync(&mut self, layer: &mut Layer) -> Result<usize> {
         let slots = self.pool.dirty_slots();

@@ -1,6 +1,6 @@
 //! A previous file's compressed parts, for rewriting a chunk of which only some parts change.
 //!
-//! Format 3 compresses each payload part as its own zstd frame. A regularisation pass rewrites a
+//! Format 3 compresses each payload part as its own zstd frame. A regularization pass rewrites a
 //! chunk with `u` added: the block flags and the `u` parts change, while the coordinates,
 //! weights, TSDF and colour parts stay byte for byte what they were. Copying those parts' frames
 //! from the file being replaced skips compressing them again (the structured parts at level 15:

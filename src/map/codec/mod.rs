@@ -10,10 +10,10 @@
 //! coordinates, block flags, weights, then the other voxel fields as byte planes over each block's
 //! non-empty voxels only (empty voxels hold known defaults; a block where they do not is coded
 //! densely). TSDF values are stored as the zigzag-coded difference to the previous coded voxel of
-//! the block (x fastest), low bytes then high bytes; the regularised field as zigzag `u − f`.
+//! the block (x fastest), low bytes then high bytes; the regularized field as zigzag `u − f`.
 //!
 //! Format 1 (64-byte header) and format 2 (128 bytes, adding the file's **origin**
-//! ([`ChunkOrigin`]: map id, file sequence number, the regularisation pass that wrote `u` and its
+//! ([`ChunkOrigin`]: map id, file sequence number, the regularization pass that wrote `u` and its
 //! parameters) so that a file can be checked against the manifest entry that names it and a lost
 //! manifest can be rebuilt from the files alone) share that payload. Format 3 keeps format 2's
 //! header and layout but stores every voxel field as the residual of a prediction from the
@@ -59,12 +59,12 @@ pub struct ChunkOrigin {
     pub map_id: u64,
     /// The file's sequence number (also in its name).
     pub file_seq: u64,
-    /// The regularisation pass that wrote the file's `u` (0: written by fusion, or no `u`).
+    /// The regularization pass that wrote the file's `u` (0: written by fusion, or no `u`).
     pub reg_pass: u32,
     /// That pass's parameters (all zero when `reg_pass` is 0).
     pub reg_params: TvParams,
     /// The commit generation (format 4; 0 in formats 2 and 3, "unknown"): for a file of the map's
-    /// writer, the generation of the commit that names it; for a regularisation shard's file,
+    /// writer, the generation of the commit that names it; for a regularization shard's file,
     /// the generation of the manifest it was derived from (a later commit adopts it). Versions
     /// of a chunk order by (commit generation, file number): what `repair` keeps, and how a
     /// writer tells a rolled-back manifest from a dead writer's leftovers.
@@ -79,9 +79,9 @@ pub const NO_PARAMS: TvParams = TvParams {
     theta: 0.0,
     iterations: 0,
 };
-/// Header flag bit 0: at least one block carries a regularised field.
+/// Header flag bit 0: at least one block carries a regularized field.
 pub const FLAG_HAS_REGULARIZED: u16 = 1;
-/// Block flag bit 0: this block carries a regularised field.
+/// Block flag bit 0: this block carries a regularized field.
 pub const BLOCK_HAS_REGULARIZED: u8 = 1;
 /// zstd level used by [`encode_chunk`] (3 = zstd's default: fast, ~4–5× on TSDF blocks).
 pub const DEFAULT_ZSTD_LEVEL: i32 = 3;
@@ -640,7 +640,7 @@ pub fn decode_chunk(bytes: &[u8]) -> Result<DecodedChunk, CodecError> {
         || n_reg == 0 && h.flags & FLAG_HAS_REGULARIZED != 0
     {
         return Err(CodecError::Malformed(
-            "header and block flags disagree about the regularised field".into(),
+            "header and block flags disagree about the regularized field".into(),
         ));
     }
     let vb = VOXELS_PER_BLOCK;

@@ -77,7 +77,7 @@ impl MapStore {
     /// Reads the file `e` names for chunk `c` and checks it: both CRCs, then against the entry and
     /// the manifest — file size, chunk coordinate, chunk edge, voxel size, μ, block count, payload
     /// CRC, whether it carries `u`, voxels in Ω, and (format-2 files) the map id, the file sequence
-    /// number and the regularisation pass. Any mismatch is an error naming the file, the chunk and
+    /// number and the regularization pass. Any mismatch is an error naming the file, the chunk and
     /// every field that differs: a file replaced by another one (an older version, the same chunk
     /// of another map) is never read as if it were the committed one.
     pub fn read_entry(&self, c: ChunkIndex, e: &ChunkEntry) -> Result<DecodedChunk> {
@@ -205,7 +205,7 @@ pub struct ChunkWriter {
     pub(super) chunk_blocks: u32,
     pub(super) zstd_level: i32,
     pub(super) map_id: u64,
-    /// The latest regularisation pass and its parameters when the writer was made.
+    /// The latest regularization pass and its parameters when the writer was made.
     pub(super) pass: (u32, TvParams),
     /// The commit generation to stamp, as the store advances it ([`MapStore::writer`]).
     pub(super) commit_gen: Arc<std::sync::atomic::AtomicU64>,
@@ -286,7 +286,7 @@ impl ChunkWriter {
         Ok(w)
     }
 
-    /// [`ChunkWriter::write`] for a regularisation shard, create-only: when file `seq` of chunk
+    /// [`ChunkWriter::write`] for a regularization shard, create-only: when file `seq` of chunk
     /// `c` exists already (a shard run again after it was killed, or two runs of one shard), the
     /// existing file is kept and its entry returned, once its origin says it is this map's file
     /// `seq` of `c` at `reg_pass`. `previous`: the file this one replaces, whose unchanged parts'

@@ -63,7 +63,7 @@ impl MapStore {
                 continue;
             }
             if reserved.iter().any(|r| r.contains(&seq)) {
-                // A regularisation shard's result, waiting for the committing run to adopt it.
+                // A regularization shard's result, waiting for the committing run to adopt it.
                 out.shard_files_kept += 1;
                 continue;
             }

@@ -116,7 +116,7 @@ pub struct MapSummary {
     pub observed_voxels: u64,
     /// Bytes of all chunk files the manifest names (kept files of the last complete pass included).
     pub bytes_on_disk: u64,
-    /// Chunks whose current file carries a regularised field (of whichever pass: see
+    /// Chunks whose current file carries a regularized field (of whichever pass: see
     /// [`Manifest::pass_status`]).
     pub regularized_chunks: usize,
 }
@@ -143,7 +143,7 @@ pub struct OpenCleanup {
     pub waiting_for_readers: usize,
     /// Files left alone because nothing proves they are this map's leftovers: name and why.
     pub left_alone: Vec<String>,
-    /// Files of regularisation shards kept for adoption (their plan is open, `formats/shards.md`).
+    /// Files of regularization shards kept for adoption (their plan is open, `formats/shards.md`).
     pub shard_files_kept: usize,
 }
 
@@ -204,7 +204,7 @@ impl MapStore {
         &self.manifest
     }
 
-    /// Mutable job-progress fields of the manifest (frames, regularisation pass); committed by the
+    /// Mutable job-progress fields of the manifest (frames, regularization pass); committed by the
     /// next [`MapStore::commit`].
     pub fn header_mut(&mut self) -> &mut ManifestHeader {
         &mut self.manifest.header
@@ -308,7 +308,7 @@ impl MapStore {
         Ok(())
     }
 
-    /// Starts regularisation pass `reg_pass + 1` with `params` (committed with the next commit)
+    /// Starts regularization pass `reg_pass + 1` with `params` (committed with the next commit)
     /// and returns its number. The last complete pass stays readable until the new one completes.
     pub fn begin_pass(&mut self, params: &TvParams) -> u32 {
         let h = &mut self.manifest.header;
@@ -319,7 +319,7 @@ impl MapStore {
 
     /// Commits the manifest atomically, then deletes the files it no longer names (once no reader
     /// has the map open; until then they wait). When this commit completes the latest
-    /// regularisation pass, the files kept from the previous complete pass go with it.
+    /// regularization pass, the files kept from the previous complete pass go with it.
     pub fn commit(&mut self) -> Result<()> {
         self.require_writer("committing")?;
         let h = self.manifest.header;
@@ -416,14 +416,14 @@ impl MapStore {
         s
     }
 
-    /// A read-only view of the map as the last complete regularisation pass left it: each chunk
+    /// A read-only view of the map as the last complete regularization pass left it: each chunk
     /// reads its kept file where the pass in progress rewrote it. Errors when no pass completed.
     pub fn complete_pass_view(&self) -> Result<MapStore> {
         let h = self.manifest.header;
         if h.complete_pass == 0 {
             return Err(Error::bad_input(
                 &self.dir,
-                "no regularisation pass of this map has completed",
+                "no regularization pass of this map has completed",
             ));
         }
         let mut m = self.manifest.clone();
