@@ -180,9 +180,8 @@ pub fn main() -> ExitCode {
                 let _ = writeln!(std::io::stdout().lock(), "{p}");
                 return ExitCode::from(1);
             }
-            eprintln!("error: {e}");
-            for cause in e.chain().skip(1) {
-                eprintln!("  caused by: {cause}");
+            for line in error_lines(&e) {
+                eprintln!("{line}");
             }
             ExitCode::from(2)
         }
@@ -206,6 +205,22 @@ fn install_signal_handlers() {
     unsafe {
         libc::signal(libc::SIGXFSZ, libc::SIG_IGN);
     }
+}
+
+/// The lines an error is printed as: `error: …`, then one `  caused by: …` per cause, except a
+/// cause whose text the line above already holds (an error that prints its source in its own
+/// message), which is not repeated.
+fn error_lines(e: &anyhow::Error) -> Vec<String> {
+    let mut lines = vec![format!("error: {e}")];
+    let mut above = e.to_string();
+    for cause in e.chain().skip(1) {
+        let text = cause.to_string();
+        if !above.contains(&text) {
+            lines.push(format!("  caused by: {text}"));
+        }
+        above = text;
+    }
+    lines
 }
 
 /// Whether `e` is (caused by) a write to a closed pipe: the reader went away, which is not an
@@ -341,14 +356,15 @@ impl DeviceArgs {
                     DeviceChoice::Auto
                 }
                 Some(Some((name, true))) => {
-                    tracing::info!(
+                    // The summary names each stage's device: the probe's answer is a detail.
+                    tracing::debug!(
                         "device: only a software adapter ({name}), running on the CPU \
                          (--device gpu uses it anyway)"
                     );
                     DeviceChoice::Cpu
                 }
                 Some(None) => {
-                    tracing::info!("device: no GPU adapter found, running on the CPU");
+                    tracing::debug!("device: no GPU adapter found, running on the CPU");
                     DeviceChoice::Cpu
                 }
                 // The probe itself failed (no executable path, a crash in a driver): decide
@@ -678,5 +694,33 @@ mod tests {
                 "{cmd} --{long}: one spelling, regularize"
             );
         }
+    }
+
+    #[test]
+    fn an_error_prints_each_cause_once() {
+        // An error whose message includes its source's (as `path: source` errors do), under a
+        // context: the source is not printed again below it.
+        let io = std::io::Error::other("no such frame in the sequence");
+        let e = anyhow::Error::new(denser::Error::io("d/image_1/000001.png", io))
+            .context("reconstructing d");
+        assert_eq!(
+            super::error_lines(&e),
+            [
+                "error: reconstructing d",
+                "  caused by: d/image_1/000001.png: no such frame in the sequence",
+            ]
+        );
+        // Distinct causes all stay.
+        let e = anyhow::anyhow!("disk full")
+            .context("writing m")
+            .context("committing");
+        assert_eq!(
+            super::error_lines(&e),
+            [
+                "error: committing",
+                "  caused by: writing m",
+                "  caused by: disk full"
+            ]
+        );
     }
 }

@@ -21,7 +21,9 @@ pub(crate) mod kept;
 pub mod layout;
 pub mod resident;
 pub mod shaders;
+mod traffic;
 
 pub(crate) use context::ErrorScopes;
-pub use context::{DeviceChoice, GpuContext, GpuTraffic, WORKGROUP_SIZE};
+pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
 pub use resident::{ResidentMap, ResidentOptions, ResidentStats};
+pub use traffic::GpuTraffic;

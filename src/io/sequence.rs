@@ -190,7 +190,7 @@ pub fn open_sequence(
                 RangeSource::Lidar => Box::new(KittiLidar(seq)),
                 RangeSource::GroundTruthDepth => Box::new(KittiGtDepth(seq)),
                 RangeSource::Stereo => Box::new(KittiStereo {
-                    seq,
+                    seq: with_stereo_images(seq)?,
                     estimator: stereo.ok_or_else(|| {
                         Error::InvalidArgument("stereo input needs a stereo matcher".into())
                     })?,
@@ -209,6 +209,22 @@ pub fn open_sequence(
             )?),
         }),
     })
+}
+
+/// `seq`, when it has stereo images (some frames in `image_0` and `image_1`); else an error that
+/// says so and what to use instead (a LiDAR-only drive has none).
+fn with_stereo_images(seq: KittiSequence) -> Result<KittiSequence> {
+    for cam in ["image_0", "image_1"] {
+        let dir = seq.dir().join(cam);
+        let any = std::fs::read_dir(&dir).is_ok_and(|mut d| d.next().is_some());
+        if !any {
+            return Err(Error::bad_input(
+                dir,
+                "no stereo images here (a LiDAR-only drive?): use --depth lidar",
+            ));
+        }
+    }
+    Ok(seq)
 }
 
 /// Reads `frames` of `seq` after the first `skip` of them (already fused by a resumed run), in

@@ -39,25 +39,47 @@ fn missing_input_is_named_and_fails() {
 fn device_gpu_without_an_adapter_fails_and_auto_falls_back() {
     // WGPU_BACKEND=metal selects a backend this build does not compile in: no adapter exists.
     let dir = tempfile::tempdir().expect("tempdir");
-    let run = |device: &str| {
+    let d = dir.path();
+    let o = denser(
+        &[
+            "synth",
+            "--out",
+            "drive",
+            "--length-m",
+            "8",
+            "--frame-spacing-m",
+            "4",
+            "--lidar-only",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let run = |input: &str, device: &str| {
         Command::new(env!("CARGO_BIN_EXE_denser"))
-            .args(["reconstruct", "no/such/sequence", "--device", device])
+            .args(["--log", "debug", "reconstruct", input, "--device", device])
+            .args(["--no-eval", "--iterations", "1", "--out", "o"])
             .env("WGPU_BACKEND", "metal")
-            .current_dir(dir.path())
+            .current_dir(d)
             .output()
             .expect("run denser")
     };
-    let o = run("gpu");
+    let seq = "drive/sequences/00";
+    let o = run(seq, "gpu");
     assert!(!o.status.success());
     assert!(text(&o).contains("no GPU adapter found"), "{}", text(&o));
-    // It failed at the device, before looking at the input.
-    assert!(!text(&o).contains("not a directory"), "{}", text(&o));
-    let o = run("auto");
-    assert!(!o.status.success()); // the input is missing, but the device step passed
+    let o = run(seq, "auto");
     let t = text(&o);
+    assert!(o.status.success(), "{t}");
     assert!(
-        t.contains("device: no GPU adapter found, running on the CPU")
-            && t.contains("not a directory"),
+        t.contains("device: no GPU adapter found, running on the CPU") && t.contains(" on CPU:"),
+        "{t}"
+    );
+    // A missing input is named before any device is looked for.
+    let o = run("no/such/sequence", "gpu");
+    let t = text(&o);
+    assert!(!o.status.success());
+    assert!(
+        t.contains("not a directory") && !t.contains("GPU adapter"),
         "{t}"
     );
 }
@@ -196,9 +218,17 @@ fn synthetic_drive_end_to_end() {
     ] {
         assert!(d.join("gt").join(f).is_file(), "{f}");
     }
-    // `--device auto` (above, the default) said which device it used; `--device gpu` gives the
-    // same surfaces as the CPU (kernels agree with their CPU twins: tests/gpu_compare.rs).
-    assert!(text(&o).contains("device: "), "{}", text(&o));
+    // `--device auto` (above, the default) named the device of each stage in the summary;
+    // `--device gpu` gives the same surfaces as the CPU (kernels agree with their CPU twins:
+    // tests/gpu_compare.rs).
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        stdout
+            .lines()
+            .any(|l| l.starts_with("fused ") && l.contains(" on "))
+            && stdout.lines().any(|l| l.starts_with("regularized on ")),
+        "{stdout}"
+    );
     let o = denser(
         &[
             "reconstruct",
@@ -475,4 +505,41 @@ fn holdout_scores_against_scans_left_out_and_self_scoring_says_so() {
         assert_eq!(o.status.code(), Some(2), "{extra:?}: {}", text(&o));
         assert!(text(&o).contains(why), "{extra:?}: {}", text(&o));
     }
+}
+
+#[test]
+fn stereo_on_a_lidar_only_drive_says_what_to_use_and_each_cause_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let o = denser(
+        &[
+            "synth",
+            "--out",
+            "drive",
+            "--length-m",
+            "8",
+            "--frame-spacing-m",
+            "4",
+            "--lidar-only",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    let o = denser(
+        &[
+            "reconstruct",
+            "drive/sequences/00",
+            "--depth",
+            "stereo",
+            "--out",
+            "o",
+        ],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(
+        err.contains("image_0") && err.contains("use --depth lidar"),
+        "{err}"
+    );
 }
