@@ -12,6 +12,22 @@ fn denser(args: &[&str], cwd: &Path) -> Output {
         .expect("run denser")
 }
 
+/// A LiDAR-only synthetic drive of `length_m` metres, a scan every 4 m, in `d/drive`.
+fn lidar_drive(d: &Path, length_m: u32) {
+    let length = length_m.to_string();
+    let args = [
+        "synth",
+        "--out",
+        "drive",
+        "--length-m",
+        &length,
+        "--frame-spacing-m",
+        "4",
+    ];
+    let o = denser(&[&args[..], &["--lidar-only"]].concat(), d);
+    assert!(o.status.success(), "{}", text(&o));
+}
+
 fn text(o: &Output) -> String {
     format!(
         "{}{}",
@@ -40,20 +56,7 @@ fn device_gpu_without_an_adapter_fails_and_auto_falls_back() {
     // WGPU_BACKEND=metal selects a backend this build does not compile in: no adapter exists.
     let dir = tempfile::tempdir().expect("tempdir");
     let d = dir.path();
-    let o = denser(
-        &[
-            "synth",
-            "--out",
-            "drive",
-            "--length-m",
-            "8",
-            "--frame-spacing-m",
-            "4",
-            "--lidar-only",
-        ],
-        d,
-    );
-    assert!(o.status.success(), "{}", text(&o));
+    lidar_drive(d, 8);
     let run = |input: &str, device: &str| {
         Command::new(env!("CARGO_BIN_EXE_denser"))
             .args(["--log", "debug", "reconstruct", input, "--device", device])
@@ -432,20 +435,7 @@ fn the_readmes_first_run_works_and_a_redirected_log_holds_no_escape_codes() {
 fn holdout_scores_against_scans_left_out_and_self_scoring_says_so() {
     let dir = tempfile::tempdir().expect("tempdir");
     let d = dir.path();
-    let o = denser(
-        &[
-            "synth",
-            "--out",
-            "drive",
-            "--length-m",
-            "24",
-            "--frame-spacing-m",
-            "4",
-            "--lidar-only",
-        ],
-        d,
-    );
-    assert!(o.status.success(), "{}", text(&o));
+    lidar_drive(d, 24);
     let seq = "drive/sequences/00";
     let run = |extra: &[&str], out: &str| {
         let mut args = vec!["reconstruct", seq, "--depth", "lidar", "--iterations", "5"];
@@ -511,20 +501,7 @@ fn holdout_scores_against_scans_left_out_and_self_scoring_says_so() {
 fn stereo_on_a_lidar_only_drive_says_what_to_use_and_each_cause_once() {
     let dir = tempfile::tempdir().expect("tempdir");
     let d = dir.path();
-    let o = denser(
-        &[
-            "synth",
-            "--out",
-            "drive",
-            "--length-m",
-            "8",
-            "--frame-spacing-m",
-            "4",
-            "--lidar-only",
-        ],
-        d,
-    );
-    assert!(o.status.success(), "{}", text(&o));
+    lidar_drive(d, 8);
     let o = denser(
         &[
             "reconstruct",
