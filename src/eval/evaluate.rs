@@ -100,7 +100,8 @@ pub fn evaluate_mesh_detailed(
     tracing::info!(
         label,
         points = points_m.len(),
-        median_m = accuracy.median_m,
+        // Every point: the report's scored median (where the LiDAR could see) may differ.
+        median_all_points_m = accuracy.median_m,
         accuracy_s,
         completeness_queries,
         completeness_s = t.elapsed().as_secs_f64(),

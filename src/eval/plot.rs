@@ -210,10 +210,23 @@ pub fn plot_error_histograms_png(
             if let Some(&(_, hi, _)) = bins.last() {
                 outline.push((hi, 0.0));
             }
-            let legend = format!(
-                "{label}: median {:.3} m, p75 {:.3} m ({} points)",
+            // The share past the plotted range (the overflow bin and the regular bins beyond
+            // it), said in the legend since it is not drawn.
+            let beyond: f64 = (0..f.len())
+                .filter(|&i| i >= hist.regular_bins() || hist.bin_range_m(i).0 >= max_m)
+                .map(|i| f[i])
+                .sum();
+            let mut legend = format!(
+                "{label}: median {:.3} m, p75 {:.3} m ({} points",
                 stats.median_m, stats.p75_m, stats.count
             );
+            if beyond > 0.0 {
+                legend.push_str(&format!(
+                    "; {:.1} % beyond {max_m} m, not drawn",
+                    100.0 * beyond
+                ));
+            }
+            legend.push(')');
             chart
                 .draw_series(std::iter::once(PathElement::new(
                     outline,
@@ -357,6 +370,7 @@ const BAR_PANEL_PX: u32 = 140;
 #[allow(clippy::too_many_arguments)]
 pub fn plot_top_view_png(
     path: impl AsRef<Path>,
+    surface: &str,
     points_m: &[[f64; 3]],
     errors_m: &[f32],
     scored: Option<&[bool]>,
@@ -461,7 +475,8 @@ pub fn plot_top_view_png(
             .margin(8, 0, 0, 0)
             .titled(
                 &format!(
-                    "Top view: distance to the nearest ground-truth point ({} points)",
+                    "Top view of the {surface} surface: distance to the nearest ground-truth \
+                     point ({} points)",
                     points_m.len()
                 ),
                 (FONT, 22),

@@ -115,6 +115,7 @@ pub fn evaluate_meshes(
         let top = out_dir.join(&name);
         plot_top_view_png(
             &top,
+            label,
             &e.points_m,
             &e.accuracy_m,
             mask.as_deref(),

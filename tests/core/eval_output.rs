@@ -226,7 +226,18 @@ fn top_view_png_colours_and_orientation() {
     }
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("top.png");
-    plot_top_view_png(&path, &points, &errors, None, &[], UpAxis::NegY, 0.5, 900).unwrap();
+    plot_top_view_png(
+        &path,
+        "test",
+        &points,
+        &errors,
+        None,
+        &[],
+        UpAxis::NegY,
+        0.5,
+        900,
+    )
+    .unwrap();
     keep(&path);
     let img = image::open(&path).unwrap().to_rgb8();
     let (w, h) = img.dimensions();
@@ -299,9 +310,12 @@ fn plots_reject_bad_arguments() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("x.png");
     let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 1.0]];
-    assert!(plot_top_view_png(&path, &p, &[0.1], None, &[], UpAxis::NegY, 0.5, 800).is_err());
+    assert!(
+        plot_top_view_png(&path, "test", &p, &[0.1], None, &[], UpAxis::NegY, 0.5, 800).is_err()
+    );
     assert!(plot_top_view_png(
         &path,
+        "test",
         &p,
         &[0.1, f32::NAN],
         None,
@@ -311,9 +325,31 @@ fn plots_reject_bad_arguments() {
         800
     )
     .is_err());
-    assert!(plot_top_view_png(&path, &p, &[0.1, 0.2], None, &[], UpAxis::NegY, 0.0, 800).is_err());
-    assert!(plot_top_view_png(&path, &p, &[0.1, 0.2], None, &[], UpAxis::NegY, 0.5, 10).is_err());
-    assert!(plot_top_view_png(&path, &[], &[], None, &[], UpAxis::NegY, 0.5, 800).is_err());
+    assert!(plot_top_view_png(
+        &path,
+        "test",
+        &p,
+        &[0.1, 0.2],
+        None,
+        &[],
+        UpAxis::NegY,
+        0.0,
+        800
+    )
+    .is_err());
+    assert!(plot_top_view_png(
+        &path,
+        "test",
+        &p,
+        &[0.1, 0.2],
+        None,
+        &[],
+        UpAxis::NegY,
+        0.5,
+        10
+    )
+    .is_err());
+    assert!(plot_top_view_png(&path, "test", &[], &[], None, &[], UpAxis::NegY, 0.5, 800).is_err());
     assert!(plot_error_histograms_png(&path, &[], 0.5).is_err());
     assert!(!path.exists());
 }
@@ -373,7 +409,18 @@ fn pictures_of_real_aerial_lidar() {
     plot_error_histograms_png(&hist, &[("raw", &raw), ("regularized", &reg)], 2.0).unwrap();
     keep(&hist);
     let top = out.path().join("autzen_top.png");
-    plot_top_view_png(&top, &raw_pts, &raw_d, None, &[], UpAxis::PosZ, 1.5, 1000).unwrap();
+    plot_top_view_png(
+        &top,
+        "test",
+        &raw_pts,
+        &raw_d,
+        None,
+        &[],
+        UpAxis::PosZ,
+        1.5,
+        1000,
+    )
+    .unwrap();
     keep(&top);
     let img = image::open(&top).unwrap().to_rgb8();
     assert_eq!(img.width(), 1000);
@@ -407,6 +454,7 @@ fn top_view_greys_unscored_points_and_draws_the_trajectory() {
     let path = dir.path().join("top.png");
     plot_top_view_png(
         &path,
+        "test",
         &points,
         &errors,
         Some(&scored),
