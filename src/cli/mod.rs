@@ -582,10 +582,24 @@ impl fmt::Display for EvaluationTable<'_> {
         for n in &report.notes {
             writeln!(f, "note: {n}")?;
         }
+        // With a coverage mask the accuracy columns are the scored points' (where the LiDAR
+        // could have measured); every point's figures are in report.md's "all points" rows.
+        let scored = report.coverage.is_some();
+        if scored {
+            writeln!(
+                f,
+                "accuracy scored where the LiDAR could have measured (all points: report.md)"
+            )?;
+        }
         writeln!(
             f,
             "{:<12} {:>10} {:>10} {:>10} {:>12} {:>12}",
-            "surface", "median m", "p75 m", "mode m", "area m²", "complete m"
+            "surface",
+            if scored { "median m*" } else { "median m" },
+            if scored { "p75 m*" } else { "p75 m" },
+            "mode m",
+            "area m²",
+            "complete m"
         )?;
         for s in &report.surfaces {
             writeln!(
