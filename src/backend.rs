@@ -173,18 +173,6 @@ impl Backend {
         })
     }
 
-    /// The stages that run on the GPU (none without one).
-    pub fn gpu_stages(&self) -> GpuStages {
-        match self.gpu {
-            Some(_) => self.stages,
-            None => GpuStages {
-                fusion: false,
-                tv: false,
-                stereo: false,
-            },
-        }
-    }
-
     /// The GPU, for a stage placed there.
     fn gpu_if(&self, on_gpu: bool) -> Option<&Arc<GpuContext>> {
         self.gpu.as_ref().filter(|_| on_gpu)
