@@ -520,6 +520,9 @@ impl GpuContext {
 
     /// Copies the first `target.len()` bytes of each buffer into its target, in one submission
     /// (no intermediate host copy). A target may be partly written when this fails.
+    /// One staging buffer per buffer, created for the call: each stays within the binding
+    /// limit its source had (TV's `p` alone may fill one), where
+    /// [`GpuContext::submit_and_read_back`] packs small results into one kept buffer.
     pub(crate) fn read_back_into(&self, buffers: &mut [(&wgpu::Buffer, &mut [u8])]) -> Result<()> {
         let scope = ErrorScopes::push(&self.device);
         let mut encoder = self

@@ -310,46 +310,26 @@ fn plots_reject_bad_arguments() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("x.png");
     let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 1.0]];
-    assert!(
-        plot_top_view_png(&path, "test", &p, &[0.1], None, &[], UpAxis::NegY, 0.5, 800).is_err()
-    );
-    assert!(plot_top_view_png(
-        &path,
-        "test",
-        &p,
-        &[0.1, f32::NAN],
-        None,
-        &[],
-        UpAxis::NegY,
-        0.5,
-        800
-    )
-    .is_err());
-    assert!(plot_top_view_png(
-        &path,
-        "test",
-        &p,
-        &[0.1, 0.2],
-        None,
-        &[],
-        UpAxis::NegY,
-        0.0,
-        800
-    )
-    .is_err());
-    assert!(plot_top_view_png(
-        &path,
-        "test",
-        &p,
-        &[0.1, 0.2],
-        None,
-        &[],
-        UpAxis::NegY,
-        0.5,
-        10
-    )
-    .is_err());
-    assert!(plot_top_view_png(&path, "test", &[], &[], None, &[], UpAxis::NegY, 0.5, 800).is_err());
+    // Points, errors, colour range and size; everything else valid.
+    let rejects = |points: &[[f64; 3]], errors: &[f32], max_error_m: f64, size_px: u32| {
+        plot_top_view_png(
+            &path,
+            "test",
+            points,
+            errors,
+            None,
+            &[],
+            UpAxis::NegY,
+            max_error_m,
+            size_px,
+        )
+        .is_err()
+    };
+    assert!(rejects(&p, &[0.1], 0.5, 800));
+    assert!(rejects(&p, &[0.1, f32::NAN], 0.5, 800));
+    assert!(rejects(&p, &[0.1, 0.2], 0.0, 800));
+    assert!(rejects(&p, &[0.1, 0.2], 0.5, 10));
+    assert!(rejects(&[], &[], 0.5, 800));
     assert!(plot_error_histograms_png(&path, &[], 0.5).is_err());
     assert!(!path.exists());
 }
