@@ -19,3 +19,16 @@ pub fn bar(len: u64, stage: &str) -> ProgressBar {
     pb.set_prefix(stage.to_string());
     pb
 }
+
+/// A progress bar over `len_bytes` bytes labelled `stage` (a file read front to back).
+pub fn bytes_bar(len_bytes: u64, stage: &str) -> ProgressBar {
+    let pb = bar(len_bytes, stage);
+    pb.set_style(
+        ProgressStyle::with_template(
+            "{prefix:>12} [{bar:40}] {bytes}/{total_bytes} {bytes_per_sec} eta {eta}",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+        .progress_chars("=> "),
+    );
+    pb
+}

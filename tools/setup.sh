@@ -26,6 +26,13 @@ if command -v python3 >/dev/null 2>&1; then
     || python3 -m pip install -q "laspy==2.7.0" "lazrs==0.8.2" "pyproj==3.7.2" >/dev/null 2>&1 \
     || echo "setup: could not install laspy/lazrs/pyproj (the tests that need them will skip)"
 fi
+# Independent writers of the input fixtures (ROS 2 bags, PCD/PLY scans) that
+# tools/make_input_fixtures.py makes for the reader tests.
+if command -v python3 >/dev/null 2>&1; then
+  python3 -c "import rosbags, pypcd4, plyfile, PIL" >/dev/null 2>&1 \
+    || python3 -m pip install -q "rosbags==0.11.9" "pypcd4==1.5.1" "plyfile==1.1.5" "pillow==11.3.0" >/dev/null 2>&1 \
+    || echo "setup: could not install rosbags/pypcd4/plyfile/pillow (the tests that need them will skip)"
+fi
 # A real S3-compatible server for the object-storage tests (tests/tiles/scaleout.rs,
 # tests/cli/scaleout.rs start `moto_server -H 127.0.0.1 -p PORT` themselves).
 if command -v python3 >/dev/null 2>&1; then

@@ -66,7 +66,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     config.tv.iterations = a.iterations;
     let job = Job {
         input: summary.sequence_dir.clone(),
-        poses: None,
+        how: Default::default(),
         out_dir: a.out.clone(),
         source: RangeSource::Stereo,
         range: FrameRange::ALL,

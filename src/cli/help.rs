@@ -2,11 +2,13 @@
 //! has one help text wherever it appears).
 
 /// `--gt`.
-pub const GT: &str = "Ground truth: a .las/.laz/.ply file, or a KITTI sequence folder whose \
-    scans are merged in the world frame (reconstruct's default for KITTI-layout input: the \
-    sequence's own scans, as the paper)";
+pub const GT: &str = "Ground truth: a .las/.laz/.ply file, or a KITTI sequence folder, a folder \
+    of scans or a ROS 2 bag whose scans are merged in the world frame (reconstruct's default for \
+    LiDAR input: the input's own scans, as the paper)";
 /// `--poses`.
-pub const POSES: &str = "KITTI poses file, when not at `<root>/poses/NN.txt`";
+pub const POSES: &str = "Poses: a KITTI sequence's poses file (when not at \
+    `<root>/poses/NN.txt`), or a folder of scans' trajectory (TUM `t x y z qx qy qz qw` or KITTI \
+    3×4 lines) [default for a folder of scans: trajectory.tum, trajectory.txt or poses.txt in it]";
 /// `--method`.
 pub const METHOD: &str = "Stereo matcher";
 /// `--num-disparities`.

@@ -12,6 +12,7 @@ mod bench;
 mod demo;
 mod evaluate;
 mod export;
+mod input;
 mod inspect;
 mod merge;
 mod reconstruct;
@@ -44,11 +45,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Fuse a sequence (KITTI odometry, TUM RGB-D or simple RGB-D), regularize, mesh and report.
+    /// Fuse a sequence (KITTI odometry, TUM or simple RGB-D, a folder of scans, a ROS 2 bag),
+    /// regularize, mesh and report.
     #[command(
-        after_help = "Example:\n  denser reconstruct data/sequences/00 --depth lidar --out out/run\n  denser reconstruct data/sequences/00 --depth stereo --last 200 --out out/stereo\n  denser reconstruct data/sequences/00 --depth lidar --map maps/city --memory-budget 1GiB --out out/city"
+        after_help = "Example:\n  denser reconstruct data/sequences/00 --depth lidar --out out/run\n  denser reconstruct data/sequences/00 --depth stereo --last 200 --out out/stereo\n  denser reconstruct data/sequences/00 --depth lidar --map maps/city --memory-budget 1GiB --out out/city\n  denser reconstruct drive_bag --lidar-topic /velodyne_points --out out/bag\n  denser reconstruct slam_out --poses slam_out/poses.tum --extrinsic lidar_to_imu.txt --out out/scans"
     )]
-    Reconstruct(reconstruct::Args),
+    Reconstruct(Box<reconstruct::Args>),
     /// Print fusion, regularization and meshing throughput on real RGB-D frames.
     #[command(
         after_help = "Example:\n  denser bench --rgbd drive/sequences/00 --passes 3 --max-depth-m 40"
@@ -77,6 +79,12 @@ enum Command {
         after_help = "Example:\n  denser export maps/city --mesh city.ply --regularized\n  denser export maps/city --points city.copc.laz --georef EPSG:32632@691000,5335000,500\n  denser export maps/city --tiles city_tiles"
     )]
     Export(export::Args),
+    /// List what an input holds (a bag's topics, types, transforms) and what reconstruct would use.
+    #[command(
+        name = "inspect-input",
+        after_help = "Example:\n  denser inspect-input drive.mcap\n  denser inspect-input recordings/bag_0 --lidar-topic /ouster/points --fixed-frame odom"
+    )]
+    InspectInput(input::Args),
     /// Summarise a stored map (chunks, blocks, voxels, bytes) and verify its checksums.
     #[command(after_help = "Example:\n  denser inspect maps/city --verify")]
     Inspect(inspect::Args),
@@ -141,7 +149,7 @@ pub fn main() -> ExitCode {
         .with_target(false)
         .init();
     let result = match cli.command {
-        Command::Reconstruct(a) => reconstruct::run(a),
+        Command::Reconstruct(a) => reconstruct::run(*a),
         Command::Bench(a) => bench::run(a),
         Command::Synth(a) => synth::run(a),
         Command::Evaluate(a) => evaluate::run(a),
@@ -149,6 +157,7 @@ pub fn main() -> ExitCode {
         Command::Regularize(a) => regularize::run(a),
         Command::Export(a) => export::run(a),
         Command::Inspect(a) => inspect::run(a),
+        Command::InspectInput(a) => input::run(a),
         Command::Merge(a) => merge::run(a),
         Command::Repair(a) => repair::run(a),
         Command::Stereo(a) => stereo::run(a),

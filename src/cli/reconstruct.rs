@@ -12,7 +12,7 @@ use denser::depth::tgv::HoleFill;
 use denser::depth::StereoMethod;
 use denser::eval::{evaluate_reconstruction, GroundTruth, RunFacts};
 use denser::io::sequence::{
-    detect_input, open_sequence, FrameRange, InputKind, RangeSource, Sequence,
+    detect_input, open_input, FrameRange, InputKind, RangeSource, Sequence,
 };
 use denser::map::job::{relative_hint, JobRecord};
 use denser::map::layout::MANIFEST_FILE;
@@ -32,15 +32,17 @@ pub(crate) use report::{RegularizeLine, Report};
 
 #[derive(clap::Args)]
 pub(crate) struct Args {
-    /// Sequence folder: KITTI `sequences/NN`, TUM RGB-D, or numbered RGB-D (`pose.txt`, `depth/`).
+    /// The input: a KITTI `sequences/NN` folder, TUM RGB-D, numbered RGB-D (`pose.txt`,
+    /// `depth/`), a folder of scans (`scans/` and a trajectory) or a ROS 2 bag (a folder with
+    /// `metadata.yaml`, or an .mcap / .db3 file).
     input: PathBuf,
     #[arg(long, default_value = "out", help = help::OUT)]
     out: PathBuf,
     /// Range source for KITTI-layout input.
     #[arg(long, value_enum, default_value = "lidar")]
     depth: DepthArg,
-    #[arg(long, help = help::POSES)]
-    poses: Option<PathBuf>,
+    #[command(flatten)]
+    how: super::input::InputArgs,
     #[command(flatten)]
     range: RangeArgs,
     #[arg(long, help = help::GT, help_heading = "Evaluation")]
@@ -108,7 +110,8 @@ pub(crate) struct MapArgs {
 /// A reconstruction to run: the command's flags, resolved (the demo builds one too).
 pub(crate) struct Job {
     pub input: PathBuf,
-    pub poses: Option<PathBuf>,
+    /// How to read it (poses, extrinsic, a bag's topics).
+    pub how: super::input::InputArgs,
     pub out_dir: PathBuf,
     pub source: RangeSource,
     pub range: FrameRange,
@@ -146,7 +149,8 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     let range = a.range.range();
     let mut evaluation_notes = Vec::new();
     let ground_truth = if let Some(k) = a.holdout {
-        let kitti = kind == InputKind::Kitti;
+        let kitti = kind == InputKind::Kitti
+            || (kind.lidar_or_stereo() && matches!(a.depth, DepthArg::Lidar));
         let refused = if k < 2 {
             Some("K must be at least 2 (every K-th frame is left out)")
         } else if a.no_eval || a.gt.is_some() {
@@ -154,7 +158,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         } else if a.map.map.is_some() {
             Some("held-out runs are evaluations in RAM: not with --map")
         } else if !kitti {
-            Some("it needs a KITTI-layout sequence (its scans are the ground truth)")
+            Some("it needs LiDAR scans to leave out: a KITTI-layout sequence, or a folder of scans or a bag with --depth lidar")
         } else {
             None
         };
@@ -164,17 +168,22 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         evaluation_notes.push(format!(
             "Ground truth: the LiDAR scans of one selected frame in {k}, left out of fusion (--holdout {k})."
         ));
-        Some(GroundTruth::KittiLidar {
-            sequence: a.input.clone(),
-            poses: a.poses.clone(),
-            frames: held_out_range(range, k),
-        })
+        Some(scans_of_input(&a, kind, held_out_range(range, k)))
     } else if a.no_eval {
         None
     } else {
         match (&a.gt, kind) {
-            (Some(p), _) => Some(GroundTruth::from_path(p.clone(), a.poses.clone(), range)),
-            (None, InputKind::Kitti) => {
+            // `--poses` is the input's: it poses a KITTI `--gt` only when the input is KITTI too
+            // (the same drive), never a folder of scans' or bag's ground truth.
+            (Some(p), kind) => Some(GroundTruth::from_path(
+                p.clone(),
+                a.how.poses.clone().filter(|_| kind == InputKind::Kitti),
+                range,
+            )),
+            (None, kind)
+                if kind == InputKind::Kitti
+                    || (kind.lidar_or_stereo() && matches!(a.depth, DepthArg::Lidar)) =>
+            {
                 if matches!(a.depth, DepthArg::Lidar) {
                     evaluation_notes.push(
                         "The ground truth is the LiDAR that was fused: these scores measure how \
@@ -183,18 +192,14 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
                             .to_string(),
                     );
                 }
-                Some(GroundTruth::KittiLidar {
-                    sequence: a.input.clone(),
-                    poses: a.poses.clone(),
-                    frames: range,
-                })
+                Some(scans_of_input(&a, kind, range))
             }
             _ => None,
         }
     };
     let job = Job {
         input: a.input.clone(),
-        poses: a.poses.clone(),
+        how: a.how.clone(),
         out_dir: a.out.clone(),
         source: match a.depth {
             DepthArg::Lidar => RangeSource::Lidar,
@@ -229,6 +234,23 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
 
 /// The frames `--holdout k` leaves out of `range`: every k-th selected frame, the first at
 /// position k − 1 (the fusion keeps the others).
+/// The input's own LiDAR scans of `frames` as ground truth.
+fn scans_of_input(a: &Args, kind: InputKind, frames: FrameRange) -> GroundTruth {
+    if kind == InputKind::Kitti {
+        GroundTruth::KittiLidar {
+            sequence: a.input.clone(),
+            poses: a.how.poses.clone(),
+            frames,
+        }
+    } else {
+        GroundTruth::Scans {
+            input: a.input.clone(),
+            options: a.how.options(RangeSource::Lidar),
+            frames,
+        }
+    }
+}
+
 fn held_out_range(range: FrameRange, k: usize) -> FrameRange {
     let step = range.step.max(1);
     FrameRange {
@@ -296,8 +318,7 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     // Where the results go is checked before any work (a file, a read-only folder, no space).
     denser::io::atomic::check_output_dir(&job.out_dir)
         .with_context(|| format!("checking the output folder {}", job.out_dir.display()))?;
-    let seq = open_sequence(&job.input, job.source, job.poses.as_deref(), stereo)
-        .with_context(context)?;
+    let seq = open_input(&job.input, &job.how.options(job.source), stereo).with_context(context)?;
     let frames = job
         .range
         .select(seq.len(), &seq.describe())
@@ -463,6 +484,7 @@ fn open_map(job: &Job, m: &MapJob, seq: &dyn Sequence) -> denser::Result<PagedSt
     };
     let source = match detect_input(&job.input)? {
         InputKind::Kitti => job.source.as_str(),
+        kind if kind.lidar_or_stereo() => job.source.as_str(),
         _ => "rgbd",
     };
     let stereo = job.source == RangeSource::Stereo && source == "stereo";

@@ -1,10 +1,11 @@
 //! Where ground truth comes from: the LiDAR scans of a KITTI-layout sequence merged in the world
-//! frame (the paper's), or a point-cloud file (LAS/LAZ converted to metres, PLY).
+//! frame (the paper's), the scans of any other LiDAR input (a folder of scans, a ROS 2 bag), or a
+//! point-cloud file (LAS/LAZ converted to metres, PLY).
 
 use super::coverage::{CoverageBuilder, SensorCoverage};
 use crate::frame::PointCloud;
 use crate::io::kitti::KittiSequence;
-use crate::io::sequence::FrameRange;
+use crate::io::sequence::{FrameRange, InputOptions, RangeInput};
 use crate::{Error, Result};
 use std::path::PathBuf;
 
@@ -20,15 +21,34 @@ pub enum GroundTruth {
         /// The scans used.
         frames: FrameRange,
     },
+    /// The scans of a LiDAR input of another layout (a folder of scans, a ROS 2 bag), read as
+    /// `reconstruct` reads it (the frames given).
+    Scans {
+        /// The input.
+        input: PathBuf,
+        /// How it is read (`source` is LiDAR).
+        options: InputOptions,
+        /// The scans used.
+        frames: FrameRange,
+    },
     /// A point cloud file: `.las`, `.laz` (coordinates converted to metres) or `.ply`.
     File(PathBuf),
 }
 
 impl GroundTruth {
-    /// Ground truth named on the command line: a folder is a KITTI sequence (its scans in
-    /// `frames`), anything else a point-cloud file.
+    /// Ground truth named on the command line: a folder of scans or a ROS 2 bag (its scans in
+    /// `frames`), another folder a KITTI sequence (the same), anything else a point-cloud file.
     pub fn from_path(path: PathBuf, poses: Option<PathBuf>, frames: FrameRange) -> Self {
-        if path.is_dir() {
+        use crate::io::sequence::{detect_input, RangeSource};
+        if detect_input(&path).is_ok_and(|k| k.lidar_or_stereo()) {
+            let mut options = InputOptions::new(RangeSource::Lidar);
+            options.poses = poses;
+            GroundTruth::Scans {
+                input: path,
+                options,
+                frames,
+            }
+        } else if path.is_dir() {
             GroundTruth::KittiLidar {
                 sequence: path,
                 poses,
@@ -58,6 +78,21 @@ impl GroundTruth {
                 let cloud = merge_scans(&seq, &frames.indices(seq.len()), Some(&mut coverage))?;
                 Ok((cloud, coverage.build()))
             }
+            GroundTruth::Scans {
+                input,
+                options,
+                frames,
+            } => {
+                let seq = crate::io::sequence::open_input(input, options, None)?;
+                let mut coverage = CoverageBuilder::default();
+                let mut cloud = PointCloud::default();
+                for i in frames.indices(seq.len()) {
+                    if let RangeInput::Lidar(scan) = seq.read(i)? {
+                        add_scan(&mut cloud, &scan, Some(&mut coverage));
+                    }
+                }
+                Ok((cloud, coverage.build()))
+            }
             GroundTruth::File(path) => {
                 let ext = path
                     .extension()
@@ -83,8 +118,16 @@ impl GroundTruth {
     pub fn describe(&self) -> String {
         match self {
             GroundTruth::KittiLidar {
-                sequence, frames, ..
+                sequence: input,
+                frames,
+                poses,
+            }
+            | GroundTruth::Scans {
+                input,
+                frames,
+                options: InputOptions { poses, .. },
             } => {
+                let sequence = input;
                 let mut which = Vec::new();
                 if frames.first > 0 || frames.step > 1 {
                     which.push(format!("frames from {}", frames.first));
@@ -94,6 +137,9 @@ impl GroundTruth {
                 }
                 if let Some(l) = frames.last {
                     which.push(format!("before {l}"));
+                }
+                if let Some(p) = poses {
+                    which.push(format!("poses {}", p.display()));
                 }
                 match which.is_empty() {
                     true => format!("LiDAR scans of {}", sequence.display()),
@@ -135,14 +181,23 @@ fn merge_scans(
             continue;
         }
         let scan = seq.velodyne(i)?;
-        if let Some(c) = coverage.as_mut() {
-            c.add(&scan);
-        }
-        let t = scan.world_from_sensor;
-        cloud.points_m.extend(scan.points_sensor_m.iter().map(|p| {
-            let w = t * nalgebra::Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-            [w.x, w.y, w.z]
-        }));
+        add_scan(&mut cloud, &scan, coverage.as_deref_mut());
     }
     Ok(cloud)
+}
+
+/// Adds `scan`'s points in the world frame to `cloud`, and the scan to `coverage` when given.
+fn add_scan(
+    cloud: &mut PointCloud,
+    scan: &crate::frame::LidarScan,
+    coverage: Option<&mut CoverageBuilder>,
+) {
+    if let Some(c) = coverage {
+        c.add(scan);
+    }
+    let t = scan.world_from_sensor;
+    cloud.points_m.extend(scan.points_sensor_m.iter().map(|p| {
+        let w = t * nalgebra::Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        [w.x, w.y, w.z]
+    }));
 }

@@ -60,3 +60,14 @@ pub fn read_stereo_calibration(path: &Path) -> Result<StereoCalibration> {
         doffs_px: 0.0,
     })
 }
+
+/// `t = K⁻¹·P[:,3]` of a rectified projection matrix `P = K·[I | t]` (K upper triangular with
+/// a positive diagonal): the translation of the camera from the reference camera, metres.
+pub(crate) fn projection_translation_m(p: &nalgebra::Matrix3x4<f64>) -> nalgebra::Vector3<f64> {
+    let k: nalgebra::Matrix3<f64> = p.fixed_view::<3, 3>(0, 0).into_owned();
+    let col = p.column(3).into_owned();
+    let tz = col.z / k[(2, 2)];
+    let ty = (col.y - k[(1, 2)] * tz) / k[(1, 1)];
+    let tx = (col.x - k[(0, 1)] * ty - k[(0, 2)] * tz) / k[(0, 0)];
+    nalgebra::Vector3::new(tx, ty, tz)
+}

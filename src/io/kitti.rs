@@ -142,14 +142,7 @@ impl KittiCalib {
     /// Translation `t_i = K_i⁻¹·P_i[:,3]` of camera `cam` relative to cam0, metres:
     /// `X_cam = X_cam0 + t_i` (rectified cameras share cam0's orientation).
     pub fn cam_from_cam0_translation_m(&self, cam: usize) -> Vector3<f64> {
-        let p = &self.p[cam];
-        let k: Matrix3<f64> = p.fixed_view::<3, 3>(0, 0).into_owned();
-        let col = p.column(3).into_owned();
-        // K is upper triangular with a positive diagonal (checked when parsing).
-        let tz = col.z / k[(2, 2)];
-        let ty = (col.y - k[(1, 2)] * tz) / k[(1, 1)];
-        let tx = (col.x - k[(0, 1)] * ty - k[(0, 2)] * tz) / k[(0, 0)];
-        Vector3::new(tx, ty, tz)
+        super::calib::projection_translation_m(&self.p[cam])
     }
 
     /// The rigid transform `cam_from_cam0` of camera `cam` (identity rotation, see
@@ -181,7 +174,7 @@ impl KittiCalib {
 
 /// Converts a 3×4 `[R | t]` to an isometry, snapping `R` to the nearest rotation (SVD). Fails
 /// on reflections and on matrices farther than 0.01 (Frobenius) from any rotation.
-fn isometry_from_3x4(m: &Matrix3x4<f64>) -> std::result::Result<Isometry3<f64>, String> {
+pub(crate) fn isometry_from_3x4(m: &Matrix3x4<f64>) -> std::result::Result<Isometry3<f64>, String> {
     if m.iter().any(|v| !v.is_finite()) {
         return Err("non-finite value".into());
     }

@@ -1,5 +1,6 @@
 //! Readers and writers for sensor data and results: KITTI odometry ([`kitti`]), TUM RGB-D and
-//! the simple slambook-style RGB-D layout ([`rgbd`]), LAS/LAZ point clouds ([`las`]), COPC
+//! the simple slambook-style RGB-D layout ([`rgbd`]), ROS 2 bags ([`bag`]), folders of scans
+//! with a trajectory ([`scans`], [`trajectory`]), LAS/LAZ point clouds ([`las`]), COPC
 //! ([`copc`]), binary glTF ([`glb`]), PLY meshes
 //! and point clouds ([`ply`]) and image files ([`image`]).
 //!
@@ -11,6 +12,7 @@
 //! the data beyond unit conversion and the frame conventions documented per format.
 
 pub mod atomic;
+pub mod bag;
 pub mod calib;
 pub mod copc;
 pub mod glb;
@@ -20,8 +22,10 @@ pub mod las;
 pub mod pfm;
 pub mod ply;
 pub mod rgbd;
+pub mod scans;
 pub mod sequence;
 mod text;
+pub mod trajectory;
 
 use crate::error::Result;
 use crate::frame::DepthFrame;

@@ -36,7 +36,7 @@ use std::path::{Path, PathBuf};
 
 /// `tx ty tz qx qy qz qw` → isometry; the quaternion is normalised (it must be within 50 % of
 /// unit length, else the line is rejected).
-fn pose_from_tq(path: &Path, line_no: usize, v: &[f64]) -> Result<Isometry3<f64>> {
+pub(crate) fn pose_from_tq(path: &Path, line_no: usize, v: &[f64]) -> Result<Isometry3<f64>> {
     let q = Quaternion::new(v[6], v[3], v[4], v[5]);
     let n = q.norm();
     if !(0.5..=1.5).contains(&n) {

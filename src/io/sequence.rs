@@ -1,5 +1,6 @@
 //! A job's input as one [`Sequence`] of range inputs, whatever the layout: KITTI odometry with
-//! LiDAR scans, ground-truth depth or depth from its stereo pairs; TUM RGB-D; numbered RGB-D.
+//! LiDAR scans, ground-truth depth or depth from its stereo pairs; TUM RGB-D; numbered RGB-D; a
+//! folder of scans with a trajectory ([`super::scans`]); a ROS 2 bag ([`super::bag`]).
 //! [`for_each_input`] is the one loop every command reads frames with (in order, one at a time,
 //! timing each, with a progress bar), so nothing is held beyond the current frame.
 //!
@@ -23,14 +24,47 @@ pub enum InputKind {
     Tum,
     /// Numbered RGB-D frames: `depth/N.pgm|png`, `color/N.png`, `pose.txt`.
     SimpleRgbd,
+    /// A folder of LiDAR scans (`scans/`) with a trajectory.
+    ScanFolder,
+    /// A ROS 2 bag: a folder with `metadata.yaml` and `.mcap` / `.db3` files, or one such file.
+    Bag,
+}
+
+impl InputKind {
+    /// The layout in words.
+    pub fn name(self) -> &'static str {
+        match self {
+            InputKind::Kitti => "KITTI odometry",
+            InputKind::Tum => "TUM RGB-D",
+            InputKind::SimpleRgbd => "numbered RGB-D",
+            InputKind::ScanFolder => "folder of scans",
+            InputKind::Bag => "ROS 2 bag",
+        }
+    }
+
+    /// Whether the layout holds LiDAR scans only (no `--depth gt` or `stereo`).
+    pub fn lidar_only(self) -> bool {
+        matches!(self, InputKind::ScanFolder)
+    }
+
+    /// Whether the layout holds LiDAR scans, stereo pairs or both (a bag: no `--depth gt`).
+    pub fn lidar_or_stereo(self) -> bool {
+        matches!(self, InputKind::ScanFolder | InputKind::Bag)
+    }
 }
 
 /// Recognises the layout of `dir`.
 pub fn detect_input(dir: &Path) -> Result<InputKind> {
+    if dir.is_file() && super::bag::is_bag(dir) {
+        return Ok(InputKind::Bag);
+    }
+    if !dir.exists() {
+        return Err(Error::bad_input(dir, "no such file or folder"));
+    }
     if !dir.is_dir() {
         return Err(Error::bad_input(
             dir,
-            "not a directory (expected a KITTI sequence or an RGB-D folder)",
+            "not a folder, .mcap or .db3 file (expected a KITTI sequence, an RGB-D folder, a folder of scans or a ROS 2 bag)",
         ));
     }
     if dir.join("calib.txt").is_file() {
@@ -39,10 +73,14 @@ pub fn detect_input(dir: &Path) -> Result<InputKind> {
         Ok(InputKind::Tum)
     } else if dir.join("pose.txt").is_file() && dir.join("depth").is_dir() {
         Ok(InputKind::SimpleRgbd)
+    } else if super::scans::is_scan_folder(dir) {
+        Ok(InputKind::ScanFolder)
+    } else if super::bag::is_bag(dir) {
+        Ok(InputKind::Bag)
     } else {
         Err(Error::bad_input(
             dir,
-            "unrecognised layout: expected calib.txt (KITTI odometry), depth.txt (TUM RGB-D) or pose.txt with depth/ (simple RGB-D)",
+            "unrecognised layout: expected calib.txt (KITTI odometry), depth.txt (TUM RGB-D), pose.txt with depth/ (simple RGB-D), scans/ (a folder of scans) or metadata.yaml / .mcap / .db3 files (a ROS 2 bag)",
         ))
     }
 }
@@ -174,6 +212,32 @@ pub trait Sequence {
     fn fingerprint(&self) -> u64;
 }
 
+/// How to read an input beyond its layout: the range source and the files and names the user
+/// gave.
+#[derive(Clone, Debug, PartialEq)]
+pub struct InputOptions {
+    /// `--depth`.
+    pub source: RangeSource,
+    /// `--poses`: KITTI poses, or a folder of scans' trajectory.
+    pub poses: Option<std::path::PathBuf>,
+    /// `--extrinsic`: a folder of scans' `body_from_sensor`.
+    pub extrinsic: Option<std::path::PathBuf>,
+    /// `--lidar-topic`, `--pose-topic`, `--fixed-frame` for a bag.
+    pub bag: super::bag::BagOptions,
+}
+
+impl InputOptions {
+    /// `source` with every other option at its default.
+    pub fn new(source: RangeSource) -> InputOptions {
+        InputOptions {
+            source,
+            poses: None,
+            extrinsic: None,
+            bag: Default::default(),
+        }
+    }
+}
+
 /// Opens `input` (layout detected) as a sequence of `source` inputs; `stereo` is the matcher
 /// for [`RangeSource::Stereo`] (ignored otherwise). KITTI poses come from `poses` or their
 /// default place. RGB-D layouts give depth whatever `source` says.
@@ -183,7 +247,51 @@ pub fn open_sequence(
     poses: Option<&Path>,
     stereo: Option<Box<dyn DisparityEstimator>>,
 ) -> Result<Box<dyn Sequence>> {
-    Ok(match detect_input(input)? {
+    let mut opts = InputOptions::new(source);
+    opts.poses = poses.map(Path::to_path_buf);
+    open_input(input, &opts, stereo)
+}
+
+/// [`open_sequence`] with every input option: a folder of scans and a bag give LiDAR scans
+/// (any other `source` is refused).
+pub fn open_input(
+    input: &Path,
+    opts: &InputOptions,
+    stereo: Option<Box<dyn DisparityEstimator>>,
+) -> Result<Box<dyn Sequence>> {
+    let (source, poses) = (opts.source, opts.poses.as_deref());
+    let kind = detect_input(input)?;
+    if kind.lidar_only() && source != RangeSource::Lidar {
+        return Err(Error::bad_input(
+            input,
+            format!(
+                "a {} gives LiDAR scans only: use --depth lidar, not --depth {source}",
+                kind.name()
+            ),
+        ));
+    }
+    if kind == InputKind::Bag && source == RangeSource::GroundTruthDepth {
+        return Err(Error::bad_input(
+            input,
+            "a ROS 2 bag gives LiDAR scans or stereo pairs: use --depth lidar or --depth stereo",
+        ));
+    }
+    Ok(match kind {
+        InputKind::ScanFolder => Box::new(super::scans::ScanFolder::open(
+            input,
+            poses,
+            opts.extrinsic.as_deref(),
+        )?),
+        InputKind::Bag if source == RangeSource::Stereo => {
+            Box::new(super::bag::stereo::BagStereo::open(
+                input,
+                &opts.bag,
+                stereo.ok_or_else(|| {
+                    Error::InvalidArgument("stereo input needs a stereo matcher".into())
+                })?,
+            )?)
+        }
+        InputKind::Bag => Box::new(super::bag::BagLidar::open(input, &opts.bag)?),
         InputKind::Kitti => {
             let seq = KittiSequence::open(input, poses)?;
             match source {
@@ -249,7 +357,10 @@ pub fn for_each_input(
 }
 
 /// FNV-1a over the frame count and every pose's matrix (f64 bits).
-fn pose_digest<'a>(len: usize, poses: impl Iterator<Item = &'a nalgebra::Isometry3<f64>>) -> u64 {
+pub(crate) fn pose_digest<'a>(
+    len: usize,
+    poses: impl Iterator<Item = &'a nalgebra::Isometry3<f64>>,
+) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     let mut eat = |bytes: &[u8]| {
         for &b in bytes {

@@ -9,4 +9,5 @@ mod kitti;
 mod las;
 mod pfm;
 mod ply;
+mod recorded;
 mod rgbd;
