@@ -59,7 +59,10 @@ pub fn detect_input(dir: &Path) -> Result<InputKind> {
         return Ok(InputKind::Bag);
     }
     if !dir.exists() {
-        return Err(Error::bad_input(dir, "no such file or folder"));
+        return Err(Error::bad_input(
+            dir,
+            "no such file or folder (not a directory, .mcap or .db3 file)",
+        ));
     }
     if !dir.is_dir() {
         return Err(Error::bad_input(

@@ -245,6 +245,22 @@ fn s3_one_writer_at_a_time_and_export_shards_equal_one_export() {
 
     // A writer holds the lease (this process): a second writer is refused at once, naming it;
     // readers go on.
+    // A bucket that does not exist is named as such, not "no manifest here".
+    for cmd in [
+        &["inspect", "s3://nobucket/m"][..],
+        &["regularize", "s3://nobucket/m"][..],
+    ] {
+        let o = run(cmd, d, &env);
+        let t = text(&o);
+        assert!(!o.status.success(), "{t}");
+        assert!(
+            t.contains("s3://nobucket/m")
+                && t.contains("does the bucket exist")
+                && !t.contains("no manifest here"),
+            "{t}"
+        );
+    }
+
     let holder = MapStore::open_files(files.clone()).expect("writer");
     let mut args = vec!["regularize", "s3://maps/m"];
     args.extend_from_slice(&REG);

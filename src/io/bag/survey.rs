@@ -66,82 +66,64 @@ impl Survey {
         if let Some(stats) = self.topics.get_mut(m.topic) {
             stats.count += 1;
         }
-        let ok = match m.type_name {
-            types::TF => msg::decode::<msg::TfMessage>(m.data).map(|tf| {
-                let fixed = m.topic.ends_with("tf_static");
-                for t in &tf.transforms {
-                    let (parent, child) = (
-                        frame_name(&t.header.frame_id),
-                        frame_name(&t.child_frame_id),
-                    );
-                    match t.transform.isometry() {
-                        Some(iso) if fixed => self.tf.add_static(&parent, &child, iso),
-                        Some(iso) => self.tf.add_moving(
-                            &parent,
-                            &child,
-                            t.header.stamp.ns() as f64 * 1e-9,
-                            iso,
-                        ),
-                        None => self.tf.conflicts += 1,
+        let ok =
+            match m.type_name {
+                types::TF => msg::decode::<msg::TfMessage>(m.data).map(|tf| {
+                    let fixed = m.topic.ends_with("tf_static");
+                    for t in &tf.transforms {
+                        let (parent, child) = (
+                            frame_name(&t.header.frame_id),
+                            frame_name(&t.child_frame_id),
+                        );
+                        match t.transform.isometry() {
+                            Some(iso) if fixed => self.tf.add_static(&parent, &child, iso),
+                            Some(iso) => self.tf.add_moving(
+                                &parent,
+                                &child,
+                                t.header.stamp.ns() as f64 * 1e-9,
+                                iso,
+                            ),
+                            None => self.tf.conflicts += 1,
+                        }
                     }
-                }
-            }),
-            types::ODOMETRY => msg::decode::<msg::Odometry>(m.data).map(|o| {
-                if let Some(iso) = o.pose.isometry() {
+                }),
+                types::ODOMETRY => msg::decode::<msg::Odometry>(m.data).map(|o| {
                     let child = Some(frame_name(&o.child_frame_id)).filter(|c| !c.is_empty());
-                    let t = stamp_s(o.header.stamp, m.log_time_ns);
-                    self.poses.entry(m.topic.to_string()).or_default().push((
-                        t,
-                        frame_name(&o.header.frame_id),
-                        child,
-                        iso,
-                    ));
+                    self.add_pose(m, &o.header, child, &o.pose)
+                }),
+                types::POSE_STAMPED => msg::decode::<msg::PoseStamped>(m.data)
+                    .map(|p| self.add_pose(m, &p.header, None, &p.pose)),
+                types::POINT_CLOUD2 => msg::decode::<msg::Header>(m.data)
+                    .map(|h| add_ref(&mut self.clouds, m, file, &h)),
+                types::IMAGE | types::COMPRESSED_IMAGE => msg::decode::<msg::Header>(m.data)
+                    .map(|h| add_ref(&mut self.images, m, file, &h)),
+                types::CAMERA_INFO if !self.camera_info.contains_key(m.topic) => {
+                    msg::decode::<msg::CameraInfo>(m.data).map(|c| {
+                        self.camera_info.insert(m.topic.to_string(), c);
+                    })
                 }
-            }),
-            types::POSE_STAMPED => msg::decode::<msg::PoseStamped>(m.data).map(|p| {
-                if let Some(iso) = p.pose.isometry() {
-                    let t = stamp_s(p.header.stamp, m.log_time_ns);
-                    self.poses.entry(m.topic.to_string()).or_default().push((
-                        t,
-                        frame_name(&p.header.frame_id),
-                        None,
-                        iso,
-                    ));
-                }
-            }),
-            types::POINT_CLOUD2 => msg::decode::<msg::Header>(m.data).map(|h| {
-                self.clouds
-                    .entry(m.topic.to_string())
-                    .or_default()
-                    .push(MsgRef {
-                        stamp_s: stamp_s(h.stamp, m.log_time_ns),
-                        frame: frame_name(&h.frame_id),
-                        file,
-                        locator: m.locator,
-                    });
-            }),
-            types::IMAGE | types::COMPRESSED_IMAGE => msg::decode::<msg::Header>(m.data).map(|h| {
-                self.images
-                    .entry(m.topic.to_string())
-                    .or_default()
-                    .push(MsgRef {
-                        stamp_s: stamp_s(h.stamp, m.log_time_ns),
-                        frame: frame_name(&h.frame_id),
-                        file,
-                        locator: m.locator,
-                    });
-            }),
-            types::CAMERA_INFO if !self.camera_info.contains_key(m.topic) => {
-                msg::decode::<msg::CameraInfo>(m.data).map(|c| {
-                    self.camera_info.insert(m.topic.to_string(), c);
-                })
-            }
-            _ => Ok(()),
-        };
+                _ => Ok(()),
+            };
         if ok.is_err() {
             if let Some(s) = self.topics.get_mut(m.topic) {
                 s.undecodable += 1;
             }
+        }
+    }
+
+    /// A pose sample of an odometry or stamped-pose message (`child`: `None` for the body).
+    fn add_pose(
+        &mut self,
+        m: &Message<'_>,
+        header: &msg::Header,
+        child: Option<String>,
+        pose: &msg::Transform,
+    ) {
+        if let Some(iso) = pose.isometry() {
+            let t = stamp_s(header.stamp, m.log_time_ns);
+            let parent = frame_name(&header.frame_id);
+            let samples = self.poses.entry(m.topic.to_string()).or_default();
+            samples.push((t, parent, child, iso));
         }
     }
 
@@ -329,6 +311,21 @@ impl Survey {
             undecodable,
         })
     }
+}
+
+/// Records where a sensor message is, and its stamp and frame.
+fn add_ref(
+    refs: &mut BTreeMap<String, Vec<MsgRef>>,
+    m: &Message<'_>,
+    file: usize,
+    header: &msg::Header,
+) {
+    refs.entry(m.topic.to_string()).or_default().push(MsgRef {
+        stamp_s: stamp_s(header.stamp, m.log_time_ns),
+        frame: frame_name(&header.frame_id),
+        file,
+        locator: m.locator,
+    });
 }
 
 pub(super) fn stamp_s(t: msg::Time, log_time_ns: u64) -> f64 {

@@ -36,6 +36,15 @@ pub(super) fn require_manifest(files: &dyn MapFiles) -> Result<()> {
 }
 
 fn missing_manifest(files: &dyn MapFiles) -> Error {
+    // A location that cannot even be listed (an S3 bucket that does not exist, no permission)
+    // says so, rather than "no manifest here".
+    if let Err(e) = files.list(CHUNKS_DIR) {
+        let loc = files.location();
+        return Error::bad_input(
+            files.path(MANIFEST_FILE),
+            format!("cannot open {loc}: listing it failed (does the bucket exist, and may these credentials read it?): {e}"),
+        );
+    }
     match count_chunk_objects(files) {
         0 => Error::bad_input(
             files.path(MANIFEST_FILE),
