@@ -85,16 +85,112 @@ impl GpuStages {
         stereo: true,
     };
 
-    /// The stages measured faster on a hardware GPU than on the same machine's CPU cores, what
-    /// `--device auto` runs there: TV (1.7–2.1× an H100 machine's 16 cores), not depth fusion
-    /// (2.8× slower), LiDAR fusion (3.5× slower) or stereo (`docs/bench/gpu.md`, run 11;
-    /// `docs/bench/stereo.md`).
-    pub const MEASURED_FASTER: GpuStages = GpuStages {
+    /// What `--device auto` runs on a hardware GPU: the rule applied to the project's records
+    /// ([`RECORDED_FASTER`]), today TV only.
+    pub const MEASURED_FASTER: GpuStages =
+        GpuStages::auto_rule(AdapterClass::Hardware, RECORDED_FASTER);
+
+    /// No stage on the GPU.
+    pub const NONE: GpuStages = GpuStages {
         fusion: false,
-        tv: true,
+        tv: false,
         stereo: false,
     };
+
+    /// `--device auto`'s rule: a stage runs on an adapter only where `records` show it faster
+    /// on that class of adapter than on the same machine's CPU; every other stage runs on the
+    /// CPU.
+    pub const fn auto_rule(class: AdapterClass, records: &[StageRecord]) -> GpuStages {
+        let mut stages = GpuStages::NONE;
+        let mut k = 0;
+        while k < records.len() {
+            let r = &records[k];
+            if r.class as u8 == class as u8 {
+                match r.stage {
+                    Stage::Fusion => stages.fusion = true,
+                    Stage::Tv => stages.tv = true,
+                    Stage::Stereo => stages.stereo = true,
+                }
+            }
+            k += 1;
+        }
+        stages
+    }
+
+    /// Whether any stage runs on the GPU.
+    pub fn any(&self) -> bool {
+        self.fusion || self.tv || self.stereo
+    }
+
+    /// The stages on the GPU in words ("TV", "fusion and TV", …).
+    pub fn describe(&self) -> String {
+        let names: Vec<&str> = [
+            (self.fusion, "fusion"),
+            (self.tv, "TV"),
+            (self.stereo, "stereo"),
+        ]
+        .iter()
+        .filter(|(on, _)| *on)
+        .map(|(_, n)| *n)
+        .collect();
+        if names.is_empty() {
+            "no stage".into()
+        } else {
+            names.join(" and ")
+        }
+    }
 }
+
+/// A class of adapter, as far as the records tell them apart.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AdapterClass {
+    /// A hardware GPU (discrete or integrated).
+    Hardware,
+    /// A software rasteriser (Mesa's lavapipe/llvmpipe: the CPU behind wgpu).
+    Software,
+}
+
+impl AdapterClass {
+    /// The class of an adapter that is, or is not, a software one.
+    pub fn of(software: bool) -> AdapterClass {
+        if software {
+            AdapterClass::Software
+        } else {
+            AdapterClass::Hardware
+        }
+    }
+}
+
+/// A stage that has a GPU kernel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// Depth and LiDAR fusion.
+    Fusion,
+    /// TV regularization.
+    Tv,
+    /// The variational stereo matchers.
+    Stereo,
+}
+
+/// A stage the records show faster on a class of adapter than on the same machine's CPU.
+#[derive(Clone, Copy, Debug)]
+pub struct StageRecord {
+    /// The stage.
+    pub stage: Stage,
+    /// The adapter class it was measured on.
+    pub class: AdapterClass,
+    /// Where the measurement is recorded.
+    pub record: &'static str,
+}
+
+/// The records `--device auto` follows. TV: 1.7–2.1× an H100 machine's 16 cores; not depth
+/// fusion (2.8× slower), LiDAR fusion (3.5× slower) or stereo; a software adapter is slower than
+/// the CPU code at every stage (`benches/gpu.rs`).
+pub const RECORDED_FASTER: &[StageRecord] = &[StageRecord {
+    stage: Stage::Tv,
+    class: AdapterClass::Hardware,
+    record: "docs/bench/gpu.md, run 11 (NVIDIA H100: 2045 against 1184 M voxel-iterations/s)",
+}];
 
 /// The device of a run and the state its stages keep on it (see the module documentation).
 pub struct Backend {
@@ -163,13 +259,30 @@ impl Backend {
     /// the stages measured faster there ([`GpuStages::MEASURED_FASTER`]); with `Gpu`, every
     /// stage that has a kernel.
     pub fn open(choice: DeviceChoice, options: ResidentOptions) -> Result<Self> {
-        let stages = match choice {
-            DeviceChoice::Auto => GpuStages::MEASURED_FASTER,
-            _ => GpuStages::ALL,
-        };
-        Ok(match choice.open()? {
-            Some(ctx) => Backend::gpu_for(Arc::new(ctx), options, stages),
-            None => Backend::cpu(),
+        Ok(match (choice, choice.open()?) {
+            (_, None) => Backend::cpu(),
+            (DeviceChoice::Auto, Some(ctx)) => {
+                let class = AdapterClass::of(ctx.is_software());
+                let stages = GpuStages::auto_rule(class, RECORDED_FASTER);
+                if stages.any() {
+                    tracing::info!(
+                        "device: GPU ({}) for {} (recorded faster there), the CPU for the \
+                         others (--device gpu puts every stage on the GPU)",
+                        ctx.describe(),
+                        stages.describe()
+                    );
+                    Backend::gpu_for(Arc::new(ctx), options, stages)
+                } else {
+                    // The summary names each stage's device: the probe's answer is a detail.
+                    tracing::debug!(
+                        "device: {} ({class:?} adapter): no stage is recorded faster on one than \
+                         on the CPU, running on the CPU (--device gpu uses it anyway)",
+                        ctx.describe()
+                    );
+                    Backend::cpu()
+                }
+            }
+            (_, Some(ctx)) => Backend::gpu_for(Arc::new(ctx), options, GpuStages::ALL),
         })
     }
 
@@ -359,5 +472,40 @@ impl TvSolver for Backend {
     fn max_voxels(&self) -> Option<usize> {
         self.gpu_if(self.stages.tv)
             .map(|ctx| (ctx.max_binding_bytes() / 12) as usize)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn auto_places_a_stage_on_an_adapter_only_where_a_record_says_it_is_faster() {
+        // The project's records: TV on hardware GPUs, nothing on lavapipe.
+        let hw = GpuStages::auto_rule(AdapterClass::Hardware, RECORDED_FASTER);
+        assert_eq!((hw.fusion, hw.tv, hw.stereo), (false, true, false));
+        assert_eq!(hw, GpuStages::MEASURED_FASTER);
+        assert!(!GpuStages::auto_rule(AdapterClass::Software, RECORDED_FASTER).any());
+        // A fake table: fusion faster on hardware, stereo faster on a software adapter.
+        let fake = [
+            StageRecord {
+                stage: Stage::Fusion,
+                class: AdapterClass::Hardware,
+                record: "fake",
+            },
+            StageRecord {
+                stage: Stage::Stereo,
+                class: AdapterClass::Software,
+                record: "fake",
+            },
+        ];
+        let hw = GpuStages::auto_rule(AdapterClass::Hardware, &fake);
+        assert_eq!((hw.fusion, hw.tv, hw.stereo), (true, false, false));
+        assert_eq!(hw.describe(), "fusion");
+        let sw = GpuStages::auto_rule(AdapterClass::Software, &fake);
+        assert_eq!((sw.fusion, sw.tv, sw.stereo), (false, false, true));
+        // No record: the CPU for every stage.
+        assert!(!GpuStages::auto_rule(AdapterClass::Hardware, &[]).any());
+        assert_eq!(GpuStages::ALL.describe(), "fusion and TV and stereo");
     }
 }

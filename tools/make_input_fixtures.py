@@ -303,10 +303,11 @@ def cloud_message(stamp_ns: int, pts: np.ndarray, double: bool):
         data=np.frombuffer(rec.tobytes(), dtype=np.uint8), is_dense=True)
 
 
-def camera_info(stamp_ns: int, frame: str, p: np.ndarray, width: int, height: int):
+def camera_info(stamp_ns: int, frame: str, p: np.ndarray, width: int, height: int,
+                d=(0.0,) * 5):
     return T["sensor_msgs/msg/CameraInfo"](
         header=header(stamp_ns, frame), height=height, width=width, distortion_model="plumb_bob",
-        d=np.zeros(5), k=p[:, :3].ravel().copy(), r=np.eye(3).ravel(), p=p.ravel().copy(),
+        d=np.array(d, dtype=np.float64), k=p[:, :3].ravel().copy(), r=np.eye(3).ravel(), p=p.ravel().copy(),
         binning_x=0, binning_y=0,
         roi=T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
                                                   do_rectify=False))
@@ -351,7 +352,9 @@ def lidar_events(d: Drive, pose_kind="tf", double=False, tf_static=True) -> list
     return events
 
 
-def stereo_events(d: Drive, compressed: bool) -> list:
+def stereo_events(d: Drive, compressed: bool, raw: bool = False) -> list:
+    """Stereo topics; `raw` names them image_raw and gives the cameras a distortion (the
+    unrectified input a reader must refuse)."""
     s0 = d.stamps_ns[0]
     events = [(("/tf_static", tf_message(transform(s0, "base_link", "cam_left", np.eye(4)),
                                           transform(s0, "base_link", "velodyne", d.cam0_from_velo))), s0)]
@@ -372,10 +375,11 @@ def stereo_events(d: Drive, compressed: bool) -> list:
                 msg = T["sensor_msgs/msg/Image"](
                     header=header(stamp, frame), height=h, width=w, encoding="mono8",
                     is_bigendian=0, step=w, data=gray.ravel().copy())
-                topic = f"/stereo/{side}/image_rect"
+                topic = f"/stereo/{side}/image_raw" if raw else f"/stereo/{side}/image_rect"
             events.append(((topic, msg), stamp))
+            dist = (-0.37, 0.2, 0.0, 0.0, 0.0) if raw else (0.0,) * 5
             events.append(((f"/stereo/{side}/camera_info",
-                            camera_info(stamp, frame, d.p[f"P{cam}"], w, h)), stamp))
+                            camera_info(stamp, frame, d.p[f"P{cam}"], w, h, dist)), stamp))
     return events
 
 
@@ -444,13 +448,15 @@ def bags(out: Path, d: Drive, want) -> dict:
         shutil.copytree(out / "bag_mcap", fresh(nometa), dirs_exist_ok=True)
         (nometa / "metadata.yaml").unlink()
         made["bag_no_metadata"] = dict(made["bag_mcap"], fault="no metadata.yaml (bag_mcap.mcap alone)")
-    if not (want("bag_stereo") or want("bag_stereo_compressed")):
+    if not (want("bag_stereo") or want("bag_stereo_compressed") or want("bag_stereo_raw")):
         pass
     elif d.stereo:
         bag("bag_stereo", stereo_events(d, compressed=False))
         bag("bag_stereo_compressed", stereo_events(d, compressed=True))
+        bag("bag_stereo_raw", stereo_events(d, compressed=False, raw=True),
+            fault="image_raw topics whose CameraInfo has a distortion: unrectified")
     else:
-        for name in ("bag_stereo", "bag_stereo_compressed"):
+        for name in ("bag_stereo", "bag_stereo_compressed", "bag_stereo_raw"):
             shutil.rmtree(out / name, ignore_errors=True)
         print(f"make_input_fixtures: stereo bags skipped ({d.seq} lacks image_0/image_1 PNGs or P0/P1 "
               "for some selected frame)")

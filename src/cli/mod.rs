@@ -22,6 +22,7 @@ mod stereo;
 mod synth;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use denser::backend::{AdapterClass, GpuStages, RECORDED_FASTER};
 use denser::gpu::{DeviceChoice, ResidentOptions};
 use denser::io::sequence::FrameRange;
 use denser::reconstruct::ReconstructionConfig;
@@ -360,17 +361,19 @@ impl DeviceArgs {
             DeviceArg::Cpu => DeviceChoice::Cpu,
             DeviceArg::Gpu => DeviceChoice::Gpu,
             DeviceArg::Auto => match probe_in_child() {
-                Some(Some((name, false))) => {
-                    tracing::debug!("probe: hardware adapter {name}");
-                    DeviceChoice::Auto
-                }
-                Some(Some((name, true))) => {
-                    // The summary names each stage's device: the probe's answer is a detail.
-                    tracing::debug!(
-                        "device: only a software adapter ({name}), running on the CPU \
-                         (--device gpu uses it anyway)"
-                    );
-                    DeviceChoice::Cpu
+                Some(Some((name, software))) => {
+                    let class = AdapterClass::of(software);
+                    if GpuStages::auto_rule(class, RECORDED_FASTER).any() {
+                        tracing::debug!("probe: {class:?} adapter {name}");
+                        DeviceChoice::Auto
+                    } else {
+                        // The summary names each stage's device: the probe's answer is a detail.
+                        tracing::debug!(
+                            "device: {name} ({class:?} adapter): no stage is recorded faster on \
+                             one than on the CPU, running on the CPU (--device gpu uses it anyway)"
+                        );
+                        DeviceChoice::Cpu
+                    }
                 }
                 Some(None) => {
                     tracing::debug!("device: no GPU adapter found, running on the CPU");

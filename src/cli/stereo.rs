@@ -77,6 +77,8 @@ struct Matched {
     valid_px: usize,
     matching_s: f64,
     written: Vec<PathBuf>,
+    /// What each file holds.
+    notes: Vec<String>,
 }
 
 impl fmt::Display for Matched {
@@ -92,6 +94,9 @@ impl fmt::Display for Matched {
             100.0 * self.valid_px as f64 / (self.width as f64 * self.height as f64),
             self.matching_s
         )?;
+        for n in &self.notes {
+            writeln!(f, "  {n}")?;
+        }
         write!(f, "{}", super::Written(&self.written))
     }
 }
@@ -142,7 +147,12 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         bail!("--dense applies to the variational methods (tv, tgv, tgv-tensor), not sgm");
     }
     let backend = a.device.backend()?;
-    for out in std::iter::once(&a.out).chain(&a.depth_out) {
+    // A picture beside the PFM, which no ordinary viewer shows.
+    let colour_path = match a.out.with_extension("png") {
+        p if p == a.out => a.out.with_extension("color.png"),
+        p => p,
+    };
+    for out in [&a.out, &colour_path].into_iter().chain(&a.depth_out) {
         denser::io::atomic::check_output_file(out)?;
     }
     let left = denser::io::image::read_grey(&a.left).with_context(context)?;
@@ -179,7 +189,9 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     let map = estimator.estimate(&left, &right).with_context(context)?;
     let matching_s = started.elapsed().as_secs_f64();
     denser::io::pfm::write_pfm(&a.out, &map.disparity_px)?;
-    let mut written = vec![a.out.clone()];
+    let (colour, scale_px) = denser::depth::disparity_false_colour(&map.disparity_px, None);
+    denser::io::image::write_rgb_png(&colour_path, &colour)?;
+    let mut written = vec![a.out.clone(), colour_path];
     if let (Some(path), Some(c)) = (&a.depth_out, calib) {
         let shifted = DisparityMap {
             disparity_px: Image {
@@ -203,6 +215,21 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         denser::io::image::write_depth_png_u16(path, &depth, 256.0)?;
         written.push(path.clone());
     }
+    let notes = vec![
+        format!(
+            "{}: the disparity in false colour, blue 0 px → red {scale_px:.1} px (the 99th percentile), black where none",
+            written[1].display()
+        ),
+        format!("{}: the disparity (Middlebury PFM, float32, inf where none)", a.out.display()),
+    ]
+    .into_iter()
+    .chain(a.depth_out.iter().map(|p| {
+        format!(
+            "{}: depth as a 16-bit PNG, depth_m = value / 256, 0 where none (it looks black in an ordinary viewer)",
+            p.display()
+        )
+    }))
+    .collect();
     Ok(Box::new(Matched {
         method,
         device: backend.stereo_device(method),
@@ -211,6 +238,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         valid_px: map.valid_count(),
         matching_s,
         written,
+        notes,
     }))
 }
 

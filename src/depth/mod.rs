@@ -213,6 +213,48 @@ impl FromStr for StereoMethod {
     }
 }
 
+/// A disparity map in false colour, for looking at: blue (0 px) → yellow → red (`scale_px`, by
+/// default the 99th percentile of the valid disparities, so one outlier does not wash the image
+/// out), black where there is no disparity. Returns the image and the scale used.
+pub fn disparity_false_colour(
+    disparity_px: &Image<f32>,
+    scale_px: Option<f32>,
+) -> (crate::frame::RgbImage, f32) {
+    let scale = scale_px.unwrap_or_else(|| {
+        let mut valid: Vec<f32> = disparity_px
+            .data
+            .iter()
+            .copied()
+            .filter(|d| d.is_finite() && *d >= 0.0)
+            .collect();
+        if valid.is_empty() {
+            return 1.0;
+        }
+        let k = ((valid.len() - 1) as f64 * 0.99).round() as usize;
+        *valid.select_nth_unstable_by(k, f32::total_cmp).1
+    });
+    let scale = if scale > 0.0 { scale } else { 1.0 };
+    let data = disparity_px
+        .data
+        .iter()
+        .map(|&d| {
+            if d.is_finite() && d >= 0.0 {
+                crate::eval::error_colour(d / scale)
+            } else {
+                [0, 0, 0]
+            }
+        })
+        .collect();
+    (
+        Image {
+            width: disparity_px.width,
+            height: disparity_px.height,
+            data,
+        },
+        scale,
+    )
+}
+
 /// Converts disparities (pixels) to depth (metres) with `z = fx_px · baseline_m / d`.
 ///
 /// Pixels with NaN, non-finite or non-positive disparity are invalid (NaN) in the result. For

@@ -58,5 +58,5 @@ pub use plot::{
     UNSCORED_GREY,
 };
 pub use report::{EvaluationReport, SurfaceReport};
-pub use run::{evaluate_meshes, evaluate_reconstruction, RunFacts};
+pub use run::{evaluate_meshes, evaluate_reconstruction, sparse_ground_truth_note, RunFacts};
 pub use stats::{percentile_of_sorted, ErrorStats, Histogram, HistogramSpec};

@@ -142,6 +142,10 @@ pub fn evaluate_meshes(
     report.pictures.insert(0, "error_histogram.png".into());
     written.push(hist);
     report.surfaces.extend(evaluations);
+    if let Some(note) = report.surfaces.last().and_then(sparse_ground_truth_note) {
+        tracing::warn!("{note}");
+        report.notes.push(note);
+    }
     report
         .timings_s
         .push(("evaluation".into(), t.elapsed().as_secs_f64()));
@@ -288,4 +292,26 @@ pub fn evaluate_reconstruction(
         out_dir,
     )?;
     Ok((report, written))
+}
+
+/// A warning when the ground truth looks too sparse to score `surface`: most of the surface lies
+/// much farther from any ground-truth point (accuracy) than the ground truth lies from the
+/// surface (completeness), as when one LiDAR scan, whose rings are decimetres to metres apart,
+/// scores a dense mesh. Thresholds: accuracy median over 5 cm and over 2.5× the completeness
+/// median.
+pub fn sparse_ground_truth_note(surface: &super::report::SurfaceReport) -> Option<String> {
+    let accuracy = surface.accuracy.median_m;
+    let completeness = surface.completeness.as_ref()?.median_m;
+    (accuracy > 0.05 && accuracy > 2.5 * completeness).then(|| {
+        format!(
+            "The {} surface lies farther from the ground truth than the ground truth lies from it \
+             (accuracy median {:.1} cm, completeness median {:.1} cm): the ground truth may be \
+             too sparse to score this surface (one scan's rings are decimetres to metres apart), \
+             or parts of the surface were never seen by it; the accuracy figures then measure \
+             its spacing as much as the surface's error.",
+            surface.label,
+            accuracy * 100.0,
+            completeness * 100.0
+        )
+    })
 }

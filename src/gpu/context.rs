@@ -14,10 +14,10 @@ pub const WORKGROUP_SIZE: u32 = 64;
 /// Where a command runs its fusion and regularization.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DeviceChoice {
-    /// The GPU when a hardware adapter exists, for the stages measured faster there
-    /// (`crate::backend::GpuStages::MEASURED_FASTER`), else the CPU (with a one-line message).
-    /// A software adapter (lavapipe/llvmpipe: the CPU behind wgpu) is slower than the CPU code
-    /// (`benches/gpu.rs`), so `Auto` does not pick it.
+    /// The adapter, for the stages the records show faster on its class of adapter than on the
+    /// CPU (`crate::backend::GpuStages::auto_rule`: today TV on a hardware GPU, nothing on a
+    /// software one such as lavapipe, which is slower than the CPU code, `benches/gpu.rs`); the
+    /// CPU for the rest, and for everything when no adapter exists.
     #[default]
     Auto,
     /// Always the CPU.
@@ -27,33 +27,21 @@ pub enum DeviceChoice {
 }
 
 impl DeviceChoice {
-    /// Opens the GPU this choice asks for: `None` for the CPU. `Auto` and `Gpu` log the device
-    /// on one line (`device: …`); `Auto` falls back to the CPU (saying why) when no adapter
-    /// exists, only a software one does, or it fails to open; `Gpu` fails when none exists.
+    /// Opens the GPU this choice asks for: `None` for the CPU. `Gpu` logs the device on one line
+    /// (`device: …`) and fails when none exists; `Auto` returns any adapter (the backend decides
+    /// its stages and logs them) and falls back to the CPU, saying why, when none exists or it
+    /// fails to open.
     pub fn open(self) -> Result<Option<GpuContext>> {
         match self {
             DeviceChoice::Cpu => Ok(None),
+            // Which stages run on it is the backend's rule (`crate::backend::GpuStages::
+            // auto_rule`): this only finds the adapter.
             DeviceChoice::Auto => match GpuContext::new() {
-                Ok(Some(c)) if c.is_software() => {
-                    // The summary names each stage's device: the probe's answer is a detail.
-                    tracing::debug!(
-                        "device: only a software adapter ({}), running on the CPU \
-                         (--device gpu uses it anyway)",
-                        c.describe()
-                    );
-                    Ok(None)
-                }
-                Ok(Some(c)) => {
-                    tracing::info!(
-                        "device: GPU ({}) for the stages measured faster there (TV), the CPU \
-                         for the others (--device gpu puts every stage on the GPU)",
-                        c.describe()
-                    );
-                    Ok(Some(c))
-                }
-                Ok(None) => {
-                    tracing::debug!("device: no GPU adapter found, running on the CPU");
-                    Ok(None)
+                Ok(c) => {
+                    if c.is_none() {
+                        tracing::debug!("device: no GPU adapter found, running on the CPU");
+                    }
+                    Ok(c)
                 }
                 Err(e) => {
                     tracing::warn!("device: {e}; running on the CPU");

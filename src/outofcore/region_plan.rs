@@ -264,12 +264,15 @@ pub fn check_budget_up_front(
     )))
 }
 
-/// `options` with the region edge decided: as given, or planned to the budget (0).
+/// `options` with the region edge decided: as given, or planned to the budget (0). The plan is
+/// logged as the run's (`announce`), or only at debug level (a plan consulted, not run: the
+/// shards' exact-halo plan a swept pass adopts from).
 pub(super) fn resolve(
     store: &MapStore,
     options: &RegionalOptions,
     halo_blocks: i32,
     swept: bool,
+    announce: bool,
 ) -> Result<RegionalOptions> {
     if options.region_chunks > 0 {
         return Ok(*options);
@@ -281,11 +284,16 @@ pub(super) fn resolve(
         RegionCosts::of(swept),
         options.budget_bytes,
     )?;
-    tracing::info!(
+    let line = format!(
         "regions of {r}³ chunks (the largest within the {} MiB a region may use: at most {} MiB each with a {halo_blocks}-block halo)",
         options.budget_bytes >> 20,
         bytes.div_ceil(1 << 20)
     );
+    if announce {
+        tracing::info!("{line}");
+    } else {
+        tracing::debug!("the shards' plan, for adopting their regions: {line}");
+    }
     Ok(RegionalOptions {
         region_chunks: r,
         ..*options

@@ -80,7 +80,7 @@ pub fn regularize_map_with(
     let result = (|| {
         // Shards solve with the exact halo: their records are adopted under that plan's key. (A
         // budget too small for the exact halo's regions had no shards: sweeps go on without.)
-        let exact = match resolve(store, options, halo, false) {
+        let exact = match resolve(store, options, halo, false, false) {
             Err(e) if options.sweep_iterations.is_none() => return Err(e),
             r => r,
         };
@@ -108,7 +108,8 @@ pub fn regularize_map_with(
             .filter(|k| *k < params.iterations && adopted.regions == 0 && !all_done);
         let mut stats = match swept {
             Some(k) => {
-                let options = resolve(store, options, RegionPlan::exact_halo_blocks(k), true)?;
+                let options =
+                    resolve(store, options, RegionPlan::exact_halo_blocks(k), true, true)?;
                 let run = super::sweeps::SweptPass {
                     params,
                     region_chunks: options.region_chunks,
@@ -122,7 +123,9 @@ pub fn regularize_map_with(
                 stats
             }
             None => {
-                let exact = exact?;
+                // The plan consulted above is the one run: say so (the same plan again).
+                exact?;
+                let exact = resolve(store, options, halo, false, true)?;
                 let mut mode = Mode::Commit;
                 let mut stats = regularize_pass(
                     store,
@@ -208,7 +211,7 @@ pub fn regularize_shard(
         .halo_blocks
         .unwrap_or_else(|| RegionPlan::exact_halo_blocks(params.iterations))
         .max(0);
-    let options = &resolve(store, options, halo, false)?;
+    let options = &resolve(store, options, halo, false, true)?;
     let r = options.region_chunks as i32;
     let key = shards::plan_key(store.manifest(), pass, params, options.region_chunks, halo);
     let regions: std::collections::BTreeSet<[i32; 3]> = store

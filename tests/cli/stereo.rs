@@ -71,6 +71,18 @@ fn stereo_writes_a_pfm_that_stereo_eval_scores() {
         assert!(o.status.success(), "{}", text(&o));
         let pred = read_pfm(d.join("disp.pfm")).unwrap();
         assert_eq!((pred.width, pred.height), (w, h));
+        // The false-colour picture beside it: black exactly where there is no disparity, and
+        // the summary says what each file holds.
+        let colour = denser::io::image::read_rgb(d.join("disp.png")).unwrap();
+        assert_eq!((colour.width, colour.height), (w, h));
+        for (c, p) in colour.data.iter().zip(&pred.data) {
+            assert_eq!(*c == [0, 0, 0], !p.is_finite(), "{method}: {c:?} for {p}");
+        }
+        let t = text(&o);
+        assert!(
+            t.contains("false colour") && t.contains("depth_m = value / 256"),
+            "{t}"
+        );
         let m = evaluate_disparity(&pred, &gt_known, None).unwrap();
         eprintln!("{method}: {m:?}");
         assert!(

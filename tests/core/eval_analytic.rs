@@ -421,3 +421,53 @@ fn real_aerial_lidar_with_georeferenced_coordinates() {
     }
     assert!(d.iter().all(|&d| d as f64 <= 0.1 + 2.0 * rounding + 1e-6));
 }
+
+#[test]
+fn a_sparse_ground_truth_is_said_to_be_one() {
+    // A dense plane mesh scored against the same plane sampled every 2 cm (dense) and in lines
+    // 1 m apart (a scan's rings): only the second earns the warning.
+    let mesh = plane_mesh(-3.0, 3.0, -3.0, 3.0, 0.0, 0.05);
+    let options = EvalOptions {
+        surface_sample_spacing_m: Some(0.02),
+        completeness: Some(CompletenessRegion::All),
+        histogram: HistogramSpec {
+            bin_width_m: 0.01,
+            max_m: 3.0,
+        },
+    };
+    let dense = plane_samples(-3.0, 3.0, -3.0, 3.0, 0.0, 0.02);
+    let report = evaluate_mesh(
+        "dense",
+        &mesh,
+        &GroundTruthIndex::new(&dense).unwrap(),
+        &options,
+    )
+    .unwrap();
+    assert_eq!(denser::eval::sparse_ground_truth_note(&report), None);
+    let mut rings = PointCloud::default();
+    for line in -3..=3 {
+        for k in 0..=600 {
+            rings
+                .points_m
+                .push([-3.0 + k as f64 * 0.01, 0.0, line as f64]);
+        }
+    }
+    let report = evaluate_mesh(
+        "rings",
+        &mesh,
+        &GroundTruthIndex::new(&rings).unwrap(),
+        &options,
+    )
+    .unwrap();
+    let note = denser::eval::sparse_ground_truth_note(&report).expect("a warning");
+    assert!(
+        note.contains("too sparse") && note.contains("rings surface"),
+        "{note}"
+    );
+    // The accuracy median of a plane against lines 1 m apart is a quarter metre.
+    assert!(
+        (report.accuracy.median_m - 0.25).abs() < 0.02,
+        "{}",
+        report.accuracy.median_m
+    );
+}

@@ -525,6 +525,15 @@ fn stereo_bags_match_the_kitti_layout() {
             assert!(gap < 1e-9, "{bag} frame {i}: poses {gap} m apart");
         }
     }
+    // Raw (unrectified) images are refused, saying what to do.
+    let e = match open_input(&out.join("bag_stereo_raw"), &stereo, Some(sgm())) {
+        Ok(_) => panic!("raw images opened"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        e.contains("/stereo/left/image_raw holds raw images") && e.contains("rectify"),
+        "{e}"
+    );
     // Topics named by flag, one of them wrong.
     stereo.bag.left_topic = Some("/stereo/left/camera_info".into());
     let e = match open_input(&out.join("bag_stereo"), &stereo, Some(sgm())) {
