@@ -260,7 +260,8 @@ fn held_out_range(range: FrameRange, k: usize) -> FrameRange {
     }
 }
 
-/// Every file a reconstruction may write into its output folder (besides `top_view_*.png`).
+/// Every file a reconstruction may write into its output folder (besides `top_view_*.png` and
+/// `view_*.png`).
 const OUTPUT_FILES: &[&str] = &[
     "mesh_raw.ply",
     "mesh_regularized.ply",
@@ -281,7 +282,8 @@ fn remove_stale_outputs(out_dir: &std::path::Path, written: &[PathBuf]) -> std::
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
         let ours = OUTPUT_FILES.contains(&name.as_str())
-            || (name.starts_with("top_view_") && name.ends_with(".png"));
+            || ((name.starts_with("top_view_") || name.starts_with("view_"))
+                && name.ends_with(".png"));
         if ours && !written.iter().any(|w| w.file_name() == path.file_name()) {
             tracing::info!("removing {} (an earlier run's output)", path.display());
             std::fs::remove_file(&path)?;

@@ -45,6 +45,7 @@ mod ground_truth;
 mod nn;
 mod nn_grid;
 mod plot;
+mod render;
 mod report;
 pub mod run;
 mod stats;

@@ -18,7 +18,7 @@ use std::sync::OnceLock;
 static FONT_TTF: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
 
 /// Font family name the charts use.
-const FONT: &str = "sans-serif";
+pub(super) const FONT: &str = "sans-serif";
 
 /// Series colours (matplotlib's tab10: red, blue, green, orange, purple): the first surface
 /// (usually "raw") is red, the second (usually "regularized") blue.
@@ -94,7 +94,7 @@ impl UpAxis {
 }
 
 /// Registers the embedded font once.
-fn ensure_font() -> Result<()> {
+pub(super) fn ensure_font() -> Result<()> {
     static REGISTERED: OnceLock<bool> = OnceLock::new();
     let ok = *REGISTERED.get_or_init(|| register_font(FONT, FontStyle::Normal, FONT_TTF).is_ok());
     if ok {
@@ -107,7 +107,7 @@ fn ensure_font() -> Result<()> {
 }
 
 /// A drawing failure on `path`, reported as an I/O error on that file.
-fn draw_error<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> Error + '_ {
+pub(super) fn draw_error<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> Error + '_ {
     move |e| {
         Error::io(
             path,
@@ -117,7 +117,7 @@ fn draw_error<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> Error + '_ {
 }
 
 /// Encodes an RGB buffer as PNG at `path` (complete or absent: `io::atomic`).
-fn save_png(path: &Path, rgb: &[u8], (w, h): (u32, u32)) -> Result<()> {
+pub(super) fn save_png(path: &Path, rgb: &[u8], (w, h): (u32, u32)) -> Result<()> {
     let buf: image::RgbImage = image::ImageBuffer::from_raw(w, h, rgb.to_vec())
         .ok_or_else(|| Error::InvalidArgument(format!("{}: image buffer size", path.display())))?;
     let mut bytes = std::io::Cursor::new(Vec::new());

@@ -2,6 +2,7 @@
 //! (`report.json`, `report.md`, the error histogram and a top view per surface), for any mesh
 //! files (`denser evaluate`) or for a reconstruction's surfaces, whatever store it ran over.
 
+use super::render::{render_mesh_png, MeshView};
 use super::{
     evaluate_mesh_detailed, plot_error_histograms_png, plot_top_view_png, EvalOptions,
     EvaluationReport, GroundTruth, GroundTruthIndex, SensorCoverage, UpAxis,
@@ -141,6 +142,17 @@ pub fn evaluate_meshes(
     plot_error_histograms_png(&hist, &series, 0.5)?;
     report.pictures.insert(0, "error_histogram.png".into());
     written.push(hist);
+    // The last (regularized) surface as it looks, from above and from an oblique viewpoint.
+    if let Some((label, mesh)) = meshes.last().filter(|(_, m)| !m.triangles.is_empty()) {
+        for (view, name) in [(MeshView::Top, "top"), (MeshView::Oblique, "oblique")] {
+            let file = format!("view_{name}_{label}.png");
+            let path = out_dir.join(&file);
+            let title = format!("{label} mesh, {name} view");
+            render_mesh_png(&path, mesh, UpAxis::NegY, view, 1600, &title)?;
+            report.pictures.push(file);
+            written.push(path);
+        }
+    }
     report.surfaces.extend(evaluations);
     if let Some(note) = report.surfaces.last().and_then(sparse_ground_truth_note) {
         tracing::warn!("{note}");
