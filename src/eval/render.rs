@@ -1,4 +1,5 @@
-//! Pictures of a mesh for the report: the surface in its own colours, shaded by a light from
+//! Pictures of a mesh for the report: the surface in its own colours (or by height, when it has
+//! none), shaded by a light from
 //! above the viewer, seen straight down and from an oblique viewpoint (35° above the horizon,
 //! from the south-west of the image), by a small z-buffer rasterizer (no GPU, no window).
 //! Orthographic: equal metres per pixel across the picture, so lengths compare.
@@ -19,6 +20,32 @@ pub enum MeshView {
     Oblique,
 }
 
+/// How the surface is coloured.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MeshColour {
+    /// The mesh's own vertex colours.
+    Own,
+    /// Height above the lowest part, blue (low) → red (high), for meshes without colour.
+    Height,
+}
+
+impl MeshColour {
+    /// [`MeshColour::Height`] for a mesh whose colours are all grey (LiDAR reflectance, grey
+    /// cameras), else its own.
+    pub fn for_mesh(mesh: &Mesh) -> MeshColour {
+        let grey = mesh
+            .colors
+            .iter()
+            .filter(|c| c[0] == c[1] && c[1] == c[2])
+            .count();
+        if grey as f64 >= 0.99 * mesh.colors.len() as f64 {
+            MeshColour::Height
+        } else {
+            MeshColour::Own
+        }
+    }
+}
+
 /// Background of the pictures.
 const BACKGROUND: [u8; 3] = [255, 255, 255];
 
@@ -32,6 +59,7 @@ pub fn render_mesh_png(
     mesh: &Mesh,
     up: UpAxis,
     view: MeshView,
+    colour_by: MeshColour,
     width_px: u32,
     title: &str,
 ) -> Result<()> {
@@ -62,6 +90,18 @@ pub fn render_mesh_png(
         }
     };
     let light = (-look + up_v).normalize();
+    // Heights for MeshColour::Height: the vertices' 1–99 % range.
+    let (h_lo, h_hi) = {
+        let mut hs: Vec<f64> = mesh
+            .positions_m
+            .iter()
+            .map(|q| Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64).dot(&up_v))
+            .collect();
+        let n = hs.len().saturating_sub(1);
+        let lo = *hs.select_nth_unstable_by(n / 100, f64::total_cmp).1;
+        let hi = *hs.select_nth_unstable_by(n - n / 100, f64::total_cmp).1;
+        (lo, hi.max(lo + 1e-6))
+    };
     let p = |k: u32| {
         let q = mesh.positions_m[k as usize];
         Vector3::new(q[0] as f64, q[1] as f64, q[2] as f64)
@@ -113,7 +153,15 @@ pub fn render_mesh_png(
         };
         let shade = 0.3 + 0.7 * n.dot(&light).abs();
         let colour = {
-            let c = t.map(|k| mesh.colors.get(k as usize).copied().unwrap_or([180; 3]));
+            let c = match colour_by {
+                MeshColour::Own => {
+                    t.map(|k| mesh.colors.get(k as usize).copied().unwrap_or([180; 3]))
+                }
+                MeshColour::Height => {
+                    let h = (v[0] + v[1] + v[2]).dot(&up_v) / 3.0;
+                    [super::error_colour(((h - h_lo) / (h_hi - h_lo)) as f32); 3]
+                }
+            };
             let mean = |i: usize| (c[0][i] as f64 + c[1][i] as f64 + c[2][i] as f64) / 3.0;
             [0, 1, 2].map(|i| (mean(i) * shade).round().clamp(0.0, 255.0) as u8)
         };
@@ -139,7 +187,7 @@ pub fn render_mesh_png(
             .map(|q| q.1)
             .fold(f64::INFINITY, f64::min)
             .floor()
-            .max(0.0) as u32;
+            .max(band) as u32;
         let y1 = (s
             .iter()
             .map(|q| q.1)
@@ -201,7 +249,16 @@ mod tests {
         square(&mut mesh, 0.5, -1.0, [0, 200, 0]);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("top.png");
-        render_mesh_png(&path, &mesh, UpAxis::NegY, MeshView::Top, 300, "").unwrap();
+        render_mesh_png(
+            &path,
+            &mesh,
+            UpAxis::NegY,
+            MeshView::Top,
+            MeshColour::Own,
+            300,
+            "",
+        )
+        .unwrap();
         let img = crate::io::image::read_rgb(&path).unwrap();
         let at = |x: u32, y: u32| img.data[(y * img.width + x) as usize];
         let row = img.height / 2;
@@ -211,23 +268,28 @@ mod tests {
         let middle = at(img.width / 2, row);
         assert!(left[0] > 100 && left[1] == 0, "{left:?}");
         assert!(middle[1] > 100 && middle[0] == 0, "{middle:?}");
+        assert_eq!(MeshColour::for_mesh(&mesh), MeshColour::Own);
+        // By height: the lower (red) square turns blue, the upper (green) one red.
+        let top = MeshView::Top;
+        render_mesh_png(&path, &mesh, UpAxis::NegY, top, MeshColour::Height, 300, "").unwrap();
+        let img = crate::io::image::read_rgb(&path).unwrap();
+        let at = |x: u32, y: u32| img.data[(y * img.width + x) as usize];
+        let (low, high) = (at(img.width / 8, row), at(img.width / 2, row));
+        assert!(low[2] > low[0] && high[0] > high[2], "{low:?} {high:?}");
+        let oblique = MeshView::Oblique;
         render_mesh_png(
             &path,
             &mesh,
             UpAxis::NegY,
-            MeshView::Oblique,
+            oblique,
+            MeshColour::Own,
             300,
-            "oblique",
+            "o",
         )
         .unwrap();
-        assert!(render_mesh_png(
-            &path,
-            &Mesh::default(),
-            UpAxis::NegY,
-            MeshView::Top,
-            300,
-            ""
-        )
-        .is_err());
+        let empty = Mesh::default();
+        assert!(
+            render_mesh_png(&path, &empty, UpAxis::NegY, top, MeshColour::Own, 300, "").is_err()
+        );
     }
 }

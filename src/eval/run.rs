@@ -2,7 +2,7 @@
 //! (`report.json`, `report.md`, the error histogram and a top view per surface), for any mesh
 //! files (`denser evaluate`) or for a reconstruction's surfaces, whatever store it ran over.
 
-use super::render::{render_mesh_png, MeshView};
+use super::render::{render_mesh_png, MeshColour, MeshView};
 use super::{
     evaluate_mesh_detailed, plot_error_histograms_png, plot_top_view_png, EvalOptions,
     EvaluationReport, GroundTruth, GroundTruthIndex, SensorCoverage, UpAxis,
@@ -147,8 +147,14 @@ pub fn evaluate_meshes(
         for (view, name) in [(MeshView::Top, "top"), (MeshView::Oblique, "oblique")] {
             let file = format!("view_{name}_{label}.png");
             let path = out_dir.join(&file);
-            let title = format!("{label} mesh, {name} view");
-            render_mesh_png(&path, mesh, UpAxis::NegY, view, 1600, &title)?;
+            let colour = MeshColour::for_mesh(mesh);
+            let title = match colour {
+                MeshColour::Own => format!("{label} mesh, {name} view"),
+                MeshColour::Height => format!(
+                    "{label} mesh, {name} view, coloured by height (blue low, red high; the input had no colour)"
+                ),
+            };
+            render_mesh_png(&path, mesh, UpAxis::NegY, view, colour, 1600, &title)?;
             report.pictures.push(file);
             written.push(path);
         }
