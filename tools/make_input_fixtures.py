@@ -27,7 +27,8 @@ Under OUT_DIR (existing outputs are replaced) it writes, for frames [0, N):
   bag_no_tf_static/   faulty: no /tf_static
   bag_cut/            faulty: bag_mcap with its .mcap truncated to 70 % (inside a record)
   bag_no_metadata/    faulty: bag_mcap without metadata.yaml
-  bag_stereo/, bag_stereo_compressed/  (only with image_0 and image_1 for every frame)
+  bag_stereo/, bag_stereo_compressed/, bag_stereo_raw/ (image_raw with a distortion: to refuse)
+                      (only with image_0 and image_1 for every frame)
   manifest.json       files, frames, topics, faults and library versions
 
 Bag stamps: header.stamp = log time = times[i] + 1000 s (exact, in ns). Frames: map (fixed),
