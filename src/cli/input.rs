@@ -108,8 +108,8 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         )?;
         let opts = a.how.options(RangeSource::Lidar).bag;
         if survey.has_images() {
-            // The survey is consumed by a selection: read it again for the LiDAR side.
-            match bag.survey().with_context(context)?.select_stereo(&opts) {
+            // A selection consumes its survey: the stereo one takes a copy (the bag is read once).
+            match survey.clone().select_stereo(&opts) {
                 Ok(s) => {
                     writeln!(out, "  would match (--depth stereo): {} of {} pairs on {} + {} (frame '{}', fx {:.1} px, baseline {:.3} m)", s.len(), s.left_images, s.topics[0], s.topics[1], s.camera_frame, s.intrinsics.fx, s.baseline_m)?;
                     writeln!(

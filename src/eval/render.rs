@@ -170,32 +170,14 @@ pub fn render_mesh_png(
         if area.abs() < 1e-12 {
             continue;
         }
-        let x0 = s
-            .iter()
-            .map(|q| q.0)
-            .fold(f64::INFINITY, f64::min)
-            .floor()
-            .max(0.0) as u32;
-        let x1 = (s
-            .iter()
-            .map(|q| q.0)
-            .fold(f64::NEG_INFINITY, f64::max)
-            .ceil() as i64)
-            .min(w as i64 - 1);
-        let y0 = s
-            .iter()
-            .map(|q| q.1)
-            .fold(f64::INFINITY, f64::min)
-            .floor()
-            .max(band) as u32;
-        let y1 = (s
-            .iter()
-            .map(|q| q.1)
-            .fold(f64::NEG_INFINITY, f64::max)
-            .ceil() as i64)
-            .min(h as i64 - 1);
-        for y in y0 as i64..=y1 {
-            for x in x0 as i64..=x1 {
+        // The triangle's pixel box, clipped to the drawing (below the title band).
+        let (xs, ys) = (s.map(|q| q.0), s.map(|q| q.1));
+        let lo = |v: [f64; 3]| v.iter().copied().fold(f64::INFINITY, f64::min).floor();
+        let hi = |v: [f64; 3]| v.iter().copied().fold(f64::NEG_INFINITY, f64::max).ceil();
+        let (x0, x1) = (lo(xs).max(0.0) as i64, (hi(xs) as i64).min(w as i64 - 1));
+        let (y0, y1) = (lo(ys).max(band) as i64, (hi(ys) as i64).min(h as i64 - 1));
+        for y in y0..=y1 {
+            for x in x0..=x1 {
                 let (fx, fy) = (x as f64 + 0.5, y as f64 + 0.5);
                 let edge = |a: (f64, f64, f64), b: (f64, f64, f64)| {
                     ((b.0 - a.0) * (fy - a.1) - (b.1 - a.1) * (fx - a.0)) / area

@@ -330,29 +330,21 @@ fn cloud_scan(cloud: crate::frame::PointCloud) -> LidarScan {
 }
 
 fn drop_non_finite(scan: &mut LidarScan) {
-    if scan
-        .points_sensor_m
-        .iter()
-        .all(|p| p.iter().all(|v| v.is_finite()))
-    {
+    let finite = |p: &[f32; 3]| p.iter().all(|v| v.is_finite());
+    if scan.points_sensor_m.iter().all(finite) {
         return;
     }
-    let keep: Vec<bool> = scan
-        .points_sensor_m
-        .iter()
-        .map(|p| p.iter().all(|v| v.is_finite()))
-        .collect();
-    let mut k = 0;
-    scan.points_sensor_m.retain(|_| {
-        k += 1;
-        keep[k - 1]
-    });
-    if scan.intensity.len() == keep.len() {
-        let mut k = 0;
-        scan.intensity.retain(|_| {
-            k += 1;
-            keep[k - 1]
-        });
+    if scan.intensity.len() == scan.points_sensor_m.len() {
+        let kept: Vec<([f32; 3], f32)> = scan
+            .points_sensor_m
+            .iter()
+            .zip(&scan.intensity)
+            .filter(|(p, _)| finite(p))
+            .map(|(p, i)| (*p, *i))
+            .collect();
+        (scan.points_sensor_m, scan.intensity) = kept.into_iter().unzip();
+    } else {
+        scan.points_sensor_m.retain(finite);
     }
 }
 

@@ -32,7 +32,7 @@ pub(super) struct MsgRef {
 type PoseSample = (f64, String, Option<String>, Isometry3<f64>);
 
 /// What one pass over a bag found.
-#[derive(Default)]
+#[derive(Clone, Default)]
 pub struct Survey {
     /// Topics by name.
     pub topics: BTreeMap<String, TopicStats>,

@@ -8,6 +8,7 @@ use nalgebra::Isometry3;
 use std::collections::{BTreeMap, HashMap};
 
 /// How a child frame hangs from its parent.
+#[derive(Clone)]
 enum Edge {
     Static(Isometry3<f64>),
     Moving(Vec<(f64, Isometry3<f64>)>),
@@ -15,7 +16,7 @@ enum Edge {
 }
 
 /// Frames and the transforms between them.
-#[derive(Default)]
+#[derive(Clone, Default)]
 pub struct TfTree {
     /// child → (parent, `parent_from_child`).
     edges: BTreeMap<String, (String, Edge)>,
