@@ -9,6 +9,7 @@ use crate::grid::{BlockIndex, Layer};
 use crate::map::store::MapStore;
 use crate::map::ChunkIndex;
 use crate::mesh::{extract_mesh_keyed, EdgeKey, Field, Mesh};
+use std::collections::BTreeMap;
 
 /// An axis-aligned box in world coordinates, metres.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -113,4 +114,59 @@ pub fn mesh_chunk(
     }
     let (m, keys) = extract_mesh_keyed(&layer, field, Some(&own));
     Ok((m, keys, own.len()))
+}
+
+/// Runs `make(i)` for `i` in `0..n` on the thread pool, at most `lookahead` items ahead of
+/// `consume`, which receives the results one by one in the order `0, 1, …, n − 1` on one of the
+/// pool's threads; while the next result is not ready, that thread makes items itself. So every
+/// thread of the pool stays busy, no item waits for a slower one of its batch, the output is
+/// independent of the number of threads, and at most `lookahead` results exist at once. Stops at
+/// the first error of `consume` (items already started finish first).
+pub fn in_order<T: Send>(
+    n: usize,
+    lookahead: usize,
+    make: impl Fn(usize) -> T + Sync,
+    mut consume: impl FnMut(T) -> Result<()> + Send,
+) -> Result<()> {
+    let lookahead = lookahead.max(1);
+    let (tx, rx) = crossbeam::channel::unbounded::<(usize, T)>();
+    rayon::scope(|s| {
+        let make = &make;
+        let spawn = |i: usize| {
+            let tx = tx.clone();
+            s.spawn(move |_| {
+                // The receiver outlives the scope; a send cannot fail while it waits.
+                let _ = tx.send((i, make(i)));
+            });
+        };
+        for i in 0..n.min(lookahead) {
+            spawn(i);
+        }
+        let mut ready: BTreeMap<usize, T> = BTreeMap::new();
+        for k in 0..n {
+            let item = loop {
+                if let Some(t) = ready.remove(&k) {
+                    break t;
+                }
+                match rx.try_recv() {
+                    Ok((i, t)) => {
+                        ready.insert(i, t);
+                    }
+                    // Not ready: make an item here, or wait for the thread making it.
+                    Err(_) => match rayon::yield_now() {
+                        Some(rayon::Yield::Executed) => {}
+                        _ => {
+                            let (i, t) = rx.recv().expect("a sender is alive");
+                            ready.insert(i, t);
+                        }
+                    },
+                }
+            };
+            if k + lookahead < n {
+                spawn(k + lookahead);
+            }
+            consume(item)?;
+        }
+        Ok(())
+    })
 }

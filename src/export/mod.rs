@@ -116,10 +116,17 @@ pub fn is_copc_path(path: &Path) -> bool {
         .unwrap_or(false)
 }
 
-/// How many chunks to mesh at once: one per thread (two per thread to keep them busy), fewer
-/// when a quarter of `budget_bytes` cannot hold that many meshings of the map's largest chunk
-/// (its blocks and a neighbour's decoded at once, `u` included, and the mesh: 6 KiB a block).
+/// A window of chunks: two per thread, fewer when [`chunks_fitting`] holds fewer. The meshing
+/// runs at most two windows ahead of the stitching.
 fn meshing_window(store: &MapStore, chunks: &[ChunkIndex], budget_bytes: u64) -> usize {
+    chunks_fitting(store, chunks, budget_bytes)
+        .min(2 * rayon::current_num_threads())
+        .max(1)
+}
+
+/// How many meshings of the map's largest chunk (its blocks and a neighbour's decoded at once,
+/// `u` included, and the mesh: 6 KiB a block) a quarter of `budget_bytes` holds; at least one.
+fn chunks_fitting(store: &MapStore, chunks: &[ChunkIndex], budget_bytes: u64) -> usize {
     let largest = chunks
         .iter()
         .filter_map(|c| store.manifest().chunks.get(c))
@@ -127,8 +134,7 @@ fn meshing_window(store: &MapStore, chunks: &[ChunkIndex], budget_bytes: u64) ->
         .max()
         .unwrap_or(0);
     let per_chunk = (2 * largest * (crate::grid::BLOCK_RESIDENT_BYTES + 6 * 1024)).max(1);
-    let fit = (budget_bytes / 4 / per_chunk).max(1) as usize;
-    fit.min(2 * rayon::current_num_threads()).max(1)
+    (budget_bytes / 4 / per_chunk).max(1) as usize
 }
 
 /// Whether a vertex on this edge can be shared with a cube of another chunk.
@@ -211,6 +217,7 @@ pub fn export_with(
                 &frame,
                 dir,
                 options.parts.as_deref(),
+                options.memory_budget_bytes,
             )?;
             return Ok(ExportStats {
                 chunks: st.leaf_tiles,
@@ -300,137 +307,120 @@ pub fn export_with(
     let mut stats = ExportStats::default();
     let mut next_id: u64 = 0;
     let bar = crate::progress::bar(chunks.len() as u64, "exporting");
-    // Chunks are meshed a window at a time on every thread, and stitched one by one in their
-    // sorted order, so the output is byte for byte the single-threaded one; the next window is
-    // meshed while this one is stitched (two windows in memory: each gets half the share).
+    // Chunks are meshed on every thread, at most two windows ahead of the stitching, which takes
+    // them one by one in their sorted order: the output is byte for byte the single-threaded one.
     let window = meshing_window(store, &chunks, options.memory_budget_bytes / 2);
-    let mesh_window = |batch: &[ChunkIndex]| -> Vec<Result<parts::ChunkMesh>> {
-        use rayon::prelude::*;
-        batch
-            .par_iter()
-            .map(|&c| parts::chunk_mesh(store, c, field, options.parts.as_deref()))
-            .collect()
-    };
-    let windows: Vec<&[ChunkIndex]> = chunks.chunks(window).collect();
-    let mut meshed_window = windows.first().map(|w| mesh_window(w));
-    for k in 0..windows.len() {
-        let meshes = meshed_window.take().unwrap_or_default();
-        let stitch = || -> Result<()> {
-            for meshed in meshes {
-                let (m, keys, own) = meshed?;
-                stats.voxels += own as u64 * 512;
-                let world: Vec<[f64; 3]> = m
-                    .positions_m
-                    .iter()
-                    .map(|p| frame.to_world([p[0] as f64, p[1] as f64, p[2] as f64]))
-                    .collect();
-                // Keep triangles (and the vertices they use) inside the box.
-                let keep_tri: Vec<bool> = m
-                    .triangles
-                    .iter()
-                    .map(|t| {
-                        bbox.is_none_or(|b| {
-                            let cen = [0, 1, 2].map(|a| {
-                                t.iter().map(|&i| world[i as usize][a]).sum::<f64>() / 3.0
-                            });
-                            b.contains(cen)
-                        })
-                    })
-                    .collect();
-                let mut used = vec![!mesh; m.positions_m.len()];
-                if mesh {
-                    for (t, k) in m.triangles.iter().zip(&keep_tri) {
-                        if *k {
-                            for &i in t {
-                                used[i as usize] = true;
-                            }
-                        }
+    let mesh_chunk =
+        |k: usize| parts::chunk_mesh(store, chunks[k], field, options.parts.as_deref());
+    chunks::in_order(chunks.len(), 2 * window, mesh_chunk, |meshed| {
+        let (m, keys, own) = meshed?;
+        stats.voxels += own as u64 * 512;
+        let world: Vec<[f64; 3]> = m
+            .positions_m
+            .iter()
+            .map(|p| frame.to_world([p[0] as f64, p[1] as f64, p[2] as f64]))
+            .collect();
+        // Keep triangles (and the vertices they use) inside the box.
+        let keep_tri: Vec<bool> = m
+            .triangles
+            .iter()
+            .map(|t| {
+                bbox.is_none_or(|b| {
+                    let cen = [0, 1, 2]
+                        .map(|a| t.iter().map(|&i| world[i as usize][a]).sum::<f64>() / 3.0);
+                    b.contains(cen)
+                })
+            })
+            .collect();
+        let mut used = vec![!mesh; m.positions_m.len()];
+        if mesh {
+            for (t, k) in m.triangles.iter().zip(&keep_tri) {
+                if *k {
+                    for &i in t {
+                        used[i as usize] = true;
                     }
                 }
-                let mut ids = vec![u32::MAX; m.positions_m.len()];
-                for (i, key) in keys.iter().enumerate() {
-                    if !used[i] {
-                        continue;
-                    }
-                    let pw = world[i];
-                    if !mesh && bbox.is_some_and(|b| !b.contains(pw)) {
-                        continue;
-                    }
-                    let shared = on_chunk_face(key, chunk_voxels);
-                    if shared {
-                        if let Some(&id) = face_ids.get(key) {
-                            ids[i] = id;
-                            continue;
-                        }
-                    }
-                    if next_id >= i32::MAX as u64 {
-                        return Err(Error::InvalidArgument(format!(
-                            "{}: more than 2^31 vertices; export a --bbox at a time",
-                            path.display()
-                        )));
-                    }
-                    let id = next_id as u32;
-                    next_id += 1;
-                    ids[i] = id;
-                    if shared {
-                        face_ids.insert(*key, id);
-                    }
-                    let color = m.colors[i];
-                    match &mut sink {
-                        Sink::Ply {
-                            vertices, tmp_v, ..
-                        } => {
-                            let written = if ply_f64 {
-                                let mut rec = [0u8; 27];
-                                for a in 0..3 {
-                                    rec[8 * a..8 * a + 8].copy_from_slice(&pw[a].to_le_bytes());
-                                }
-                                rec[24..27].copy_from_slice(&color);
-                                vertices.write_all(&rec)
-                            } else {
-                                let p = m.positions_m[i];
-                                let mut rec = [0u8; 15];
-                                for a in 0..3 {
-                                    rec[4 * a..4 * a + 4].copy_from_slice(&p[a].to_le_bytes());
-                                }
-                                rec[12..15].copy_from_slice(&color);
-                                vertices.write_all(&rec)
-                            };
-                            written.map_err(|e| Error::io(tmp_v.path(), e))?;
-                        }
-                        Sink::Las(w) => w.write(pw, Some(color))?,
-                        Sink::Copc(w) => w.write(pw, color)?,
-                    }
-                }
-                if mesh {
-                    if let Sink::Ply { faces, tmp_f, .. } = &mut sink {
-                        for (t, k) in m.triangles.iter().zip(&keep_tri) {
-                            if !*k {
-                                continue;
-                            }
-                            let mut rec = [3u8; 13];
-                            for j in 0..3 {
-                                rec[1 + 4 * j..5 + 4 * j]
-                                    .copy_from_slice(&(ids[t[j] as usize] as i32).to_le_bytes());
-                            }
-                            faces
-                                .write_all(&rec)
-                                .map_err(|e| Error::io(tmp_f.path(), e))?;
-                            stats.triangles += 1;
-                            stats.area_m2 +=
-                                crate::mesh::triangle_area_m2(t.map(|i| m.positions_m[i as usize]));
-                        }
-                    }
-                }
-                stats.chunks += 1;
-                bar.inc(1);
             }
-            Ok(())
-        };
-        let (stitched, next) = rayon::join(stitch, || windows.get(k + 1).map(|w| mesh_window(w)));
-        stitched?;
-        meshed_window = next;
-    }
+        }
+        let mut ids = vec![u32::MAX; m.positions_m.len()];
+        for (i, key) in keys.iter().enumerate() {
+            if !used[i] {
+                continue;
+            }
+            let pw = world[i];
+            if !mesh && bbox.is_some_and(|b| !b.contains(pw)) {
+                continue;
+            }
+            let shared = on_chunk_face(key, chunk_voxels);
+            if shared {
+                if let Some(&id) = face_ids.get(key) {
+                    ids[i] = id;
+                    continue;
+                }
+            }
+            if next_id >= i32::MAX as u64 {
+                return Err(Error::InvalidArgument(format!(
+                    "{}: more than 2^31 vertices; export a --bbox at a time",
+                    path.display()
+                )));
+            }
+            let id = next_id as u32;
+            next_id += 1;
+            ids[i] = id;
+            if shared {
+                face_ids.insert(*key, id);
+            }
+            let color = m.colors[i];
+            match &mut sink {
+                Sink::Ply {
+                    vertices, tmp_v, ..
+                } => {
+                    let written = if ply_f64 {
+                        let mut rec = [0u8; 27];
+                        for a in 0..3 {
+                            rec[8 * a..8 * a + 8].copy_from_slice(&pw[a].to_le_bytes());
+                        }
+                        rec[24..27].copy_from_slice(&color);
+                        vertices.write_all(&rec)
+                    } else {
+                        let p = m.positions_m[i];
+                        let mut rec = [0u8; 15];
+                        for a in 0..3 {
+                            rec[4 * a..4 * a + 4].copy_from_slice(&p[a].to_le_bytes());
+                        }
+                        rec[12..15].copy_from_slice(&color);
+                        vertices.write_all(&rec)
+                    };
+                    written.map_err(|e| Error::io(tmp_v.path(), e))?;
+                }
+                Sink::Las(w) => w.write(pw, Some(color))?,
+                Sink::Copc(w) => w.write(pw, color)?,
+            }
+        }
+        if mesh {
+            if let Sink::Ply { faces, tmp_f, .. } = &mut sink {
+                for (t, k) in m.triangles.iter().zip(&keep_tri) {
+                    if !*k {
+                        continue;
+                    }
+                    let mut rec = [3u8; 13];
+                    for j in 0..3 {
+                        rec[1 + 4 * j..5 + 4 * j]
+                            .copy_from_slice(&(ids[t[j] as usize] as i32).to_le_bytes());
+                    }
+                    faces
+                        .write_all(&rec)
+                        .map_err(|e| Error::io(tmp_f.path(), e))?;
+                    stats.triangles += 1;
+                    stats.area_m2 +=
+                        crate::mesh::triangle_area_m2(t.map(|i| m.positions_m[i as usize]));
+                }
+            }
+        }
+        stats.chunks += 1;
+        bar.inc(1);
+        Ok(())
+    })?;
     bar.finish_and_clear();
     stats.vertices = next_id;
     stats.face_keys = face_ids.len();

@@ -161,7 +161,27 @@ struct Writer<'a> {
     voxel_m: f64,
     /// Chunk index of tile key 0.
     origin: [i32; 3],
-    stats: TilesetStats,
+    /// Level-1 subtrees built at once (each meshes its up to eight chunks at once).
+    concurrent: usize,
+}
+
+/// A built tile and its content mesh (map frame), if it has one, and its subtree's counts.
+type Built = (Option<(TileNode, Mesh)>, TilesetStats);
+
+impl TilesetStats {
+    /// Adds the counts of a subtree built after the ones already counted.
+    fn absorb(&mut self, s: &TilesetStats) {
+        self.tiles += s.tiles;
+        self.leaf_tiles += s.leaf_tiles;
+        self.leaf_vertices += s.leaf_vertices;
+        self.leaf_triangles += s.leaf_triangles;
+        self.voxels += s.voxels;
+        self.glb_bytes += s.glb_bytes;
+        if s.tiles > 0 {
+            // The last tile written so far.
+            self.root_triangles = s.root_triangles;
+        }
+    }
 }
 
 fn shift(c: [i32; 3], k: u32) -> [i32; 3] {
@@ -175,24 +195,19 @@ impl Writer<'_> {
         super::parts::chunk_mesh(self.store, c, self.field, self.parts).map(|(m, _, own)| (m, own))
     }
 
-    /// Builds tile (level, key) and its subtree; returns the tile and its content mesh (map
-    /// frame) for the parent's clustering. A level-0 tile takes its chunk's mesh from `meshed`
-    /// when its parent made it (in parallel with its siblings').
-    fn build(
-        &mut self,
-        level: u32,
-        key: [i32; 3],
-        meshed: Option<(Mesh, usize)>,
-    ) -> Result<Option<(TileNode, Mesh)>> {
+    /// Builds tile (level, key) and its subtree; returns the tile, its content mesh (map frame)
+    /// for the parent's clustering, and the subtree's counts. The chunks under a level-1 tile are
+    /// meshed and written as level-0 tiles on every thread, and so are up to `self.concurrent`
+    /// level-1 subtrees under a level-2 tile; each tile is then built from its children in their
+    /// sorted order, so the tileset does not depend on the threads.
+    fn build(&self, level: u32, key: [i32; 3]) -> Result<Built> {
+        let mut stats = TilesetStats::default();
         let (mesh, mut lo, mut hi, children) = if level == 0 {
-            let (m, own) = match meshed {
-                Some(m) => m,
-                None => self.chunk_mesh(key)?,
-            };
-            self.stats.voxels += own as u64 * 512;
+            let (m, own) = self.chunk_mesh(key)?;
+            stats.voxels += own as u64 * 512;
             let m = self.crop(m);
             if m.triangles.is_empty() {
-                return Ok(None);
+                return Ok((None, stats));
             }
             let (lo, hi) = self.local_bounds(&m);
             (m, lo, hi, Vec::new())
@@ -207,19 +222,25 @@ impl Writer<'_> {
                 .get(&(level, key))
                 .cloned()
                 .unwrap_or_default();
-            // The chunks under a level-1 tile are meshed at once, on every thread; the tiles are
-            // then built in their sorted order, so the tileset does not depend on the threads.
-            let mut meshed: Vec<Option<(Mesh, usize)>> = if level == 1 {
-                use rayon::prelude::*;
-                let this = &*self;
-                kids.par_iter()
-                    .map(|k| this.chunk_mesh(*k).map(Some))
-                    .collect::<Result<_>>()?
-            } else {
-                (0..kids.len()).map(|_| None).collect()
+            let group = match level {
+                1 => kids.len().max(1),
+                2 => self.concurrent,
+                _ => 1,
             };
-            for (child, pre) in kids.into_iter().zip(meshed.drain(..)) {
-                if let Some((node, m)) = self.build(level - 1, child, pre)? {
+            for batch in kids.chunks(group) {
+                let built: Vec<Result<Built>> = if batch.len() > 1 {
+                    use rayon::prelude::*;
+                    batch
+                        .par_iter()
+                        .map(|k| self.build(level - 1, *k))
+                        .collect()
+                } else {
+                    batch.iter().map(|k| self.build(level - 1, *k)).collect()
+                };
+                for b in built {
+                    let (tile, s) = b?;
+                    stats.absorb(&s);
+                    let Some((node, m)) = tile else { continue };
                     clusters.add(&m);
                     drop(m);
                     for a in 0..3 {
@@ -230,7 +251,7 @@ impl Writer<'_> {
                 }
             }
             if nodes.is_empty() {
-                return Ok(None);
+                return Ok((None, stats));
             }
             (clusters.finish(), lo, hi, nodes)
         };
@@ -251,14 +272,14 @@ impl Writer<'_> {
                 .map_err(|e| Error::io(&path, e))?;
             // Inside the folder being built: it appears whole (write_tileset).
             std::fs::write(&path, &glb).map_err(|e| Error::io(&path, e))?;
-            self.stats.tiles += 1;
-            self.stats.glb_bytes += glb.len() as u64;
+            stats.tiles += 1;
+            stats.glb_bytes += glb.len() as u64;
             if level == 0 {
-                self.stats.leaf_tiles += 1;
-                self.stats.leaf_vertices += mesh.positions_m.len() as u64;
-                self.stats.leaf_triangles += mesh.triangles.len() as u64;
+                stats.leaf_tiles += 1;
+                stats.leaf_vertices += mesh.positions_m.len() as u64;
+                stats.leaf_triangles += mesh.triangles.len() as u64;
             }
-            self.stats.root_triangles = mesh.triangles.len() as u64;
+            stats.root_triangles = mesh.triangles.len() as u64;
             Some(name)
         };
         let geometric_error_m = if level == 0 {
@@ -266,18 +287,16 @@ impl Writer<'_> {
         } else {
             3f64.sqrt() * self.voxel_m * (1u64 << level) as f64
         };
-        Ok(Some((
-            TileNode {
-                level,
-                key,
-                lo,
-                hi,
-                geometric_error_m,
-                content,
-                children,
-            },
-            mesh,
-        )))
+        let node = TileNode {
+            level,
+            key,
+            lo,
+            hi,
+            geometric_error_m,
+            content,
+            children,
+        };
+        Ok((Some((node, mesh)), stats))
     }
 
     /// Drops triangles whose centroid (output frame) is outside the box, and unused vertices.
@@ -369,11 +388,12 @@ pub fn write_tileset(
     frame: &WorldFrame,
     dir: &Path,
 ) -> Result<TilesetStats> {
-    write_tileset_with(store, field, bbox, frame, dir, None)
+    let budget = super::ExportOptions::new(field).memory_budget_bytes;
+    write_tileset_with(store, field, bbox, frame, dir, None, budget)
 }
 
 /// [`write_tileset`] taking the full-resolution chunk meshes from `export --shard` parts where
-/// they hold them.
+/// they hold them, within `memory_budget_bytes` (`--memory-budget`).
 pub fn write_tileset_with(
     store: &MapStore,
     field: Field,
@@ -381,6 +401,7 @@ pub fn write_tileset_with(
     frame: &WorldFrame,
     dir: &Path,
     parts: Option<&super::parts::ExportParts>,
+    memory_budget_bytes: u64,
 ) -> Result<TilesetStats> {
     // The tileset is built in a hidden sibling folder and swapped in when complete, so `dir`
     // holds a whole tileset or what it held before (io::atomic). It may only replace a tileset.
@@ -412,7 +433,15 @@ pub fn write_tileset_with(
     }
     let build = TempPath::for_target(dir);
     std::fs::create_dir_all(build.path()).map_err(|e| Error::io(dir, e))?;
-    let stats = build_tileset(store, field, bbox, frame, build.path(), parts)?;
+    let stats = build_tileset(
+        store,
+        field,
+        bbox,
+        frame,
+        build.path(),
+        parts,
+        memory_budget_bytes,
+    )?;
     if dir.exists() {
         let previous = TempPath::for_target(&dir.with_extension("previous"));
         std::fs::rename(dir, previous.path()).map_err(|e| Error::io(dir, e))?;
@@ -473,6 +502,7 @@ fn build_tileset(
     frame: &WorldFrame,
     dir: &Path,
     parts: Option<&super::parts::ExportParts>,
+    memory_budget_bytes: u64,
 ) -> Result<TilesetStats> {
     let chunks = chunks_in(store, frame, bbox);
     // Tile keys count from the lowest chunk index, so halving always reaches one root tile
@@ -495,7 +525,7 @@ fn build_tileset(
         }
         level_keys = up;
     }
-    let mut w = Writer {
+    let w = Writer {
         store,
         parts,
         field,
@@ -506,17 +536,23 @@ fn build_tileset(
         children,
         voxel_m: store.grid().voxel_size_m as f64,
         origin,
-        stats: TilesetStats {
-            levels: root_level + 1,
-            ..Default::default()
-        },
+        // A level-1 subtree meshes up to eight chunks at once.
+        concurrent: (super::chunks_fitting(store, &chunks, memory_budget_bytes) / 8)
+            .clamp(1, rayon::current_num_threads()),
+    };
+    let mut stats = TilesetStats {
+        levels: root_level + 1,
+        ..Default::default()
     };
     let root_key = level_keys.iter().next().copied();
     let root = match root_key {
-        Some(k) => w.build(root_level, k, None)?.map(|(n, _)| n),
+        Some(k) => {
+            let (tile, s) = w.build(root_level, k)?;
+            stats.absorb(&s);
+            tile.map(|(n, _)| n)
+        }
         None => None,
     };
-    let mut stats = w.stats;
     if root.is_none() {
         stats.root_triangles = 0;
     }

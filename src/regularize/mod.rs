@@ -196,7 +196,7 @@ impl TvProblem {
             .map(|(k, b)| (*b, k as u32))
             .collect();
         let neighbors: Vec<[u32; 6]> = blocks
-            .iter()
+            .par_iter()
             .map(|b| {
                 let mut nb = [NONE; 6];
                 for d in 0..3 {

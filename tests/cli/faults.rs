@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 
 /// Runs `denser args` in `cwd`, with `DENSER_FAULT_INJECTION` set to `fault` when given.
-fn run(args: &[String], cwd: &Path, fault: Option<&str>) -> Output {
+pub(super) fn run(args: &[String], cwd: &Path, fault: Option<&str>) -> Output {
     let mut c = bin();
     c.args(args).current_dir(cwd);
     c.env_remove("DENSER_FAULT_INJECTION");
@@ -26,13 +26,13 @@ fn run(args: &[String], cwd: &Path, fault: Option<&str>) -> Output {
     c.output().expect("run denser")
 }
 
-fn ok(args: &[String], cwd: &Path) -> String {
+pub(super) fn ok(args: &[String], cwd: &Path) -> String {
     let o = run(args, cwd, None);
     assert!(o.status.success(), "denser {args:?} failed:\n{}", text(&o));
     text(&o)
 }
 
-fn args(s: &str) -> Vec<String> {
+pub(super) fn args(s: &str) -> Vec<String> {
     s.split_whitespace().map(str::to_string).collect()
 }
 
@@ -52,7 +52,7 @@ fn operations(a: &[String], cwd: &Path) -> u64 {
 
 /// Blocks of `map` after `inspect --verify` passed; `None` when the map is refused with one of
 /// `refusals` (the only acceptable reasons), a panic otherwise.
-fn verified_blocks(map: &str, cwd: &Path, refusals: &[&str], context: &str) -> Option<u64> {
+pub(super) fn verified_blocks(map: &str, cwd: &Path, refusals: &[&str], context: &str) -> Option<u64> {
     let o = run(&args(&format!("inspect {map} --verify --json")), cwd, None);
     let t = text(&o);
     if !o.status.success() {
@@ -162,7 +162,7 @@ fn exercise(s: &Step, work: &Path, fault: &str, stride: u64) -> usize {
 
 /// `reconstruct --map` of the drive in `root`: 2 MiB, so that the pager evicts chunks while it
 /// fuses, checkpoints every two scans.
-fn fuse(root: &Path) -> String {
+pub(super) fn fuse(root: &Path) -> String {
     format!(
         "reconstruct {} --depth lidar --memory-budget 2MiB --chunk-blocks 4 --checkpoint-every 2 --voxel-size 0.2 --allow-overrun --skip-regularize --no-eval --max-depth 10",
         root.join("drive/sequences/00").display()

@@ -177,6 +177,16 @@ impl MapStore {
         }
     }
 
+    /// Writes a chunk file encoded by [`ChunkWriter::encode_reusing`] (crash-safely, under its own
+    /// number) and records it in the manifest (committed by the next [`MapStore::commit`]).
+    pub fn write_encoded_chunk(&mut self, w: WrittenChunk, bytes: &[u8]) -> Result<()> {
+        self.require_writer("writing a chunk")?;
+        self.files
+            .write_chunk(&chunk_object(w.chunk, w.entry.file_seq), bytes)?;
+        self.record(w);
+        Ok(())
+    }
+
     /// [`MapStore::write_chunk`] for a chunk whose file `previous` (as read by
     /// [`MapStore::read_chunk_bytes`]) this one replaces: the parts that did not change keep
     /// their compressed frames ([`PreviousFrames`]).
@@ -212,6 +222,20 @@ pub struct ChunkWriter {
 }
 
 impl ChunkWriter {
+    /// Encodes `blocks` of chunk `c` as file number `seq` without writing it, copying the frames
+    /// of `previous` for the parts that did not change; written by
+    /// [`MapStore::write_encoded_chunk`]. Lets callers encode on many threads and write in order.
+    pub fn encode_reusing(
+        &self,
+        c: ChunkIndex,
+        seq: u64,
+        blocks: &[(BlockIndex, &Block)],
+        reg_pass: u32,
+        previous: &PreviousFrames,
+    ) -> (Vec<u8>, WrittenChunk) {
+        self.encode(c, seq, blocks, reg_pass, previous)
+    }
+
     fn encode(
         &self,
         c: ChunkIndex,

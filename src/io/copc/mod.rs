@@ -18,10 +18,13 @@
 //!   (arrival order kept), and the parent file is deleted;
 //! * a node that fits is loaded and its whole subtree built in memory, depth first.
 //!
-//! So RAM holds at most the budget's points plus one node's kept points and a bitmap per level of
-//! recursion; disk holds at most twice the cloud (one level of spill files plus their children).
-//! Each node's points are compressed as one LAZ chunk as soon as the node is final; the hierarchy
-//! (32 bytes per node) is kept in memory and written at the end, then the header is filled in.
+//! Each final node's points become one LAZ chunk. Final nodes wait in a batch of at most an eighth
+//! of the budget's points, which is compressed on every thread (each chunk starts from fresh
+//! models, so its bytes do not depend on the others) and written in the order the nodes were
+//! made: the file is the same on any number of threads. So RAM holds at most the budget's points,
+//! the batch, one node's kept points and a bitmap per level of recursion; disk holds at most twice
+//! the cloud (one level of spill files plus their children). The hierarchy (32 bytes per node) is
+//! kept in memory and written at the end, then the header is filled in.
 //!
 //! What it does not do: point attributes beyond position and colour (intensity 0, return 1 of 1,
 //! classification 0, GPS time 0), several hierarchy pages (one page holds every node), or
@@ -30,9 +33,13 @@
 use crate::error::{Error, Result};
 use crate::io::atomic::TempPath;
 use crate::io::las::{generating_software, SYSTEM_IDENTIFIER, WRITE_SCALE_M};
-use laz::{LasZipCompressor, LazVlr, LazVlrBuilder};
+use laz::laszip::{ChunkTable, ChunkTableEntry};
+use laz::{LazVlr, LazVlrBuilder};
+use octree::{encode_q, Builder, Q};
 use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
+
+mod octree;
 
 /// Cells per axis of a node's sampling grid (COPC's customary 128).
 pub const NODE_GRID: u32 = 128;
@@ -73,13 +80,6 @@ pub struct CopcStats {
     pub streamed_nodes: u64,
     /// File size, bytes.
     pub bytes: u64,
-}
-
-/// A quantised point: LAS integer coordinates and 8-bit colour.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct Q {
-    xyz: [i32; 3],
-    rgb: [u8; 3],
 }
 
 /// An octree node key (level, x, y, z), as in the COPC hierarchy.
@@ -205,215 +205,6 @@ impl CopcWriter {
         partial.persist(&path)?;
         Ok(stats)
     }
-}
-
-struct Builder<'a> {
-    cube: Cube,
-    compressor: LasZipCompressor<'a, BufWriter<std::fs::File>>,
-    path: PathBuf,
-    tmp_dir: PathBuf,
-    max_in_memory: u64,
-    entries: Vec<(VoxelKey, u64, i32, i32)>,
-    stats: CopcStats,
-    next_tmp: u64,
-    record: Vec<u8>,
-}
-
-impl Builder<'_> {
-    fn octant(&self, k: VoxelKey, q: &Q) -> (usize, usize) {
-        let (lo, edge) = self.cube.node_lo_edge(k);
-        let cell = edge / NODE_GRID as i64;
-        let mut idx = 0usize;
-        let mut oct = 0usize;
-        for a in (0..3).rev() {
-            let d = (q.xyz[a] as i64 - lo[a]).clamp(0, edge - 1);
-            idx = idx * NODE_GRID as usize + (d / cell) as usize;
-            if d >= edge / 2 {
-                oct |= 1 << a;
-            }
-        }
-        (idx, oct)
-    }
-
-    fn is_leaf(&self, k: VoxelKey) -> bool {
-        // Cells below 2 integer units (2 mm) cannot separate points any more.
-        (self.cube.edge >> k.level) / (NODE_GRID as i64) < 2
-    }
-
-    fn emit(&mut self, k: VoxelKey, mut pts: Vec<Q>) -> Result<()> {
-        if pts.is_empty() {
-            return Ok(());
-        }
-        // Spatially coherent order compresses better.
-        pts.sort_unstable_by_key(|q| (q.xyz[2], q.xyz[1], q.xyz[0]));
-        let path = self.path.clone();
-        let offset = self
-            .compressor
-            .get_mut()
-            .stream_position()
-            .map_err(io_err(&path))?;
-        for q in &pts {
-            encode_point(q, &mut self.record);
-            self.compressor
-                .compress_one(&self.record)
-                .map_err(io_err(&path))?;
-        }
-        self.compressor
-            .finish_current_chunk()
-            .map_err(io_err(&path))?;
-        let end = self
-            .compressor
-            .get_mut()
-            .stream_position()
-            .map_err(io_err(&path))?;
-        let size = i32::try_from(end - offset).map_err(|_| {
-            Error::InvalidArgument(format!("{}: an octree node exceeds 2 GiB", path.display()))
-        })?;
-        self.entries.push((k, offset, size, pts.len() as i32));
-        self.stats.nodes += 1;
-        self.stats.max_level = self.stats.max_level.max(k.level as u32);
-        if k.level == 0 {
-            self.stats.root_points = pts.len() as u64;
-        }
-        Ok(())
-    }
-
-    /// Processes node `k` whose `n` points are in spill file `file` (deleted when read).
-    fn process(&mut self, k: VoxelKey, file: PathBuf, n: u64) -> Result<()> {
-        if n <= self.max_in_memory {
-            let pts = read_quantised(&file, n)?;
-            std::fs::remove_file(&file).map_err(io_err(&file))?;
-            self.process_memory(k, pts)
-        } else {
-            self.process_disk(k, file, n)
-        }
-    }
-
-    fn process_memory(&mut self, k: VoxelKey, pts: Vec<Q>) -> Result<()> {
-        if self.is_leaf(k) {
-            return self.emit(k, pts);
-        }
-        let mut taken = vec![0u64; (NODE_GRID as usize).pow(3) / 64];
-        let mut keep = Vec::new();
-        let mut children: [Vec<Q>; 8] = Default::default();
-        for q in pts {
-            let (cell, oct) = self.octant(k, &q);
-            let (w, b) = (cell / 64, 1u64 << (cell % 64));
-            if taken[w] & b == 0 {
-                taken[w] |= b;
-                keep.push(q);
-            } else {
-                children[oct].push(q);
-            }
-        }
-        drop(taken);
-        self.emit(k, keep)?;
-        for (oct, c) in children.into_iter().enumerate() {
-            if !c.is_empty() {
-                self.process_memory(k.child(oct), c)?;
-            }
-        }
-        Ok(())
-    }
-
-    fn process_disk(&mut self, k: VoxelKey, file: PathBuf, n: u64) -> Result<()> {
-        self.stats.streamed_nodes += 1;
-        let mut taken = vec![0u64; (NODE_GRID as usize).pow(3) / 64];
-        let mut keep = Vec::new();
-        let mut child_paths = Vec::with_capacity(8);
-        let mut child_files = Vec::with_capacity(8);
-        let mut child_counts = [0u64; 8];
-        for _ in 0..8 {
-            let p = self.tmp_dir.join(format!("node{}.q", self.next_tmp));
-            self.next_tmp += 1;
-            child_files.push(BufWriter::new(
-                std::fs::File::create(&p).map_err(io_err(&p))?,
-            ));
-            child_paths.push(p);
-        }
-        let leaf = self.is_leaf(k);
-        let mut r = BufReader::new(std::fs::File::open(&file).map_err(io_err(&file))?);
-        let mut buf = [0u8; 15];
-        for _ in 0..n {
-            r.read_exact(&mut buf).map_err(io_err(&file))?;
-            let q = decode_q(&buf);
-            let (cell, oct) = self.octant(k, &q);
-            let (w, b) = (cell / 64, 1u64 << (cell % 64));
-            if leaf || taken[w] & b == 0 {
-                taken[w] |= b;
-                keep.push(q);
-            } else {
-                child_files[oct]
-                    .write_all(&buf)
-                    .map_err(io_err(&child_paths[oct]))?;
-                child_counts[oct] += 1;
-            }
-        }
-        drop(r);
-        std::fs::remove_file(&file).map_err(io_err(&file))?;
-        drop(taken);
-        for (f, p) in child_files.into_iter().zip(&child_paths) {
-            f.into_inner().map_err(|e| Error::io(p, e.into_error()))?;
-        }
-        self.emit(k, keep)?;
-        for oct in 0..8 {
-            let p = child_paths[oct].clone();
-            if child_counts[oct] == 0 {
-                std::fs::remove_file(&p).map_err(io_err(&p))?;
-            } else {
-                self.process(k.child(oct), p, child_counts[oct])?;
-            }
-        }
-        Ok(())
-    }
-}
-
-fn decode_q(b: &[u8; 15]) -> Q {
-    let i = |k: usize| i32::from_le_bytes([b[4 * k], b[4 * k + 1], b[4 * k + 2], b[4 * k + 3]]);
-    Q {
-        xyz: [i(0), i(1), i(2)],
-        rgb: [b[12], b[13], b[14]],
-    }
-}
-
-fn encode_q(q: &Q) -> [u8; 15] {
-    let mut b = [0u8; 15];
-    for a in 0..3 {
-        b[4 * a..4 * a + 4].copy_from_slice(&q.xyz[a].to_le_bytes());
-    }
-    b[12..15].copy_from_slice(&q.rgb);
-    b
-}
-
-fn read_quantised(file: &Path, n: u64) -> Result<Vec<Q>> {
-    let mut r = BufReader::new(std::fs::File::open(file).map_err(io_err(file))?);
-    let mut out = Vec::with_capacity(n as usize);
-    let mut buf = [0u8; 15];
-    for _ in 0..n {
-        r.read_exact(&mut buf).map_err(io_err(file))?;
-        out.push(decode_q(&buf));
-    }
-    Ok(out)
-}
-
-/// LAS point format 7 record (36 bytes, `formats/copc.md`).
-fn encode_point(q: &Q, out: &mut Vec<u8>) {
-    out.clear();
-    for a in 0..3 {
-        out.extend_from_slice(&q.xyz[a].to_le_bytes());
-    }
-    out.extend_from_slice(&0u16.to_le_bytes()); // intensity
-    out.push(0x11); // return 1 of 1
-    out.push(0); // classification flags, scanner channel, scan direction, edge
-    out.push(0); // classification: never classified
-    out.push(0); // user data
-    out.extend_from_slice(&0i16.to_le_bytes()); // scan angle
-    out.extend_from_slice(&0u16.to_le_bytes()); // point source id
-    out.extend_from_slice(&0f64.to_le_bytes()); // GPS time
-    for c in q.rgb {
-        out.extend_from_slice(&(c as u16 * 257).to_le_bytes());
-    }
-    debug_assert_eq!(out.len(), POINT_RECORD_BYTES);
 }
 
 fn vlr_header(user_id: &str, record_id: u16, len: u64, description: &str) -> Vec<u8> {
@@ -605,15 +396,14 @@ fn write_file(
     file.write_all(&[0u8; HEADER_BYTES as usize])
         .and_then(|_| file.write_all(&vlrs))
         .map_err(io_err(out))?;
-    let mut compressor = LasZipCompressor::new(file, laz_vlr)
-        .map_err(|e| Error::bad_input(out, format!("LAZ: {e}")))?;
-    compressor
-        .reserve_offset_to_chunk_table()
+    // The offset to the LAZ chunk table, filled in when the table is written.
+    file.write_all(&(-1i64).to_le_bytes())
         .map_err(io_err(out))?;
     let budget_points = (options.memory_budget_bytes.max(64 << 10) / RAM_BYTES_PER_POINT).max(1024);
     let mut b = Builder {
         cube,
-        compressor,
+        out: file,
+        pos: offset_to_points + 8,
         path: out.to_path_buf(),
         tmp_dir: tmp_dir.to_path_buf(),
         max_in_memory: budget_points,
@@ -623,7 +413,12 @@ fn write_file(
             ..Default::default()
         },
         next_tmp: 0,
-        record: Vec::with_capacity(POINT_RECORD_BYTES),
+        vlr: laz_vlr,
+        table: ChunkTable::default(),
+        pending: Vec::new(),
+        pending_points: 0,
+        // Nodes wait for compression in batches of an eighth of the points the budget holds.
+        flush_points: (budget_points / 8).max(1024),
     };
     if count > 0 {
         b.process(
@@ -637,14 +432,23 @@ fn write_file(
     } else {
         std::fs::remove_file(&root_file).map_err(io_err(&root_file))?;
     }
+    b.flush()?;
     let Builder {
-        mut compressor,
+        out: mut file,
+        pos,
+        vlr,
+        mut table,
         mut entries,
         mut stats,
         ..
     } = b;
-    compressor.done().map_err(io_err(out))?;
-    let mut file = compressor.into_inner();
+    // The chunk table, as a chunked LAZ compressor ends: its last (empty) chunk included.
+    table.push(ChunkTableEntry::default());
+    table.write_to(&mut file, &vlr).map_err(io_err(out))?;
+    file.seek(SeekFrom::Start(offset_to_points))
+        .and_then(|_| file.write_all(&(pos as i64).to_le_bytes()))
+        .and_then(|_| file.seek(SeekFrom::End(0)))
+        .map_err(io_err(out))?;
     // The hierarchy EVLR: one page with every node, sorted by key.
     entries.sort_unstable_by_key(|e| e.0);
     let evlr_start = file.stream_position().map_err(io_err(out))?;
