@@ -52,10 +52,16 @@ impl fmt::Display for Repaired {
             writeln!(f, "  note: {l}")?;
         }
         writeln!(f, "  regularization: {}", r.passes.describe())?;
-        writeln!(
-            f,
-            "  fusion progress was in the lost manifest: `reconstruct --map` cannot resume this map; regularize, export and inspect work"
-        )
+        match r.frames_committed {
+            Some(n) => writeln!(
+                f,
+                "  fusion progress: {n} frames committed (from the commit mark); `reconstruct --map` resumes after them"
+            ),
+            None => writeln!(
+                f,
+                "  fusion progress was in the lost manifest: `reconstruct --map` cannot resume this map; regularize, export and inspect work"
+            ),
+        }
     }
 }
 

@@ -16,6 +16,7 @@
 //! | `shards/…` ([`SHARDS_AREA`]) | array-job shards (`crate::outofcore::shards`) | the engine reads only the reservations ([`super::reserve`]); the owner removes its records |
 //! | `sweeps/…` ([`SWEEPS_AREA`]) | swept regularization (`crate::outofcore::sweeps`) | never read or deleted by the engine; the owner removes it |
 //! | `exports/…` ([`EXPORTS_AREA`]) | `export --shard` (`crate::export::parts`) | never read or deleted by the engine; the owner removes it |
+//! | `not-committed/…` ([`NOT_COMMITTED_DIR`]) | [`super::repair`]: chunk files stamped after the last commit the [`COMMIT_MARK`] names, moved out of `chunks/` | never read or deleted by the engine; the user's to inspect and remove |
 //! | anything else | — | reported and left alone |
 //!
 //! Before anything is deleted, a writer checks that its manifest is the map's latest: a
@@ -35,7 +36,9 @@
 //!   (`MapStore::remove_unnamed_in`).
 //!
 //! Everything else in `chunks/` is reported and left alone. [`super::repair`] deletes nothing; it
-//! keeps each chunk's newest intact version by (commit generation, file number).
+//! rebuilds the map as of its last commit, keeping each chunk's newest intact version by (commit
+//! generation, file number) among the files stamped at or before it, and moves the files stamped
+//! later to [`NOT_COMMITTED_DIR`].
 //!
 //! The algorithms above the engine keep their own files in the areas reserved for them
 //! ([`SHARDS_AREA`], [`SWEEPS_AREA`], [`EXPORTS_AREA`]), written and deleted through the same
@@ -74,5 +77,9 @@ pub const SHARDS_AREA: &str = "shards";
 pub const SWEEPS_AREA: &str = "sweeps";
 /// Area of the chunk meshes made by `export --shard` runs.
 pub const EXPORTS_AREA: &str = "exports";
+/// Where `repair` moves chunk files stamped after the map's last commit (written by a run a kill
+/// cut short, not part of any committed map), so that no later repair mistakes them for committed
+/// ones; kept for inspection, never read or deleted by the engine.
+pub const NOT_COMMITTED_DIR: &str = "not-committed";
 /// Name of a reservation inside its folder `shards/KEY/`.
 pub const RESERVATION_FILE: &str = "plan.json";

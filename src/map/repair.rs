@@ -7,29 +7,40 @@
 //! file number) that decodes: the commit generation of format-4 headers orders a regularization
 //! shard's files (numbered far above the writer's) below any later commit, and files without one
 //! (formats 1–3) count as generation 0 — and writes a new manifest naming those, committed past
-//! every generation the files and the commit mark show. Files whose grid (voxel size, μ, chunk edge)
+//! every generation the files and the commit mark show. The map is rebuilt as of its last commit:
+//! where the commit mark of this map names it, files stamped with a later generation (written
+//! after it by a run a kill cut short) are not part of any committed map and are reported, not
+//! kept; they are moved to `not-committed/` (so that no later repair, once the map's generations
+//! pass their stamps, takes them for committed files). Files whose grid (voxel size, μ, chunk edge)
 //! or map id disagree with the majority are not kept, nor are damaged files; each is reported with
 //! the reason. The regularization state is rebuilt from the kept files: the latest pass and its
 //! parameters, and — where the chunks that pass did not reach all stand at one older pass and the
 //! others still have an intact file of it — that older pass as the last complete one, with those
 //! files kept. Nothing is deleted: files not kept stay where they are (the next writer removes
-//! older versions of chunks the manifest names; the rest it reports and leaves).
+//! older versions of chunks the manifest names; the rest it reports and leaves), except those
+//! written after the last commit, which move to `not-committed/`.
 //!
-//! What cannot be rebuilt: how many frames of the reconstruct job every chunk contains. The new
-//! manifest says "unknown" ([`FRAMES_UNKNOWN`]), which `reconstruct --map` refuses to resume;
-//! regularize, export and inspect work. Format-1 files carry no pass: they count as unregularized.
+//! How many frames of the reconstruct job the map holds (the fusion cursor) is not in the chunk
+//! files. The commit mark records it with every commit; when the rebuilt map is exactly the mark's
+//! commit (every kept file stamped at or before its generation, none replaced by an older version
+//! because the newest was damaged), the cursor is restored from it and `reconstruct --map` resumes
+//! (a manifest rolled back or deleted after a clean commit). Otherwise the new manifest says
+//! "unknown" ([`FRAMES_UNKNOWN`]), which `reconstruct --map` refuses to resume; regularize,
+//! export and inspect work. Format-1 files carry no pass: they count as unregularized.
 
 use super::codec::{
     decode_header_with_origin, ChunkHeader, ChunkOrigin, CHUNK_HEADER_V2_BYTES,
     FLAG_HAS_REGULARIZED,
 };
 use super::files::{LocalFiles, MapFiles};
-use super::layout::{CHUNKS_DIR, MANIFEST_FILE};
+use super::layout::{CHUNKS_DIR, COMMIT_MARK, MANIFEST_FILE, NOT_COMMITTED_DIR};
 use super::manifest::{
     new_map_id, parse_chunk_file_name, ChunkEntry, Manifest, ManifestHeader, PassStatus,
     ENTRY_HAS_REGULARIZED, FRAMES_UNKNOWN,
 };
-use super::store::{check_latest, read_chunk_object, read_commit_mark, read_manifest_at, MapStore};
+use super::store::{
+    check_latest, read_chunk_object, read_commit_mark_frames, read_manifest_at, MapStore,
+};
 use super::ChunkIndex;
 use crate::error::{Error, Result};
 use crate::regularize::TvParams;
@@ -47,20 +58,24 @@ fn header_commit_gen(files: &dyn MapFiles, name: &str) -> u64 {
         .map_or(0, |o| o.commit_gen)
 }
 
-/// Moves the manifest to `to` (kept for inspection): a rename in a directory, a copy and a
+/// Moves object `from` to `to` (kept for inspection): a rename in a directory, a copy and a
 /// delete on an object store. Returns where it went.
-fn move_aside(files: &dyn MapFiles, to: &str) -> Result<PathBuf> {
-    let from = files.path(MANIFEST_FILE);
+fn move_aside(files: &dyn MapFiles, from: &str, to: &str) -> Result<PathBuf> {
+    let from_path = files.path(from);
     match files.location().as_dir() {
         Some(dir) => {
-            std::fs::rename(&from, dir.join(to)).map_err(|e| Error::io(&from, e))?;
+            let to_path = dir.join(to);
+            if let Some(parent) = to_path.parent() {
+                std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+            }
+            std::fs::rename(&from_path, &to_path).map_err(|e| Error::io(&from_path, e))?;
         }
         None => {
             let bytes = files
-                .read(MANIFEST_FILE)?
-                .ok_or_else(|| Error::bad_input(&from, "vanished while being moved aside"))?;
+                .read(from)?
+                .ok_or_else(|| Error::bad_input(&from_path, "vanished while being moved aside"))?;
             files.write(to, &bytes)?;
-            files.delete(MANIFEST_FILE)?;
+            files.delete(from)?;
         }
     }
     Ok(files.path(to))
@@ -89,6 +104,9 @@ pub struct RepairReport {
     pub map_id: u64,
     /// The regularization state of the new manifest.
     pub passes: PassStatus,
+    /// Frames of the reconstruct job the new manifest records as fused (restored from the commit
+    /// mark); `None`: unknown, so `reconstruct --map` cannot resume the map.
+    pub frames_committed: Option<u64>,
 }
 
 /// One intact chunk file.
@@ -158,9 +176,12 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
     }
     let lock = files.lock_writer()?;
     let mut moved = None;
+    // The header of a rolled-back manifest (its grid and map id stand when no chunk file does).
+    let mut rolled_back: Option<ManifestHeader> = None;
     let mut notes = Vec::new();
     // The newest commit generation any evidence shows: the rebuilt manifest commits past it.
-    let mut newest_generation = read_commit_mark(&*files)?.map_or(0, |(_, g)| g);
+    let mark = read_commit_mark_frames(&*files)?;
+    let mut newest_generation = mark.map_or(0, |(_, g, _)| g);
     if files.exists(MANIFEST_FILE)? {
         match read_manifest_at(&*files) {
             Ok((m, _)) => {
@@ -181,13 +202,14 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
                     ));
                 };
                 newest_generation = newest_generation.max(m.header.generation);
+                rolled_back = Some(m.header);
                 let to = format!("{MANIFEST_FILE}.rolled-back-{}", m.header.generation);
                 notes.push(format!(
                     "the manifest (generation {}) was older than the map ({evidence}); moved to {} and rebuilt from the chunk files",
                     m.header.generation,
                     files.path(&to).display()
                 ));
-                moved = Some(move_aside(&*files, &to)?);
+                moved = Some(move_aside(&*files, MANIFEST_FILE, &to)?);
             }
             Err(e) => {
                 let secs = std::time::SystemTime::now()
@@ -195,7 +217,7 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
                     .map_or(0, |d| d.as_secs());
                 let to = format!("{MANIFEST_FILE}.unreadable-{secs}");
                 tracing::warn!("{e}; moving it to {}", files.path(&to).display());
-                moved = Some(move_aside(&*files, &to)?);
+                moved = Some(move_aside(&*files, MANIFEST_FILE, &to)?);
             }
         }
     }
@@ -204,7 +226,8 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
     let mut candidates: Vec<Candidate> = Vec::new();
     let mut max_seq = 0u64;
     // Newest file of each chunk by (commit generation, number), intact or not.
-    let mut newest_name: HashMap<ChunkIndex, ((u64, u64), String)> = HashMap::new();
+    let mut versions: Vec<(ChunkIndex, (u64, u64), String)> = Vec::new();
+    let mut after_commit: Vec<String> = Vec::new();
     let mut failed: HashMap<String, String> = HashMap::new();
     let mut files_examined = 0;
     for name in names {
@@ -224,10 +247,7 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
         let object = format!("{CHUNKS_DIR}/{name}");
         let key = (header_commit_gen(&*files, &object), seq);
         newest_generation = newest_generation.max(key.0);
-        let newest = newest_name.entry(c).or_insert((key, name.clone()));
-        if key > newest.0 {
-            *newest = (key, name.clone());
-        }
+        versions.push((c, key, name.clone()));
         let (d, bytes) = match read_chunk_object(&*files, &object) {
             Ok(d) => d,
             Err(e) => {
@@ -284,6 +304,42 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
             },
         });
     }
+    if candidates.is_empty() && files_examined == 0 {
+        if let Some(h) = rolled_back {
+            // A map whose last commit held no chunk yet, rolled back: rebuilt empty, with the
+            // rolled-back manifest's grid and identity and the commit mark's fusion cursor.
+            let frames = match mark {
+                Some((id, _, Some(f))) if id == h.map_id => f,
+                _ => FRAMES_UNKNOWN,
+            };
+            let manifest = Manifest {
+                header: ManifestHeader {
+                    generation: newest_generation,
+                    frames_committed: frames,
+                    next_file_seq: h.next_file_seq.max(max_seq + 1),
+                    ..h
+                },
+                chunks: BTreeMap::new(),
+                kept: BTreeMap::new(),
+            };
+            let passes = manifest.pass_status();
+            let mut store = MapStore::from_repair(files, lock, manifest);
+            store.commit()?;
+            return Ok(RepairReport {
+                unreadable_manifest_moved_to: moved,
+                files_examined,
+                chunks: 0,
+                blocks: 0,
+                observed_voxels: 0,
+                older_versions_used: Vec::new(),
+                not_kept,
+                notes,
+                map_id: h.map_id,
+                passes,
+                frames_committed: (frames != FRAMES_UNKNOWN).then_some(frames),
+            });
+        }
+    }
     if candidates.is_empty() {
         return Err(Error::bad_input(
             files.path(CHUNKS_DIR),
@@ -337,6 +393,37 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
         }
         true
     });
+    // The map is rebuilt as of its last commit: where the commit mark of this map names it, files
+    // stamped with a later generation were written after it (a checkpoint or pass a kill cut
+    // short) and are not part of any committed map. They are reported and left in place.
+    let last_commit = mark
+        .filter(|(id, _, _)| Some(*id) == map_id)
+        .map(|(_, g, _)| g);
+    if let Some(g) = last_commit {
+        // Every file stamped later, intact or not (moved below, once the new manifest commits).
+        for (_, (stamped, _), name) in &versions {
+            if *stamped > g {
+                not_kept.push(format!(
+                    "{name}: written after the last commit (generation {g}, recorded in {}): not part of the committed map; moved to {NOT_COMMITTED_DIR}/",
+                    files.path(COMMIT_MARK).display()
+                ));
+                after_commit.push(name.clone());
+            }
+        }
+        candidates.retain(|k| k.origin.map_or(0, |o| o.commit_gen) <= g);
+    }
+    // The newest file of each chunk by (commit generation, number) that belongs to the committed
+    // map, intact or not.
+    let mut newest_name: HashMap<ChunkIndex, ((u64, u64), String)> = HashMap::new();
+    for (c, key, name) in versions {
+        if last_commit.is_some_and(|g| key.0 > g) {
+            continue;
+        }
+        let newest = newest_name.entry(c).or_insert((key, name.clone()));
+        if key > newest.0 {
+            *newest = (key, name);
+        }
+    }
     // Newest intact version of each chunk; older ones stay candidates for the complete pass.
     let mut by_chunk: BTreeMap<ChunkIndex, Vec<Candidate>> = BTreeMap::new();
     for k in candidates {
@@ -423,13 +510,23 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
             ));
         }
     }
+    // The fusion cursor: the commit mark's, when the map rebuilt is exactly that commit's (every
+    // kept file stamped at or before it, none replaced by an older version); else unknown.
+    let frames_committed = match mark {
+        Some((id, gen, Some(frames)))
+            if Some(id) == map_id && last_commit == Some(gen) && older_versions_used.is_empty() =>
+        {
+            frames
+        }
+        _ => FRAMES_UNKNOWN,
+    };
     let fallback = TvParams::paper(voxel_size_m);
     let header = ManifestHeader {
         voxel_size_m,
         truncation_m,
         chunk_blocks,
         generation: newest_generation,
-        frames_committed: FRAMES_UNKNOWN,
+        frames_committed,
         next_file_seq: max_seq + 1,
         reg_pass: latest,
         reg_params: params.get(&latest).copied().unwrap_or(fallback),
@@ -454,6 +551,15 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
         kept,
     };
     let passes = manifest.pass_status();
+    // Out of `chunks/` before the new manifest commits past their stamps, so that no later
+    // repair takes them for committed files (a repair cut short moves the rest next time).
+    for name in &after_commit {
+        move_aside(
+            &*files,
+            &format!("{CHUNKS_DIR}/{name}"),
+            &format!("{NOT_COMMITTED_DIR}/{name}"),
+        )?;
+    }
     let mut store = MapStore::from_repair(files, lock, manifest);
     store.commit()?;
     let s = store.summary();
@@ -468,5 +574,6 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
         notes,
         map_id: store.manifest().header.map_id,
         passes,
+        frames_committed: (frames_committed != FRAMES_UNKNOWN).then_some(frames_committed),
     })
 }

@@ -370,7 +370,28 @@ fn a_deleted_manifest_is_refused_then_repaired() {
             == std::fs::read(d.join("after.ply")).expect("b"),
         "the repaired map exports the same mesh"
     );
-    // Fusion cannot resume without the lost frame cursor: refused, the map untouched.
+    // The fusion cursor came back from the commit mark (the map is exactly its last commit):
+    // the same job resumes, with nothing left to fuse.
+    assert!(
+        out.contains("fusion progress: ") && out.contains("resumes"),
+        "{out}"
+    );
+    assert_eq!(after["frames_committed"], before["frames_committed"]);
+    ok(&quick("m", "out", &[]), d);
+    assert_eq!(map_json("m", d)["summary"], before["summary"]);
+    // Without it (a commit mark of denser 0.2.0 has no cursor), fusion cannot resume: refused,
+    // the map untouched.
+    std::fs::remove_file(d.join("m/manifest.dmf")).expect("rm manifest");
+    let mark = std::fs::read_to_string(d.join("m/last-commit")).expect("mark");
+    let old_mark: String = mark
+        .lines()
+        .filter(|l| !l.starts_with("frames_committed"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(d.join("m/last-commit"), old_mark).expect("0.2.0 mark");
+    let out = ok(&["repair", "m"], d);
+    assert!(out.contains("cannot resume"), "{out}");
+    let files = chunk_files(&d.join("m"));
     let t = fails(&quick("m", "out", &[]), d);
     assert!(
         t.contains("denser repair") && t.contains("cannot resume"),

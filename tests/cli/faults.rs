@@ -52,7 +52,12 @@ fn operations(a: &[String], cwd: &Path) -> u64 {
 
 /// Blocks of `map` after `inspect --verify` passed; `None` when the map is refused with one of
 /// `refusals` (the only acceptable reasons), a panic otherwise.
-pub(super) fn verified_blocks(map: &str, cwd: &Path, refusals: &[&str], context: &str) -> Option<u64> {
+pub(super) fn verified_blocks(
+    map: &str,
+    cwd: &Path,
+    refusals: &[&str],
+    context: &str,
+) -> Option<u64> {
     let o = run(&args(&format!("inspect {map} --verify --json")), cwd, None);
     let t = text(&o);
     if !o.status.success() {

@@ -11,6 +11,7 @@ mod engine;
 mod faults;
 mod map;
 mod outputs;
+mod random_ops;
 #[cfg(feature = "s3")]
 mod scaleout;
 mod stereo;

@@ -11,7 +11,7 @@ use denser::grid::{encode_tsdf, Block, BlockIndex, GridParams, Layer, OMEGA_BIT}
 use denser::map::codec::{encode_chunk, ChunkHeader};
 use denser::map::layout::{CHUNKS_DIR, LOCK_FILE, MANIFEST_FILE};
 use denser::map::lock::WriterLock;
-use denser::map::manifest::{chunk_file_name, encode_manifest, FRAMES_UNKNOWN};
+use denser::map::manifest::{chunk_file_name, encode_manifest};
 use denser::map::repair::repair;
 use denser::map::store::MapStore;
 use denser::map::{group_by_chunk, ChunkIndex};
@@ -488,7 +488,12 @@ fn a_lost_manifest_is_refused_by_every_opener_and_repair_rebuilds_it() {
         (1, params(0.5), 1)
     );
     assert_eq!(m.header.next_file_seq, original.header.next_file_seq);
-    assert_eq!(m.header.frames_committed, FRAMES_UNKNOWN);
+    // The fusion cursor, from the commit mark: the map rebuilt is exactly its last commit.
+    assert_eq!(m.header.frames_committed, original.header.frames_committed);
+    assert_eq!(
+        report.frames_committed,
+        Some(original.header.frames_committed)
+    );
     assert!(s.verify().is_empty());
     assert_layers_identical(&reference, &store_layer(&s));
     drop(s);

@@ -161,6 +161,44 @@ fn repair_keeps_the_latest_commit_not_the_highest_file_number() {
     );
 }
 
+/// A kill in the middle of a checkpoint leaves chunk files written after the last commit; with
+/// the manifest then lost (or rolled back), `repair` mixed them with the committed files and
+/// could not tell how many frames the map held. It rebuilds the last commit the commit mark names,
+/// reports the later files (left in place), and restores the fusion cursor from the mark.
+#[test]
+fn repair_rebuilds_the_last_commit_and_its_fusion_cursor() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let root = dir.path().join("map");
+    let a = surface_layer(3, 2, 5);
+    let mut w = MapStore::create(&root, grid(), CHUNK_BLOCKS).expect("create");
+    w.header_mut().frames_committed = 7;
+    write_layer(&mut w, &a);
+    // The next checkpoint, cut short before its commit: every chunk written again.
+    let b = changed(&a, 3);
+    let chunks = denser::map::group_by_chunk(b.indices_sorted(), CHUNK_BLOCKS);
+    for (c, blocks) in &chunks {
+        let refs: Vec<_> = blocks
+            .iter()
+            .map(|i| (*i, b.get(i).expect("block")))
+            .collect();
+        w.write_chunk(*c, &refs, 0).expect("write");
+    }
+    drop(w);
+    std::fs::remove_file(root.join(MANIFEST_FILE)).expect("lose the manifest");
+    let report = repair(&root).expect("repair");
+    assert_eq!(report.frames_committed, Some(7), "{report:?}");
+    let later = report
+        .not_kept
+        .iter()
+        .filter(|l| l.contains("written after the last commit"))
+        .count();
+    assert_eq!(later, chunks.len(), "{report:?}");
+    let r = MapStore::open_read_only(&root).expect("repaired");
+    assert!(r.verify().is_empty(), "{:?}", r.verify());
+    assert_eq!(r.manifest().header.frames_committed, 7);
+    assert_layers_identical(&a, &store_layer(&r));
+}
+
 fn store_chunks(layer: &Layer) -> usize {
     denser::map::group_by_chunk(layer.indices_sorted(), CHUNK_BLOCKS).len()
 }

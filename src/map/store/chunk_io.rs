@@ -233,17 +233,6 @@ impl ChunkWriter {
         reg_pass: u32,
         previous: &PreviousFrames,
     ) -> (Vec<u8>, WrittenChunk) {
-        self.encode(c, seq, blocks, reg_pass, previous)
-    }
-
-    fn encode(
-        &self,
-        c: ChunkIndex,
-        seq: u64,
-        blocks: &[(BlockIndex, &Block)],
-        reg_pass: u32,
-        previous: &PreviousFrames,
-    ) -> (Vec<u8>, WrittenChunk) {
         let header = ChunkHeader {
             voxel_size_m: self.grid.voxel_size_m,
             truncation_m: self.grid.truncation_m,
@@ -305,7 +294,7 @@ impl ChunkWriter {
         reg_pass: u32,
         previous: &PreviousFrames,
     ) -> Result<WrittenChunk> {
-        let (bytes, w) = self.encode(c, seq, blocks, reg_pass, previous);
+        let (bytes, w) = self.encode_reusing(c, seq, blocks, reg_pass, previous);
         self.files.write_chunk(&chunk_object(c, seq), &bytes)?;
         Ok(w)
     }
@@ -325,7 +314,7 @@ impl ChunkWriter {
     ) -> Result<WrittenChunk> {
         let name = chunk_object(c, seq);
         let frames = previous.map(|p| PreviousFrames::of(p)).unwrap_or_default();
-        let (bytes, w) = self.encode(c, seq, blocks, reg_pass, &frames);
+        let (bytes, w) = self.encode_reusing(c, seq, blocks, reg_pass, &frames);
         if self.files.write_new(&name, &bytes)? {
             return Ok(w);
         }

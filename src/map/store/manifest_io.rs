@@ -90,14 +90,21 @@ pub fn read_manifest_at(files: &dyn MapFiles) -> Result<(Manifest, ObjectVersion
 /// The text of the commit mark ([`super::super::layout::COMMIT_MARK`]) for `h`.
 pub(super) fn commit_mark_text(h: &ManifestHeader) -> String {
     format!(
-        "denser last commit\nmap_id {:016x}\ngeneration {}\n",
-        h.map_id, h.generation
+        "denser last commit\nmap_id {:016x}\ngeneration {}\nframes_committed {}\n",
+        h.map_id, h.generation, h.frames_committed
     )
 }
 
 /// The commit mark's map id and generation; `None` when there is none (a map made before the
 /// mark existed) or it cannot be parsed (reported: a damaged mark is no evidence).
 pub fn read_commit_mark(files: &dyn MapFiles) -> Result<Option<(u64, u64)>> {
+    Ok(read_commit_mark_frames(files)?.map(|(id, gen, _)| (id, gen)))
+}
+
+/// [`read_commit_mark`] with the frames the last commit had fused, where the mark records them
+/// (marks written before it did have none): what `repair` restores as the fusion cursor when it
+/// rebuilds exactly that commit's map.
+pub fn read_commit_mark_frames(files: &dyn MapFiles) -> Result<Option<(u64, u64, Option<u64>)>> {
     let Some(bytes) = files.read(COMMIT_MARK)? else {
         return Ok(None);
     };
@@ -108,8 +115,9 @@ pub fn read_commit_mark(files: &dyn MapFiles) -> Result<Option<(u64, u64)>> {
     };
     let id = field("map_id ").and_then(|v| u64::from_str_radix(&v, 16).ok());
     let gen = field("generation ").and_then(|v| v.parse::<u64>().ok());
+    let frames = field("frames_committed ").and_then(|v| v.parse::<u64>().ok());
     match (text.starts_with("denser last commit"), id, gen) {
-        (true, Some(id), Some(gen)) => Ok(Some((id, gen))),
+        (true, Some(id), Some(gen)) => Ok(Some((id, gen, frames))),
         _ => {
             tracing::warn!(
                 "{}: not a commit mark this denser reads; ignored",

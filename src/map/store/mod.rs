@@ -50,7 +50,8 @@ use manifest_io::{
     require_manifest,
 };
 pub use manifest_io::{
-    count_chunk_files, count_chunk_objects, read_commit_mark, read_manifest, read_manifest_at,
+    count_chunk_files, count_chunk_objects, read_commit_mark, read_commit_mark_frames,
+    read_manifest, read_manifest_at,
 };
 
 use cache::ChunkCache;

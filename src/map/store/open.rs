@@ -233,6 +233,16 @@ impl MapStore {
         if store.files.needs_fencing() {
             store.commit()?;
         }
+        // A commit whose mark was not written (a kill or a failed write between the two) gets it
+        // now, before anything is deleted: `repair` rebuilds the commit the mark names.
+        let h = store.manifest.header;
+        if read_commit_mark_frames(&*store.files)?
+            != Some((h.map_id, h.generation, Some(h.frames_committed)))
+        {
+            store
+                .files
+                .write(COMMIT_MARK, commit_mark_text(&h).as_bytes())?;
+        }
         let cleanup = store.remove_leftovers()?;
         if store.manifest.header.map_id == 0 {
             // A format-1 map: it gets an identity with its next commit.
