@@ -11,22 +11,8 @@
 # --lidar-only --seed 8`, `reconstruct --depth lidar --map --skip-regularize`, `regularize`
 # (512 MiB); each run adds a pass with another λ (0.7), as `regularize` of an archived map does.
 set -euo pipefail
-bin=$(readlink -f "${1:-target/release/denser}")
-work=${2:-$(mktemp -d)}
-rounds=${3:-3}
-shift $(( $# > 3 ? 3 : $# ))
-threads=("$@")
-[ ${#threads[@]} -gt 0 ] || threads=(1 2)
-mkdir -p "$work"
-cd "$work"
-if [ ! -f map/manifest.dmf ]; then
-  "$bin" --log warn synth --out drive --length-m 150 --lidar-only --seed 8 >/dev/null
-  "$bin" --log warn reconstruct drive/sequences/00 --depth lidar --map map --out rec \
-    --skip-regularize --no-eval >/dev/null
-  "$bin" --log warn regularize map --memory-budget 512MiB >/dev/null
-fi
-"$bin" --log warn inspect map | head -3
-echo "machine: $(nproc) cores; $(uname -sr); $("$bin" --version)"
+# shellcheck source=tools/bench_threads_setup.sh
+source "$(dirname "$(readlink -f "$0")")/bench_threads_setup.sh"
 declare -A times
 for r in $(seq 1 "$rounds"); do
   for t in "${threads[@]}"; do
