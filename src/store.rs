@@ -73,6 +73,8 @@ pub struct RegularizeSummary {
     pub sweeps: u32,
     /// Region edge, chunks (regional), 0 when global.
     pub region_chunks: u32,
+    /// Scratch state on disk of a swept pass at its fullest, bytes (0 otherwise).
+    pub scratch_bytes: u64,
 }
 
 /// What writing a surface produced.

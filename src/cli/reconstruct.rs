@@ -362,8 +362,11 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     let (surfaces, regularize) = (results.surfaces, results.regularize);
     // The map is done with: free it before the evaluation loads the ground truth, so the two do
     // not add up.
-    let (run, gpu_stats, gpu_traffic) =
-        (RunFacts::of(&rec), rec.resident_stats(), rec.gpu_traffic());
+    let (run, gpu_stats, gpu_traffic) = (
+        RunFacts::of(&rec).with_memory_budget(job.map.as_ref().map(|m| m.budget.memory_budget)),
+        rec.resident_stats(),
+        rec.gpu_traffic(),
+    );
     let fusion_device = rec.backend().fusion_device_name();
     drop(rec);
     // The map's blocks (3 KiB each) were freed into glibc's arenas, which keep them resident.

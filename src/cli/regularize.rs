@@ -62,9 +62,13 @@ impl fmt::Display for Regularized {
             "{}",
             RegularizeLine(&self.outcome, &self.device, &self.timings)
         )?;
+        let scratch = match s.scratch_bytes {
+            0 => String::new(),
+            b => format!("; sweep state on disk ≈ {:.0} MiB at its fullest", mib(b)),
+        };
         writeln!(
             f,
-            "{:.2} s per million Ω voxels; largest region ≈ {} MiB; peak RSS {:.0} MiB",
+            "{:.2} s per million Ω voxels; largest region ≈ {} MiB; peak RSS {:.0} MiB{scratch}",
             self.outcome.seconds / (s.omega_voxels.max(1) as f64 / 1e6),
             s.peak_region_bytes >> 20,
             mib(self.peak_rss_bytes.unwrap_or(0))

@@ -67,32 +67,26 @@ impl GroundTruth {
     /// Loads the ground-truth points and, for LiDAR scans, where they could have measured
     /// ([`SensorCoverage`]; `None` for point-cloud files, which carry no sensor poses).
     pub fn load_with_coverage(&self) -> Result<(PointCloud, Option<SensorCoverage>)> {
+        let mut cloud = PointCloud::default();
         match self {
             GroundTruth::KittiLidar {
                 sequence,
                 poses,
                 frames,
             } => {
+                // Sized from the scan files, the merged cloud is allocated once (grown by
+                // doubling, it would briefly need up to twice its size).
                 let seq = KittiSequence::open(sequence, poses.as_deref())?;
-                let mut coverage = CoverageBuilder::default();
-                let cloud = merge_scans(&seq, &frames.indices(seq.len()), Some(&mut coverage))?;
-                Ok((cloud, coverage.build()))
+                let points: u64 = frames
+                    .indices(seq.len())
+                    .into_iter()
+                    .filter_map(|i| seq.velodyne_path(i))
+                    .filter_map(|p| std::fs::metadata(p).ok())
+                    .map(|m| m.len() / crate::io::kitti::VELODYNE_POINT_BYTES as u64)
+                    .sum();
+                cloud.points_m.reserve_exact(points as usize);
             }
-            GroundTruth::Scans {
-                input,
-                options,
-                frames,
-            } => {
-                let seq = crate::io::sequence::open_input(input, options, None)?;
-                let mut coverage = CoverageBuilder::default();
-                let mut cloud = PointCloud::default();
-                for i in frames.indices(seq.len()) {
-                    if let RangeInput::Lidar(scan) = seq.read(i)? {
-                        add_scan(&mut cloud, &scan, Some(&mut coverage));
-                    }
-                }
-                Ok((cloud, coverage.build()))
-            }
+            GroundTruth::Scans { .. } => {}
             GroundTruth::File(path) => {
                 let ext = path
                     .extension()
@@ -109,9 +103,64 @@ impl GroundTruth {
                         ))
                     }
                 };
-                Ok((cloud, None))
+                return Ok((cloud, None));
             }
         }
+        let coverage = self.stream(|points| {
+            cloud.points_m.extend_from_slice(points);
+            Ok(())
+        })?;
+        Ok((cloud, coverage))
+    }
+
+    /// The ground-truth points (world frame, metres) handed to `f` a scan (or, for a file, a
+    /// slice of at most 2²⁰ points) at a time, never all at once for scans; and, for LiDAR scans,
+    /// where they could have measured. A point-cloud file is read whole first (its own size).
+    pub fn stream(
+        &self,
+        mut f: impl FnMut(&[[f64; 3]]) -> Result<()>,
+    ) -> Result<Option<SensorCoverage>> {
+        let mut coverage = CoverageBuilder::default();
+        let mut world = PointCloud::default();
+        let mut each = |scan: &crate::frame::LidarScan| -> Result<()> {
+            world.points_m.clear();
+            add_scan(&mut world, scan, Some(&mut coverage));
+            f(&world.points_m)
+        };
+        match self {
+            GroundTruth::KittiLidar {
+                sequence,
+                poses,
+                frames,
+            } => {
+                let seq = KittiSequence::open(sequence, poses.as_deref())?;
+                for i in frames.indices(seq.len()) {
+                    if seq.has_velodyne(i) {
+                        each(&seq.velodyne(i)?)?;
+                    }
+                }
+            }
+            GroundTruth::Scans {
+                input,
+                options,
+                frames,
+            } => {
+                let seq = crate::io::sequence::open_input(input, options, None)?;
+                for i in frames.indices(seq.len()) {
+                    if let RangeInput::Lidar(scan) = seq.read(i)? {
+                        each(&scan)?;
+                    }
+                }
+            }
+            GroundTruth::File(_) => {
+                let (cloud, _) = self.load_with_coverage()?;
+                for part in cloud.points_m.chunks(1 << 20) {
+                    f(part)?;
+                }
+                return Ok(None);
+            }
+        }
+        Ok(coverage.build())
     }
 
     /// A short description for reports.

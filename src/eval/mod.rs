@@ -49,15 +49,17 @@ mod render;
 mod report;
 pub mod run;
 mod stats;
+mod stats_spill;
+pub mod tiled;
+mod top_view;
 
 pub use coverage::{CoverageBuilder, SensorCoverage, SensorView};
 pub use evaluate::{evaluate_mesh, evaluate_mesh_detailed, EvalOptions, MeshEvaluation};
 pub use ground_truth::{merged_lidar, GroundTruth};
 pub use nn::{sample_mesh_surface, surface_points, CompletenessRegion, GroundTruthIndex};
-pub use plot::{
-    error_colour, plot_error_histograms_png, plot_top_view_png, UpAxis, SERIES_COLOURS,
-    UNSCORED_GREY,
-};
+pub use plot::{error_colour, plot_error_histograms_png, UpAxis, SERIES_COLOURS, UNSCORED_GREY};
 pub use report::{EvaluationReport, SurfaceReport};
 pub use run::{evaluate_meshes, evaluate_reconstruction, sparse_ground_truth_note, RunFacts};
 pub use stats::{percentile_of_sorted, ErrorStats, Histogram, HistogramSpec};
+pub use stats_spill::{DistanceSpill, Which};
+pub use top_view::{plot_top_view_png, TopView};

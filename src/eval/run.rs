@@ -5,7 +5,7 @@
 use super::render::{render_mesh_png, MeshColour, MeshView};
 use super::{
     evaluate_mesh_detailed, plot_error_histograms_png, plot_top_view_png, EvalOptions,
-    EvaluationReport, GroundTruth, GroundTruthIndex, SensorCoverage, UpAxis,
+    EvaluationReport, GroundTruth, GroundTruthIndex, SensorCoverage, SurfaceReport, UpAxis,
 };
 use crate::frame::PointCloud;
 use crate::grid::GridParams;
@@ -134,6 +134,30 @@ pub fn evaluate_meshes(
     }
     bar.finish_and_clear();
     report.coverage = coverage.map(|c| c.view());
+    plot_histogram(report, &evaluations, out_dir, &mut written)?;
+    // The last (regularized) surface as it looks, from above and from an oblique viewpoint.
+    if let Some((label, mesh)) = meshes.last().filter(|(_, m)| !m.triangles.is_empty()) {
+        for (view, name) in [(MeshView::Top, "top"), (MeshView::Oblique, "oblique")] {
+            let file = format!("view_{name}_{label}.png");
+            let path = out_dir.join(&file);
+            let colour = MeshColour::for_mesh(mesh);
+            let title = mesh_picture_title(label, name, colour);
+            render_mesh_png(&path, mesh, UpAxis::NegY, view, colour, 1600, &title)?;
+            report.pictures.push(file);
+            written.push(path);
+        }
+    }
+    finish_report(report, evaluations, t.elapsed().as_secs_f64(), out_dir, &mut written)?;
+    Ok(written)
+}
+
+/// The error histogram of `evaluations` (accuracy), first of the report's pictures.
+pub(crate) fn plot_histogram(
+    report: &mut EvaluationReport,
+    evaluations: &[SurfaceReport],
+    out_dir: &Path,
+    written: &mut Vec<PathBuf>,
+) -> Result<()> {
     let series: Vec<(&str, &super::ErrorStats)> = evaluations
         .iter()
         .map(|r| (r.label.as_str(), &r.accuracy))
@@ -142,31 +166,24 @@ pub fn evaluate_meshes(
     plot_error_histograms_png(&hist, &series, 0.5)?;
     report.pictures.insert(0, "error_histogram.png".into());
     written.push(hist);
-    // The last (regularized) surface as it looks, from above and from an oblique viewpoint.
-    if let Some((label, mesh)) = meshes.last().filter(|(_, m)| !m.triangles.is_empty()) {
-        for (view, name) in [(MeshView::Top, "top"), (MeshView::Oblique, "oblique")] {
-            let file = format!("view_{name}_{label}.png");
-            let path = out_dir.join(&file);
-            let colour = MeshColour::for_mesh(mesh);
-            let title = match colour {
-                MeshColour::Own => format!("{label} mesh, {name} view"),
-                MeshColour::Height => format!(
-                    "{label} mesh, {name} view, coloured by height (blue low, red high; the input had no colour)"
-                ),
-            };
-            render_mesh_png(&path, mesh, UpAxis::NegY, view, colour, 1600, &title)?;
-            report.pictures.push(file);
-            written.push(path);
-        }
-    }
+    Ok(())
+}
+
+/// Adds the scored surfaces, the sparse-ground-truth note, the evaluation's time and the peak
+/// RSS to `report`, and writes `report.json` and `report.md` into `out_dir`.
+pub(crate) fn finish_report(
+    report: &mut EvaluationReport,
+    evaluations: Vec<SurfaceReport>,
+    evaluation_s: f64,
+    out_dir: &Path,
+    written: &mut Vec<PathBuf>,
+) -> Result<()> {
     report.surfaces.extend(evaluations);
     if let Some(note) = report.surfaces.last().and_then(sparse_ground_truth_note) {
         tracing::warn!("{note}");
         report.notes.push(note);
     }
-    report
-        .timings_s
-        .push(("evaluation".into(), t.elapsed().as_secs_f64()));
+    report.timings_s.push(("evaluation".into(), evaluation_s));
     if let Some(rss) = peak_rss_bytes() {
         report
             .memory_bytes
@@ -177,7 +194,17 @@ pub fn evaluate_meshes(
     let md = out_dir.join("report.md");
     report.write_markdown(&md)?;
     written.extend([json, md]);
-    Ok(written)
+    Ok(())
+}
+
+/// The title of a mesh picture: the surface, the view and, when coloured by height, the key.
+pub(crate) fn mesh_picture_title(label: &str, view: &str, colour: MeshColour) -> String {
+    match colour {
+        MeshColour::Own => format!("{label} mesh, {view} view"),
+        MeshColour::Height => format!(
+            "{label} mesh, {view} view, coloured by height (blue low, red high; the input had no colour)"
+        ),
+    }
 }
 
 /// What the report of a reconstruction says about the run itself, taken from its
@@ -197,6 +224,9 @@ pub struct RunFacts {
     pub device: String,
     /// The sensor's path, metres (world frame).
     pub trajectory_m: Vec<[f64; 3]>,
+    /// The run's `--memory-budget` when it had one (a paged map): surfaces stored as files are
+    /// then scored tile by tile within it ([`crate::eval::tiled`]).
+    pub memory_budget_bytes: Option<u64>,
 }
 
 impl RunFacts {
@@ -209,14 +239,23 @@ impl RunFacts {
             tv: rec.config().tv,
             device: rec.backend().device_name(),
             trajectory_m: rec.trajectory_m().to_vec(),
+            memory_budget_bytes: None,
         }
+    }
+
+    /// These facts with the run's memory budget.
+    pub fn with_memory_budget(mut self, bytes: Option<u64>) -> RunFacts {
+        self.memory_budget_bytes = bytes;
+        self
     }
 }
 
 /// Scores a reconstruction's surfaces (the raw one first: the baseline of the relative changes)
 /// against `ground_truth` and writes the report into `out_dir`, with the run's timings, memory,
 /// parameters and map size (`earlier_timings_s`: stages before the reconstruction, e.g.
-/// synthesising the drive). Surfaces a paged map streamed to files are read back.
+/// synthesising the drive). Surfaces a paged map streamed to files are scored from the files
+/// tile by tile within [`RunFacts::memory_budget_bytes`] when it is set
+/// ([`crate::eval::tiled`]), else read back whole.
 pub fn evaluate_reconstruction(
     run: &RunFacts,
     surfaces: &[SurfaceOutput],
@@ -226,12 +265,113 @@ pub fn evaluate_reconstruction(
     earlier_timings_s: &[(String, f64)],
     out_dir: &Path,
 ) -> Result<(EvaluationReport, Vec<PathBuf>)> {
+    // Surfaces a paged map streamed to files are scored from the files, within the budget.
+    if let Some(budget) = run
+        .memory_budget_bytes
+        .filter(|_| surfaces.iter().all(|s| s.mesh.is_none()))
+    {
+        let files: Vec<super::tiled::SurfaceFile> = surfaces
+            .iter()
+            .map(|s| super::tiled::SurfaceFile {
+                label: surface_label(s.field).to_string(),
+                mesh_path: s.mesh_path.clone(),
+                area_m2: s.area_m2,
+            })
+            .collect();
+        let how = super::tiled::TiledEvaluation {
+            ground_truth,
+            trajectory_m: &run.trajectory_m,
+            voxels: Some(map_voxels(&run.summary)),
+            memory_budget_bytes: budget,
+            out_dir,
+        };
+        return super::tiled::evaluate_surface_files(&files, &how, |points, load_s| {
+            run_report(
+                run,
+                regularize,
+                ground_truth,
+                source,
+                earlier_timings_s,
+                points,
+                load_s,
+            )
+        });
+    }
     let t = std::time::Instant::now();
     let (gt, coverage) = ground_truth.load_with_coverage()?;
     let load_s = t.elapsed().as_secs_f64();
+    let report = run_report(
+        run,
+        regularize,
+        ground_truth,
+        source,
+        earlier_timings_s,
+        gt.len() as u64,
+        load_s,
+    );
+    let loaded: Vec<(String, std::borrow::Cow<'_, Mesh>)> = surfaces
+        .iter()
+        .map(|s| {
+            let mesh = match &s.mesh {
+                Some(m) => std::borrow::Cow::Borrowed(m),
+                None => std::borrow::Cow::Owned(crate::io::ply::read_mesh_ply(&s.mesh_path)?),
+            };
+            Ok((surface_label(s.field).to_string(), mesh))
+        })
+        .collect::<Result<_>>()?;
+    let refs: Vec<(&str, &Mesh)> = loaded
+        .iter()
+        .map(|(l, m)| (l.as_str(), m.as_ref()))
+        .collect();
+    let trajectory = match &coverage {
+        Some(c) => c.trajectory_m(),
+        None => run.trajectory_m.clone(),
+    };
+    let mut report = report;
+    let written = evaluate_meshes(
+        &refs,
+        gt,
+        coverage.as_ref(),
+        &trajectory,
+        &mut report,
+        Some(map_voxels(&run.summary)),
+        out_dir,
+    )?;
+    Ok((report, written))
+}
+
+/// A surface's label in the report.
+fn surface_label(field: Field) -> &'static str {
+    match field {
+        Field::Raw => "raw",
+        Field::Regularized => "regularized",
+    }
+}
+
+/// The map's size: allocated voxels and bytes per allocated voxel (RAM, or disk when paged).
+fn map_voxels(summary: &StoreSummary) -> (u64, f64) {
+    let bytes_per_voxel = if summary.disk_bytes > 0 {
+        summary.disk_bytes as f64 / summary.voxels().max(1) as f64
+    } else {
+        summary.ram_bytes_per_voxel
+    };
+    (summary.voxels(), bytes_per_voxel)
+}
+
+/// The report of a reconstruction before its surfaces are scored: source, timings, memory and
+/// parameters.
+fn run_report(
+    run: &RunFacts,
+    regularize: Option<&RegularizeOutcome>,
+    ground_truth: &GroundTruth,
+    source: &str,
+    earlier_timings_s: &[(String, f64)],
+    ground_truth_points: u64,
+    load_s: f64,
+) -> EvaluationReport {
     let mut report = EvaluationReport::new(
         format!("{source}; ground truth: {}", ground_truth.describe()),
-        gt.len() as u64,
+        ground_truth_points,
     );
     let timings = &run.timings;
     report.timings_s.extend(earlier_timings_s.iter().cloned());
@@ -272,44 +412,7 @@ pub fn evaluate_reconstruction(
         "energy_before": energy.map(|e| e.0),
         "energy_after": energy.map(|e| e.1),
     });
-    // The map's size: allocated voxels and bytes per allocated voxel (RAM, or disk when paged).
-    let bytes_per_voxel = if summary.disk_bytes > 0 {
-        summary.disk_bytes as f64 / summary.voxels().max(1) as f64
-    } else {
-        summary.ram_bytes_per_voxel
-    };
-    let loaded: Vec<(String, std::borrow::Cow<'_, Mesh>)> = surfaces
-        .iter()
-        .map(|s| {
-            let label = match s.field {
-                Field::Raw => "raw",
-                Field::Regularized => "regularized",
-            };
-            let mesh = match &s.mesh {
-                Some(m) => std::borrow::Cow::Borrowed(m),
-                None => std::borrow::Cow::Owned(crate::io::ply::read_mesh_ply(&s.mesh_path)?),
-            };
-            Ok((label.to_string(), mesh))
-        })
-        .collect::<Result<_>>()?;
-    let refs: Vec<(&str, &Mesh)> = loaded
-        .iter()
-        .map(|(l, m)| (l.as_str(), m.as_ref()))
-        .collect();
-    let trajectory = match &coverage {
-        Some(c) => c.trajectory_m(),
-        None => run.trajectory_m.clone(),
-    };
-    let written = evaluate_meshes(
-        &refs,
-        gt,
-        coverage.as_ref(),
-        &trajectory,
-        &mut report,
-        Some((summary.voxels(), bytes_per_voxel)),
-        out_dir,
-    )?;
-    Ok((report, written))
+    report
 }
 
 /// A warning when the ground truth looks too sparse to score `surface`: most of the surface lies

@@ -21,6 +21,7 @@ pub mod kitti;
 pub mod las;
 pub mod pfm;
 pub mod ply;
+pub mod ply_stream;
 pub mod rgbd;
 pub mod scans;
 pub mod sequence;

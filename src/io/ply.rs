@@ -427,6 +427,92 @@ pub fn read_mesh_ply(path: impl AsRef<Path>) -> Result<Mesh> {
     })
 }
 
+/// Where the fields of a binary little-endian PLY mesh lie, for readers that stream it
+/// ([`crate::io::ply_stream`]): fixed-size vertex records, then (when present) faces.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct BinaryMeshLayout {
+    /// Bytes of the header (the vertex records start here).
+    pub body_start: u64,
+    /// Vertex records.
+    pub vertices: u64,
+    /// Bytes per vertex record.
+    pub vertex_stride: usize,
+    /// Byte offsets of x, y, z in a record, and whether they are `double` (else `float`).
+    pub xyz: [usize; 3],
+    /// Whether the coordinates are `double`.
+    pub f64_coordinates: bool,
+    /// Byte offsets of red, green, blue (`uchar`), when present.
+    pub rgb: Option<[usize; 3]>,
+    /// Face records (0 without a face element); each `uchar` 3 then three `int`/`uint`.
+    pub faces: u64,
+}
+
+/// The [`BinaryMeshLayout`] of the PLY whose first bytes are `head` (at least its header), or
+/// why it cannot be streamed: not binary little endian, coordinates neither `float` nor
+/// `double`, a vertex property of variable size, colours not `uchar`, elements other than
+/// `vertex` then `face`, or faces other than `list uchar int|uint`.
+pub(crate) fn binary_mesh_layout(head: &[u8]) -> std::result::Result<BinaryMeshLayout, String> {
+    let h = parse_header(head)?;
+    if h.encoding != Encoding::BinaryLe {
+        return Err("not binary little endian".into());
+    }
+    let (vertex, face) = match h.elements.as_slice() {
+        [v] if v.name == "vertex" => (v, None),
+        [v, f] if v.name == "vertex" && f.name == "face" => (v, Some(f)),
+        _ => return Err("elements other than `vertex` then `face`".into()),
+    };
+    let (mut offset, mut xyz, mut rgb) = (0usize, [None; 3], [None; 3]);
+    let mut coordinate_type = None;
+    for p in &vertex.props {
+        let Kind::Scalar(s) = p.kind else {
+            return Err(format!("vertex property `{}` is a list", p.name));
+        };
+        let axis = ["x", "y", "z"].iter().position(|n| *n == p.name);
+        let colour = ["red", "green", "blue"].iter().position(|n| *n == p.name);
+        if let Some(a) = axis {
+            if !matches!(s, Scalar::F32 | Scalar::F64) || coordinate_type.is_some_and(|t| t != s) {
+                return Err("coordinates neither all `float` nor all `double`".into());
+            }
+            coordinate_type = Some(s);
+            xyz[a] = Some(offset);
+        } else if let Some(c) = colour {
+            if s != Scalar::U8 {
+                return Err("colours not `uchar`".into());
+            }
+            rgb[c] = Some(offset);
+        }
+        offset += s.size();
+    }
+    let [Some(x), Some(y), Some(z)] = xyz else {
+        return Err("vertex without x, y and z".into());
+    };
+    if let Some(f) = face {
+        match f.props.as_slice() {
+            [Property {
+                kind:
+                    Kind::List {
+                        count: Scalar::U8,
+                        item: Scalar::I32 | Scalar::U32,
+                    },
+                ..
+            }] => {}
+            _ => return Err("faces not `list uchar int`".into()),
+        }
+    }
+    Ok(BinaryMeshLayout {
+        body_start: h.body_start as u64,
+        vertices: vertex.count as u64,
+        vertex_stride: offset,
+        xyz: [x, y, z],
+        f64_coordinates: coordinate_type == Some(Scalar::F64),
+        rgb: match rgb {
+            [Some(r), Some(g), Some(b)] => Some([r, g, b]),
+            _ => None,
+        },
+        faces: face.map_or(0, |f| f.count as u64),
+    })
+}
+
 fn vertex_header(out: &mut String, n: usize, coord: &str, color: bool) {
     out.push_str("ply\nformat binary_little_endian 1.0\ncomment written by denser\n");
     out.push_str(&format!("element vertex {n}\n"));

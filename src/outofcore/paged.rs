@@ -278,6 +278,7 @@ impl BlockStore for PagedStore {
             regions_adopted: s.regions_adopted,
             sweeps: s.sweeps,
             region_chunks: s.region_chunks,
+            scratch_bytes: s.scratch_bytes,
         })
     }
 

@@ -61,6 +61,9 @@ pub struct MapRegularizeStats {
     pub sweeps: u32,
     /// Region edge used, chunks (planned to the budget when not given).
     pub region_chunks: u32,
+    /// Scratch state a swept pass keeps under `sweeps/` at its fullest, bytes (computed from the
+    /// manifest: [`super::sweeps::scratch_bytes`]; 0 for a pass with exact halos).
+    pub scratch_bytes: u64,
 }
 
 /// How a stored map's regularization ([`super::regional::regularize_map`]) tiles and bounds its

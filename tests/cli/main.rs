@@ -6,6 +6,7 @@ mod common;
 mod depth_support;
 
 mod basics;
+mod budgets;
 mod devices;
 mod engine;
 mod faults;

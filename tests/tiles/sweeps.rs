@@ -101,6 +101,18 @@ fn sweeps_equal_the_global_solve_bit_for_bit_through_kills() {
     }
     let checked = assert_state_equals(&map, 1, 1, &global);
     assert_eq!(checked, all.len(), "every block has its state");
+    // Both parities are whole now: the scratch the pass announced (and checks against free disk)
+    // is what lies under sweeps/, to the progress record.
+    let on_disk: u64 = ["s0", "s1"]
+        .iter()
+        .flat_map(|p| std::fs::read_dir(map.join(SWEEPS_AREA).join(p)).expect("parity"))
+        .map(|e| e.expect("entry").metadata().expect("size").len())
+        .sum();
+    assert_eq!(
+        on_disk + 4096,
+        first.scratch_bytes,
+        "state files against the announced scratch"
+    );
 
     // Killed in the middle of the second sweep; a reopened map resumes from its record.
     drop(store);

@@ -180,6 +180,55 @@ pub(super) struct SweptPass<'a> {
 
 /// Runs pass `run.pass` as sweeps (see the module documentation). `solve(problem, params)` runs
 /// `params.iterations` iterations from the problem's state.
+/// Bytes of `sweeps/` at its fullest for `manifest`'s map: two parities of every chunk's state
+/// file (layout in `formats/sweep-state.md`: 40 bytes of header, 24 of index and a 64-byte Ω
+/// mask per block, 23 bytes per Ω voxel), plus the progress record. The state is 23 bytes per
+/// Ω voxel against the chunk files' 1–2 bytes per voxel, so this is some 15–30 times the map.
+pub fn scratch_bytes(manifest: &crate::map::manifest::Manifest) -> u64 {
+    let state: u64 = manifest
+        .chunks
+        .values()
+        .map(|e| 40 + 88 * e.block_count as u64 + 23 * e.observed_voxels as u64)
+        .sum();
+    2 * state + 4096
+}
+
+/// Refuses a swept pass up front when a local map's file system has less free space than its
+/// scratch state needs ([`scratch_bytes`]), naming both figures, instead of failing on a full
+/// disk part-way (nothing of the map is lost either way; this saves the hours).
+fn check_scratch_space(store: &MapStore) -> Result<()> {
+    let crate::map::location::MapLocation::Dir(dir) = store.files().location() else {
+        return Ok(());
+    };
+    let need = scratch_bytes(store.manifest());
+    let Some(free) = free_bytes(dir) else {
+        return Ok(());
+    };
+    if free < need {
+        let mib = |b: u64| b.div_ceil(1 << 20);
+        return Err(crate::Error::bad_input(
+            dir,
+            format!(
+                "a swept regularization pass keeps its solver state under sweeps/: about {} MiB for this map ({} MiB of chunk files), but its file system has {} MiB free; free space there, or give a --memory-budget large enough for regions with exact halos (no scratch state)",
+                mib(need),
+                mib(store.manifest().chunks.values().map(|e| e.file_bytes).sum()),
+                mib(free)
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Free bytes for an unprivileged writer on the file system holding `dir`.
+fn free_bytes(dir: &std::path::Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: `c` is a NUL-terminated path and `st` a writable statvfs.
+    (unsafe { libc::statvfs(c.as_ptr(), &mut st) } == 0)
+        .then(|| st.f_bavail as u64 * st.f_frsize as u64)
+}
+
 pub(super) fn regularize_swept(
     store: &mut MapStore,
     run: &SweptPass,
@@ -224,9 +273,11 @@ pub(super) fn regularize_swept(
         }
         None => {
             remove_state(&*files)?;
+            check_scratch_space(store)?;
             (0, 0)
         }
     };
+    stats.scratch_bytes = scratch_bytes(store.manifest());
     let chunks: Vec<([i32; 3], u64)> = store
         .manifest()
         .chunks
