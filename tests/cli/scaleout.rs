@@ -583,8 +583,9 @@ fn merge_of_two_halves_against_the_whole_drive() {
     }
 }
 
-/// Issue 36 item 7 on an object store: `reconstruct --map` and a `regularize` of a map on the S3
-/// server, each interrupted at sampled PUTs and DELETEs (`DENSER_FAULT_INJECTION`, as the
+/// Issue 36 item 7 on an object store: `reconstruct --map`, a `regularize` with exact halos and
+/// a swept one (its state on the bucket between sweeps) of a map on the S3 server, each
+/// interrupted at sampled PUTs and DELETEs (`DENSER_FAULT_INJECTION`, as the
 /// crash suite on disk in `faults.rs`: `crash@N` cuts the operation short and kills the process
 /// there, `error@N` fails it). After each: the map opens and verifies (or, interrupted before
 /// its first commit, does not exist yet), no committed block is lost, and the same command run
@@ -655,13 +656,21 @@ fn s3_interrupted_map_operations_resume_to_the_same_bytes() {
         .map(str::to_string)
         .to_vec()
     };
-    // All iterations at once with the exact halo: a swept pass's state files (thousands of
-    // PUTs) would make this test minutes long; the disk suite interrupts swept passes.
+    // All iterations at once with the exact halo, and a swept pass of two sweeps (its state
+    // files on the bucket between them); both equal the global solve, so give the same mesh.
     let reg = [
         "--iterations",
         "4",
         "--sweep-iterations",
         "0",
+        "--region-chunks",
+        "1",
+    ];
+    let swept = [
+        "--iterations",
+        "4",
+        "--sweep-iterations",
+        "2",
         "--region-chunks",
         "1",
     ];
@@ -678,6 +687,13 @@ fn s3_interrupted_map_operations_resume_to_the_same_bytes() {
     ra.extend(reg);
     let reg_ops = count(&ra);
     ok(&["export", "s3://maps/ref", "--mesh", "u.ply"], d, &env);
+    let fs = fuse_args("s3://maps/ref_swept");
+    let fs: Vec<&str> = fs.iter().map(String::as_str).collect();
+    ok(&fs, d, &env);
+    let mut sa = vec!["regularize", "s3://maps/ref_swept"];
+    sa.extend(swept);
+    let swept_ops = count(&sa);
+    ok(&["export", "s3://maps/ref_swept", "--mesh", "u_swept.ply"], d, &env);
     let raw = std::fs::read(d.join("raw.ply")).expect("raw");
     let u = std::fs::read(d.join("u.ply")).expect("u");
     let fused_blocks = blocks("s3://maps/ref").expect("reference");
@@ -700,7 +716,16 @@ fn s3_interrupted_map_operations_resume_to_the_same_bytes() {
         v
     };
     let mut checked = 0;
-    for (step, total) in [("reconstruct", fuse_ops), ("regularize", reg_ops)] {
+    assert!(
+        std::fs::read(d.join("u_swept.ply")).expect("u_swept") == u,
+        "a swept pass gives the exact-halo pass's mesh"
+    );
+    let steps = [
+        ("reconstruct", fuse_ops),
+        ("regularize", reg_ops),
+        ("swept", swept_ops),
+    ];
+    for (step, total) in steps {
         for (k, n) in sample(total).into_iter().enumerate() {
             let faults: &[&str] = match (all, k % 2) {
                 (true, _) => &["crash", "error"],
@@ -712,7 +737,7 @@ fn s3_interrupted_map_operations_resume_to_the_same_bytes() {
                 let fa = fuse_args(&map);
                 let fa: Vec<&str> = fa.iter().map(String::as_str).collect();
                 let mut ra = vec!["regularize", map.as_str()];
-                ra.extend(reg);
+                ra.extend(if step == "swept" { swept } else { reg });
                 let context = format!("{step} interrupted by {fault}@{n} of {total}");
                 let (cmd, before) = if step == "reconstruct" {
                     (fa.clone(), None)
@@ -758,7 +783,7 @@ fn s3_interrupted_map_operations_resume_to_the_same_bytes() {
         }
     }
     eprintln!(
-        "crash suite on S3: {checked} interrupted runs checked ({fuse_ops} reconstruct and {reg_ops} regularize operations)"
+        "crash suite on S3: {checked} interrupted runs checked ({fuse_ops} reconstruct, {reg_ops} regularize and {swept_ops} swept regularize operations)"
     );
-    assert!(checked >= 6, "{checked}");
+    assert!(checked >= 9, "{checked}");
 }
