@@ -147,7 +147,13 @@ pub fn evaluate_meshes(
             written.push(path);
         }
     }
-    finish_report(report, evaluations, t.elapsed().as_secs_f64(), out_dir, &mut written)?;
+    finish_report(
+        report,
+        evaluations,
+        t.elapsed().as_secs_f64(),
+        out_dir,
+        &mut written,
+    )?;
     Ok(written)
 }
 

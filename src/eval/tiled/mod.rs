@@ -361,7 +361,13 @@ pub fn evaluate_surface_files(
         .memory_bytes
         .push(("evaluation scratch on disk (peak)".into(), scratch_bytes));
     let evaluation_s = t.elapsed().as_secs_f64();
-    super::run::finish_report(&mut report, evaluations, evaluation_s, out_dir, &mut written)?;
+    super::run::finish_report(
+        &mut report,
+        evaluations,
+        evaluation_s,
+        out_dir,
+        &mut written,
+    )?;
     drop(scratch);
     Ok((report, written))
 }
