@@ -26,8 +26,9 @@ pub const MESH: &str = "A mesh (binary PLY): the meshes evaluate scores (`LABEL=
 pub const MEMORY_BUDGET: &str = "Memory budget of the process (e.g. 1GiB, 512MiB): a \
     quarter of it, at most 64 MiB, is kept for the process itself, the rest holds the \
     command's data (resident voxel blocks, one regularization region, the chunks being \
-    merged or meshed, the COPC octree before it spills to disk). In reconstruct --map, \
-    regularize and export, peak RSS stays within this + 64 MiB (docs/bench/memory.md)";
+    merged or meshed, the COPC octree before it spills to disk, the evaluation's index and \
+    pictures). In reconstruct --map (its evaluation included), regularize, merge, export and \
+    evaluate, peak RSS stays within this + 64 MiB (docs/bench/memory.md)";
 /// `--shard`.
 pub const SHARD: &str = "Do only this task's share of the work (regularize: regions; \
     export: chunks) as task I of an array job of N, or auto/N (the index from \

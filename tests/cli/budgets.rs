@@ -125,6 +125,38 @@ fn a_map_run_evaluates_out_of_core_with_the_in_memory_figures() {
     let whole: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(d.join("whole/report.json")).unwrap())
             .unwrap();
+    assert_same_figures(&tiled, &whole);
+    // `evaluate --memory-budget`: the same out-of-core path for any mesh files.
+    ok(
+        &[
+            "evaluate",
+            "--mesh",
+            "raw=out/mesh_raw.ply",
+            "--mesh",
+            "regularized=out/mesh_regularized.ply",
+            "--gt",
+            "drive/sequences/00",
+            "--memory-budget",
+            "48MiB",
+            "--out",
+            "budgeted",
+        ],
+        d,
+    );
+    let budgeted: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("budgeted/report.json")).unwrap())
+            .unwrap();
+    assert_same_figures(&budgeted, &whole);
+    let pictures = |v: &serde_json::Value| v["pictures"].as_array().unwrap().len();
+    assert_eq!(pictures(&tiled), pictures(&whole));
+    for p in tiled["pictures"].as_array().unwrap() {
+        let f = d.join("out").join(p.as_str().unwrap());
+        assert!(std::fs::metadata(&f).unwrap().len() > 10_000, "{f:?}");
+    }
+}
+
+/// The figures of two reports of the same meshes: `a` scored tile by tile, `b` in memory.
+fn assert_same_figures(tiled: &serde_json::Value, whole: &serde_json::Value) {
     assert_eq!(tiled["ground_truth_points"], whole["ground_truth_points"]);
     for s in 0..2 {
         let (a, b) = (&tiled["surfaces"][s], &whole["surfaces"][s]);
@@ -178,11 +210,5 @@ fn a_map_run_evaluates_out_of_core_with_the_in_memory_figures() {
                 "{stats}: {moved} of {n} distances changed bins"
             );
         }
-    }
-    let pictures = |v: &serde_json::Value| v["pictures"].as_array().unwrap().len();
-    assert_eq!(pictures(&tiled), pictures(&whole));
-    for p in tiled["pictures"].as_array().unwrap() {
-        let f = d.join("out").join(p.as_str().unwrap());
-        assert!(std::fs::metadata(&f).unwrap().len() > 10_000, "{f:?}");
     }
 }

@@ -131,6 +131,17 @@ fn spill_surface(s: &SurfaceFile, scratch: &Path, buffered: usize) -> Result<Spi
     })
 }
 
+/// The surface area of a binary PLY mesh, m², read as a stream (each triangle as
+/// [`crate::mesh::Mesh::surface_area_m2`] takes it).
+pub fn surface_area_m2(mesh_path: &Path) -> Result<f64> {
+    let mut area = 0.0;
+    PlyMeshStream::open(mesh_path)?.for_each_triangle(256, |corners| {
+        area += crate::mesh::triangle_area_m2(corners.map(|c| c.0.map(|v| v as f32)));
+        Ok(())
+    })?;
+    Ok(area)
+}
+
 /// The top view's width: 1600 pixels, or fewer when its per-pixel arrays (about 19 bytes a
 /// pixel, the height following the surface's aspect ratio within 1:4 and 4:1) would take more
 /// than a quarter of the budget; at least 400.
