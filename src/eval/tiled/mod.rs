@@ -14,9 +14,9 @@
 //!
 //! The figures equal those of [`crate::eval::evaluate_meshes`] on the same meshes (distances to
 //! within the f32 rounding of the stored points, ~1 µm; percentiles of those distances; means
-//! within rounding of their sums). Scratch on disk, in a hidden folder of the output folder removed
-//! at the end (or by the next evaluation there, after a kill): 12 bytes per ground-truth point and per vertex, 4 per distance of the surface being
-//! scored.
+//! within rounding of their sums). Scratch on disk, in a hidden folder of the output folder
+//! removed at the end (or by the next evaluation there, after a kill): 12 bytes per ground-truth
+//! point and per vertex, 4 per distance of the surface being scored.
 
 mod nearest;
 mod spill;
@@ -82,7 +82,14 @@ struct SpilledSurface {
     sample: Vec<[f64; 3]>,
 }
 
-fn spill_surface(s: &SurfaceFile, scratch: &Path, buffered: usize) -> Result<SpilledSurface> {
+/// `s`'s vertices tiled into `scratch/NAME.vertices` (named by the caller: a label is the
+/// user's text and may hold a path).
+fn spill_surface(
+    s: &SurfaceFile,
+    scratch: &Path,
+    name: &str,
+    buffered: usize,
+) -> Result<SpilledSurface> {
     let stream = PlyMeshStream::open(&s.mesh_path)?;
     if stream.vertices() == 0 {
         return Err(Error::InvalidArgument(format!(
@@ -90,11 +97,8 @@ fn spill_surface(s: &SurfaceFile, scratch: &Path, buffered: usize) -> Result<Spi
             s.label
         )));
     }
-    let mut tiles = TileSpill::create(
-        &scratch.join(format!("{}.vertices", s.label)),
-        TILE_M,
-        buffered,
-    )?;
+    let path = scratch.join(format!("{name}.vertices"));
+    let mut tiles = TileSpill::create(&path, TILE_M, buffered)?;
     let every = stream.vertices().div_ceil(FRAMING_SAMPLE);
     let (mut lo, mut hi, mut grey, mut k) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3], 0, 0u64);
     let mut sample = Vec::new();
@@ -214,8 +218,10 @@ pub fn evaluate_surface_files(
     let mut scratch_bytes = gt.bytes();
     let mut last: Option<(String, SpilledSurface)> = None;
     let bar = crate::progress::bar(surfaces.len() as u64, "evaluating");
-    for s in surfaces {
-        let surface = spill_surface(s, scratch.path(), buffered)?;
+    for (k, s) in surfaces.iter().enumerate() {
+        // Scratch files by position, not label (a label is free text).
+        let stem = format!("surface{k}");
+        let surface = spill_surface(s, scratch.path(), &stem, buffered)?;
         let meets = (0..3).all(|a| surface.lo[a] - 1.0 <= ghi[a] && surface.hi[a] + 1.0 >= glo[a]);
         if !meets {
             return Err(Error::InvalidArgument(format!(
@@ -238,8 +244,8 @@ pub fn evaluate_surface_files(
             0.5,
             top_view_width_px(&surface, budget),
         )?;
-        let mut accuracy =
-            DistanceSpill::create(&scratch.path().join(format!("{label}.accuracy")))?;
+        let accuracy_path = scratch.path().join(format!("{stem}.accuracy"));
+        let mut accuracy = DistanceSpill::create(&accuracy_path)?;
         let t_acc = std::time::Instant::now();
         let counts = nearest::nearest_by_tile(
             &surface.tiles,
@@ -294,7 +300,7 @@ pub fn evaluate_surface_files(
         );
         let inside = |p: &[f64; 3]| (0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a]);
         let mut completeness =
-            DistanceSpill::create(&scratch.path().join(format!("{label}.completeness")))?;
+            DistanceSpill::create(&scratch.path().join(format!("{stem}.completeness")))?;
         let t_comp = std::time::Instant::now();
         let comp = nearest::nearest_by_tile(
             &gt,
