@@ -90,11 +90,11 @@ fn a_map_run_evaluates_out_of_core_with_the_in_memory_figures() {
     let args: Vec<&str> = args.iter().map(|s| s.as_str()).collect();
     let log = ok(&args, d);
     assert!(log.contains("evaluated surface (tiled)"), "{log}");
-    let tiled: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("out/report.json")).unwrap()).unwrap();
-    let map_report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("out/map_report.json")).unwrap())
-            .unwrap();
+    let json = |file: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(d.join(file)).expect(file)).expect(file)
+    };
+    let tiled = json("out/report.json");
+    let map_report = json("out/map_report.json");
     let peak = map_report["peak_rss_bytes"].as_u64().expect("peak RSS");
     println!(
         "reconstruct --map with evaluation at {budget_mib} MiB: peak RSS {:.1} MiB",
@@ -108,8 +108,10 @@ fn a_map_run_evaluates_out_of_core_with_the_in_memory_figures() {
         .filter(|n| n.contains(".partial"))
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
-    ok(
-        &[
+    // `denser evaluate` of the same meshes, in RAM (the oracle) and tile by tile with
+    // `--memory-budget` (the same out-of-core path for any mesh files).
+    let evaluate = |out: &str, budget: &[&str]| -> serde_json::Value {
+        let mut args = vec![
             "evaluate",
             "--mesh",
             "raw=out/mesh_raw.ply",
@@ -118,34 +120,15 @@ fn a_map_run_evaluates_out_of_core_with_the_in_memory_figures() {
             "--gt",
             "drive/sequences/00",
             "--out",
-            "whole",
-        ],
-        d,
-    );
-    let whole: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("whole/report.json")).unwrap())
-            .unwrap();
+            out,
+        ];
+        args.extend(budget);
+        ok(&args, d);
+        json(&format!("{out}/report.json"))
+    };
+    let whole = evaluate("whole", &[]);
     assert_same_figures(&tiled, &whole);
-    // `evaluate --memory-budget`: the same out-of-core path for any mesh files.
-    ok(
-        &[
-            "evaluate",
-            "--mesh",
-            "raw=out/mesh_raw.ply",
-            "--mesh",
-            "regularized=out/mesh_regularized.ply",
-            "--gt",
-            "drive/sequences/00",
-            "--memory-budget",
-            "48MiB",
-            "--out",
-            "budgeted",
-        ],
-        d,
-    );
-    let budgeted: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("budgeted/report.json")).unwrap())
-            .unwrap();
+    let budgeted = evaluate("budgeted", &["--memory-budget", "48MiB"]);
     assert_same_figures(&budgeted, &whole);
     let pictures = |v: &serde_json::Value| v["pictures"].as_array().unwrap().len();
     assert_eq!(pictures(&tiled), pictures(&whole));
