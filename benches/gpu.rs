@@ -10,6 +10,8 @@
 //! - `fuse_depth_640x480/gpu_resident`: the same with the blocks resident on the GPU
 //!   (`ResidentMap`, warmed by one call: block listing on the CPU, depth image upload, hash
 //!   lookup + fusion dispatch, readback of one flag per block; no voxel traffic).
+//! - `marching_cubes/{cpu,gpu}`: the raw field of the fused 5 cm map meshed whole (GPU: the
+//!   samples packed and uploaded, five passes, the mesh read back and joined; the same mesh).
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -22,6 +24,7 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use denser::fusion::{integrate_depth, DepthFusionParams};
 use denser::gpu::{ResidentMap, ResidentOptions};
 use denser::grid::{GridParams, Layer};
+use denser::mesh::{extract_mesh_gpu, extract_mesh_keyed, Field};
 use denser::regularize::solve_gpu;
 use denser::regularize::{TvParams, TvProblem};
 
@@ -101,5 +104,22 @@ fn fusion(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, tv, fusion);
+fn marching_cubes(c: &mut Criterion) {
+    let (layer, _) = scene_layer();
+    let ctx = gpu();
+    let mut g = c.benchmark_group("marching_cubes");
+    g.throughput(Throughput::Elements(layer.block_count() as u64));
+    g.sample_size(10);
+    g.bench_function("cpu", |b| {
+        b.iter(|| extract_mesh_keyed(&layer, Field::Raw, None))
+    });
+    if let Some(ctx) = ctx {
+        g.bench_function("gpu", |b| {
+            b.iter(|| extract_mesh_gpu(&ctx, &layer, Field::Raw, None).expect("GPU"))
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, tv, fusion, marching_cubes);
 criterion_main!(benches);

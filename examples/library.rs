@@ -43,8 +43,8 @@ fn main() -> denser::Result<()> {
 
     // 3. Regularize and mesh both fields.
     let outcome = rec.regularize()?;
-    let raw = rec.mesh(Field::Raw);
-    let regularized = rec.mesh(Field::Regularized);
+    let raw = rec.mesh(Field::Raw)?;
+    let regularized = rec.mesh(Field::Regularized)?;
     std::fs::create_dir_all(&out).map_err(|e| denser::Error::io(&out, e))?;
     denser::io::ply::write_mesh_ply(out.join("mesh_regularized.ply"), &regularized)?;
 

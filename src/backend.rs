@@ -27,6 +27,7 @@ use crate::gpu::{
     DeviceChoice, GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats,
 };
 use crate::grid::{BlockIndex, Layer, TouchedBlocks};
+use crate::mesh::{extract_mesh, extract_mesh_gpu, Field, Mesh};
 use crate::regularize::{solve_gpu, CpuSolver, TvParams, TvProblem, TvSolver};
 use crate::store::UpperTier;
 use crate::{Error, Result};
@@ -62,6 +63,10 @@ pub struct StageTraffic {
     pub write_backs: u64,
     /// Their traffic.
     pub write_back: GpuTraffic,
+    /// Meshes extracted on the GPU.
+    pub meshes: u64,
+    /// Their traffic.
+    pub mesh: GpuTraffic,
     /// Everything the context did, the stages above, stereo and set-up included.
     pub total: GpuTraffic,
 }
@@ -75,6 +80,8 @@ pub struct GpuStages {
     pub tv: bool,
     /// The variational stereo matchers' kernels.
     pub stereo: bool,
+    /// Marching cubes of the meshes a run writes from RAM.
+    pub mesh: bool,
 }
 
 impl GpuStages {
@@ -83,6 +90,7 @@ impl GpuStages {
         fusion: true,
         tv: true,
         stereo: true,
+        mesh: true,
     };
 
     /// What `--device auto` runs on a hardware GPU: the rule applied to the project's records
@@ -95,6 +103,7 @@ impl GpuStages {
         fusion: false,
         tv: false,
         stereo: false,
+        mesh: false,
     };
 
     /// `--device auto`'s rule: a stage runs on an adapter only where `records` show it faster
@@ -110,6 +119,7 @@ impl GpuStages {
                     Stage::Fusion => stages.fusion = true,
                     Stage::Tv => stages.tv = true,
                     Stage::Stereo => stages.stereo = true,
+                    Stage::Mesh => stages.mesh = true,
                 }
             }
             k += 1;
@@ -119,7 +129,7 @@ impl GpuStages {
 
     /// Whether any stage runs on the GPU.
     pub fn any(&self) -> bool {
-        self.fusion || self.tv || self.stereo
+        self.fusion || self.tv || self.stereo || self.mesh
     }
 
     /// The stages on the GPU in words ("TV", "fusion and TV", …).
@@ -128,6 +138,7 @@ impl GpuStages {
             (self.fusion, "fusion"),
             (self.tv, "TV"),
             (self.stereo, "stereo"),
+            (self.mesh, "meshing"),
         ]
         .iter()
         .filter(|(on, _)| *on)
@@ -170,6 +181,8 @@ pub enum Stage {
     Tv,
     /// The variational stereo matchers.
     Stereo,
+    /// Marching cubes.
+    Mesh,
 }
 
 /// A stage the records show faster on a class of adapter than on the same machine's CPU.
@@ -436,6 +449,17 @@ impl UpperTier for Backend {
 
     fn sync(&mut self, layer: &mut Layer) -> Result<()> {
         self.write_back(|r| r.sync(layer).map(|_| ()))
+    }
+
+    /// On the GPU when meshing is placed there (the CPU mesher's twin), else on the CPU.
+    fn mesh(&mut self, layer: &Layer, field: Field) -> Result<Mesh> {
+        let Some(ctx) = self.gpu_if(self.stages.mesh).cloned() else {
+            return Ok(extract_mesh(layer, field, None));
+        };
+        let t = &mut self.traffic;
+        counted(Some(&ctx), &mut t.mesh, &mut t.meshes, || {
+            extract_mesh_gpu(&ctx, layer, field, None).map(|(mesh, _)| mesh)
+        })
     }
 }
 

@@ -47,12 +47,12 @@
 //!     };
 //!     rec.fuse_depth(&frame)?;
 //! }
-//! let raw = rec.mesh(Field::Raw);
+//! let raw = rec.mesh(Field::Raw)?;
 //! // The raw surface is the wall, 2 m away, within the noise.
 //! assert!(raw.positions_m.iter().all(|p| (p[2] - 2.0).abs() < 0.005));
 //! let outcome = rec.regularize()?;
 //! assert!(outcome.summary.omega_voxels > 0);
-//! let regularized = rec.mesh(Field::Regularized);
+//! let regularized = rec.mesh(Field::Regularized)?;
 //! // Regularized: the wall again (the rim of the observed patch moves by a few centimetres).
 //! let mut off_m: Vec<f32> = regularized.positions_m.iter().map(|p| (p[2] - 2.0).abs()).collect();
 //! off_m.sort_by(f32::total_cmp);

@@ -10,9 +10,11 @@ use crate::fusion::{DepthFusionParams, DepthPlan, FusionStats, LidarFusionParams
 use crate::gpu::ResidentStats;
 use crate::grid::{GridParams, Layer, TouchedBlocks};
 use crate::io::sequence::{for_each_input, RangeInput, Sequence};
-use crate::mesh::{extract_mesh, Field, Mesh};
+use crate::mesh::{Field, Mesh};
 use crate::regularize::TvParams;
-use crate::store::{BlockStore, MemoryStore, RegularizeSummary, StoreSummary, SurfaceOutput};
+use crate::store::{
+    BlockStore, MemoryStore, RegularizeSummary, StoreSummary, SurfaceOutput, UpperTier as _,
+};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::time::Instant;
@@ -425,12 +427,13 @@ impl Reconstructor {
         })
     }
 
-    /// Marching cubes over the resident layer (the whole map in RAM; after
-    /// [`Reconstructor::sync`] when fusing on a GPU).
-    pub fn mesh(&mut self, field: Field) -> Mesh {
+    /// Marching cubes over the resident layer (the whole map in RAM), on the backend's device
+    /// for meshing; blocks still on a GPU are synced first.
+    pub fn mesh(&mut self, field: Field) -> crate::Result<Mesh> {
+        self.sync()?;
         let t = Instant::now();
-        let mesh = extract_mesh(self.store.layer(), field, None);
+        let mesh = self.backend.mesh(self.store.layer(), field)?;
         self.timings.mesh_s += t.elapsed().as_secs_f64();
-        mesh
+        Ok(mesh)
     }
 }

@@ -29,6 +29,11 @@ pub trait UpperTier {
     /// Writes every changed block back into `layer` (blocks stay): the layer is about to be
     /// read whole (a checkpoint, regularization, meshing).
     fn sync(&mut self, layer: &mut Layer) -> Result<()>;
+    /// Marching cubes over every block of `layer` (synced) on the tier's device: the CPU
+    /// mesher unless the tier's device has a twin.
+    fn mesh(&mut self, layer: &Layer, field: Field) -> Result<Mesh> {
+        Ok(extract_mesh(layer, field, None))
+    }
 }
 
 /// No tier above RAM.
@@ -374,7 +379,7 @@ impl BlockStore for MemoryStore {
     ) -> Result<SurfaceOutput> {
         tier.sync(&mut self.layer)?;
         let t = std::time::Instant::now();
-        let mesh = extract_mesh(&self.layer, field, None);
+        let mesh = tier.mesh(&self.layer, field)?;
         crate::io::ply::write_mesh_ply(mesh_path, &mesh)?;
         if let Some(p) = points_path {
             crate::io::write_point_cloud(p, &mesh.to_point_cloud())?;

@@ -68,7 +68,7 @@ fn bench_rgbd(dir: &Path, passes: usize, max_depth_m: f32) -> denser::Result<Str
         let summary = rec.summary();
         rec.regularize()?;
         let t = std::time::Instant::now();
-        rec.mesh(Field::Regularized);
+        rec.mesh(Field::Regularized)?;
         let mc_ms = 1e3 * t.elapsed().as_secs_f64();
         out.push_str(&format!(
             "| {:.0} cm | {:.2} m | {:.2} | {:.1} | {} | {:.2} | {:.1} | {:.1} |\n",

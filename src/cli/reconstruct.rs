@@ -368,6 +368,11 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
         rec.gpu_traffic(),
     );
     let fusion_device = rec.backend().fusion_device_name();
+    // A paged map's surfaces are meshed chunk by chunk by the exporter, on the CPU.
+    let mesh_device = match rec.gpu_traffic() {
+        Some(g) if g.meshes > 0 => rec.backend().device_name(),
+        _ => "CPU".to_string(),
+    };
     drop(rec);
     // The map's blocks (3 KiB each) were freed into glibc's arenas, which keep them resident.
     denser::memory::release_free_memory();
@@ -399,6 +404,7 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
         input,
         device: run.device,
         fusion_device,
+        mesh_device,
         stereo_device,
         frames: frames.len(),
         resumed_from_frame: resumed,

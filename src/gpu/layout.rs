@@ -279,6 +279,27 @@ impl GpuVoxel {
     }
 }
 
+/// Uniforms of the marching-cubes kernels (WGSL twin: `McUniforms` in
+/// `shaders/shared/mc_uniforms.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct McUniforms {
+    /// Meshed blocks in the dispatch.
+    pub blocks: u32,
+    /// Upload place of the dispatch's first meshed block.
+    pub first_block: u32,
+    /// Triangle corners in the dispatch.
+    pub corner_count: u32,
+    /// Hash table entries − 1 (a power of two − 1).
+    pub table_mask: u32,
+    /// Words per sign case in the triangle table.
+    pub table_stride: u32,
+    /// Voxel edge, metres.
+    pub voxel_size_m: f32,
+    /// Padding to 32 bytes.
+    pub pad: [u32; 2],
+}
+
 /// Every buffer struct the kernels share with the host: its WGSL name and the size of its Rust
 /// twin, bytes. `tests/gpu.rs` checks each against the size naga computes for the WGSL struct
 /// (and that every struct a kernel binds is listed here).
@@ -297,6 +318,7 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ),
     ("CensusUniforms", std::mem::size_of::<CensusUniforms>()),
     ("CostUniforms", std::mem::size_of::<CostUniforms>()),
+    ("McUniforms", std::mem::size_of::<McUniforms>()),
 ];
 
 /// Appends `block`'s 512 voxels, packed, to `out` (the layout every fusion kernel reads).

@@ -23,7 +23,7 @@ pub mod resident;
 pub mod shaders;
 mod traffic;
 
-pub(crate) use context::ErrorScopes;
 pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
+pub(crate) use context::{ErrorScopes, Kernel};
 pub use resident::{ResidentMap, ResidentOptions, ResidentStats};
 pub use traffic::GpuTraffic;

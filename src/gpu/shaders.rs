@@ -158,6 +158,53 @@ pub const CENSUS_COST: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite]
 );
 
+/// Marching cubes, pass 1: triangles per meshed block.
+pub const MC_COUNT: ShaderSource = kernel!(
+    "mc_count.wgsl",
+    ["shared/mc_uniforms.wgsl", "shared/mc_cubes.wgsl"],
+    [Uniform, Read, Read, Read, ReadWrite]
+);
+
+/// Marching cubes, pass 2: every triangle corner's vertex and edge entry.
+pub const MC_EMIT: ShaderSource = kernel!(
+    "mc_emit.wgsl",
+    [
+        "shared/mc_uniforms.wgsl",
+        "shared/mc_cubes.wgsl",
+        "shared/block_hash.wgsl",
+        "shared/workgroup_scan.wgsl"
+    ],
+    [Uniform, Read, Read, Read, Read, Read, ReadWrite, ReadWrite]
+);
+
+/// Marching cubes, pass 3: vertices created per meshed block.
+pub const MC_FIRST: ShaderSource = kernel!(
+    "mc_first.wgsl",
+    ["shared/mc_uniforms.wgsl"],
+    [Uniform, Read, Read, Read, ReadWrite]
+);
+
+/// Marching cubes, pass 4a: the blocks' first vertex numbers.
+pub const MC_SCAN: ShaderSource = kernel!(
+    "mc_scan.wgsl",
+    ["shared/mc_uniforms.wgsl", "shared/workgroup_scan.wgsl"],
+    [Uniform, Read, ReadWrite]
+);
+
+/// Marching cubes, pass 4b: the vertices, numbered in the CPU mesher's order.
+pub const MC_ASSIGN: ShaderSource = kernel!(
+    "mc_assign.wgsl",
+    ["shared/mc_uniforms.wgsl", "shared/workgroup_scan.wgsl"],
+    [Uniform, Read, Read, ReadWrite, Read, ReadWrite]
+);
+
+/// Marching cubes, pass 5: the triangles' vertex numbers.
+pub const MC_LINK: ShaderSource = kernel!(
+    "mc_link.wgsl",
+    ["shared/dispatch.wgsl", "shared/mc_uniforms.wgsl"],
+    [Uniform, Read, Read, ReadWrite]
+);
+
 /// Every kernel (one per line, so additions merge cleanly).
 pub const ALL: &[ShaderSource] = &[
     // TV regularization.
@@ -176,5 +223,12 @@ pub const ALL: &[ShaderSource] = &[
     TGV_POINTWISE,
     CENSUS,
     CENSUS_COST,
+    // Marching cubes.
+    MC_COUNT,
+    MC_EMIT,
+    MC_FIRST,
+    MC_SCAN,
+    MC_ASSIGN,
+    MC_LINK,
     // (new kernels go above this line)
 ];

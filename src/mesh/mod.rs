@@ -1,9 +1,11 @@
 //! Surface extraction: marching cubes over the raw (`f`) or regularized (`u`) field, and the
 //! mesh and point types that exporters write.
 
+mod gpu;
 mod marching_cubes;
 pub mod tables;
 
+pub use gpu::{extract_mesh_gpu, POSITION_TOLERANCE_VOXELS};
 pub use marching_cubes::{extract_mesh, extract_mesh_keyed, EdgeKey, Field};
 
 /// An indexed triangle mesh with per-vertex colour, world coordinates in metres.

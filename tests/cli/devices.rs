@@ -40,6 +40,31 @@ fn gpu_name() -> Option<String> {
     }
 }
 
+/// A 16 m synthetic drive in `d/drive`, a frame every 4 m.
+fn synth_drive(d: &Path) {
+    let args = [
+        "synth",
+        "--out",
+        "drive",
+        "--length-m",
+        "16",
+        "--frame-spacing-m",
+        "4",
+    ];
+    ok(&args, d);
+}
+
+/// The settings every run here shares: 20 cm voxels, 10 TV iterations, no evaluation.
+const COMMON: [&str; 7] = [
+    "--voxel-size",
+    "0.2",
+    "--iterations",
+    "10",
+    "--no-eval",
+    "--max-depth",
+    "20",
+];
+
 /// The line of `out` that starts with `prefix`.
 fn line<'a>(out: &'a str, prefix: &str) -> &'a str {
     out.lines()
@@ -52,28 +77,9 @@ fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
     let Some(gpu) = gpu_name() else { return };
     let dir = tempfile::tempdir().expect("tempdir");
     let d = dir.path();
-    ok(
-        &[
-            "synth",
-            "--out",
-            "drive",
-            "--length-m",
-            "16",
-            "--frame-spacing-m",
-            "4",
-        ],
-        d,
-    );
+    synth_drive(d);
     let seq = "drive/sequences/00";
-    let common = [
-        "--voxel-size",
-        "0.2",
-        "--iterations",
-        "10",
-        "--no-eval",
-        "--max-depth",
-        "20",
-    ];
+    let common = COMMON;
     // Ground-truth depth through a map directory: fusion and the regional regularization on the
     // GPU (depth fusion and TV equal their CPU twins bit for bit on lavapipe; LiDAR differs from
     // its f64 reference within the tolerance of tests/gpu/lidar.rs).
@@ -185,4 +191,55 @@ fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
         out.contains("GPU tier:"),
         "depth blocks stayed resident: {out}"
     );
+}
+
+#[test]
+fn an_in_memory_run_meshes_on_the_gpu_with_the_cpu_meshes_bytes() {
+    // `reconstruct` without `--map` writes its meshes from RAM: with `--device gpu` marching
+    // cubes runs on the GPU (src/mesh/gpu.rs), and the files equal the CPU run's byte for byte
+    // (on lavapipe every stage before it does too; tests/gpu/mesh.rs compares the mesher alone).
+    let Some(gpu) = gpu_name() else { return };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    synth_drive(d);
+    let run_on = |device: &str| {
+        let out = format!("o_{device}");
+        let mut args = vec![
+            "reconstruct",
+            "drive/sequences/00",
+            "--depth",
+            "gt",
+            "--out",
+            &out,
+        ];
+        args.extend(COMMON);
+        args.extend(["--device", device]);
+        ok(&args, d)
+    };
+    let on_gpu = run_on("gpu");
+    let on_cpu = run_on("cpu");
+    assert!(
+        line(&on_gpu, "meshes:").contains(&format!("(marching cubes on {gpu}, ")),
+        "{on_gpu}"
+    );
+    assert!(
+        line(&on_gpu, "GPU traffic per mesh (2):").contains("submits"),
+        "{on_gpu}"
+    );
+    assert!(
+        line(&on_cpu, "meshes:").contains("(marching cubes on CPU, "),
+        "{on_cpu}"
+    );
+    for mesh in [
+        "mesh_raw.ply",
+        "mesh_regularized.ply",
+        "points_regularized.ply",
+    ] {
+        let (g, c) = (
+            std::fs::read(d.join("o_gpu").join(mesh)).expect("gpu mesh"),
+            std::fs::read(d.join("o_cpu").join(mesh)).expect("cpu mesh"),
+        );
+        assert!(g.len() > 1000, "{mesh}: {} bytes", g.len());
+        assert!(g == c, "{mesh}: the GPU mesh differs from the CPU mesh");
+    }
 }

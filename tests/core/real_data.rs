@@ -88,7 +88,7 @@ fn rgbd_frames_fuse_into_a_coloured_mesh() {
     config.tv.iterations = 30;
     let mut rec = fuse(&dir, config);
     assert_eq!(rec.timings().frames_fused, 5);
-    let mesh = rec.mesh(Field::Raw);
+    let mesh = rec.mesh(Field::Raw).expect("mesh");
     eprintln!(
         "RGB-D: {} blocks, {} triangles, {:.1} m²",
         rec.layer().block_count(),

@@ -155,7 +155,12 @@ fn tv_gpu_continues_where_the_cpu_left_off() {
     assert!(d <= 1e-4, "{d}");
 }
 
-fn sphere_layer(grid: GridParams, views: usize, noise_m: f64, gpu: Option<&GpuContext>) -> Layer {
+pub(crate) fn sphere_layer(
+    grid: GridParams,
+    views: usize,
+    noise_m: f64,
+    gpu: Option<&GpuContext>,
+) -> Layer {
     let scene = SphereScene::standard();
     let mut layer = Layer::new(grid);
     let mut rng = Rng(5);

@@ -9,6 +9,7 @@ mod depth_support;
 mod agreement;
 mod compare;
 mod lidar;
+mod mesh;
 mod shaders;
 mod stereo;
 mod traffic;

@@ -14,6 +14,7 @@ pub(crate) struct Report {
     pub input: String,
     pub device: String,
     pub fusion_device: String,
+    pub mesh_device: String,
     pub stereo_device: Option<String>,
     pub frames: usize,
     pub resumed_from_frame: u64,
@@ -39,6 +40,7 @@ impl fmt::Display for TrafficLines<'_> {
             ("LiDAR scan", g.lidar_scans, &g.lidar),
             ("TV solve", g.tv_solves, &g.tv),
             ("write-back to RAM", g.write_backs, &g.write_back),
+            ("mesh", g.meshes, &g.mesh),
         ] {
             if n > 0 {
                 writeln!(f, "GPU traffic per {what} ({n}): {}", t.describe_per(n))?;
@@ -53,6 +55,7 @@ impl Report {
         serde_json::json!({
             "input": self.input,
             "device": self.device,
+            "mesh_device": self.mesh_device,
             "frames": self.frames,
             "resumed_from_frame": self.resumed_from_frame,
             "timings": self.timings,
@@ -179,7 +182,11 @@ impl fmt::Display for Report {
                     reg.triangles, reg.area_m2
                 )?;
             }
-            writeln!(f, " (marching cubes on the CPU, {:.1} s)", t.mesh_s)?;
+            writeln!(
+                f,
+                " (marching cubes on {}, {:.1} s)",
+                self.mesh_device, t.mesh_s
+            )?;
         }
         if let Some(e) = &self.evaluation {
             write!(f, "{}", EvaluationTable(e))?;

@@ -1,0 +1,505 @@
+//! Marching cubes on the GPU: the twin of the CPU mesher (`marching_cubes.rs`), giving the same
+//! triangles over the same vertices in the same order, the vertices' positions and colours
+//! within [`POSITION_TOLERANCE_VOXELS`] and one colour step.
+//!
+//! The layer's samples go up once per batch of blocks: each meshed block and the +x/+y/+z
+//! neighbours it reads corners from, 8 bytes per voxel (the field's value; colour and the
+//! valid bit, Ω with weight > 0), with each block's voxel centres as f32 (96 bytes). Then five
+//! passes (`shaders/mc_*.wgsl`):
+//!
+//! 1. `mc_count`: the triangles of each block (read back: 4 bytes per block, to size the rest);
+//! 2. `mc_emit`: every triangle corner in the CPU mesher's order (block, cube, triangle,
+//!    corner), its vertex computed as the CPU computes it, and its edge's entry in a hash table
+//!    (insert by compare-and-swap on 32-bit words) where the smallest corner number naming the
+//!    edge is kept;
+//! 3. `mc_first`: per block, the corners that are their edge's first (these create vertices);
+//! 4. `mc_scan`, `mc_assign`: the blocks' first vertex numbers, then each vertex written by its
+//!    first corner, so vertices are numbered in order of first use, the CPU's order;
+//! 5. `mc_link`: each corner's vertex number.
+//!
+//! Nothing depends on the order the invocations run in, so the result is deterministic. Where a
+//! layer does not fit one storage binding, it goes in batches of blocks (and a batch's
+//! triangles in parts); the parts' vertices are merged on the host in order, as the CPU merges
+//! its blocks', looking up only the vertices two blocks can share (those on an edge whose lower
+//! corner lies on a block's low face).
+
+use super::marching_cubes::{EdgeKey, Field};
+use super::tables::triangle_table;
+use super::Mesh;
+use crate::gpu::kept::Kept;
+use crate::gpu::layout::{pack_rgb, McUniforms};
+use crate::gpu::{shaders, ErrorScopes, GpuContext, Kernel};
+use crate::grid::{decode_tsdf, BlockIndex, Layer, VoxelIndex, VOXELS_PER_BLOCK, VOXELS_PER_SIDE};
+use crate::Result;
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::ops::Range;
+
+/// How far a GPU vertex may lie from the CPU's, in voxels, on top of one unit in the last place
+/// of the coordinate: the edge parameter `fa / (fa − fb)` is a division, which WGSL allows to
+/// be 2.5 units in the last place off, and a device may fuse the multiply-add that places the
+/// vertex. On lavapipe the two agree exactly (`tests/gpu/mesh.rs`).
+pub const POSITION_TOLERANCE_VOXELS: f32 = 1e-5;
+
+/// Bytes uploaded per block: 8 per voxel (value; colour and valid bit).
+const SAMPLE_BYTES: u64 = 8 * VOXELS_PER_BLOCK as u64;
+/// Bytes per triangle corner on the device (position, colour, hash entry).
+const CORNER_BYTES: u64 = 20;
+/// Bytes per hash-table entry (key, first corner, vertex number).
+const ENTRY_BYTES: u64 = 12;
+/// Bit of a sample's second word saying the voxel is in Ω with weight > 0.
+const VALID_BIT: u32 = 1 << 24;
+/// "No block" in the neighbour table.
+const NO_BLOCK: u32 = u32::MAX;
+
+/// [`super::extract_mesh_keyed`] on the GPU: the same mesh (see the module documentation for
+/// what "same" means) and the same edge keys.
+pub fn extract_mesh_gpu(
+    ctx: &GpuContext,
+    layer: &Layer,
+    field: Field,
+    blocks: Option<&[BlockIndex]>,
+) -> Result<(Mesh, Vec<EdgeKey>)> {
+    let mut list: Vec<BlockIndex> = match blocks {
+        Some(b) => {
+            let mut v = b.to_vec();
+            v.sort_unstable();
+            v.dedup();
+            v
+        }
+        None => layer.indices_sorted(),
+    };
+    // A block that is not allocated has no valid corner 0 in any cube: no triangles.
+    list.retain(|b| layer.get(b).is_some());
+    let (table, stride) = table_words();
+    let mut merge = Merge::default();
+    let cap = ctx.max_binding_bytes();
+    let mut start = 0;
+    while start < list.len() {
+        let upload = plan_batch(layer, &list, start, cap);
+        let end = start + upload.meshed;
+        merge.more_to_come |= end < list.len();
+        let batch = Batch::upload(ctx, layer, field, &upload, &table, stride)?;
+        let counts = batch.count(ctx)?;
+        let parts = plan_parts(&counts, cap);
+        merge.more_to_come |= parts.len() > 1;
+        for part in parts {
+            let (vertices, triangles) = batch.mesh_part(ctx, part, &counts)?;
+            merge.add(&upload.places, &vertices, &triangles);
+        }
+        start = end;
+    }
+    Ok((merge.mesh, merge.keys))
+}
+
+/// The triangle table as the kernels read it: per sign case, its triangle count, then three
+/// edge ids per triangle, padded to the largest case (`stride` words per case).
+fn table_words() -> (Vec<u32>, u32) {
+    let table = triangle_table();
+    let most = table.iter().map(Vec::len).max().unwrap_or(0);
+    let stride = 1 + 3 * most;
+    let mut words = vec![0u32; 256 * stride];
+    for (case, tris) in table.iter().enumerate() {
+        let w = &mut words[case * stride..(case + 1) * stride];
+        w[0] = tris.len() as u32;
+        for (j, t) in tris.iter().enumerate() {
+            for k in 0..3 {
+                w[1 + 3 * j + k] = t[k] as u32;
+            }
+        }
+    }
+    (words, stride as u32)
+}
+
+/// One batch's blocks: the meshed ones first (a run of the sorted list), then the neighbours
+/// they read corners from, each once.
+struct Upload {
+    places: Vec<BlockIndex>,
+    meshed: usize,
+    /// Eight upload places per meshed block (its corner-offset neighbours), [`NO_BLOCK`] where
+    /// none is allocated.
+    neighbours: Vec<u32>,
+}
+
+/// The blocks of `list[start..]` one batch meshes: as many as fit one binding with their
+/// neighbours (at least one).
+fn plan_batch(layer: &Layer, list: &[BlockIndex], start: usize, cap_bytes: u64) -> Upload {
+    let cap_blocks = (cap_bytes / SAMPLE_BYTES).max(1) as usize;
+    let mut take = (list.len() - start).min(cap_blocks.div_ceil(2)).max(1);
+    loop {
+        let upload = upload_of(layer, &list[start..start + take]);
+        if upload.places.len() <= cap_blocks || take == 1 {
+            return upload;
+        }
+        take = take.div_ceil(2);
+    }
+}
+
+fn upload_of(layer: &Layer, meshed: &[BlockIndex]) -> Upload {
+    let mut places: Vec<BlockIndex> = meshed.to_vec();
+    let mut place_of: HashMap<BlockIndex, u32> = meshed
+        .iter()
+        .enumerate()
+        .map(|(k, &b)| (b, k as u32))
+        .collect();
+    let mut neighbours = Vec::with_capacity(8 * meshed.len());
+    for &b in meshed {
+        for c in 0..8i32 {
+            let n = b.offset([c & 1, (c >> 1) & 1, (c >> 2) & 1]);
+            let place = match place_of.get(&n) {
+                Some(&p) => p,
+                None if layer.get(&n).is_some() => {
+                    let p = places.len() as u32;
+                    places.push(n);
+                    place_of.insert(n, p);
+                    p
+                }
+                None => NO_BLOCK,
+            };
+            neighbours.push(place);
+        }
+    }
+    Upload {
+        places,
+        meshed: meshed.len(),
+        neighbours,
+    }
+}
+
+/// Consecutive runs of a batch's meshed blocks whose corners, vertices and hash table each fit
+/// one binding (a block alone always does: at most 512 cubes of a few triangles).
+fn plan_parts(counts: &[u32], cap_bytes: u64) -> Vec<Range<usize>> {
+    let fits = |triangles: u64| {
+        let corners = 3 * triangles;
+        corners * CORNER_BYTES <= cap_bytes && ENTRY_BYTES * table_entries(corners) <= cap_bytes
+    };
+    let mut parts = Vec::new();
+    let mut start = 0;
+    while start < counts.len() {
+        let (mut end, mut triangles) = (start, 0u64);
+        while end < counts.len() && (end == start || fits(triangles + counts[end] as u64)) {
+            triangles += counts[end] as u64;
+            end += 1;
+        }
+        parts.push(start..end);
+        start = end;
+    }
+    parts
+}
+
+/// Hash-table entries for `corners` corners: a power of two above the corner count, so the
+/// table never fills (at most one edge per corner) and stays at most half full in practice
+/// (an edge is named by 2 to 6 corners).
+fn table_entries(corners: u64) -> u64 {
+    (corners + 1).next_power_of_two()
+}
+
+/// A batch's blocks on the device.
+struct Batch {
+    uniforms: McUniforms,
+    samples: wgpu::Buffer,
+    neighbours: wgpu::Buffer,
+    table: wgpu::Buffer,
+    centres: wgpu::Buffer,
+    kept: std::cell::RefCell<Kept>,
+}
+
+impl Batch {
+    fn upload(
+        ctx: &GpuContext,
+        layer: &Layer,
+        field: Field,
+        upload: &Upload,
+        table: &[u32],
+        stride: u32,
+    ) -> Result<Batch> {
+        let grid = layer.params();
+        let packed: Vec<(Vec<u32>, [f32; 24])> = upload
+            .places
+            .par_iter()
+            .map(|index| {
+                let block = layer.get(index).expect("an uploaded block is allocated");
+                let mut words = Vec::with_capacity(2 * VOXELS_PER_BLOCK);
+                for i in 0..VOXELS_PER_BLOCK {
+                    let value = match field {
+                        Field::Raw => decode_tsdf(block.tsdf[i]),
+                        Field::Regularized => block.regularized_or_raw(i),
+                    };
+                    let valid = block.omega(i) && block.weight(i) > 0;
+                    words.push(value.to_bits());
+                    words.push(pack_rgb(block.color[i]) | if valid { VALID_BIT } else { 0 });
+                }
+                let mut centres = [0f32; 24];
+                for l in 0..VOXELS_PER_SIDE {
+                    let c = grid.voxel_center(index.voxel(l, l, l));
+                    for axis in 0..3 {
+                        centres[8 * axis + l] = c[axis] as f32;
+                    }
+                }
+                (words, centres)
+            })
+            .collect();
+        let mut samples = Vec::with_capacity(packed.len() * 2 * VOXELS_PER_BLOCK);
+        let mut centres = Vec::with_capacity(packed.len() * 24);
+        for (w, c) in &packed {
+            samples.extend_from_slice(w);
+            centres.extend_from_slice(c);
+        }
+        ctx.check_binding("marching-cubes samples", (samples.len() * 4) as u64)?;
+        Ok(Batch {
+            uniforms: McUniforms {
+                blocks: upload.meshed as u32,
+                first_block: 0,
+                corner_count: 0,
+                table_mask: 0,
+                table_stride: stride,
+                voxel_size_m: grid.voxel_size_m,
+                pad: [0; 2],
+            },
+            samples: ctx.storage("mc_samples", bytemuck::cast_slice(&samples)),
+            neighbours: ctx.storage("mc_neighbours", bytemuck::cast_slice(&upload.neighbours)),
+            table: ctx.storage("mc_table", bytemuck::cast_slice(table)),
+            centres: ctx.storage("mc_centres", bytemuck::cast_slice(&centres)),
+            kept: Default::default(),
+        })
+    }
+
+    /// Pass 1: the triangles of each meshed block.
+    fn count(&self, ctx: &GpuContext) -> Result<Vec<u32>> {
+        let blocks = self.uniforms.blocks as usize;
+        let kernel = ctx.kernel(&shaders::MC_COUNT)?;
+        let scope = ErrorScopes::push(&ctx.device);
+        let uniforms = ctx.uniform("mc_uniforms", bytemuck::bytes_of(&self.uniforms));
+        let counts = ctx.storage_zeroed("mc_block_counts", 4 * blocks as u64);
+        let bind = ctx.bind_group(
+            "mc_count",
+            &kernel.layout,
+            &[
+                &uniforms,
+                &self.samples,
+                &self.neighbours,
+                &self.table,
+                &counts,
+            ],
+        );
+        let mut encoder = encoder(ctx, "mc_count");
+        ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, 64 * blocks as u64)?;
+        let mut out = vec![0u32; blocks];
+        ctx.submit_and_read_back(
+            encoder,
+            &mut self.kept.borrow_mut(),
+            &mut [(&counts, bytemuck::cast_slice_mut(&mut out))],
+        )?;
+        scope.pop("counting marching-cubes triangles")?;
+        Ok(out)
+    }
+
+    /// Passes 2–5 over the meshed blocks `part`: the part's vertices (five words each: x, y,
+    /// z, colour, edge key) and its triangles' vertex numbers (three per triangle).
+    fn mesh_part(
+        &self,
+        ctx: &GpuContext,
+        part: Range<usize>,
+        counts: &[u32],
+    ) -> Result<(Vec<[u32; 5]>, Vec<u32>)> {
+        let blocks = part.len();
+        let mut tri_base = Vec::with_capacity(blocks + 1);
+        let mut triangles = 0u32;
+        for &c in &counts[part.clone()] {
+            tri_base.push(triangles);
+            triangles += c;
+        }
+        tri_base.push(triangles);
+        let corners = 3 * triangles as u64;
+        if corners == 0 {
+            return Ok((Vec::new(), Vec::new()));
+        }
+        let entries = table_entries(corners);
+        let uniforms = McUniforms {
+            blocks: blocks as u32,
+            first_block: part.start as u32,
+            corner_count: corners as u32,
+            table_mask: (entries - 1) as u32,
+            ..self.uniforms
+        };
+        let k = |s| ctx.kernel(s);
+        let (emit, first, scan, assign, link) = (
+            k(&shaders::MC_EMIT)?,
+            k(&shaders::MC_FIRST)?,
+            k(&shaders::MC_SCAN)?,
+            k(&shaders::MC_ASSIGN)?,
+            k(&shaders::MC_LINK)?,
+        );
+        let scope = ErrorScopes::push(&ctx.device);
+        let u = ctx.uniform("mc_uniforms", bytemuck::bytes_of(&uniforms));
+        let base = ctx.storage("mc_tri_base", bytemuck::cast_slice(&tri_base));
+        let hash = ctx.storage_zeroed("mc_hash", ENTRY_BYTES * entries);
+        let corner_buf = ctx.storage_zeroed("mc_corners", CORNER_BYTES * corners);
+        let block_vertices = ctx.storage_zeroed("mc_block_vertices", 4 * blocks as u64);
+        let vertex_base = ctx.storage_zeroed("mc_vertex_base", 4 * (blocks as u64 + 1));
+        // At most one vertex per corner.
+        let vertices = ctx.storage_zeroed("mc_vertices", CORNER_BYTES * corners);
+        let tris = ctx.storage_zeroed("mc_triangles", 4 * corners);
+        let (s, n, t, c) = (&self.samples, &self.neighbours, &self.table, &self.centres);
+        let mut encoder = encoder(ctx, "marching_cubes");
+        let groups = 64 * blocks as u64;
+        let mut dispatch = |name: &str, kernel: &Kernel, buffers: &[&wgpu::Buffer], n: u64| {
+            let bind = ctx.bind_group(name, &kernel.layout, buffers);
+            ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, n)
+        };
+        dispatch(
+            "mc_emit",
+            &emit,
+            &[&u, s, n, t, c, &base, &hash, &corner_buf],
+            groups,
+        )?;
+        dispatch(
+            "mc_first",
+            &first,
+            &[&u, &base, &hash, &corner_buf, &block_vertices],
+            groups,
+        )?;
+        dispatch("mc_scan", &scan, &[&u, &block_vertices, &vertex_base], 64)?;
+        let assigned = [&u, &base, &vertex_base, &hash, &corner_buf, &vertices];
+        dispatch("mc_assign", &assign, &assigned, groups)?;
+        dispatch("mc_link", &link, &[&u, &hash, &corner_buf, &tris], corners)?;
+        let mut triangle_words = vec![0u32; corners as usize];
+        let mut bases = vec![0u32; blocks + 1];
+        ctx.submit_and_read_back(
+            encoder,
+            &mut self.kept.borrow_mut(),
+            &mut [
+                (&tris, bytemuck::cast_slice_mut(&mut triangle_words)),
+                (&vertex_base, bytemuck::cast_slice_mut(&mut bases)),
+            ],
+        )?;
+        let vertex_count = bases[blocks] as usize;
+        let out: Vec<[u32; 5]> = ctx.read_back_as(&vertices, vertex_count)?;
+        scope.pop("meshing on the GPU")?;
+        Ok((out, triangle_words))
+    }
+}
+
+fn encoder(ctx: &GpuContext, label: &str) -> wgpu::CommandEncoder {
+    ctx.device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
+}
+
+/// The parts' vertices and triangles joined in order, as the CPU joins its blocks'.
+#[derive(Default)]
+struct Merge {
+    mesh: Mesh,
+    keys: Vec<EdgeKey>,
+    /// Whether more than one part makes the mesh (known before the first part is added).
+    more_to_come: bool,
+    /// The vertices two blocks can share, by edge, once more than one part makes the mesh.
+    shared: HashMap<EdgeKey, u32>,
+}
+
+impl Merge {
+    fn add(&mut self, places: &[BlockIndex], vertices: &[[u32; 5]], triangles: &[u32]) {
+        let decoded: Vec<(EdgeKey, bool)> =
+            vertices.iter().map(|v| edge_key(places, v[4])).collect();
+        let remap: Vec<u32> = vertices
+            .iter()
+            .zip(decoded)
+            .map(|(v, (key, shareable))| {
+                let mesh = &mut self.mesh;
+                let keys = &mut self.keys;
+                let mut push = || {
+                    mesh.positions_m
+                        .push([0, 1, 2].map(|i| f32::from_bits(v[i])));
+                    mesh.colors.push([0, 8, 16].map(|s| (v[3] >> s) as u8));
+                    keys.push(key);
+                    (mesh.positions_m.len() - 1) as u32
+                };
+                if shareable && self.more_to_come {
+                    *self.shared.entry(key).or_insert_with(push)
+                } else {
+                    push()
+                }
+            })
+            .collect();
+        self.mesh
+            .triangles
+            .extend(triangles.chunks_exact(3).map(|t| {
+                [
+                    remap[t[0] as usize],
+                    remap[t[1] as usize],
+                    remap[t[2] as usize],
+                ]
+            }));
+    }
+}
+
+/// The edge key of a device key `(place · 512 + voxel) · 3 + axis`, and whether cubes of two
+/// blocks can name the edge (its lower corner on a low face of its block).
+fn edge_key(places: &[BlockIndex], key: u32) -> (EdgeKey, bool) {
+    let axis = (key % 3) as u8;
+    let voxel = (key / 3) as usize % VOXELS_PER_BLOCK;
+    let place = (key / 3) as usize / VOXELS_PER_BLOCK;
+    let side = VOXELS_PER_SIDE;
+    let (x, y, z) = (voxel % side, (voxel / side) % side, voxel / (side * side));
+    let v: VoxelIndex = places[place].voxel(x, y, z);
+    ((v, axis), x == 0 || y == 0 || z == 0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parts_fit_the_binding_and_cover_the_blocks_in_order() {
+        let counts = [5u32, 0, 700, 3, 3, 0, 1200, 2];
+        // 3 corners × 20 bytes per triangle, and the hash table's power of two.
+        for cap in [1u64 << 10, 1 << 14, 1 << 16, 1 << 30] {
+            let parts = plan_parts(&counts, cap);
+            assert_eq!(parts.first().map(|p| p.start), Some(0));
+            assert_eq!(parts.last().map(|p| p.end), Some(counts.len()));
+            for w in parts.windows(2) {
+                assert_eq!(w[0].end, w[1].start);
+            }
+            for p in &parts {
+                let t: u64 = counts[p.clone()].iter().map(|&c| c as u64).sum();
+                assert!(
+                    p.len() == 1 || 3 * t * CORNER_BYTES <= cap,
+                    "{p:?} at {cap}"
+                );
+            }
+        }
+        let whole = plan_parts(&counts, 1 << 30);
+        assert_eq!((whole.len(), whole[0].clone()), (1, 0..counts.len()));
+        // 1 KiB: at most 17 triangles a part; the blocks of 700 and 1200 alone.
+        let small: Vec<Range<usize>> = vec![0..2, 2..3, 3..6, 6..7, 7..8];
+        assert_eq!(plan_parts(&counts, 1 << 10), small);
+    }
+
+    #[test]
+    fn device_keys_decode_to_the_cpu_keys() {
+        let places = [BlockIndex([3, -2, 7]), BlockIndex([-1, 0, 0])];
+        for (place, (x, y, z), axis) in [
+            (0usize, (0, 5, 7), 2u32),
+            (1, (7, 7, 7), 0),
+            (1, (3, 4, 5), 1),
+        ] {
+            let voxel = x + 8 * (y + 8 * z);
+            let key = ((place * 512 + voxel) * 3) as u32 + axis;
+            let (k, shareable) = edge_key(&places, key);
+            assert_eq!(k, (places[place].voxel(x, y, z), axis as u8));
+            assert_eq!(shareable, x == 0 || y == 0 || z == 0);
+        }
+    }
+
+    #[test]
+    fn the_table_words_hold_every_case() {
+        let (words, stride) = table_words();
+        let table = triangle_table();
+        for (case, tris) in table.iter().enumerate() {
+            let w = &words[case * stride as usize..];
+            assert_eq!(w[0] as usize, tris.len());
+            for (j, t) in tris.iter().enumerate() {
+                assert_eq!(&w[1 + 3 * j..4 + 3 * j], &t.map(|e| e as u32));
+            }
+        }
+    }
+}

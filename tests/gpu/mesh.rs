@@ -1,0 +1,150 @@
+//! GPU marching cubes against the CPU mesher (`denser::mesh::extract_mesh_gpu` against
+//! `extract_mesh_keyed`): the same triangles over the same vertices in the same order, positions
+//! within the stated tolerance and colours within one step, on the sphere scene's raw and
+//! regularized fields, with Ω holes, on listed blocks, and split into batches and parts.
+
+use crate::common::{gpu, Rng};
+use crate::compare::sphere_layer;
+use denser::gpu::GpuContext;
+use denser::grid::{BlockIndex, GridParams, Layer, OMEGA_BIT, VOXELS_PER_BLOCK};
+use denser::mesh::POSITION_TOLERANCE_VOXELS;
+use denser::mesh::{extract_mesh_gpu, extract_mesh_keyed, EdgeKey, Field, Mesh};
+use denser::regularize::{regularize_layer, TvParams};
+
+const GRID: GridParams = GridParams {
+    voxel_size_m: 0.05,
+    truncation_m: 0.4,
+};
+
+/// The sphere scene from six views, regularized, with Ω holes punched in (so cubes with a
+/// corner outside Ω are left out).
+fn scene() -> Layer {
+    let mut layer = sphere_layer(GRID, 6, 0.01, None);
+    regularize_layer(&mut layer, &TvParams::paper(0.1)).expect("TV");
+    let mut rng = Rng(11);
+    for b in layer.indices_sorted() {
+        let block = layer.get_mut(&b).expect("block");
+        for i in 0..VOXELS_PER_BLOCK {
+            if rng.uniform() < 0.02 {
+                block.weight_omega[i] &= !OMEGA_BIT;
+            }
+        }
+    }
+    layer
+}
+
+/// Asserts `gpu` is `cpu` within the stated tolerances; returns the vertices whose position
+/// differs at all.
+fn assert_same_mesh(cpu: &(Mesh, Vec<EdgeKey>), gpu: &(Mesh, Vec<EdgeKey>)) -> usize {
+    let ((c, ck), (g, gk)) = (cpu, gpu);
+    assert!(!c.triangles.is_empty());
+    assert_eq!(c.positions_m.len(), g.positions_m.len(), "vertex count");
+    assert_eq!(ck, gk, "edge keys, in order");
+    assert_eq!(c.triangles, g.triangles, "triangles");
+    let mut moved = 0;
+    for (k, (p, q)) in c.positions_m.iter().zip(&g.positions_m).enumerate() {
+        for a in 0..3 {
+            let ulp = f32::from_bits(p[a].abs().to_bits() + 1) - p[a].abs();
+            let tol = POSITION_TOLERANCE_VOXELS * GRID.voxel_size_m + ulp;
+            assert!((p[a] - q[a]).abs() <= tol, "vertex {k}: {p:?} vs {q:?}");
+        }
+        moved += (p != q) as usize;
+        let (x, y) = (c.colors[k], g.colors[k]);
+        for i in 0..3 {
+            assert!(
+                x[i].abs_diff(y[i]) <= 1,
+                "vertex {k}: colour {x:?} vs {y:?}"
+            );
+        }
+    }
+    moved
+}
+
+#[test]
+fn gpu_marching_cubes_equals_the_cpu_mesher() {
+    let Some(ctx) = gpu() else { return };
+    let layer = scene();
+    for field in [Field::Raw, Field::Regularized] {
+        let cpu = extract_mesh_keyed(&layer, field, None);
+        let gpu = extract_mesh_gpu(&ctx, &layer, field, None).expect("GPU mesh");
+        let moved = assert_same_mesh(&cpu, &gpu);
+        eprintln!(
+            "{field:?}: {} vertices, {} triangles; {moved} vertices not bit-identical",
+            cpu.0.positions_m.len(),
+            cpu.0.triangles.len()
+        );
+    }
+    // The raw and regularized meshes differ: the field reached the kernel.
+    let raw = extract_mesh_gpu(&ctx, &layer, Field::Raw, None).expect("raw");
+    let reg = extract_mesh_gpu(&ctx, &layer, Field::Regularized, None).expect("regularized");
+    assert_ne!(raw.0, reg.0);
+}
+
+#[test]
+fn gpu_marching_cubes_of_listed_blocks_equals_the_cpu_mesher() {
+    let Some(ctx) = gpu() else { return };
+    let layer = scene();
+    let all = layer.indices_sorted();
+    // Every third block, in reverse and with repeats, and a block that is not allocated.
+    let mut list: Vec<BlockIndex> = all.iter().rev().step_by(3).copied().collect();
+    list.extend_from_slice(&all[..4]);
+    list.push(BlockIndex([1000, 1000, 1000]));
+    let cpu = extract_mesh_keyed(&layer, Field::Regularized, Some(&list));
+    let gpu = extract_mesh_gpu(&ctx, &layer, Field::Regularized, Some(&list)).expect("GPU");
+    assert_same_mesh(&cpu, &gpu);
+    // No blocks, or none allocated: an empty mesh.
+    let none = extract_mesh_gpu(&ctx, &layer, Field::Raw, Some(&[BlockIndex([1000, 0, 0])]));
+    assert_eq!(none.expect("empty").0, Mesh::default());
+}
+
+#[test]
+fn gpu_marching_cubes_in_batches_and_parts_gives_the_same_mesh() {
+    let Some(whole) = gpu() else { return };
+    let layer = scene();
+    let cpu = extract_mesh_keyed(&layer, Field::Regularized, None);
+    let one = extract_mesh_gpu(&whole, &layer, Field::Regularized, None).expect("GPU");
+    // 64 KiB bindings: 16 blocks' samples per batch (with their neighbours), and a few
+    // hundred triangles per part.
+    let small: GpuContext = gpu()
+        .expect("the same adapter")
+        .with_max_binding_bytes(64 << 10);
+    let before = small.traffic();
+    let split = extract_mesh_gpu(&small, &layer, Field::Regularized, None).expect("GPU, split");
+    let t = small.traffic().since(before);
+    let blocks = layer.block_count() as u64;
+    eprintln!("{blocks} blocks in 64 KiB bindings: {t:?}");
+    assert!(
+        t.waits > 2 * blocks / 16,
+        "{t:?}: several batches and parts"
+    );
+    assert_eq!(split, one, "split into batches and parts");
+    assert_same_mesh(&cpu, &split);
+}
+
+#[test]
+fn gpu_marching_cubes_traffic_is_the_samples_up_and_the_mesh_down() {
+    let Some(ctx) = gpu() else { return };
+    let layer = scene();
+    let before = ctx.traffic();
+    let (mesh, _) = extract_mesh_gpu(&ctx, &layer, Field::Raw, None).expect("GPU");
+    let t = ctx.traffic().since(before);
+    let blocks = layer.block_count() as u64;
+    let (v, tri) = (mesh.positions_m.len() as u64, mesh.triangles.len() as u64);
+    eprintln!("{blocks} blocks, {v} vertices, {tri} triangles: {t:?}");
+    // One batch, one part: a count (submit, wait), the mesh (submit, wait) and its vertices
+    // (submit, wait).
+    assert_eq!((t.submits, t.waits), (3, 3), "{t:?}");
+    assert_eq!(t.dispatches, 6, "{t:?}");
+    // Up: 8 bytes per voxel and 96 per block of samples (every block is meshed, so none is
+    // uploaded twice), 32 bytes of neighbours per block, 4 of triangle bases, the table and
+    // the uniforms.
+    let up = blocks * (8 * VOXELS_PER_BLOCK as u64 + 96 + 32 + 4);
+    assert!(
+        t.upload_bytes >= up && t.upload_bytes <= up + (32 << 10),
+        "{t:?} vs {up}"
+    );
+    // Down: 4 bytes per block (count) and per block + 1 (vertex bases), 12 per triangle and 20
+    // per vertex.
+    let down = 4 * blocks + 4 * (blocks + 1) + 12 * tri + 20 * v;
+    assert_eq!(t.readback_bytes, down, "{t:?}");
+}
