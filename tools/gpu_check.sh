@@ -3,7 +3,9 @@
 # `reconstruct` of a 60 m synthetic drive's ground-truth depth (fusion per frame, the GPU tier's
 # steps, the TV solve, the GPU traffic per stage) and of a 150 m LiDAR drive, with `--device gpu`
 # for both builds and `--device cpu` for the second, in alternating rounds; the meshes of the two
-# builds are compared byte for byte. Everything goes to one log (docs/bench/gpu.md quotes it).
+# builds are compared byte for byte. Before the drives, the second build's `denser bench` on the
+# 60 m drive's depth with `--device gpu` (each kernel's device time from timestamp queries, and
+# marching cubes) and `--device cpu`, and its TGV-tensor stereo kernels on one pair. Everything goes to one log (docs/bench/gpu.md quotes it).
 #
 #   [GPU_TESTS=GPU_TEST_BINARY] tools/gpu_check.sh BEFORE_DENSER AFTER_DENSER OUT_DIR [ROUNDS]
 #
@@ -52,6 +54,16 @@ depth_m=${GPU_CHECK_DEPTH_M:-60} lidar_m=${GPU_CHECK_LIDAR_M:-150}
     say "synth $depth_m m failed"
 "$after" synth --length-m "$lidar_m" --lidar-only --seed 8 --out "$work/d150" >/dev/null 2>&1 ||
     say "synth $lidar_m m failed"
+
+say "## kernel device times and the benchmark, GPU then CPU (after)"
+seq60=$work/d60/sequences/00
+for dev in gpu cpu; do
+    say "### bench --device $dev on the $depth_m m drive's depth"
+    "$after" bench --device "$dev" --rgbd "$seq60" --passes 3 2>&1 | tee -a "$log" >/dev/null
+done
+say "### stereo --method tgv-tensor --device gpu --kernel-times (frame 0 of the $depth_m m drive)"
+"$after" stereo "$seq60/image_2/000000.png" "$seq60/image_3/000000.png" --out "$work/disp.pfm" \
+    --method tgv-tensor --device gpu --kernel-times 2>&1 | tee -a "$log" >/dev/null
 
 run() { # NAME BINARY ARGS...: one reconstruct, its summary into the log
     local name=$1 bin=$2

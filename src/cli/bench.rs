@@ -1,11 +1,13 @@
 //! `denser bench`: fusion, regularization and marching-cubes throughput on real RGB-D frames (or
 //! any depth sequence `--rgbd` names, e.g. a synthetic drive's ground-truth depth), at 10 cm and
 //! 5 cm voxels with μ = 8 voxels (Open3D's default, so `tools/bench_open3d.py` runs the same
-//! settings). Frames are loaded once; each pass re-fuses all of them.
+//! settings). Frames are loaded once; each pass re-fuses all of them. With `--device gpu`, every
+//! stage with a kernel runs on the GPU, and where the adapter has timestamp queries one more
+//! pass, TV solve and mesh are timed kernel by kernel on the device (after the measured ones:
+//! timing adds a wait per submit).
 
 use super::Outcome;
 use anyhow::{Context, Result};
-use denser::backend::Backend;
 use denser::io::sequence::{open_sequence, RangeInput, RangeSource};
 use denser::mesh::Field;
 use denser::reconstruct::{ReconstructionConfig, Reconstructor};
@@ -22,19 +24,28 @@ pub(crate) struct Args {
     passes: usize,
     #[arg(long, default_value_t = 10.0, help = super::help::MAX_DEPTH_M)]
     max_depth_m: f32,
+    /// Where the stages run (`cpu` by default, so the recorded figures stay comparable).
+    #[arg(long, value_enum, default_value = "cpu")]
+    device: super::DeviceArg,
 }
 
 pub(crate) fn run(a: Args) -> Result<Outcome> {
     let dir = a.rgbd.unwrap_or_else(|| {
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/data/rgbd_5frames_slambook2")
     });
-    let table = bench_rgbd(&dir, a.passes, a.max_depth_m)
+    let device = super::DeviceArgs { device: a.device };
+    let table = bench_rgbd(&dir, a.passes, a.max_depth_m, device)
         .with_context(|| format!("benchmarking on {}", dir.display()))?;
     Ok(Box::new(table))
 }
 
 /// The Markdown table of the benchmark (one row per voxel size).
-fn bench_rgbd(dir: &Path, passes: usize, max_depth_m: f32) -> denser::Result<String> {
+fn bench_rgbd(
+    dir: &Path,
+    passes: usize,
+    max_depth_m: f32,
+    device: super::DeviceArgs,
+) -> denser::Result<String> {
     let seq = open_sequence(dir, RangeSource::GroundTruthDepth, None, None)?;
     let frames: Vec<_> = (0..seq.len())
         .map(|i| match seq.read(i)? {
@@ -45,12 +56,13 @@ fn bench_rgbd(dir: &Path, passes: usize, max_depth_m: f32) -> denser::Result<Str
     let mut out = String::from(
         "| voxel | μ | median ms/frame | M voxel updates/s | blocks | bytes/voxel | TV M voxel-it/s | MC ms |\n|---|---|---|---|---|---|---|---|\n",
     );
+    let mut kernels = String::new();
     for voxel in [0.10f32, 0.05] {
         let mut config = ReconstructionConfig::paper(voxel);
         config.grid.truncation_m = 8.0 * voxel;
         config.depth_fusion.max_depth_m = max_depth_m;
         config.tv.iterations = 20;
-        let mut rec = Reconstructor::in_memory(config, Backend::cpu())?;
+        let mut rec = Reconstructor::in_memory(config, device.backend()?)?;
         let mut times = Vec::new();
         let before = *rec.timings();
         for _ in 0..passes.max(1) {
@@ -81,6 +93,69 @@ fn bench_rgbd(dir: &Path, passes: usize, max_depth_m: f32) -> denser::Result<Str
             rec.timings().voxel_iterations_per_s() / 1e6,
             mc_ms
         ));
+        if let Some(table) = kernel_times(&mut rec, &frames, voxel)? {
+            kernels.push_str(&table);
+        }
     }
-    Ok(out)
+    Ok(out + &kernels)
+}
+
+/// The kernels timed on `ctx` since timing started, as a Markdown table (by kernel name), with
+/// the adapter and the passes not timed; stops the timing.
+pub(crate) fn kernel_table(ctx: &denser::gpu::GpuContext) -> String {
+    let (times, untimed) = ctx.kernel_times();
+    ctx.stop_kernel_timing();
+    let mut out = format!(
+        "Device time per kernel on {} (timestamp queries; {untimed} passes not timed):\n\n\
+         | kernel | passes | median µs | total ms |\n|---|---|---|---|\n",
+        ctx.name()
+    );
+    for t in &times {
+        out.push_str(&format!(
+            "| {} | {} | {:.1} | {:.2} |\n",
+            t.kernel, t.passes, t.median_us, t.total_ms
+        ));
+    }
+    out
+}
+
+/// On a GPU backend whose adapter has timestamp queries: one more fusion pass over `frames`, a
+/// TV solve and a mesh of each field timed kernel by kernel, as a Markdown table with the
+/// traffic of a depth frame; `None` otherwise.
+fn kernel_times(
+    rec: &mut Reconstructor,
+    frames: &[denser::frame::DepthFrame],
+    voxel: f32,
+) -> denser::Result<Option<String>> {
+    let Some(ctx) = rec.backend().gpu_context().cloned() else {
+        return Ok(None);
+    };
+    if !ctx.start_kernel_timing() {
+        return Ok(Some(format!(
+            "\n{}: no timestamp queries on this adapter, kernels not timed\n",
+            ctx.name()
+        )));
+    }
+    let before = rec.gpu_traffic().unwrap_or_default();
+    for f in frames {
+        rec.fuse_depth(f)?;
+    }
+    let after = rec.gpu_traffic().unwrap_or_default();
+    rec.regularize()?;
+    rec.mesh(Field::Raw)?;
+    rec.mesh(Field::Regularized)?;
+    let table = kernel_table(&ctx);
+    let frames_timed = after.depth_frames - before.depth_frames;
+    let mut out = format!(
+        "\nKernel device times at {:.0} cm (one pass over the {} frames, one TV solve, a mesh \
+         of each field):\n\n{table}",
+        voxel * 100.0,
+        frames.len()
+    );
+    let per_frame = after.depth.since(before.depth);
+    out.push_str(&format!(
+        "\nGPU traffic per depth frame: {}\n",
+        per_frame.describe_per(frames_timed)
+    ));
+    Ok(Some(out))
 }

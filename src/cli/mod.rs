@@ -318,7 +318,7 @@ pub(crate) enum DeviceArg {
 #[derive(Args, Clone, Copy, Debug)]
 pub(crate) struct DeviceArgs {
     /// Where stereo (tv/tgv/tgv-tensor), fusion and regularization run (`auto`: each where it
-    /// was measured faster, docs/bench/gpu.md); meshing uses the CPU.
+    /// was measured faster, docs/bench/gpu.md); with `gpu`, an in-memory run's meshing too.
     #[arg(long, value_enum, default_value = "auto", help_heading = "Device")]
     pub device: DeviceArg,
 }

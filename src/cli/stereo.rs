@@ -53,6 +53,10 @@ pub(crate) struct Args {
     dense: bool,
     #[command(flatten)]
     device: DeviceArgs,
+    /// With the GPU: time each kernel on the device (timestamp queries, where the adapter has
+    /// them) and print the table. Timing adds a wait per submit, so the matching time grows.
+    #[arg(long, help_heading = "Device")]
+    kernel_times: bool,
 }
 
 #[derive(clap::Args)]
@@ -79,6 +83,8 @@ struct Matched {
     written: Vec<PathBuf>,
     /// What each file holds.
     notes: Vec<String>,
+    /// `--kernel-times`: the kernels' device times (a Markdown table) or why there are none.
+    kernel_times: Option<String>,
 }
 
 impl fmt::Display for Matched {
@@ -96,6 +102,9 @@ impl fmt::Display for Matched {
         )?;
         for n in &self.notes {
             writeln!(f, "  {n}")?;
+        }
+        if let Some(table) = &self.kernel_times {
+            write!(f, "\n{table}\n")?;
         }
         write!(f, "{}", super::Written(&self.written))
     }
@@ -185,9 +194,17 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         ..defaults
     };
     let estimator = backend.stereo_matcher(method, sgm, fill)?;
+    let timed = match backend.gpu_context() {
+        Some(ctx) if a.kernel_times => Some((ctx.clone(), ctx.start_kernel_timing())),
+        _ => None,
+    };
     let started = std::time::Instant::now();
     let map = estimator.estimate(&left, &right).with_context(context)?;
     let matching_s = started.elapsed().as_secs_f64();
+    let kernel_times = timed.map(|(ctx, on)| match on {
+        true => super::bench::kernel_table(&ctx),
+        false => format!("{}: no timestamp queries, kernels not timed\n", ctx.name()),
+    });
     denser::io::pfm::write_pfm(&a.out, &map.disparity_px)?;
     let (colour, scale_px) = denser::depth::disparity_false_colour(&map.disparity_px, None);
     denser::io::image::write_rgb_png(&colour_path, &colour)?;
@@ -232,6 +249,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     .collect();
     Ok(Box::new(Matched {
         method,
+        kernel_times,
         device: backend.stereo_device(method),
         width: left.width,
         height: left.height,

@@ -180,8 +180,8 @@ impl<'c> TgvProblemGpu<'c> {
             for _ in 0..batch {
                 // One pass per step: a pass boundary orders the dual writes before the primal
                 // reads (and the primal writes before the next dual step).
-                ctx.record_dispatch(&mut encoder, &dual_kernel.pipeline, &bind_dual, n)?;
-                ctx.record_dispatch(&mut encoder, &primal_kernel.pipeline, &bind_primal, n)?;
+                ctx.record_dispatch(&mut encoder, &dual_kernel, &bind_dual, n)?;
+                ctx.record_dispatch(&mut encoder, &primal_kernel, &bind_primal, n)?;
             }
             ctx.submit(encoder);
         }
@@ -305,7 +305,7 @@ impl DataCostGpu {
             &[&buf_uniforms, &self.costs, &self.counts, u, a],
         );
         let n = self.width as u64 * self.height as u64;
-        ctx.record_dispatch(encoder, &kernel.pipeline, &bind, n)
+        ctx.record_dispatch(encoder, &kernel, &bind, n)
     }
 }
 
@@ -392,7 +392,7 @@ fn record_census(
         &kernel.layout,
         &[&buf_uniforms, &buf_image, &buf_sig],
     );
-    ctx.record_dispatch(encoder, &kernel.pipeline, &bind, n)?;
+    ctx.record_dispatch(encoder, &kernel, &bind, n)?;
     Ok(buf_sig)
 }
 
@@ -508,7 +508,7 @@ pub fn cost_volume_gpu(
         &kernel.layout,
         &[&buf_uniforms, &sig_left, &sig_right, &buf_volume],
     );
-    ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, packed_words)?;
+    ctx.record_dispatch(&mut encoder, &kernel, &bind, packed_words)?;
     ctx.submit(encoder);
     scope.pop("running the census cost kernels")?;
     let mut cost: Vec<u8> = ctx.read_back_as(&buf_volume, packed_words as usize * 4)?;

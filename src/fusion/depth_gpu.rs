@@ -104,7 +104,7 @@ fn fuse_blocks(
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("fuse_depth"),
             });
-        ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, voxel_count)?;
+        ctx.record_dispatch(&mut encoder, &kernel, &bind, voxel_count)?;
         ctx.submit(encoder);
         scope.pop("running the fusion kernel")?;
         let (voxels, counted) =
@@ -256,8 +256,8 @@ fn run_resident(
     // Counters and flags start at zero on the device, not uploaded.
     encoder.clear_buffer(&buf_counters, 0, Some(16));
     encoder.clear_buffer(&buf_updated, 0, Some((n * 4).next_multiple_of(4)));
-    ctx.record_dispatch(&mut encoder, &lookup.pipeline, &bind_lookup, n)?;
-    ctx.record_dispatch(&mut encoder, &fuse.pipeline, &bind_fuse, voxel_count)?;
+    ctx.record_dispatch(&mut encoder, &lookup, &bind_lookup, n)?;
+    ctx.record_dispatch(&mut encoder, &fuse, &bind_fuse, voxel_count)?;
     let mut counters = [0u32; 2];
     let mut flags: Vec<u32> = bytemuck::zeroed_vec(n as usize);
     ctx.submit_and_read_back(

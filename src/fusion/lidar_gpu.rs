@@ -312,7 +312,7 @@ fn fuse_blocks(
                     &buf_counters,
                 ],
             );
-            ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, active as u64)?;
+            ctx.record_dispatch(&mut encoder, &kernel, &bind, active as u64)?;
             first_ray += rays_per_pass;
         }
         ctx.submit(encoder);

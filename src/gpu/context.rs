@@ -3,6 +3,7 @@
 //! a stage: callers do that with [`DeviceChoice`].
 
 use super::shaders::ShaderSource;
+use super::timing::{KernelTimer, PASS_BYTES};
 use super::traffic::{bump, GpuTraffic, TrafficCounters};
 use crate::{Error, Result};
 use wgpu::util::DeviceExt;
@@ -89,6 +90,8 @@ pub struct GpuContext {
     kernels: std::sync::Mutex<std::collections::HashMap<&'static str, std::sync::Arc<Kernel>>>,
     /// What the context has cost so far ([`GpuContext::traffic`]).
     traffic: TrafficCounters,
+    /// Kernel timing, while on ([`GpuContext::start_kernel_timing`]).
+    pub(super) timer: std::sync::Mutex<Option<KernelTimer>>,
 }
 
 /// Readbacks above this many bytes are copied out of the mapping by several threads: the copy
@@ -98,6 +101,8 @@ const PARALLEL_COPY_BYTES: usize = 4 << 20;
 /// A compiled kernel: its bind-group layout and pipeline.
 #[derive(Debug)]
 pub(crate) struct Kernel {
+    /// The kernel's file name without `.wgsl`, naming it in device-time reports.
+    pub(crate) name: &'static str,
     pub(crate) layout: wgpu::BindGroupLayout,
     pub(crate) pipeline: wgpu::ComputePipeline,
 }
@@ -175,8 +180,11 @@ impl GpuContext {
         };
         let info = adapter.get_info();
         let limits = adapter.limits();
+        // Timestamp queries where the adapter has them (kernel device times; nothing else).
+        let features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("denser"),
+            required_features: features,
             required_limits: limits.clone(),
             ..Default::default()
         }))
@@ -189,6 +197,7 @@ impl GpuContext {
             binding_cap_bytes: None,
             kernels: Default::default(),
             traffic: TrafficCounters::default(),
+            timer: Default::default(),
         }))
     }
 
@@ -333,7 +342,12 @@ impl GpuContext {
         let layout = bind_group_layout(&self.device, src.file, &types);
         let pipeline = compute_pipeline(&self.device, src, &layout);
         scope.pop(&format!("compiling {}", src.file))?;
-        let k = std::sync::Arc::new(Kernel { layout, pipeline });
+        let name = src.file.strip_suffix(".wgsl").unwrap_or(src.file);
+        let k = std::sync::Arc::new(Kernel {
+            name,
+            layout,
+            pipeline,
+        });
         cache.insert(src.file, k.clone());
         Ok(k)
     }
@@ -361,22 +375,25 @@ impl GpuContext {
         })
     }
 
-    /// Records one dispatch of `pipeline` over `invocations` one-wide invocations (a
-    /// [`WORKGROUP_SIZE`] kernel indexed with `flat_index`) into `encoder`.
+    /// Records one dispatch of `kernel` over `invocations` one-wide invocations (a
+    /// [`WORKGROUP_SIZE`] kernel indexed with `flat_index`) into `encoder`; while kernel timing
+    /// is on ([`GpuContext::start_kernel_timing`]), its pass writes timestamps at both ends.
     pub(crate) fn record_dispatch(
         &self,
         encoder: &mut wgpu::CommandEncoder,
-        pipeline: &wgpu::ComputePipeline,
+        kernel: &Kernel,
         bind: &wgpu::BindGroup,
         invocations: u64,
     ) -> Result<()> {
         let (wx, wy) = self.workgroups_2d(invocations)?;
         bump(&self.traffic.dispatches, 1);
+        let mut timer = self.timer.lock().unwrap_or_else(|e| e.into_inner());
+        let timestamp_writes = timer.as_mut().and_then(|t| t.pass_writes(kernel.name));
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: None,
-            timestamp_writes: None,
+            label: Some(kernel.name),
+            timestamp_writes,
         });
-        pass.set_pipeline(pipeline);
+        pass.set_pipeline(&kernel.pipeline);
         pass.set_bind_group(0, bind, &[]);
         pass.dispatch_workgroups(wx, wy, 1);
         Ok(())
@@ -407,10 +424,45 @@ impl GpuContext {
         self.queue.write_buffer(buffer, offset, data);
     }
 
-    /// Submits one command buffer (counted).
-    pub(crate) fn submit(&self, encoder: wgpu::CommandEncoder) {
+    /// Submits one command buffer (counted). While kernel timing is on and the buffer has
+    /// timed passes, their timestamps are resolved at its end and read back after it (a wait
+    /// that [`GpuTraffic`] does not count: timing changes what it measures).
+    pub(crate) fn submit(&self, mut encoder: wgpu::CommandEncoder) {
+        let mut timer = self.timer.lock().unwrap_or_else(|e| e.into_inner());
+        let timed = timer.as_mut().map_or(0, |t| t.resolve_into(&mut encoder));
         bump(&self.traffic.submits, 1);
         self.queue.submit([encoder.finish()]);
+        if let (Some(t), true) = (timer.as_mut(), timed > 0) {
+            self.read_timestamps(t, timed);
+        }
+    }
+
+    /// Reads back the resolved timestamps of the last submit's `passes` timed passes into `t`.
+    fn read_timestamps(&self, t: &mut KernelTimer, passes: u32) {
+        let staging = t.staging.clone();
+        let slice = staging.slice(..passes as u64 * PASS_BYTES);
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| drop(tx.send(r)));
+        let polled = self.device.poll(wgpu::PollType::wait_indefinitely());
+        let mapped = polled.is_ok() && matches!(rx.recv(), Ok(Ok(())));
+        let view = if mapped {
+            slice.get_mapped_range().ok()
+        } else {
+            None
+        };
+        match view {
+            Some(view) => {
+                let timestamps: Vec<u64> = bytemuck::pod_collect_to_vec(&view);
+                t.record(&timestamps);
+            }
+            None => {
+                tracing::warn!("kernel timing: the timestamps of a submit could not be read");
+                t.drop_pending();
+            }
+        }
+        if mapped {
+            staging.unmap();
+        }
     }
 
     /// Blocks until the device has finished everything submitted (counted as a wait).

@@ -21,9 +21,11 @@ pub(crate) mod kept;
 pub mod layout;
 pub mod resident;
 pub mod shaders;
+pub mod timing;
 mod traffic;
 
 pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
 pub(crate) use context::{ErrorScopes, Kernel};
 pub use resident::{ResidentMap, ResidentOptions, ResidentStats};
+pub use timing::KernelTime;
 pub use traffic::GpuTraffic;

@@ -283,7 +283,7 @@ impl Batch {
             ],
         );
         let mut encoder = encoder(ctx, "mc_count");
-        ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, 64 * blocks as u64)?;
+        ctx.record_dispatch(&mut encoder, &kernel, &bind, 64 * blocks as u64)?;
         let mut out = vec![0u32; blocks];
         ctx.submit_and_read_back(
             encoder,
@@ -345,7 +345,7 @@ impl Batch {
         let groups = 64 * blocks as u64;
         let mut dispatch = |name: &str, kernel: &Kernel, buffers: &[&wgpu::Buffer], n: u64| {
             let bind = ctx.bind_group(name, &kernel.layout, buffers);
-            ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, n)
+            ctx.record_dispatch(&mut encoder, kernel, &bind, n)
         };
         dispatch(
             "mc_emit",

@@ -100,8 +100,8 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
         left -= batch;
         for _ in 0..batch {
             // One pass per step: a pass boundary orders the dual writes before the primal reads.
-            ctx.record_dispatch(&mut encoder, &dual.pipeline, &bind_dual, n64)?;
-            ctx.record_dispatch(&mut encoder, &primal.pipeline, &bind_primal, n64)?;
+            ctx.record_dispatch(&mut encoder, &dual, &bind_dual, n64)?;
+            ctx.record_dispatch(&mut encoder, &primal, &bind_primal, n64)?;
         }
         ctx.submit(encoder);
         encoder = ctx

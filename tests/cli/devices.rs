@@ -243,3 +243,57 @@ fn an_in_memory_run_meshes_on_the_gpu_with_the_cpu_meshes_bytes() {
         assert!(g == c, "{mesh}: the GPU mesh differs from the CPU mesh");
     }
 }
+
+#[test]
+fn bench_on_the_gpu_times_each_kernel_on_the_device() {
+    // `denser bench --device gpu`: after the measured passes, one more pass, a TV solve (20
+    // iterations) and a mesh of each field, timed kernel by kernel with timestamp queries.
+    let Some(gpu) = gpu_name() else { return };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    synth_drive(d);
+    let frames = std::fs::read_dir(d.join("drive/sequences/00/depth_gt"))
+        .expect("depth")
+        .count();
+    let bench = [
+        "bench",
+        "--rgbd",
+        "drive/sequences/00",
+        "--passes",
+        "1",
+        "--device",
+    ];
+    let out = ok(&[&bench[..], &["gpu"]].concat(), d);
+    if out.contains("no timestamp queries") {
+        crate::common::skip("kernel times: the adapter has no timestamp queries");
+        return;
+    }
+    // One table per voxel size (10 and 5 cm), each naming the adapter.
+    let tables = out
+        .matches(&format!("Device time per kernel on {gpu}"))
+        .count();
+    assert_eq!(tables, 2, "{out}");
+    let passes = |kernel: &str| -> Vec<usize> {
+        out.lines()
+            .filter(|l| l.starts_with(&format!("| {kernel} |")))
+            .map(|l| {
+                l.split('|')
+                    .nth(2)
+                    .expect("passes")
+                    .trim()
+                    .parse()
+                    .expect("n")
+            })
+            .collect()
+    };
+    assert_eq!(passes("fuse_depth_resident"), [frames, frames], "{out}");
+    assert_eq!(passes("tv_dual"), [20, 20], "{out}");
+    assert_eq!(passes("mc_emit"), [2, 2], "{out}");
+    assert!(out.contains("GPU traffic per depth frame: "), "{out}");
+    // On the CPU: the figures, no kernel table.
+    let out = ok(&[&bench[..], &["cpu"]].concat(), d);
+    assert!(
+        out.contains("| 5 cm |") && !out.contains("Device time per kernel"),
+        "{out}"
+    );
+}

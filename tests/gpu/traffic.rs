@@ -281,3 +281,48 @@ fn a_placement_runs_each_stage_where_it_says() {
     let g = rec.gpu_traffic().expect("a GPU backend");
     assert_eq!((g.depth_frames, g.tv_solves), (0, 1));
 }
+
+#[test]
+fn kernels_are_timed_on_the_device_without_changing_the_counts() {
+    let Some(ctx) = gpu() else { return };
+    if !ctx.has_kernel_timing() {
+        common::skip("kernel timing: the adapter has no timestamp queries");
+        assert!(!ctx.start_kernel_timing());
+        return;
+    }
+    let params = TvParams {
+        iterations: 70,
+        ..TvParams::paper(0.1)
+    };
+    let problem = random_problem(4);
+    let mut untimed = problem.clone();
+    let before = ctx.traffic();
+    solve_gpu(&ctx, &mut untimed, &params).expect("solve");
+    let plain = ctx.traffic().since(before);
+    assert!(ctx.kernel_times().0.is_empty(), "not timing yet");
+
+    assert!(ctx.start_kernel_timing());
+    let mut timed = problem.clone();
+    let before = ctx.traffic();
+    solve_gpu(&ctx, &mut timed, &params).expect("solve");
+    let counted = ctx.traffic().since(before);
+    let (times, missed) = ctx.kernel_times();
+    eprintln!("{times:#?}, {missed} untimed; {counted:?}");
+    // The same work and the same counts (timing's own waits are not counted), the same result.
+    assert_eq!(counted, plain);
+    assert_eq!(timed.state().0, untimed.state().0);
+    // 70 iterations in two submits (64 + 6): every pass timed, by kernel.
+    assert_eq!(missed, 0);
+    let names: Vec<&str> = times.iter().map(|t| t.kernel).collect();
+    assert_eq!(names, ["tv_dual", "tv_primal"]);
+    for t in &times {
+        assert_eq!(t.passes, 70, "{t:?}");
+        assert!(
+            t.median_us >= 0.0 && t.total_ms >= t.median_us / 1e3,
+            "{t:?}"
+        );
+    }
+    assert!(times.iter().any(|t| t.total_ms > 0.0), "{times:?}");
+    ctx.stop_kernel_timing();
+    assert!(ctx.kernel_times().0.is_empty());
+}

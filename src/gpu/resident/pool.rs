@@ -239,7 +239,7 @@ impl BlockPool {
             });
         ctx.record_dispatch(
             &mut encoder,
-            &kernel.pipeline,
+            &kernel,
             &bind,
             slots.len() as u64 * VOXELS_PER_BLOCK as u64,
         )?;

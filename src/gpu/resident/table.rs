@@ -267,7 +267,7 @@ pub(crate) fn run_lookup(
         .create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("block_lookup"),
         });
-    ctx.record_dispatch(&mut encoder, &kernel.pipeline, &bind, keys.len() as u64)?;
+    ctx.record_dispatch(&mut encoder, &kernel, &bind, keys.len() as u64)?;
     ctx.submit(encoder);
     scope.pop("looking blocks up on the GPU")?;
     let slots: Vec<u32> = ctx.read_back_as(&buf_slots, keys.len())?;
