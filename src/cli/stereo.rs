@@ -85,6 +85,8 @@ struct Matched {
     notes: Vec<String>,
     /// `--kernel-times`: the kernels' device times (a Markdown table) or why there are none.
     kernel_times: Option<String>,
+    /// What matching cost the GPU, when it ran there.
+    traffic: Option<denser::gpu::GpuTraffic>,
 }
 
 impl fmt::Display for Matched {
@@ -100,6 +102,9 @@ impl fmt::Display for Matched {
             100.0 * self.valid_px as f64 / (self.width as f64 * self.height as f64),
             self.matching_s
         )?;
+        if let Some(t) = &self.traffic {
+            writeln!(f, "GPU traffic of the pair: {}", t.describe_per(1))?;
+        }
         for n in &self.notes {
             writeln!(f, "  {n}")?;
         }
@@ -198,9 +203,15 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         Some(ctx) if a.kernel_times => Some((ctx.clone(), ctx.start_kernel_timing())),
         _ => None,
     };
+    let traffic_before = backend.gpu_context().map(|c| c.traffic());
     let started = std::time::Instant::now();
     let map = estimator.estimate(&left, &right).with_context(context)?;
     let matching_s = started.elapsed().as_secs_f64();
+    let traffic = backend
+        .gpu_context()
+        .zip(traffic_before)
+        .map(|(c, before)| c.traffic().since(before))
+        .filter(|t| t.submits > 0);
     let kernel_times = timed.map(|(ctx, on)| match on {
         true => super::bench::kernel_table(&ctx),
         false => format!("{}: no timestamp queries, kernels not timed\n", ctx.name()),
@@ -250,6 +261,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     Ok(Box::new(Matched {
         method,
         kernel_times,
+        traffic,
         device: backend.stereo_device(method),
         width: left.width,
         height: left.height,

@@ -19,24 +19,28 @@
 //! (cause not found: Mesa's compiler evaluates part of `div(T p)` differently; 7.6e-6 px after
 //! 50 iterations on Motorcycle, none of the final disparities by > 0.1 px). Other GPUs may
 //! contract to FMA or divide within 2.5 ULP; `tests/gpu_stereo.rs` states the tolerances
-//! (|Δu| ≤ 1e-3 px after 50 iterations). What stays on the CPU: SGM (the initialisation), the window averaging of the
-//! costs (integer sums, uploaded), the diffusion tensors, the invalidation. Every array must fit
-//! one storage binding (the largest is the window-averaged cost volume, 2 bytes per pixel and
-//! disparity: 119 MB for 1241×376×128, under llvmpipe's 128 MiB); a larger input is an
-//! [`crate::Error::GpuCapacity`], never truncated.
+//! (|Δu| ≤ 1e-3 px after 50 iterations). The costs' window sums are taken on the device from the
+//! cost volume where it was made (`data_cost.rs`, `shaders/cost_window.wgsl`; integer sums, equal
+//! to the CPU's). What stays on the CPU: SGM (the initialisation, which reads the volume back),
+//! the diffusion tensors, the invalidation. Every array must fit one storage binding (the
+//! largest is the window sums, 2 bytes per pixel and disparity: 119 MB for 1241×376×128, under
+//! llvmpipe's 128 MiB); a larger input is an [`crate::Error::GpuCapacity`], never truncated.
 
 use crate::depth::census::{CensusImage, CensusKind, CensusParams};
 use crate::depth::sgm::{CostVolume, SgmMatcher};
-use crate::depth::tgv::{check_search, DataCost, Regularizer, TgvMatcher, TgvProblem, TgvStages};
+use crate::depth::tgv::{check_search, Regularizer, TgvMatcher, TgvProblem, TgvStages};
 use crate::depth::{DisparityEstimator, DisparityMap};
 use crate::frame::GreyImage;
-use crate::gpu::layout::{CensusUniforms, CostUniforms, PointwiseUniforms, TgvUniforms};
+use crate::gpu::layout::{CensusUniforms, CostUniforms, TgvUniforms};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
 use crate::{Error, Result};
 
 /// Primal–dual iterations recorded per command buffer (bounds the size of one submission).
 const ITERATIONS_PER_SUBMIT: u32 = 64;
+
+mod data_cost;
+use data_cost::DataCostGpu;
 
 /// A [`TgvProblem`] resident on the GPU: tensors, coupling target, primal, over-relaxed primal
 /// and dual, in the CPU's layout (`[u, v1, v2]`, `[p1, p2, q11, q22, q12]` per pixel).
@@ -216,103 +220,27 @@ impl<'c> TgvProblemGpu<'c> {
     }
 }
 
-/// The data term on the GPU: packed costs (raw `u8` or window sums `u16`) and per-pixel divisors.
-struct DataCostGpu {
-    costs: wgpu::Buffer,
-    counts: wgpu::Buffer,
-    cost_bytes: u32,
-    width: u32,
-    height: u32,
-    num_disparities: u32,
-    min_disparity_px: f32,
-    max_cost: u8,
-}
-
-impl DataCostGpu {
-    fn upload(ctx: &GpuContext, data: &DataCost) -> Result<Self> {
-        let v = data.volume;
-        let n = v.width as usize * v.height as usize;
-        let entries = (n * v.num_disparities) as u64;
-        let cost_bytes = if data.filtered.is_some() { 2 } else { 1 };
-        ctx.check_binding(
-            &format!("census costs ({cost_bytes} bytes per pixel and disparity)"),
-            entries * cost_bytes,
-        )?;
-        if entries > u32::MAX as u64 || v.num_disparities > u32::MAX as usize {
-            return Err(Error::GpuCapacity {
-                what: "cost volume entries (u32 indices)".into(),
-                needed_bytes: entries,
-                limit_bytes: u32::MAX as u64,
-            });
-        }
-        let scope = ErrorScopes::push(&ctx.device);
-        let (costs, counts) = match &data.filtered {
-            Some((sum, count)) => {
-                let count: Vec<u32> = count.iter().map(|&c| c as u32).collect();
-                (
-                    ctx.storage("tgv_costs", bytemuck::cast_slice(sum)),
-                    ctx.storage("tgv_counts", bytemuck::cast_slice(&count)),
-                )
-            }
-            None => (
-                ctx.storage("tgv_costs", &v.cost),
-                ctx.storage("tgv_counts", bytemuck::cast_slice(&vec![1u32; n])),
-            ),
-        };
-        scope.pop("uploading the census costs")?;
-        Ok(DataCostGpu {
-            costs,
-            counts,
-            cost_bytes: cost_bytes as u32,
-            width: v.width,
-            height: v.height,
-            num_disparities: v.num_disparities as u32,
-            min_disparity_px: v.min_disparity_px as f32,
-            max_cost: v.max_cost,
-        })
+/// [`crate::depth::tgv::box_filtered_costs`] on the GPU (`shaders/cost_window.wgsl`): the
+/// costs of `volume` summed over `window` × `window` and each pixel's count, read back (the GPU
+/// matchers keep them on the device; this is for comparing with the CPU).
+pub fn window_costs_gpu(
+    ctx: &GpuContext,
+    volume: &CostVolume,
+    window: u32,
+) -> Result<(Vec<u16>, Vec<u16>)> {
+    if window < 2 {
+        return Err(Error::InvalidArgument(format!(
+            "window sums need a window of 2 or more pixels, got {window}"
+        )));
     }
-
-    /// Records one point-wise search reading `u` (stride `u_stride` floats) and writing `a`.
-    #[allow(clippy::too_many_arguments)]
-    fn record_search(
-        &self,
-        ctx: &GpuContext,
-        encoder: &mut wgpu::CommandEncoder,
-        u: &wgpu::Buffer,
-        u_stride: u32,
-        a: &wgpu::Buffer,
-        lambda: f32,
-        theta: f32,
-    ) -> Result<()> {
-        let kernel = ctx.kernel(&shaders::TGV_POINTWISE)?;
-        let uniforms = PointwiseUniforms {
-            width: self.width,
-            height: self.height,
-            num_disparities: self.num_disparities,
-            cost_bytes: self.cost_bytes,
-            u_stride,
-            lambda,
-            theta,
-            // The CPU's `reach`, in f32.
-            reach: (2.0 * theta * lambda * self.max_cost as f32).sqrt(),
-            min_disparity_px: self.min_disparity_px,
-            pad: [0; 3],
-        };
-        let buf_uniforms = ctx.uniform("pointwise_uniforms", bytemuck::bytes_of(&uniforms));
-        let bind = ctx.bind_group(
-            "tgv_pointwise",
-            &kernel.layout,
-            &[&buf_uniforms, &self.costs, &self.counts, u, a],
-        );
-        let n = self.width as u64 * self.height as u64;
-        ctx.record_dispatch(encoder, &kernel, &bind, n)
-    }
+    DataCostGpu::new(ctx, volume, None, window)?.read_back(ctx)
 }
 
 /// [`crate::depth::tgv::decoupling_search`] on the GPU: for each pixel the disparity `a`
 /// (pixels) minimising `λ·C(x, a) + (u(x) − a)²/(2θ)` over the census costs of `volume`
-/// averaged over `cost_window` × `cost_window` (averaged on the CPU, searched on the GPU), with
-/// the parabola fit. Uploads the costs on every call ([`refine_gpu`] keeps them resident).
+/// averaged over `cost_window` × `cost_window` (averaged and searched on the GPU), with
+/// the parabola fit. Uploads the raw costs on every call and sums them over the window on the
+/// GPU ([`refine_gpu`] keeps them resident).
 pub fn pointwise_search_gpu(
     ctx: &GpuContext,
     volume: &CostVolume,
@@ -323,7 +251,7 @@ pub fn pointwise_search_gpu(
 ) -> Result<Vec<f32>> {
     check_search(volume, cost_window, u, lambda, theta)?;
     let n = u.len() as u64;
-    let data = DataCostGpu::upload(ctx, &DataCost::new(volume, cost_window))?;
+    let data = DataCostGpu::new(ctx, volume, None, cost_window)?;
     let scope = ErrorScopes::push(&ctx.device);
     let buf_u = ctx.storage("pointwise_u", bytemuck::cast_slice(u));
     let buf_a = ctx.storage("pointwise_a", &vec![0u8; u.len() * 4]);
@@ -464,6 +392,18 @@ pub fn cost_volume_gpu(
     min_disparity_px: i32,
     num_disparities: usize,
 ) -> Result<CostVolume> {
+    let args = (census, min_disparity_px, num_disparities);
+    cost_volume_on_device(ctx, left, right, args).map(|(volume, _)| volume)
+}
+
+/// [`cost_volume_gpu`], also returning the volume's buffer on the device (u8 costs packed 4 per
+/// word), for the stages that read it there.
+fn cost_volume_on_device(
+    ctx: &GpuContext,
+    left: &GreyImage,
+    right: &GreyImage,
+    (census, min_disparity_px, num_disparities): (&CensusParams, i32, usize),
+) -> Result<(CostVolume, wgpu::Buffer)> {
     census.validate()?;
     check_pair(left, right)?;
     let max_cost = u8::try_from(census.bits()).map_err(|_| {
@@ -513,20 +453,22 @@ pub fn cost_volume_gpu(
     scope.pop("running the census cost kernels")?;
     let mut cost: Vec<u8> = ctx.read_back_as(&buf_volume, packed_words as usize * 4)?;
     cost.truncate(entries as usize);
-    Ok(CostVolume {
+    let volume = CostVolume {
         width: left.width,
         height: left.height,
         min_disparity_px,
         num_disparities,
         max_cost,
         cost,
-    })
+    };
+    Ok((volume, buf_volume))
 }
 
 /// [`TgvMatcher::refine`] on the GPU: the same rounds (point-wise search, then
 /// `inner_iterations` primal–dual iterations, θ annealed) with the costs, `a` and the TGV state
-/// resident on the GPU; returns the dense regularized disparity, pixels. Window averaging of the
-/// costs, the tensors and the initialisation are computed on the CPU.
+/// resident on the GPU (the costs uploaded once, their window sums taken there); returns the
+/// dense regularized disparity, pixels. The tensors and the initialisation are computed on the
+/// CPU.
 pub fn refine_gpu(
     ctx: &GpuContext,
     matcher: &TgvMatcher,
@@ -534,12 +476,23 @@ pub fn refine_gpu(
     volume: &CostVolume,
     init: &DisparityMap,
 ) -> Result<Vec<f32>> {
+    refine_on_device(ctx, matcher, left, (volume, None), init)
+}
+
+/// [`refine_gpu`] reading the costs from `on_device` (the volume's buffer) when given.
+fn refine_on_device(
+    ctx: &GpuContext,
+    matcher: &TgvMatcher,
+    left: &GreyImage,
+    (volume, on_device): (&CostVolume, Option<&wgpu::Buffer>),
+    init: &DisparityMap,
+) -> Result<Vec<f32>> {
     let p = &matcher.params;
     p.validate()?;
     let (problem, _u0) = matcher.initial_problem(left, volume, init)?;
     let gpu = TgvProblemGpu::upload(ctx, &problem)?;
     drop(problem);
-    let data = DataCostGpu::upload(ctx, &DataCost::new(volume, p.cost_window))?;
+    let data = DataCostGpu::new(ctx, volume, on_device, p.cost_window)?;
     for k in 0..p.outer_iterations {
         let theta = p.theta(k);
         let scope = ErrorScopes::push(&ctx.device);
@@ -576,16 +529,10 @@ pub fn estimate_tgv_gpu(
     let p = &matcher.params;
     p.validate()?;
     let sgm = SgmMatcher::new(p.sgm)?;
-    let volume = cost_volume_gpu(
-        ctx,
-        left,
-        right,
-        &p.sgm.census,
-        p.sgm.min_disparity_px,
-        p.sgm.num_disparities,
-    )?;
+    let census = (&p.sgm.census, p.sgm.min_disparity_px, p.sgm.num_disparities);
+    let (volume, on_device) = cost_volume_on_device(ctx, left, right, census)?;
     let init = sgm.estimate_from_volume(left, &volume)?;
-    let dense = refine_gpu(ctx, matcher, left, &volume, &init)?;
+    let dense = refine_on_device(ctx, matcher, left, (&volume, Some(&on_device)), &init)?;
     let result = matcher.invalidate(&dense, &init, &volume);
     Ok(TgvStages {
         sgm: init,

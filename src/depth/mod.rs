@@ -24,7 +24,7 @@ pub mod tgv;
 
 pub use gpu::{
     census_transform_gpu, cost_volume_gpu, estimate_tgv_gpu, pointwise_search_gpu, refine_gpu,
-    TgvMatcherGpu, TgvProblemGpu,
+    window_costs_gpu, TgvMatcherGpu, TgvProblemGpu,
 };
 pub use ground_truth::disparity_from_points;
 pub use metrics::{evaluate_disparity, StereoMetrics};

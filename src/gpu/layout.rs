@@ -279,6 +279,24 @@ impl GpuVoxel {
     }
 }
 
+/// Uniforms of `shaders/cost_window.wgsl` (WGSL twin: `WindowUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct WindowUniforms {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Disparity slices.
+    pub num_disparities: u32,
+    /// Window radius, pixels.
+    pub radius: u32,
+    /// Entries of the volume.
+    pub entries: u32,
+    /// Padding to 32 bytes.
+    pub pad: [u32; 3],
+}
+
 /// Uniforms of the marching-cubes kernels (WGSL twin: `McUniforms` in
 /// `shaders/shared/mc_uniforms.wgsl`).
 #[repr(C)]
@@ -319,6 +337,7 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("CensusUniforms", std::mem::size_of::<CensusUniforms>()),
     ("CostUniforms", std::mem::size_of::<CostUniforms>()),
     ("McUniforms", std::mem::size_of::<McUniforms>()),
+    ("WindowUniforms", std::mem::size_of::<WindowUniforms>()),
 ];
 
 /// Appends `block`'s 512 voxels, packed, to `out` (the layout every fusion kernel reads).

@@ -158,6 +158,13 @@ pub const CENSUS_COST: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite]
 );
 
+/// Census costs summed over a window, on the device.
+pub const COST_WINDOW: ShaderSource = kernel!(
+    "cost_window.wgsl",
+    ["shared/dispatch.wgsl"],
+    [Uniform, Read, ReadWrite, ReadWrite]
+);
+
 /// Marching cubes, pass 1: triangles per meshed block.
 pub const MC_COUNT: ShaderSource = kernel!(
     "mc_count.wgsl",
@@ -223,6 +230,7 @@ pub const ALL: &[ShaderSource] = &[
     TGV_POINTWISE,
     CENSUS,
     CENSUS_COST,
+    COST_WINDOW,
     // Marching cubes.
     MC_COUNT,
     MC_EMIT,

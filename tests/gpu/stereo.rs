@@ -25,10 +25,12 @@ use denser::depth::census::{census_transform, CensusKind, CensusParams};
 use denser::depth::metrics::mask_from_middlebury;
 use denser::depth::sgm::CostVolume;
 use denser::depth::tgv::{
-    decoupling_search, diffusion_tensors, Regularizer, TgvMatcher, TgvParams, TgvProblem,
+    box_filtered_costs, decoupling_search, diffusion_tensors, Regularizer, TgvMatcher, TgvParams,
+    TgvProblem,
 };
 use denser::depth::{
-    census_transform_gpu, cost_volume_gpu, estimate_tgv_gpu, pointwise_search_gpu, TgvProblemGpu,
+    census_transform_gpu, cost_volume_gpu, estimate_tgv_gpu, pointwise_search_gpu,
+    window_costs_gpu, TgvProblemGpu,
 };
 use denser::depth::{evaluate_disparity, SgmMatcher, SgmParams};
 use denser::frame::{GreyImage, Image};
@@ -466,4 +468,73 @@ fn tgv_matcher_on_the_gpu_matches_the_cpu() {
         .unwrap();
         check_matcher(&ctx, "Motorcycle TgvTensor", &m, &left, &right, &gt);
     }
+}
+
+#[test]
+fn window_sums_on_the_gpu_equal_the_cpu_box_filter() {
+    let Some(ctx) = gpu() else { return };
+    let (left, right, _) = generated_pair();
+    // 48 slices (a pixel's costs fill whole words), 47 (odd: one entry at a time) and, on
+    // Motorcycle, 70 (even: pairs whose words start at any byte).
+    let mut pairs = vec![
+        ("generated", left.clone(), right.clone(), 48),
+        ("generated, 47 slices", left, right, 47),
+    ];
+    if let Some((left, right, _, _)) = motorcycle() {
+        pairs.push(("Motorcycle", left, right, 70));
+    }
+    for (what, left, right, nd) in &pairs {
+        let volume = SgmMatcher::new(sgm_params(*nd))
+            .unwrap()
+            .cost_volume(left, right)
+            .unwrap();
+        for window in [2, 3, 5, 9] {
+            let cpu = box_filtered_costs(&volume, window);
+            let gpu = window_costs_gpu(&ctx, &volume, window).expect("GPU");
+            assert!(cpu.1 == gpu.1, "{what}, window {window}: counts differ");
+            let differ = cpu.0.iter().zip(&gpu.0).filter(|(a, b)| a != b).count();
+            assert_eq!(differ, 0, "{what}, window {window}: sums differ");
+            assert_eq!(cpu.0.len(), gpu.0.len());
+        }
+    }
+    assert!(window_costs_gpu(&ctx, &pairs_volume(&pairs[0]), 1).is_err());
+}
+
+fn pairs_volume((_, left, right, nd): &(&str, GreyImage, GreyImage, usize)) -> CostVolume {
+    SgmMatcher::new(sgm_params(*nd))
+        .unwrap()
+        .cost_volume(left, right)
+        .unwrap()
+}
+
+#[test]
+fn the_gpu_matcher_sends_no_costs_up() {
+    // TGV-tensor on the GPU: the cost volume is made on the device, read back once for SGM, and
+    // summed over its window there; what goes up is the two images, the tensors and the
+    // problem's state (4 bytes per pixel each), never the costs (1 byte per pixel and disparity
+    // raw, 2 as window sums).
+    let Some(ctx) = gpu() else { return };
+    let (left, right, _) = generated_pair();
+    let nd = 48;
+    let m = TgvMatcher::new(TgvParams {
+        sgm: sgm_params(nd),
+        ..TgvParams::default()
+    })
+    .unwrap();
+    let before = ctx.traffic();
+    estimate_tgv_gpu(&ctx, &m, &left, &right).expect("GPU");
+    let t = ctx.traffic().since(before);
+    let pixels = (left.width * left.height) as u64;
+    let entries = pixels * nd as u64;
+    eprintln!("{pixels} pixels, {entries} cost entries: {t:?}");
+    // Images (1 byte per pixel each), tensors (3 floats), target (1), primal and relaxed primal
+    // (3 each), dual (5): 62 bytes per pixel, plus uniforms.
+    // Before the window sums were taken on the device, the sums and counts went up too (2 bytes
+    // per entry and 4 per pixel: 3.2 MB here against this bound's 1.3 MB).
+    assert!(t.upload_bytes <= 62 * pixels + (64 << 10), "{t:?}");
+    // Down: the cost volume once (for SGM) and the primal ([u, v1, v2] per pixel).
+    assert!(
+        t.readback_bytes <= entries.next_multiple_of(4) + 12 * pixels,
+        "{t:?}"
+    );
 }

@@ -1,0 +1,106 @@
+// The census costs summed over a (2r+1)² window, on the device where the cost volume was made
+// (CPU twin: `box_filter_into` in src/depth/tgv/search.rs, whose u16 running sums equal the
+// direct sums taken here, modulo 2¹⁶ as both wrap): border pixels sum the part of the window
+// inside the image, and `counts` holds how many pixels that is. Entry i·num_disparities + k of
+// the volume (u8 costs, 4 per word) gives entry i·num_disparities + k of the sums (u16, 2 per
+// word); one invocation per output word. Keep WindowUniforms in sync with src/gpu/layout.rs.
+// Shared files and bindings: src/gpu/shaders.rs.
+
+struct WindowUniforms {
+    width: u32,
+    height: u32,
+    num_disparities: u32,
+    // Window radius r, pixels.
+    radius: u32,
+    // width · height · num_disparities.
+    entries: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+@group(0) @binding(0) var<uniform> params: WindowUniforms;
+@group(0) @binding(1) var<storage, read> volume: array<u32>;
+@group(0) @binding(2) var<storage, read_write> sums: array<u32>;
+@group(0) @binding(3) var<storage, read_write> counts: array<u32>;
+
+fn cost_at(j: u32) -> u32 {
+    return (volume[j >> 2u] >> ((j & 3u) * 8u)) & 0xffu;
+}
+
+// The window sum of entry j (pixel j / num_disparities, slice j % num_disparities), and its
+// pixel's count when j is the pixel's slice 0.
+fn window_sum(j: u32) -> u32 {
+    let nd = params.num_disparities;
+    let i = j / nd;
+    let k = j % nd;
+    let x = i % params.width;
+    let y = i / params.width;
+    let r = params.radius;
+    let x0 = select(0u, x - r, x >= r);
+    let y0 = select(0u, y - r, y >= r);
+    let x1 = min(x + r, params.width - 1u);
+    let y1 = min(y + r, params.height - 1u);
+    var s = 0u;
+    for (var yy = y0; yy <= y1; yy = yy + 1u) {
+        for (var xx = x0; xx <= x1; xx = xx + 1u) {
+            s = s + cost_at((yy * params.width + xx) * nd + k);
+        }
+    }
+    if (k == 0u) {
+        counts[i] = (x1 - x0 + 1u) * (y1 - y0 + 1u);
+    }
+    return s & 0xffffu;
+}
+
+// With an even number of slices, entries j and j + 1 (j even) are slices k, k + 1 of one pixel,
+// and so are their neighbours' entries: one word read gives both costs. Returns the packed pair.
+fn window_sum_pair(j: u32) -> u32 {
+    let nd = params.num_disparities;
+    let i = j / nd;
+    let k = j % nd;
+    let x = i % params.width;
+    let y = i / params.width;
+    let r = params.radius;
+    let x0 = select(0u, x - r, x >= r);
+    let y0 = select(0u, y - r, y >= r);
+    let x1 = min(x + r, params.width - 1u);
+    let y1 = min(y + r, params.height - 1u);
+    var s0 = 0u;
+    var s1 = 0u;
+    for (var yy = y0; yy <= y1; yy = yy + 1u) {
+        for (var xx = x0; xx <= x1; xx = xx + 1u) {
+            // Even, so e and e + 1 share a word.
+            let e = (yy * params.width + xx) * nd + k;
+            let c = volume[e >> 2u] >> ((e & 3u) * 8u);
+            s0 = s0 + (c & 0xffu);
+            s1 = s1 + ((c >> 8u) & 0xffu);
+        }
+    }
+    if (k == 0u) {
+        counts[i] = (x1 - x0 + 1u) * (y1 - y0 + 1u);
+    }
+    return (s0 & 0xffffu) | ((s1 & 0xffffu) << 16u);
+}
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) num_wg: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let w = flat_index(wg, num_wg, local);
+    let j = 2u * w;
+    if (j >= params.entries) {
+        return;
+    }
+    if (params.num_disparities % 2u == 0u) {
+        sums[w] = window_sum_pair(j);
+        return;
+    }
+    var word = window_sum(j);
+    if (j + 1u < params.entries) {
+        word = word | (window_sum(j + 1u) << 16u);
+    }
+    sums[w] = word;
+}

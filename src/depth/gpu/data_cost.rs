@@ -1,0 +1,142 @@
+//! The data term on the GPU: the census costs where the cost volume was made, summed over the
+//! window there (`shaders/cost_window.wgsl`), and the point-wise search over them.
+
+use crate::depth::sgm::CostVolume;
+use crate::gpu::layout::{PointwiseUniforms, WindowUniforms};
+use crate::gpu::shaders;
+use crate::gpu::{ErrorScopes, GpuContext};
+use crate::{Error, Result};
+
+/// The data term on the GPU: packed costs (raw `u8` or window sums `u16`) and per-pixel divisors.
+pub(super) struct DataCostGpu {
+    costs: wgpu::Buffer,
+    counts: wgpu::Buffer,
+    cost_bytes: u32,
+    width: u32,
+    height: u32,
+    num_disparities: u32,
+    min_disparity_px: f32,
+    max_cost: u8,
+}
+
+impl DataCostGpu {
+    /// The data term of `volume` averaged over `window` × `window` (raw when 1), from the cost
+    /// volume already on the device (`on_device`: [`super::cost_volume_on_device`]'s buffer), or
+    /// uploaded once. The window sums are taken on the device (`shaders/cost_window.wgsl`, equal
+    /// to the CPU's `box_filter_into`), so only the raw costs ever go up.
+    pub(super) fn new(
+        ctx: &GpuContext,
+        volume: &CostVolume,
+        on_device: Option<&wgpu::Buffer>,
+        window: u32,
+    ) -> Result<Self> {
+        let n = volume.width as u64 * volume.height as u64;
+        let entries = n * volume.num_disparities as u64;
+        if entries > u32::MAX as u64 || volume.num_disparities > u32::MAX as usize {
+            return Err(Error::GpuCapacity {
+                what: "cost volume entries (u32 indices)".into(),
+                needed_bytes: entries,
+                limit_bytes: u32::MAX as u64,
+            });
+        }
+        let cost_bytes = if window > 1 { 2 } else { 1 };
+        ctx.check_binding("census costs (1 byte per pixel and disparity)", entries)?;
+        ctx.check_binding(
+            &format!("census costs ({cost_bytes} bytes per pixel and disparity)"),
+            entries * cost_bytes,
+        )?;
+        let scope = ErrorScopes::push(&ctx.device);
+        let raw = match on_device {
+            Some(b) => b.clone(),
+            None => ctx.storage("tgv_raw_costs", &volume.cost),
+        };
+        let (costs, counts) = if window > 1 {
+            let kernel = ctx.kernel(&shaders::COST_WINDOW)?;
+            let uniforms = WindowUniforms {
+                width: volume.width,
+                height: volume.height,
+                num_disparities: volume.num_disparities as u32,
+                radius: window / 2,
+                entries: entries as u32,
+                pad: [0; 3],
+            };
+            let buf_uniforms = ctx.uniform("window_uniforms", bytemuck::bytes_of(&uniforms));
+            let words = entries.div_ceil(2);
+            let sums = ctx.storage_zeroed("tgv_costs", words * 4);
+            let counts = ctx.storage_zeroed("tgv_counts", n * 4);
+            let bind = ctx.bind_group(
+                "cost_window",
+                &kernel.layout,
+                &[&buf_uniforms, &raw, &sums, &counts],
+            );
+            let mut encoder = ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("cost_window"),
+                });
+            ctx.record_dispatch(&mut encoder, &kernel, &bind, words)?;
+            ctx.submit(encoder);
+            (sums, counts)
+        } else {
+            let ones = vec![1u32; n as usize];
+            (raw, ctx.storage("tgv_counts", bytemuck::cast_slice(&ones)))
+        };
+        scope.pop("summing the census costs over their window")?;
+        Ok(DataCostGpu {
+            costs,
+            counts,
+            cost_bytes: cost_bytes as u32,
+            width: volume.width,
+            height: volume.height,
+            num_disparities: volume.num_disparities as u32,
+            min_disparity_px: volume.min_disparity_px as f32,
+            max_cost: volume.max_cost,
+        })
+    }
+
+    /// The window sums and per-pixel counts, read back (for tests against the CPU).
+    pub(super) fn read_back(&self, ctx: &GpuContext) -> Result<(Vec<u16>, Vec<u16>)> {
+        let n = (self.width * self.height) as usize;
+        let entries = n * self.num_disparities as usize;
+        let mut sums: Vec<u16> = ctx.read_back_as(&self.costs, entries.div_ceil(2) * 2)?;
+        sums.truncate(entries);
+        let counts: Vec<u32> = ctx.read_back_as(&self.counts, n)?;
+        Ok((sums, counts.iter().map(|&c| c as u16).collect()))
+    }
+
+    /// Records one point-wise search reading `u` (stride `u_stride` floats) and writing `a`.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn record_search(
+        &self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        u: &wgpu::Buffer,
+        u_stride: u32,
+        a: &wgpu::Buffer,
+        lambda: f32,
+        theta: f32,
+    ) -> Result<()> {
+        let kernel = ctx.kernel(&shaders::TGV_POINTWISE)?;
+        let uniforms = PointwiseUniforms {
+            width: self.width,
+            height: self.height,
+            num_disparities: self.num_disparities,
+            cost_bytes: self.cost_bytes,
+            u_stride,
+            lambda,
+            theta,
+            // The CPU's `reach`, in f32.
+            reach: (2.0 * theta * lambda * self.max_cost as f32).sqrt(),
+            min_disparity_px: self.min_disparity_px,
+            pad: [0; 3],
+        };
+        let buf_uniforms = ctx.uniform("pointwise_uniforms", bytemuck::bytes_of(&uniforms));
+        let bind = ctx.bind_group(
+            "tgv_pointwise",
+            &kernel.layout,
+            &[&buf_uniforms, &self.costs, &self.counts, u, a],
+        );
+        let n = self.width as u64 * self.height as u64;
+        ctx.record_dispatch(encoder, &kernel, &bind, n)
+    }
+}
