@@ -76,6 +76,8 @@ impl<'c> TgvProblemGpu<'c> {
         }
         let (tau, sigma) = problem.steps();
         let (primal, primal_bar, dual) = problem.state();
+        let words = |a: &[[f32; 3]]| bytemuck::cast_slice::<[f32; 3], u32>(a).to_vec();
+        let bar_is_primal = words(&primal_bar) == words(&primal);
         let scope = ErrorScopes::push(&ctx.device);
         let gpu = TgvProblemGpu {
             ctx,
@@ -89,9 +91,28 @@ impl<'c> TgvProblemGpu<'c> {
             tensors: ctx.storage("tgv_tensors", bytemuck::cast_slice(problem.tensors())),
             target: ctx.storage("tgv_target", &vec![0u8; n as usize * 4]),
             primal: ctx.storage("tgv_primal", bytemuck::cast_slice(&primal)),
-            primal_bar: ctx.storage("tgv_primal_bar", bytemuck::cast_slice(&primal_bar)),
-            dual: ctx.storage("tgv_dual", bytemuck::cast_slice(&dual)),
+            // A fresh problem's over-relaxed primal is its primal and its dual is zero: copied
+            // and cleared on the device, not uploaded.
+            primal_bar: if bar_is_primal {
+                ctx.storage_zeroed("tgv_primal_bar", n * 12)
+            } else {
+                ctx.storage("tgv_primal_bar", bytemuck::cast_slice(&primal_bar))
+            },
+            dual: if dual.iter().all(|d| d.iter().all(|&v| v.to_bits() == 0)) {
+                ctx.storage_zeroed("tgv_dual", n * 20)
+            } else {
+                ctx.storage("tgv_dual", bytemuck::cast_slice(&dual))
+            },
         };
+        if bar_is_primal {
+            let mut encoder = ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("tgv_primal_bar"),
+                });
+            encoder.copy_buffer_to_buffer(&gpu.primal, 0, &gpu.primal_bar, 0, n * 12);
+            ctx.submit(encoder);
+        }
         scope.pop("uploading the TGV problem")?;
         Ok(gpu)
     }
