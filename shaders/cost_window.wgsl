@@ -28,27 +28,35 @@ fn cost_at(j: u32) -> u32 {
     return (volume[j >> 2u] >> ((j & 3u) * 8u)) & 0xffu;
 }
 
+// The window of pixel i inside the image, (x0, y0, x1, y1) inclusive; writes its pixel count
+// when `first` (the pixel's slice 0).
+fn window_of(i: u32, first: bool) -> vec4<u32> {
+    let x = i % params.width;
+    let y = i / params.width;
+    let r = params.radius;
+    let b = vec4<u32>(
+        select(0u, x - r, x >= r),
+        select(0u, y - r, y >= r),
+        min(x + r, params.width - 1u),
+        min(y + r, params.height - 1u),
+    );
+    if (first) {
+        counts[i] = (b.z - b.x + 1u) * (b.w - b.y + 1u);
+    }
+    return b;
+}
+
 // The window sum of entry j (pixel j / num_disparities, slice j % num_disparities), and its
 // pixel's count when j is the pixel's slice 0.
 fn window_sum(j: u32) -> u32 {
     let nd = params.num_disparities;
-    let i = j / nd;
     let k = j % nd;
-    let x = i % params.width;
-    let y = i / params.width;
-    let r = params.radius;
-    let x0 = select(0u, x - r, x >= r);
-    let y0 = select(0u, y - r, y >= r);
-    let x1 = min(x + r, params.width - 1u);
-    let y1 = min(y + r, params.height - 1u);
+    let b = window_of(j / nd, k == 0u);
     var s = 0u;
-    for (var yy = y0; yy <= y1; yy = yy + 1u) {
-        for (var xx = x0; xx <= x1; xx = xx + 1u) {
+    for (var yy = b.y; yy <= b.w; yy = yy + 1u) {
+        for (var xx = b.x; xx <= b.z; xx = xx + 1u) {
             s = s + cost_at((yy * params.width + xx) * nd + k);
         }
-    }
-    if (k == 0u) {
-        counts[i] = (x1 - x0 + 1u) * (y1 - y0 + 1u);
     }
     return s & 0xffffu;
 }
@@ -57,28 +65,18 @@ fn window_sum(j: u32) -> u32 {
 // and so are their neighbours' entries: one word read gives both costs. Returns the packed pair.
 fn window_sum_pair(j: u32) -> u32 {
     let nd = params.num_disparities;
-    let i = j / nd;
     let k = j % nd;
-    let x = i % params.width;
-    let y = i / params.width;
-    let r = params.radius;
-    let x0 = select(0u, x - r, x >= r);
-    let y0 = select(0u, y - r, y >= r);
-    let x1 = min(x + r, params.width - 1u);
-    let y1 = min(y + r, params.height - 1u);
+    let b = window_of(j / nd, k == 0u);
     var s0 = 0u;
     var s1 = 0u;
-    for (var yy = y0; yy <= y1; yy = yy + 1u) {
-        for (var xx = x0; xx <= x1; xx = xx + 1u) {
+    for (var yy = b.y; yy <= b.w; yy = yy + 1u) {
+        for (var xx = b.x; xx <= b.z; xx = xx + 1u) {
             // Even, so e and e + 1 share a word.
             let e = (yy * params.width + xx) * nd + k;
             let c = volume[e >> 2u] >> ((e & 3u) * 8u);
             s0 = s0 + (c & 0xffu);
             s1 = s1 + ((c >> 8u) & 0xffu);
         }
-    }
-    if (k == 0u) {
-        counts[i] = (x1 - x0 + 1u) * (y1 - y0 + 1u);
     }
     return (s0 & 0xffffu) | ((s1 & 0xffffu) << 16u);
 }
