@@ -24,8 +24,7 @@ pub(crate) struct Args {
     passes: usize,
     #[arg(long, default_value_t = 10.0, help = super::help::MAX_DEPTH_M)]
     max_depth_m: f32,
-    /// Where the stages run (`cpu` by default, so the recorded figures stay comparable).
-    #[arg(long, value_enum, default_value = "cpu")]
+    #[arg(long, value_enum, default_value = "cpu", help = super::help::DEVICE, help_heading = "Device")]
     device: super::DeviceArg,
 }
 

@@ -37,6 +37,10 @@ pub const SHARD: &str = "Do only this task's share of the work (regularize: regi
     results, does what is missing and finishes";
 /// `--json`.
 pub const JSON: &str = "Print JSON instead of text";
+/// `--device`.
+pub const DEVICE: &str = "Where stereo (tv/tgv/tgv-tensor), fusion, regularization and, with \
+    `gpu`, an in-memory run's meshing run (`auto`: each where it was measured faster, \
+    docs/bench/gpu.md) [default: auto; bench's: cpu, so its recorded figures stay comparable]";
 /// `--max-depth-m`.
 pub const MAX_DEPTH_M: &str = "Ignore depths (and LiDAR returns) beyond this, metres \
     [reconstruct's default: 40 for depth maps, 80 for LiDAR; bench's: 10]";

@@ -317,9 +317,7 @@ pub(crate) enum DeviceArg {
 /// `--device`.
 #[derive(Args, Clone, Copy, Debug)]
 pub(crate) struct DeviceArgs {
-    /// Where stereo (tv/tgv/tgv-tensor), fusion and regularization run (`auto`: each where it
-    /// was measured faster, docs/bench/gpu.md); with `gpu`, an in-memory run's meshing too.
-    #[arg(long, value_enum, default_value = "auto", help_heading = "Device")]
+    #[arg(long, value_enum, default_value = "auto", help = help::DEVICE, help_heading = "Device")]
     pub device: DeviceArg,
 }
 
