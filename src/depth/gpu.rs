@@ -21,8 +21,11 @@
 //! contract to FMA or divide within 2.5 ULP; `tests/gpu_stereo.rs` states the tolerances
 //! (|Δu| ≤ 1e-3 px after 50 iterations). The costs' window sums are taken on the device from the
 //! cost volume where it was made (`data_cost.rs`, `shaders/cost_window.wgsl`; integer sums, equal
-//! to the CPU's). What stays on the CPU: SGM (the initialisation, which reads the volume back),
-//! the diffusion tensors, the invalidation. Every array must fit one storage binding (the
+//! to the CPU's), and in [`estimate_tgv_gpu`] TGV-tensor's diffusion tensors from the left image
+//! the census read (`shaders/tgv_tensors.wgsl`; the device's `exp` and `pow`: 1.8e-7 from the
+//! CPU's on llvmpipe). What stays on the CPU: SGM (the initialisation, which reads the volume
+//! back), the invalidation (and the CPU's own tensors, computed with the initial problem and
+//! not used). Every array must fit one storage binding (the
 //! largest is the window sums, 2 bytes per pixel and disparity: 119 MB for 1241×376×128, under
 //! llvmpipe's 128 MiB); a larger input is an [`crate::Error::GpuCapacity`], never truncated.
 
@@ -31,7 +34,7 @@ use crate::depth::sgm::{CostVolume, SgmMatcher};
 use crate::depth::tgv::{check_search, Regularizer, TgvMatcher, TgvProblem, TgvStages};
 use crate::depth::{DisparityEstimator, DisparityMap};
 use crate::frame::GreyImage;
-use crate::gpu::layout::{CensusUniforms, CostUniforms, TgvUniforms};
+use crate::gpu::layout::{CensusUniforms, CostUniforms, TensorUniforms, TgvUniforms};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
 use crate::{Error, Result};
@@ -65,6 +68,16 @@ impl<'c> TgvProblemGpu<'c> {
     /// Uploads `problem` (its parameters and whole state). Fails with
     /// [`Error::GpuCapacity`] when the dual (20 bytes per pixel) does not fit one binding.
     pub fn upload(ctx: &'c GpuContext, problem: &TgvProblem) -> Result<Self> {
+        Self::upload_with(ctx, problem, None)
+    }
+
+    /// [`TgvProblemGpu::upload`], the tensors computed on the device from `tensors_from` (the
+    /// left image's buffer, γ, β: `shaders/tgv_tensors.wgsl`) instead of uploaded when given.
+    fn upload_with(
+        ctx: &'c GpuContext,
+        problem: &TgvProblem,
+        tensors_from: Option<(&wgpu::Buffer, f32, f32)>,
+    ) -> Result<Self> {
         let n = (problem.width * problem.height) as u64;
         ctx.check_binding("TGV dual (20 bytes per pixel)", n * 20)?;
         if n > u32::MAX as u64 / 5 {
@@ -88,7 +101,10 @@ impl<'c> TgvProblemGpu<'c> {
             alpha2: problem.alpha2,
             tau,
             sigma,
-            tensors: ctx.storage("tgv_tensors", bytemuck::cast_slice(problem.tensors())),
+            tensors: match tensors_from {
+                Some(_) => ctx.storage_zeroed("tgv_tensors", n * 12),
+                None => ctx.storage("tgv_tensors", bytemuck::cast_slice(problem.tensors())),
+            },
             target: ctx.storage("tgv_target", &vec![0u8; n as usize * 4]),
             primal: ctx.storage("tgv_primal", bytemuck::cast_slice(&primal)),
             // A fresh problem's over-relaxed primal is its primal and its dual is zero: copied
@@ -104,13 +120,18 @@ impl<'c> TgvProblemGpu<'c> {
                 ctx.storage("tgv_dual", bytemuck::cast_slice(&dual))
             },
         };
-        if bar_is_primal {
+        if bar_is_primal || tensors_from.is_some() {
             let mut encoder = ctx
                 .device
                 .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("tgv_primal_bar"),
+                    label: Some("tgv_state"),
                 });
-            encoder.copy_buffer_to_buffer(&gpu.primal, 0, &gpu.primal_bar, 0, n * 12);
+            if bar_is_primal {
+                encoder.copy_buffer_to_buffer(&gpu.primal, 0, &gpu.primal_bar, 0, n * 12);
+            }
+            if let Some((image, gamma, beta)) = tensors_from {
+                record_tensors(ctx, &mut encoder, &gpu, image, (gamma, beta))?;
+            }
             ctx.submit(encoder);
         }
         scope.pop("uploading the TGV problem")?;
@@ -308,14 +329,15 @@ fn check_pair(left: &GreyImage, right: &GreyImage) -> Result<()> {
     Ok(())
 }
 
-/// Records the census transform of `image` into a new signature buffer (`words` u32 per pixel).
+/// Records the census transform of `image` into a new signature buffer (`words` u32 per pixel);
+/// returns it and the image's buffer on the device (grey levels, 4 per word).
 fn record_census(
     ctx: &GpuContext,
     encoder: &mut wgpu::CommandEncoder,
     image: &GreyImage,
     params: &CensusParams,
     words: u32,
-) -> Result<wgpu::Buffer> {
+) -> Result<(wgpu::Buffer, wgpu::Buffer)> {
     let n = image.width as u64 * image.height as u64;
     ctx.check_binding("census signatures", n * words as u64 * 4)?;
     let kernel = ctx.kernel(&shaders::CENSUS)?;
@@ -342,7 +364,50 @@ fn record_census(
         &[&buf_uniforms, &buf_image, &buf_sig],
     );
     ctx.record_dispatch(encoder, &kernel, &bind, n)?;
-    Ok(buf_sig)
+    Ok((buf_sig, buf_image))
+}
+
+/// Records `shaders/tgv_tensors.wgsl`: `gpu`'s tensors from the grey levels in `image`.
+fn record_tensors(
+    ctx: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    gpu: &TgvProblemGpu,
+    image: &wgpu::Buffer,
+    (gamma, beta): (f32, f32),
+) -> Result<()> {
+    let kernel = ctx.kernel(&shaders::TGV_TENSORS)?;
+    let uniforms = TensorUniforms {
+        width: gpu.width as u32,
+        height: gpu.height as u32,
+        gamma,
+        beta,
+        pad: [0; 4],
+    };
+    let buf_uniforms = ctx.uniform("tensor_uniforms", bytemuck::bytes_of(&uniforms));
+    let bind = ctx.bind_group(
+        "tgv_tensors",
+        &kernel.layout,
+        &[&buf_uniforms, image, &gpu.tensors],
+    );
+    ctx.record_dispatch(encoder, &kernel, &bind, gpu.pixels() as u64)
+}
+
+/// [`crate::depth::tgv::diffusion_tensors`] on the GPU (`shaders/tgv_tensors.wgsl`), read back
+/// (the GPU matcher keeps them on the device; this is for comparing with the CPU).
+pub fn diffusion_tensors_gpu(
+    ctx: &GpuContext,
+    image: &GreyImage,
+    gamma: f32,
+    beta: f32,
+) -> Result<Vec<[f32; 3]>> {
+    let n = image.width as usize * image.height as usize;
+    let u0 = vec![0.0f32; n];
+    let (w, h) = (image.width as usize, image.height as usize);
+    let identity = vec![[1.0, 0.0, 1.0]; n];
+    let problem = TgvProblem::new(&u0, w, h, Regularizer::TgvTensor, 1.0, 1.0, identity)?;
+    let buf_image = ctx.storage("tensor_image", &image.data);
+    let gpu = TgvProblemGpu::upload_with(ctx, &problem, Some((&buf_image, gamma, beta)))?;
+    ctx.read_back_as(&gpu.tensors, n)
 }
 
 /// `u32` words of a signature of `params` (two per `u64` word of [`CensusImage`]).
@@ -386,7 +451,7 @@ pub fn census_transform_gpu(
         .create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("census"),
         });
-    let sig = record_census(ctx, &mut encoder, image, params, words)?;
+    let (sig, _) = record_census(ctx, &mut encoder, image, params, words)?;
     ctx.submit(encoder);
     scope.pop("running the census kernel")?;
     // `words` u32 per pixel, read back as u64 words.
@@ -417,14 +482,20 @@ pub fn cost_volume_gpu(
     cost_volume_on_device(ctx, left, right, args).map(|(volume, _)| volume)
 }
 
-/// [`cost_volume_gpu`], also returning the volume's buffer on the device (u8 costs packed 4 per
-/// word), for the stages that read it there.
+/// The cost volume on the device (u8 costs packed 4 per word) and the left image there (grey
+/// levels, 4 per word), for the stages that read them there.
+struct OnDevice {
+    volume: wgpu::Buffer,
+    left: wgpu::Buffer,
+}
+
+/// [`cost_volume_gpu`], also returning the volume and the left image on the device.
 fn cost_volume_on_device(
     ctx: &GpuContext,
     left: &GreyImage,
     right: &GreyImage,
     (census, min_disparity_px, num_disparities): (&CensusParams, i32, usize),
-) -> Result<(CostVolume, wgpu::Buffer)> {
+) -> Result<(CostVolume, OnDevice)> {
     census.validate()?;
     check_pair(left, right)?;
     let max_cost = u8::try_from(census.bits()).map_err(|_| {
@@ -449,8 +520,8 @@ fn cost_volume_on_device(
         .create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("census_cost"),
         });
-    let sig_left = record_census(ctx, &mut encoder, left, census, words)?;
-    let sig_right = record_census(ctx, &mut encoder, right, census, words)?;
+    let (sig_left, left_image) = record_census(ctx, &mut encoder, left, census, words)?;
+    let (sig_right, _) = record_census(ctx, &mut encoder, right, census, words)?;
     let uniforms = CostUniforms {
         width: left.width,
         height: left.height,
@@ -482,7 +553,11 @@ fn cost_volume_on_device(
         max_cost,
         cost,
     };
-    Ok((volume, buf_volume))
+    let on_device = OnDevice {
+        volume: buf_volume,
+        left: left_image,
+    };
+    Ok((volume, on_device))
 }
 
 /// [`TgvMatcher::refine`] on the GPU: the same rounds (point-wise search, then
@@ -500,20 +575,25 @@ pub fn refine_gpu(
     refine_on_device(ctx, matcher, left, (volume, None), init)
 }
 
-/// [`refine_gpu`] reading the costs from `on_device` (the volume's buffer) when given.
+/// [`refine_gpu`] reading the costs and the left image from `on_device` when given (the
+/// tensors of TGV-tensor are then computed there).
 fn refine_on_device(
     ctx: &GpuContext,
     matcher: &TgvMatcher,
     left: &GreyImage,
-    (volume, on_device): (&CostVolume, Option<&wgpu::Buffer>),
+    (volume, on_device): (&CostVolume, Option<&OnDevice>),
     init: &DisparityMap,
 ) -> Result<Vec<f32>> {
     let p = &matcher.params;
     p.validate()?;
     let (problem, _u0) = matcher.initial_problem(left, volume, init)?;
-    let gpu = TgvProblemGpu::upload(ctx, &problem)?;
+    let tensors = match (on_device, p.regularizer) {
+        (Some(d), Regularizer::TgvTensor) => Some((&d.left, p.gamma, p.beta)),
+        _ => None,
+    };
+    let gpu = TgvProblemGpu::upload_with(ctx, &problem, tensors)?;
     drop(problem);
-    let data = DataCostGpu::new(ctx, volume, on_device, p.cost_window)?;
+    let data = DataCostGpu::new(ctx, volume, on_device.map(|d| &d.volume), p.cost_window)?;
     for k in 0..p.outer_iterations {
         let theta = p.theta(k);
         let scope = ErrorScopes::push(&ctx.device);

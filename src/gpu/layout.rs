@@ -279,6 +279,22 @@ impl GpuVoxel {
     }
 }
 
+/// Uniforms of `shaders/tgv_tensors.wgsl` (WGSL twin: `TensorUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct TensorUniforms {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Edge weight γ.
+    pub gamma: f32,
+    /// Edge exponent β.
+    pub beta: f32,
+    /// Padding to 32 bytes.
+    pub pad: [u32; 4],
+}
+
 /// Uniforms of `shaders/cost_window.wgsl` (WGSL twin: `WindowUniforms` there).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
@@ -338,6 +354,7 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("CostUniforms", std::mem::size_of::<CostUniforms>()),
     ("McUniforms", std::mem::size_of::<McUniforms>()),
     ("WindowUniforms", std::mem::size_of::<WindowUniforms>()),
+    ("TensorUniforms", std::mem::size_of::<TensorUniforms>()),
 ];
 
 /// Appends `block`'s 512 voxels, packed, to `out` (the layout every fusion kernel reads).

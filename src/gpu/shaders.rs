@@ -158,6 +158,13 @@ pub const CENSUS_COST: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite]
 );
 
+/// TGV-tensor's diffusion tensors from the left image, on the device.
+pub const TGV_TENSORS: ShaderSource = kernel!(
+    "tgv_tensors.wgsl",
+    ["shared/dispatch.wgsl"],
+    [Uniform, Read, ReadWrite]
+);
+
 /// Census costs summed over a window, on the device.
 pub const COST_WINDOW: ShaderSource = kernel!(
     "cost_window.wgsl",
@@ -231,6 +238,7 @@ pub const ALL: &[ShaderSource] = &[
     CENSUS,
     CENSUS_COST,
     COST_WINDOW,
+    TGV_TENSORS,
     // Marching cubes.
     MC_COUNT,
     MC_EMIT,
