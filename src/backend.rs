@@ -23,6 +23,7 @@ use crate::fusion::{
     integrate_depth_plan, integrate_depth_resident, integrate_lidar_gpu, integrate_lidar_plan,
     DepthFusionParams, DepthPlan, FusionStats, LidarPlan,
 };
+use crate::gpu::shaders::{self, ShaderSource};
 use crate::gpu::{
     DeviceChoice, GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats,
 };
@@ -125,6 +126,46 @@ impl GpuStages {
             k += 1;
         }
         stages
+    }
+
+    /// The kernels of the stages on the GPU, for compiling them ahead of a run
+    /// ([`GpuContext::compile_kernels`]).
+    pub fn kernels(&self) -> Vec<&'static ShaderSource> {
+        let mut out = Vec::new();
+        if self.fusion {
+            out.extend([
+                &shaders::FUSE_DEPTH_RESIDENT,
+                &shaders::BLOCK_LOOKUP,
+                &shaders::CLEAR_UPDATED,
+                &shaders::FILL_SLOTS,
+                &shaders::FUSE_LIDAR,
+            ]);
+        }
+        if self.tv {
+            out.extend([&shaders::TV_DUAL, &shaders::TV_PRIMAL]);
+        }
+        if self.stereo {
+            out.extend([
+                &shaders::CENSUS,
+                &shaders::CENSUS_COST,
+                &shaders::COST_WINDOW,
+                &shaders::TGV_TENSORS,
+                &shaders::TGV_POINTWISE,
+                &shaders::TGV_DUAL,
+                &shaders::TGV_PRIMAL,
+            ]);
+        }
+        if self.mesh {
+            out.extend([
+                &shaders::MC_COUNT,
+                &shaders::MC_EMIT,
+                &shaders::MC_FIRST,
+                &shaders::MC_SCAN,
+                &shaders::MC_ASSIGN,
+                &shaders::MC_LINK,
+            ]);
+        }
+        out
     }
 
     /// Whether any stage runs on the GPU.
@@ -271,7 +312,18 @@ impl Backend {
     /// The backend `choice` asks for ([`DeviceChoice::open`]): with `Auto` on a hardware GPU,
     /// the stages measured faster there ([`GpuStages::MEASURED_FASTER`]); with `Gpu`, every
     /// stage that has a kernel.
+    /// The kernels of its GPU stages are compiled before it is returned, together
+    /// ([`GpuContext::kernel_compilation`] says how long that took), so that no stage's time
+    /// holds a compilation.
     pub fn open(choice: DeviceChoice, options: ResidentOptions) -> Result<Self> {
+        let backend = Backend::open_uncompiled(choice, options)?;
+        if let Some(ctx) = &backend.gpu {
+            ctx.compile_kernels(&backend.stages.kernels())?;
+        }
+        Ok(backend)
+    }
+
+    fn open_uncompiled(choice: DeviceChoice, options: ResidentOptions) -> Result<Self> {
         Ok(match (choice, choice.open()?) {
             (_, None) => Backend::cpu(),
             (DeviceChoice::Auto, Some(ctx)) => {

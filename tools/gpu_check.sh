@@ -5,7 +5,13 @@
 # for both builds and `--device cpu` for the second, in alternating rounds; the meshes of the two
 # builds are compared byte for byte. Before the drives, the second build's `denser bench` on the
 # 60 m drive's depth with `--device gpu` (each kernel's device time from timestamp queries, and
-# marching cubes) and `--device cpu`, and its TGV-tensor stereo kernels on one pair. Everything goes to one log (docs/bench/gpu.md quotes it).
+# marching cubes) and `--device cpu`, and its TGV-tensor stereo kernels on one pair; after the
+# drives, the second build's stereo on the depth drive's first GPU_CHECK_STEREO_FRAMES frames
+# (default 20) with `--device gpu` and `--device cpu`; then the LiDAR drive and five stereo frames
+# again with `--kernel-times` (each kernel's device time). The second build's GPU runs log the GPU
+# mesher's host phases (debug). Meshes that differ are compared vertex by vertex
+# (tools/ply_diff.py, where python3 has numpy). Everything goes to one log (docs/bench/gpu.md
+# quotes it).
 #
 #   [GPU_TESTS=GPU_TEST_BINARY] tools/gpu_check.sh BEFORE_DENSER AFTER_DENSER OUT_DIR [ROUNDS]
 #
@@ -45,7 +51,7 @@ if [ -n "$tests" ]; then
     # One test at a time: with four at once (four devices in one process) the binary did not
     # finish on the H100 (docs/bench/gpu.md, run 11).
     say "## GPU tests (after)"
-    (cd "$work" && "$tests" --test-threads 1 2>&1) | grep -E "^test |test result|GPU:|SKIPPED" | tee -a "$log"
+    (cd "$work" && "$tests" --test-threads 1 --nocapture 2>&1) | grep -E "^test |test result|GPU:|SKIPPED|not bit-identical" | tee -a "$log"
 fi
 
 say "## drives"
@@ -66,11 +72,12 @@ say "### stereo --method tgv-tensor --device gpu --kernel-times (frame 0 of the 
     --method tgv-tensor --device gpu --kernel-times 2>&1 | tee -a "$log" >/dev/null
 
 run() { # NAME BINARY ARGS...: one reconstruct, its summary into the log
-    local name=$1 bin=$2
+    local name=$1 bin=$2 rust_log=info
     shift 2
+    [ "$bin" = "$after" ] && rust_log=info,denser::mesh::gpu=debug
     say "### $name: reconstruct $*"
     local t0=$(date +%s%N)
-    "$bin" reconstruct "$@" --no-eval --out "$work/$name" 2>&1 | tee -a "$log" >/dev/null
+    RUST_LOG=$rust_log "$bin" reconstruct "$@" --no-eval --out "$work/$name" 2>&1 | tee -a "$log" >/dev/null
     say "wall: $(( ($(date +%s%N) - t0) / 1000000 )) ms"
 }
 
@@ -86,13 +93,25 @@ for b in after before; do
     run "lidar-$b-gpu" "$bin" "$work/d150/sequences/00" --depth lidar --device gpu
 done
 run "lidar-after-cpu" "$after" "$work/d150/sequences/00" --depth lidar --device cpu
+last=$(( ${GPU_CHECK_STEREO_FRAMES:-20} - 1 ))
+for dev in gpu cpu; do
+    run "stereo-after-$dev" "$after" "$work/d60/sequences/00" --depth stereo --last "$last" \
+        --device "$dev" --skip-regularize
+done
+say "## kernel device times of whole runs (after; timing adds a wait per submit: not for wall times)"
+run "lidar-after-gpu-timed" "$after" "$work/d150/sequences/00" --depth lidar --device gpu --kernel-times
+run "stereo-after-gpu-timed" "$after" "$work/d60/sequences/00" --depth stereo --last 4 \
+    --device gpu --skip-regularize --kernel-times
 
 say "## meshes, before against after (GPU)"
 for pair in depth-%s-gpu-1 lidar-%s-gpu; do
     a=$work/$(printf "$pair" after) b=$work/$(printf "$pair" before)
     for f in "$a"/*.ply; do
         if cmp -s "$f" "$b/$(basename "$f")"; then say "identical: $(basename "$a")/$(basename "$f")"
-        else say "DIFFERENT: $(basename "$a")/$(basename "$f")"; fi
+        else
+            say "DIFFERENT: $(basename "$a")/$(basename "$f")"
+            python3 "$(dirname "$0")/ply_diff.py" "$f" "$b/$(basename "$f")" 0.1 2>&1 | tee -a "$log"
+        fi
     done
 done
 rm -rf "$work"

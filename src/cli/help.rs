@@ -44,3 +44,6 @@ pub const DEVICE: &str = "Where stereo (tv/tgv/tgv-tensor), fusion, regularizati
 /// `--max-depth-m`.
 pub const MAX_DEPTH_M: &str = "Ignore depths (and LiDAR returns) beyond this, metres \
     [reconstruct's default: 40 for depth maps, 80 for LiDAR; bench's: 10]";
+
+/// `--kernel-times` (`reconstruct`, `stereo`).
+pub(crate) const KERNEL_TIMES: &str = "With the GPU: time each kernel on the device (timestamp queries, where the adapter has them) and print the table. Timing adds a wait per submit, so the stages' times grow";

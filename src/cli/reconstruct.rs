@@ -63,6 +63,8 @@ pub(crate) struct Args {
     device: DeviceArgs,
     #[command(flatten)]
     gpu_pool: GpuPoolArgs,
+    #[arg(long, help = help::KERNEL_TIMES, help_heading = "Device")]
+    kernel_times: bool,
     #[command(flatten)]
     grid: GridArgs,
     #[command(flatten)]
@@ -228,7 +230,15 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         earlier_timings_s: Vec::new(),
     };
     let backend = a.device.backend_with(a.gpu_pool.options())?;
-    let report = run_job(&job, backend)?;
+    let timed = match backend.gpu_context() {
+        Some(ctx) if a.kernel_times => Some((ctx.clone(), ctx.start_kernel_timing())),
+        _ => None,
+    };
+    let mut report = run_job(&job, backend)?;
+    report.kernel_times = timed.map(|(ctx, on)| match on {
+        true => super::bench::kernel_table(&ctx),
+        false => format!("{}: no timestamp queries, kernels not timed\n", ctx.name()),
+    });
     Ok(Box::new(report))
 }
 
@@ -368,6 +378,7 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
         rec.gpu_traffic(),
     );
     let fusion_device = rec.backend().fusion_device_name();
+    let gpu_kernels = rec.backend().gpu_context().map(|c| c.kernel_compilation());
     // A paged map's surfaces are meshed chunk by chunk by the exporter, on the CPU.
     let mesh_device = match rec.gpu_traffic() {
         Some(g) if g.meshes > 0 => rec.backend().device_name(),
@@ -412,6 +423,8 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
         summary: run.summary,
         gpu: gpu_stats,
         gpu_traffic,
+        gpu_kernels,
+        kernel_times: None,
         regularize,
         surfaces,
         evaluation,

@@ -53,9 +53,7 @@ pub(crate) struct Args {
     dense: bool,
     #[command(flatten)]
     device: DeviceArgs,
-    /// With the GPU: time each kernel on the device (timestamp queries, where the adapter has
-    /// them) and print the table. Timing adds a wait per submit, so the matching time grows.
-    #[arg(long, help_heading = "Device")]
+    #[arg(long, help = super::help::KERNEL_TIMES, help_heading = "Device")]
     kernel_times: bool,
 }
 

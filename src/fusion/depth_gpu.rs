@@ -159,8 +159,8 @@ pub fn integrate_depth_resident(
     }
     map.make_resident(layer, &blocks, plan.camera_m)?;
     let t = std::time::Instant::now();
-    let (updated, voxel_updates) = run_resident(map, &blocks, frame, params, plan)?;
-    map.add_kernel_time(t.elapsed().as_secs_f64());
+    let (updated, voxel_updates, inputs_s) = run_resident(map, &blocks, frame, params, plan)?;
+    map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
     let touched = map.finish_frame(layer, &blocks, &updated);
     let stats = FusionStats {
         blocks: touched.len(),
@@ -171,7 +171,8 @@ pub fn integrate_depth_resident(
 }
 
 /// Resolves `blocks` (resident) to slots on the GPU and fuses the frame into them. Returns, per
-/// block, whether any voxel was updated, and the number of voxel updates.
+/// block, whether any voxel was updated, the number of voxel updates, and the seconds spent
+/// preparing and writing the inputs.
 ///
 /// Per frame: the keys and block bases (16 bytes per block each), the depth image and the
 /// pixel words (4 bytes per pixel each) and the uniforms are written into buffers the map
@@ -184,7 +185,8 @@ fn run_resident(
     frame: &DepthFrame,
     params: &DepthFusionParams,
     plan: &DepthPlan,
-) -> Result<(Vec<bool>, usize)> {
+) -> Result<(Vec<bool>, usize, f64)> {
+    let t = std::time::Instant::now();
     let (ctx, grid, pool, (table, mask), kept) = map.frame_parts();
     let n = blocks.len() as u64;
     let voxel_count = n * VOXELS_PER_BLOCK as u64;
@@ -260,6 +262,7 @@ fn run_resident(
     ctx.record_dispatch(&mut encoder, &fuse, &bind_fuse, voxel_count)?;
     let mut counters = [0u32; 2];
     let mut flags: Vec<u32> = bytemuck::zeroed_vec(n as usize);
+    let inputs_s = t.elapsed().as_secs_f64();
     ctx.submit_and_read_back(
         encoder,
         kept,
@@ -278,6 +281,7 @@ fn run_resident(
     Ok((
         flags.iter().map(|&f| f != 0).collect(),
         counters[0] as usize,
+        inputs_s,
     ))
 }
 

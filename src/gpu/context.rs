@@ -2,7 +2,6 @@
 //! (upload, readback, capacity checks, error scopes). It does not choose between CPU and GPU for
 //! a stage: callers do that with [`DeviceChoice`].
 
-use super::shaders::ShaderSource;
 use super::timing::{KernelTimer, PASS_BYTES};
 use super::traffic::{bump, GpuTraffic, TrafficCounters};
 use crate::{Error, Result};
@@ -86,8 +85,8 @@ pub struct GpuContext {
     info: wgpu::AdapterInfo,
     limits: wgpu::Limits,
     binding_cap_bytes: Option<u64>,
-    /// Kernels compiled on first use ([`GpuContext::kernel`]), by file name.
-    kernels: std::sync::Mutex<std::collections::HashMap<&'static str, std::sync::Arc<Kernel>>>,
+    /// Kernels compiled on first use or ahead ([`GpuContext::compile_kernels`]), by file name.
+    pub(super) kernels: super::kernels::KernelCache,
     /// What the context has cost so far ([`GpuContext::traffic`]).
     traffic: TrafficCounters,
     /// Kernel timing, while on ([`GpuContext::start_kernel_timing`]).
@@ -97,70 +96,6 @@ pub struct GpuContext {
 /// Readbacks above this many bytes are copied out of the mapping by several threads: the copy
 /// into fresh host memory (first touch of every page) is what a large readback costs.
 const PARALLEL_COPY_BYTES: usize = 4 << 20;
-
-/// A compiled kernel: its bind-group layout and pipeline.
-#[derive(Debug)]
-pub(crate) struct Kernel {
-    /// The kernel's file name without `.wgsl`, naming it in device-time reports.
-    pub(crate) name: &'static str,
-    pub(crate) layout: wgpu::BindGroupLayout,
-    pub(crate) pipeline: wgpu::ComputePipeline,
-}
-
-fn layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty,
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
-/// A compute bind-group layout whose binding `k` has type `types[k]`.
-fn bind_group_layout(
-    device: &wgpu::Device,
-    label: &str,
-    types: &[wgpu::BufferBindingType],
-) -> wgpu::BindGroupLayout {
-    let entries: Vec<wgpu::BindGroupLayoutEntry> = types
-        .iter()
-        .enumerate()
-        .map(|(k, &ty)| layout_entry(k as u32, ty))
-        .collect();
-    device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-        label: Some(label),
-        entries: &entries,
-    })
-}
-
-/// The compute pipeline of kernel `src` (entry point `main`) over one bind group `layout`.
-fn compute_pipeline(
-    device: &wgpu::Device,
-    src: &ShaderSource,
-    layout: &wgpu::BindGroupLayout,
-) -> wgpu::ComputePipeline {
-    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some(src.file),
-        source: wgpu::ShaderSource::Wgsl(src.source.into()),
-    });
-    let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-        label: Some(src.file),
-        bind_group_layouts: &[Some(layout)],
-        immediate_size: 0,
-    });
-    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some(src.file),
-        layout: Some(&pl),
-        module: &module,
-        entry_point: Some("main"),
-        compilation_options: Default::default(),
-        cache: None,
-    })
-}
 
 impl GpuContext {
     /// Opens the first adapter wgpu finds (Vulkan or GL; `WGPU_BACKEND` and
@@ -326,32 +261,6 @@ impl GpuContext {
         })
     }
 
-    /// The kernel `src` (bindings as [`ShaderSource::bindings`] declares them), compiled on
-    /// first use and cached (by file name) for the life of the context. Compilation errors
-    /// become [`Error::Gpu`].
-    pub(crate) fn kernel(&self, src: &ShaderSource) -> Result<std::sync::Arc<Kernel>> {
-        let mut cache = self
-            .kernels
-            .lock()
-            .map_err(|_| Error::Gpu("kernel cache poisoned".into()))?;
-        if let Some(k) = cache.get(src.file) {
-            return Ok(k.clone());
-        }
-        let scope = ErrorScopes::push(&self.device);
-        let types: Vec<wgpu::BufferBindingType> = src.bindings.iter().map(|b| b.wgpu()).collect();
-        let layout = bind_group_layout(&self.device, src.file, &types);
-        let pipeline = compute_pipeline(&self.device, src, &layout);
-        scope.pop(&format!("compiling {}", src.file))?;
-        let name = src.file.strip_suffix(".wgsl").unwrap_or(src.file);
-        let k = std::sync::Arc::new(Kernel {
-            name,
-            layout,
-            pipeline,
-        });
-        cache.insert(src.file, k.clone());
-        Ok(k)
-    }
-
     /// A bind group whose binding `k` is the whole of `buffers[k]`.
     pub(crate) fn bind_group(
         &self,
@@ -381,7 +290,7 @@ impl GpuContext {
     pub(crate) fn record_dispatch(
         &self,
         encoder: &mut wgpu::CommandEncoder,
-        kernel: &Kernel,
+        kernel: &super::Kernel,
         bind: &wgpu::BindGroup,
         invocations: u64,
     ) -> Result<()> {

@@ -126,6 +126,20 @@ pub struct SlotListUniforms {
     pub pad: [u32; 3],
 }
 
+/// Uniforms of `shaders/fill_slots.wgsl` (WGSL twin: `SlotFillUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct SlotFillUniforms {
+    /// Slots listed.
+    pub slot_count: u32,
+    /// Padding.
+    pub pad: u32,
+    /// The value written into every voxel of the listed slots ([`GpuVoxel`]'s two words).
+    pub fill_tsdf_weight: u32,
+    /// Its colour word.
+    pub fill_color: u32,
+}
+
 /// Uniforms of `shaders/tgv_dual.wgsl` and `shaders/tgv_primal.wgsl` (WGSL twin: `TgvUniforms`
 /// in `shaders/shared/tgv_common.wgsl`).
 #[repr(C)]
@@ -343,6 +357,7 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("GpuVoxel", std::mem::size_of::<GpuVoxel>()),
     ("LookupUniforms", std::mem::size_of::<LookupUniforms>()),
     ("SlotListUniforms", std::mem::size_of::<SlotListUniforms>()),
+    ("SlotFillUniforms", std::mem::size_of::<SlotFillUniforms>()),
     ("LidarUniforms", std::mem::size_of::<LidarUniforms>()),
     ("LidarRay", std::mem::size_of::<GpuLidarRay>()),
     ("TgvUniforms", std::mem::size_of::<TgvUniforms>()),

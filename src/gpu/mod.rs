@@ -3,7 +3,8 @@
 //! `src/fusion/depth_gpu.rs` and `lidar_gpu.rs` (fusion), `src/regularize/gpu.rs` (TV),
 //! `src/depth/gpu.rs` (stereo); the kernels are in `shaders/`.
 //!
-//! - [`GpuContext`]: adapter, device, queue, the kernel cache and buffer helpers, and the
+//! - [`GpuContext`]: adapter, device, queue, the kernel cache (`kernels.rs`: compiled on first
+//!   use or ahead, several at once) and buffer helpers, and the
 //!   counters of what the device costs ([`GpuTraffic`]: bytes up and down, submits, waits,
 //!   buffers and bind groups created, dispatches);
 //!   [`GpuContext::new`] returns `None` where no adapter exists (lavapipe, Mesa's software
@@ -18,14 +19,17 @@
 
 mod context;
 pub(crate) mod kept;
+mod kernels;
 pub mod layout;
 pub mod resident;
 pub mod shaders;
 pub mod timing;
 mod traffic;
 
+pub(crate) use context::ErrorScopes;
 pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
-pub(crate) use context::{ErrorScopes, Kernel};
+pub(crate) use kernels::Kernel;
+pub use kernels::KernelCompilation;
 pub use resident::{ResidentMap, ResidentOptions, ResidentStats};
 pub use timing::KernelTime;
 pub use traffic::GpuTraffic;

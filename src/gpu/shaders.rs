@@ -101,6 +101,17 @@ pub const BLOCK_LOOKUP: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite]
 );
 
+/// Writes the empty block into listed pool slots given to new blocks.
+pub const FILL_SLOTS: ShaderSource = kernel!(
+    "fill_slots.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/rounding.wgsl",
+        "shared/voxel_fuse.wgsl"
+    ],
+    [Uniform, Read, ReadWrite]
+);
+
 /// Clears the updated marks of listed pool slots after a write-back.
 pub const CLEAR_UPDATED: ShaderSource = kernel!(
     "clear_updated.wgsl",
@@ -231,6 +242,7 @@ pub const ALL: &[ShaderSource] = &[
     // The GPU hash table and pool.
     BLOCK_LOOKUP,
     CLEAR_UPDATED,
+    FILL_SLOTS,
     // Stereo.
     TGV_DUAL,
     TGV_PRIMAL,

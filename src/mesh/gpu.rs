@@ -71,25 +71,55 @@ pub fn extract_mesh_gpu(
     };
     // A block that is not allocated has no valid corner 0 in any cube: no triangles.
     list.retain(|b| layer.get(b).is_some());
+    let mut phases = Phases::default();
     let (table, stride) = table_words();
     let mut merge = Merge::default();
     let cap = ctx.max_binding_bytes();
     let mut start = 0;
     while start < list.len() {
+        let t = std::time::Instant::now();
         let upload = plan_batch(layer, &list, start, cap);
+        phases.plan_s += t.elapsed().as_secs_f64();
         let end = start + upload.meshed;
         merge.more_to_come |= end < list.len();
+        let t = std::time::Instant::now();
         let batch = Batch::upload(ctx, layer, field, &upload, &table, stride)?;
+        phases.upload_s += t.elapsed().as_secs_f64();
+        let t = std::time::Instant::now();
         let counts = batch.count(ctx)?;
+        phases.count_s += t.elapsed().as_secs_f64();
         let parts = plan_parts(&counts, cap);
         merge.more_to_come |= parts.len() > 1;
         for part in parts {
+            let t = std::time::Instant::now();
             let (vertices, triangles) = batch.mesh_part(ctx, part, &counts)?;
+            phases.mesh_s += t.elapsed().as_secs_f64();
+            let t = std::time::Instant::now();
             merge.add(&upload.places, &vertices, &triangles);
+            phases.merge_s += t.elapsed().as_secs_f64();
         }
         start = end;
     }
+    tracing::debug!(
+        "marching cubes on the GPU, {} blocks: plan {:.1} ms, pack and upload {:.1} ms, count {:.1} ms, mesh {:.1} ms, merge {:.1} ms",
+        list.len(),
+        1e3 * phases.plan_s,
+        1e3 * phases.upload_s,
+        1e3 * phases.count_s,
+        1e3 * phases.mesh_s,
+        1e3 * phases.merge_s
+    );
     Ok((merge.mesh, merge.keys))
+}
+
+/// Host time per phase of one [`extract_mesh_gpu`] (logged at debug level).
+#[derive(Default)]
+struct Phases {
+    plan_s: f64,
+    upload_s: f64,
+    count_s: f64,
+    mesh_s: f64,
+    merge_s: f64,
 }
 
 /// The triangle table as the kernels read it: per sign case, its triangle count, then three

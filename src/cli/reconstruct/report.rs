@@ -22,6 +22,10 @@ pub(crate) struct Report {
     pub summary: denser::store::StoreSummary,
     pub gpu: Option<denser::gpu::ResidentStats>,
     pub gpu_traffic: Option<denser::backend::StageTraffic>,
+    pub gpu_kernels: Option<denser::gpu::KernelCompilation>,
+    /// `--kernel-times`: the run's kernels' device times (a Markdown table) or why there are
+    /// none.
+    pub kernel_times: Option<String>,
     pub regularize: Option<RegularizeOutcome>,
     pub surfaces: Vec<SurfaceOutput>,
     pub evaluation: Option<EvaluationReport>,
@@ -62,6 +66,7 @@ impl Report {
             "map": self.summary,
             "gpu": self.gpu,
             "gpu_traffic": self.gpu_traffic,
+            "gpu_kernels": self.gpu_kernels,
             "regularize": self.regularize,
             "surfaces": self.surfaces.iter().map(|s| serde_json::json!({
                 "field": format!("{:?}", s.field).to_lowercase(),
@@ -138,11 +143,12 @@ impl fmt::Display for Report {
         if let Some(g) = &self.gpu {
             writeln!(
                 f,
-                "GPU tier: pool {} blocks (max {}), peak {} resident, {} uploaded, {} read back, {} spilled to RAM, {} grows, {} oversize frames",
+                "GPU tier: pool {} blocks (max {}), peak {} resident, {} uploaded, {} created on the GPU, {} read back, {} spilled to RAM, {} grows, {} oversize frames",
                 g.capacity_blocks,
                 g.max_blocks,
                 g.peak_resident_blocks,
                 g.blocks_uploaded,
+                g.blocks_created,
                 g.blocks_downloaded,
                 g.blocks_spilled,
                 g.grows,
@@ -151,15 +157,24 @@ impl fmt::Display for Report {
             let per = |s: f64| 1e3 * s / g.frames.max(1) as f64;
             writeln!(
                 f,
-                "GPU tier per frame: listing blocks (CPU) {:.1} ms, residency {:.1} ms, kernels {:.1} ms, write-back {:.1} ms",
+                "GPU tier per frame: listing blocks (CPU) {:.1} ms, residency {:.1} ms, kernels {:.1} ms (inputs {:.1}, submit and wait {:.1}), write-back {:.1} ms",
                 per(g.list_s),
                 per(g.residency_s),
                 per(g.kernel_s),
+                per(g.inputs_s),
+                per(g.kernel_s - g.inputs_s),
                 per(g.download_s)
             )?;
         }
         if let Some(g) = &self.gpu_traffic {
             write!(f, "{}", TrafficLines(g))?;
+        }
+        if let Some(k) = &self.gpu_kernels {
+            writeln!(
+                f,
+                "GPU kernels compiled: {} in {:.2} s (a run's stages' kernels together, before its first frame)",
+                k.kernels, k.seconds
+            )?;
         }
         match &self.regularize {
             None => writeln!(
@@ -194,6 +209,9 @@ impl fmt::Display for Report {
         write!(f, "{}", Written(&self.written))?;
         if let Some(rss) = self.peak_rss_bytes {
             writeln!(f, "peak RSS {:.1} MiB", mib(rss))?;
+        }
+        if let Some(table) = &self.kernel_times {
+            write!(f, "\n{table}\n")?;
         }
         Ok(())
     }

@@ -75,8 +75,10 @@ pub struct ResidentStats {
     pub peak_resident_blocks: usize,
     /// Frames fused.
     pub frames: u64,
-    /// Blocks uploaded (from RAM or fresh).
+    /// Blocks uploaded from RAM.
     pub blocks_uploaded: u64,
+    /// Blocks new to the map, written empty into their slots on the GPU (nothing uploaded).
+    pub blocks_created: u64,
     /// Blocks read back to RAM (syncs, flushes, spills).
     pub blocks_downloaded: u64,
     /// Blocks released to make room (the spill to RAM).
@@ -93,6 +95,9 @@ pub struct ResidentStats {
     pub residency_s: f64,
     /// Seconds in the lookup and fusion dispatches, waiting included, and the flag readback.
     pub kernel_s: f64,
+    /// Of `kernel_s`: preparing the frame's inputs (pixel words, block keys and bases) and
+    /// writing them into the kept buffers, before the submit.
+    pub inputs_s: f64,
     /// Seconds copying blocks back to RAM (syncs, flushes, spills).
     pub download_s: f64,
 }
@@ -225,9 +230,11 @@ impl ResidentMap {
         self.stats.oversize_frames += 1;
     }
 
-    /// Adds kernel time (dispatches, waiting, flag readback) to the counters.
-    pub(crate) fn add_kernel_time(&mut self, seconds: f64) {
+    /// Adds kernel time (inputs, dispatches, waiting, flag readback) to the counters, of which
+    /// `inputs_s` preparing and writing the inputs.
+    pub(crate) fn add_kernel_time(&mut self, seconds: f64, inputs_s: f64) {
         self.stats.kernel_s += seconds;
+        self.stats.inputs_s += inputs_s;
     }
 
     /// Makes every block of `blocks` (sorted; at most [`ResidentMap::max_blocks`]) resident:
@@ -334,21 +341,27 @@ impl ResidentMap {
         if blocks.is_empty() {
             return Ok(());
         }
-        let mut empty = Vec::with_capacity(VOXELS_PER_BLOCK);
-        pack_block_into(&Block::default(), &mut empty);
         let mut data: Vec<GpuVoxel> = Vec::with_capacity(blocks.len() * VOXELS_PER_BLOCK);
-        let mut slots = Vec::with_capacity(blocks.len());
+        let (mut slots, mut fresh) = (Vec::new(), Vec::new());
         for b in blocks {
             let slot = self.pool.occupy(*b, self.frame).expect("room was made");
             match layer.get(b) {
-                Some(block) => pack_block_into(block, &mut data),
-                None => data.extend_from_slice(&empty),
+                Some(block) => {
+                    pack_block_into(block, &mut data);
+                    slots.push(slot);
+                }
+                None => fresh.push(slot),
             }
             self.table.host.insert(*b, slot);
-            slots.push(slot);
         }
         self.pool.write_slots(&self.ctx, &slots, &data);
-        self.stats.blocks_uploaded += blocks.len() as u64;
+        // Every voxel of an empty block packs alike.
+        let mut empty = Vec::with_capacity(VOXELS_PER_BLOCK);
+        pack_block_into(&Block::default(), &mut empty);
+        debug_assert!(empty.iter().all(|v| *v == empty[0]));
+        self.pool.fill(&self.ctx, &fresh, empty[0])?;
+        self.stats.blocks_uploaded += slots.len() as u64;
+        self.stats.blocks_created += fresh.len() as u64;
         Ok(())
     }
 

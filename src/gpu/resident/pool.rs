@@ -6,7 +6,7 @@
 
 use crate::gpu::context::{ErrorScopes, GpuContext};
 use crate::gpu::kept::Kept;
-use crate::gpu::layout::{GpuVoxel, SlotListUniforms};
+use crate::gpu::layout::{GpuVoxel, SlotFillUniforms, SlotListUniforms};
 use crate::gpu::shaders;
 use crate::grid::{BlockIndex, VOXELS_PER_BLOCK};
 use crate::Result;
@@ -205,6 +205,49 @@ impl BlockPool {
         )?;
         scope.pop("reading blocks back from the GPU pool")?;
         Ok(out)
+    }
+
+    /// Writes `fill` into every voxel of `slots` on the device (`shaders/fill_slots.wgsl`): the
+    /// empty block of slots given to blocks the layer does not have, 4 bytes up per slot
+    /// instead of the block. Reaches the device with this submit, before any later submit or
+    /// queue write; nothing waits for it.
+    pub(crate) fn fill(&mut self, ctx: &GpuContext, slots: &[u32], fill: GpuVoxel) -> Result<()> {
+        if slots.is_empty() {
+            return Ok(());
+        }
+        let kernel = ctx.kernel(&shaders::FILL_SLOTS)?;
+        let scope = ErrorScopes::push(&ctx.device);
+        let uniforms = SlotFillUniforms {
+            slot_count: slots.len() as u32,
+            pad: 0,
+            fill_tsdf_weight: fill.tsdf_weight,
+            fill_color: fill.color,
+        };
+        let buf_uniforms =
+            self.kept
+                .uniform_with(ctx, "fill_uniforms", bytemuck::bytes_of(&uniforms));
+        let buf_slots = self
+            .kept
+            .storage_with(ctx, "fill_slots", bytemuck::cast_slice(slots));
+        let bind = self.kept.bind_group(
+            ctx,
+            "fill_slots",
+            &kernel.layout,
+            &[&buf_uniforms, &buf_slots, &self.buffer],
+        );
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("fill_slots"),
+            });
+        ctx.record_dispatch(
+            &mut encoder,
+            &kernel,
+            &bind,
+            slots.len() as u64 * VOXELS_PER_BLOCK as u64,
+        )?;
+        ctx.submit(encoder);
+        scope.pop("writing empty blocks on the GPU")
     }
 
     /// Clears the updated marks of every voxel of `slots` on the device
