@@ -25,6 +25,7 @@ use crate::gpu::resident::ResidentMap;
 use crate::gpu::{shaders, ErrorScopes, GpuContext};
 use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::{Error, Result};
+use rayon::prelude::*;
 
 /// Fuses one depth frame into `layer` on the GPU with blocks uploaded per call, like
 /// [`super::integrate_depth_plan`]: the plan's band plus the allocated blocks in view. Returns
@@ -207,7 +208,10 @@ fn run_resident(
     )?;
     ctx.check_binding("block bases (16 bytes per block)", n * 16)?;
     ctx.check_binding("block keys (16 bytes per block)", n * 16)?;
-    let bases: Vec<[f32; 4]> = blocks.iter().map(|b| base_words(&grid, plan, *b)).collect();
+    let bases: Vec<[f32; 4]> = blocks
+        .par_iter()
+        .map(|b| base_words(&grid, plan, *b))
+        .collect();
     let keys: Vec<[i32; 4]> = blocks.iter().map(|k| [k.0[0], k.0[1], k.0[2], 0]).collect();
     let pixels = pixel_words(frame, params);
     let lookup = ctx.kernel(&shaders::BLOCK_LOOKUP)?;
@@ -319,7 +323,7 @@ fn pixel_words(frame: &DepthFrame, params: &DepthFusionParams) -> Vec<u32> {
     frame
         .depth_m
         .data
-        .iter()
+        .par_iter()
         .enumerate()
         .map(|(i, &d)| {
             let rgb = color.map_or(0, |c| pack_rgb(c.data[i]));

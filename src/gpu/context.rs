@@ -245,6 +245,37 @@ impl GpuContext {
             })
     }
 
+    /// A storage buffer of `bytes` (rounded up to 4) whose contents `fill` writes in place,
+    /// into the buffer's mapping at creation, usable as a copy source for readback: a large
+    /// upload made by several threads with no host copy of its own (wgpu moves the mapping to
+    /// the device at unmap).
+    pub(crate) fn storage_filled(
+        &self,
+        label: &str,
+        bytes: u64,
+        fill: impl FnOnce(wgpu::WriteOnly<'_, [u8]>),
+    ) -> Result<wgpu::Buffer> {
+        let size = bytes.max(4).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+        let buffer = self.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: true,
+        });
+        {
+            let mut view = buffer
+                .slice(..)
+                .get_mapped_range_mut()
+                .map_err(|e| Error::Gpu(format!("writing {label}: {e}")))?;
+            fill(view.slice(..bytes as usize));
+        }
+        buffer.unmap();
+        bump(&self.traffic.upload_bytes, size);
+        Ok(buffer)
+    }
+
     /// A zero-filled storage buffer of `bytes` (at least 4), usable as a copy source for
     /// readback: wgpu clears it on the device, with no upload. Only the census kernels use it:
     /// on an H200 their 60 MB cost volume took 3× less time than with uploaded zeros, whereas

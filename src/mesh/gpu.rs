@@ -244,21 +244,35 @@ impl Batch {
         stride: u32,
     ) -> Result<Batch> {
         let grid = layer.params();
-        let packed: Vec<(Vec<u32>, [f32; 24])> = upload
+        let bytes = upload.places.len() as u64 * SAMPLE_BYTES;
+        ctx.check_binding("marching-cubes samples", bytes)?;
+        // Packed straight into the upload's mapping, a block per task.
+        let samples = ctx.storage_filled("mc_samples", bytes, |out| {
+            let (blocks, _) = out.into_chunks::<{ SAMPLE_BYTES as usize }>();
+            let blocks: Vec<_> = blocks.into_iter().collect();
+            blocks
+                .into_par_iter()
+                .zip(upload.places.par_iter())
+                .for_each(|(dst, index)| {
+                    let block = layer.get(index).expect("an uploaded block is allocated");
+                    let mut words = [0u32; 2 * VOXELS_PER_BLOCK];
+                    for (i, w) in words.chunks_exact_mut(2).enumerate() {
+                        let value = match field {
+                            Field::Raw => decode_tsdf(block.tsdf[i]),
+                            Field::Regularized => block.regularized_or_raw(i),
+                        };
+                        let valid = block.omega(i) && block.weight(i) > 0;
+                        w[0] = value.to_bits();
+                        w[1] = pack_rgb(block.color[i]) | if valid { VALID_BIT } else { 0 };
+                    }
+                    let mut dst: wgpu::WriteOnly<'_, [u8]> = dst.into();
+                    dst.copy_from_slice(bytemuck::cast_slice(&words));
+                });
+        })?;
+        let centres: Vec<[f32; 24]> = upload
             .places
             .par_iter()
             .map(|index| {
-                let block = layer.get(index).expect("an uploaded block is allocated");
-                let mut words = Vec::with_capacity(2 * VOXELS_PER_BLOCK);
-                for i in 0..VOXELS_PER_BLOCK {
-                    let value = match field {
-                        Field::Raw => decode_tsdf(block.tsdf[i]),
-                        Field::Regularized => block.regularized_or_raw(i),
-                    };
-                    let valid = block.omega(i) && block.weight(i) > 0;
-                    words.push(value.to_bits());
-                    words.push(pack_rgb(block.color[i]) | if valid { VALID_BIT } else { 0 });
-                }
                 let mut centres = [0f32; 24];
                 for l in 0..VOXELS_PER_SIDE {
                     let c = grid.voxel_center(index.voxel(l, l, l));
@@ -266,16 +280,9 @@ impl Batch {
                         centres[8 * axis + l] = c[axis] as f32;
                     }
                 }
-                (words, centres)
+                centres
             })
             .collect();
-        let mut samples = Vec::with_capacity(packed.len() * 2 * VOXELS_PER_BLOCK);
-        let mut centres = Vec::with_capacity(packed.len() * 24);
-        for (w, c) in &packed {
-            samples.extend_from_slice(w);
-            centres.extend_from_slice(c);
-        }
-        ctx.check_binding("marching-cubes samples", (samples.len() * 4) as u64)?;
         Ok(Batch {
             uniforms: McUniforms {
                 blocks: upload.meshed as u32,
@@ -286,7 +293,7 @@ impl Batch {
                 voxel_size_m: grid.voxel_size_m,
                 pad: [0; 2],
             },
-            samples: ctx.storage("mc_samples", bytemuck::cast_slice(&samples)),
+            samples,
             neighbours: ctx.storage("mc_neighbours", bytemuck::cast_slice(&upload.neighbours)),
             table: ctx.storage("mc_table", bytemuck::cast_slice(table)),
             centres: ctx.storage("mc_centres", bytemuck::cast_slice(&centres)),
@@ -428,8 +435,28 @@ struct Merge {
 
 impl Merge {
     fn add(&mut self, places: &[BlockIndex], vertices: &[[u32; 5]], triangles: &[u32]) {
-        let decoded: Vec<(EdgeKey, bool)> =
-            vertices.iter().map(|v| edge_key(places, v[4])).collect();
+        let decoded: Vec<(EdgeKey, bool)> = vertices
+            .par_iter()
+            .map(|v| edge_key(places, v[4]))
+            .collect();
+        let position = |v: &[u32; 5]| [0, 1, 2].map(|i| f32::from_bits(v[i]));
+        let color = |v: &[u32; 5]| [0, 8, 16].map(|s| (v[3] >> s) as u8);
+        if !self.more_to_come {
+            // One part makes the mesh: its vertices are the mesh's, in order.
+            let base = self.mesh.positions_m.len() as u32;
+            let positions: Vec<[f32; 3]> = vertices.par_iter().map(position).collect();
+            let colors: Vec<[u8; 3]> = vertices.par_iter().map(color).collect();
+            let keys: Vec<EdgeKey> = decoded.into_par_iter().map(|(key, _)| key).collect();
+            let tris: Vec<[u32; 3]> = triangles
+                .par_chunks_exact(3)
+                .map(|t| [base + t[0], base + t[1], base + t[2]])
+                .collect();
+            append(&mut self.mesh.positions_m, positions);
+            append(&mut self.mesh.colors, colors);
+            append(&mut self.keys, keys);
+            append(&mut self.mesh.triangles, tris);
+            return;
+        }
         let remap: Vec<u32> = vertices
             .iter()
             .zip(decoded)
@@ -437,13 +464,12 @@ impl Merge {
                 let mesh = &mut self.mesh;
                 let keys = &mut self.keys;
                 let mut push = || {
-                    mesh.positions_m
-                        .push([0, 1, 2].map(|i| f32::from_bits(v[i])));
-                    mesh.colors.push([0, 8, 16].map(|s| (v[3] >> s) as u8));
+                    mesh.positions_m.push(position(v));
+                    mesh.colors.push(color(v));
                     keys.push(key);
                     (mesh.positions_m.len() - 1) as u32
                 };
-                if shareable && self.more_to_come {
+                if shareable {
                     *self.shared.entry(key).or_insert_with(push)
                 } else {
                     push()
@@ -459,6 +485,15 @@ impl Merge {
                     remap[t[2] as usize],
                 ]
             }));
+    }
+}
+
+/// `more` appended to `v` (moved in whole where `v` is empty).
+fn append<T>(v: &mut Vec<T>, more: Vec<T>) {
+    if v.is_empty() {
+        *v = more;
+    } else {
+        v.extend(more);
     }
 }
 
