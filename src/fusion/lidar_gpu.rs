@@ -171,17 +171,29 @@ pub fn walk_block_ray(
     n
 }
 
-/// Every pair of `plan` as a [`GpuLidarRay`], in pair order (by block, then scan order).
-fn block_local_rays(grid: &GridParams, plan: &LidarPlan) -> Vec<GpuLidarRay> {
+/// The pairs of `range` (one block's, in scan order) as [`GpuLidarRay`]s.
+fn block_local_rays(grid: &GridParams, plan: &LidarPlan, range: Range<usize>) -> Vec<GpuLidarRay> {
     let origin = plan.origin_m();
     let rays = plan.rays();
-    plan.pairs()
-        .par_iter()
+    plan.pairs()[range]
+        .iter()
         .map(|&(block, k)| {
             let r = &rays[k as usize];
             block_local_ray(grid, origin, r.dir, r.range_m, r.gray, block)
         })
         .collect()
+}
+
+/// `out` cut into its [`GpuLidarRay`]-sized pieces, grouped by `counts` (their sum at most the
+/// pieces there are).
+#[allow(clippy::type_complexity)]
+fn ray_slots<'a>(
+    out: wgpu::WriteOnly<'a, [u8]>,
+    counts: impl Iterator<Item = usize>,
+) -> Vec<Vec<wgpu::WriteOnly<'a, [u8; RAY_BYTES as usize]>>> {
+    let (slots, _) = out.into_chunks::<{ RAY_BYTES as usize }>();
+    let mut slots = slots.into_iter();
+    counts.map(|n| slots.by_ref().take(n).collect()).collect()
 }
 
 /// Fuses the LiDAR scan planned in `plan` into `layer` on the GPU, like
@@ -248,7 +260,6 @@ fn fuse_blocks(
         return Ok(0);
     }
     let batches = batches(ctx, groups)?;
-    let rays = block_local_rays(grid, plan);
     let kernel = ctx.kernel(&shaders::FUSE_LIDAR)?;
     let mut updates = 0usize;
     // Per batch: the blocks in dispatch order and their voxels as read back.
@@ -261,23 +272,46 @@ fn fuse_blocks(
         let mut order: Vec<usize> = batch.clone().collect();
         order.sort_by_key(|&b| std::cmp::Reverse(count(b)));
         let mut offsets = Vec::with_capacity(order.len() + 1);
-        let mut batch_rays = Vec::with_capacity(order.iter().map(|&b| count(b)).sum());
+        let mut total = 0u32;
         for &b in &order {
-            offsets.push(batch_rays.len() as u32);
-            batch_rays.extend_from_slice(&rays[groups[b].1.clone()]);
+            offsets.push(total);
+            total += count(b) as u32;
         }
-        offsets.push(batch_rays.len() as u32);
-        let longest_walk = batch_rays.iter().map(|r| r.steps).max().unwrap_or(0);
-        let rays_per_pass = (LOOP_BUDGET / (longest_walk + 1)).max(1);
+        offsets.push(total);
         let voxel_count = (batch.len() * VOXELS_PER_BLOCK) as u64;
-        let mut voxels = Vec::with_capacity(voxel_count as usize);
-        for &b in &order {
-            pack_block_into(&blocks[b].1, &mut voxels);
-        }
+        // The rays and voxels are written straight into the uploads' mappings, a block per
+        // task, in dispatch order.
+        let mut longest_walk = 0u32;
+        let buf_rays = ctx.storage_filled("lidar_rays", total as u64 * RAY_BYTES, |out| {
+            longest_walk = ray_slots(out, order.iter().map(|&b| count(b)))
+                .into_par_iter()
+                .zip(order.par_iter())
+                .map(|(slots, &b)| {
+                    let rays = block_local_rays(grid, plan, groups[b].1.clone());
+                    for (slot, ray) in slots.into_iter().zip(&rays) {
+                        slot.write(bytemuck::cast(*ray));
+                    }
+                    rays.iter().map(|r| r.steps).max().unwrap_or(0)
+                })
+                .max()
+                .unwrap_or(0);
+        })?;
+        let rays_per_pass = (LOOP_BUDGET / (longest_walk + 1)).max(1);
+        let buf_voxels = ctx.storage_filled("lidar_voxels", voxel_count * 8, |out| {
+            let (slots, _) = out.into_chunks::<{ BLOCK_BYTES as usize }>();
+            let slots: Vec<_> = slots.into_iter().collect();
+            slots
+                .into_par_iter()
+                .zip(order.par_iter())
+                .for_each(|(dst, &b)| {
+                    let mut voxels = Vec::with_capacity(VOXELS_PER_BLOCK);
+                    pack_block_into(&blocks[b].1, &mut voxels);
+                    let mut dst: wgpu::WriteOnly<'_, [u8]> = dst.into();
+                    dst.copy_from_slice(bytemuck::cast_slice(&voxels));
+                });
+        })?;
         let scope = ErrorScopes::push(&ctx.device);
         let buf_offsets = ctx.storage("lidar_ray_offsets", bytemuck::cast_slice(&offsets));
-        let buf_rays = ctx.storage("lidar_rays", bytemuck::cast_slice(&batch_rays));
-        let buf_voxels = ctx.storage("lidar_voxels", bytemuck::cast_slice(&voxels));
         let buf_counters = ctx.storage("lidar_counters", bytemuck::cast_slice(&[0u32; 4]));
         let mut encoder = ctx
             .device
@@ -322,11 +356,22 @@ fn fuse_blocks(
         updates += counted as usize;
         results.push((order, voxels));
     }
-    for (order, result) in &results {
-        for (&b, vox) in order.iter().zip(result.chunks_exact(VOXELS_PER_BLOCK)) {
-            apply_updated(&mut blocks[b].1, vox);
-        }
-    }
+    // Each block's voxels back into it, by every core: the blocks in dispatch order matched
+    // with their place in `blocks` (each once).
+    let mut placed: Vec<(usize, &[GpuVoxel])> = results
+        .iter()
+        .flat_map(|(order, result)| {
+            order
+                .iter()
+                .copied()
+                .zip(result.chunks_exact(VOXELS_PER_BLOCK))
+        })
+        .collect();
+    placed.sort_unstable_by_key(|&(b, _)| b);
+    blocks
+        .par_iter_mut()
+        .zip(placed.par_iter())
+        .for_each(|((_, block), &(_, vox))| apply_updated(block, vox));
     Ok(updates)
 }
 

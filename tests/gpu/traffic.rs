@@ -289,8 +289,9 @@ fn a_placement_runs_each_stage_where_it_says() {
     }
     let outcome = rec.regularize().expect("tv");
     assert_eq!(outcome.devices.gpu, 1, "{:?}", outcome.devices);
+    rec.mesh(denser::mesh::Field::Regularized).expect("mesh");
     let g = rec.gpu_traffic().expect("a GPU backend");
-    assert_eq!((g.depth_frames, g.tv_solves), (0, 1));
+    assert_eq!((g.depth_frames, g.tv_solves, g.meshes), (0, 1, 1));
 }
 
 #[test]
