@@ -213,11 +213,27 @@ fn an_in_memory_run_meshes_on_the_gpu_with_the_cpu_meshes_bytes() {
             &out,
         ];
         args.extend(COMMON);
-        args.extend(["--device", device]);
+        args.extend(["--device", device, "--kernel-times"]);
         ok(&args, d)
     };
     let on_gpu = run_on("gpu");
     let on_cpu = run_on("cpu");
+    // The stages' kernels compiled before the first frame; with `--kernel-times` the whole
+    // run's kernels timed (where the adapter has timestamp queries), the timing changing no
+    // byte of the meshes compared below. On the CPU: neither.
+    assert!(
+        line(&on_gpu, "GPU kernels compiled:").contains(" in "),
+        "{on_gpu}"
+    );
+    if !on_gpu.contains("no timestamp queries") {
+        for kernel in ["fuse_depth_resident", "tv_dual", "mc_emit"] {
+            assert!(on_gpu.contains(&format!("| {kernel} |")), "{on_gpu}");
+        }
+    }
+    assert!(
+        !on_cpu.contains("GPU kernels compiled") && !on_cpu.contains("Device time per kernel"),
+        "{on_cpu}"
+    );
     assert!(
         line(&on_gpu, "meshes:").contains(&format!("(marching cubes on {gpu}, ")),
         "{on_gpu}"

@@ -212,82 +212,74 @@ impl BlockPool {
     /// instead of the block. Reaches the device with this submit, before any later submit or
     /// queue write; nothing waits for it.
     pub(crate) fn fill(&mut self, ctx: &GpuContext, slots: &[u32], fill: GpuVoxel) -> Result<()> {
-        if slots.is_empty() {
-            return Ok(());
-        }
-        let kernel = ctx.kernel(&shaders::FILL_SLOTS)?;
-        let scope = ErrorScopes::push(&ctx.device);
         let uniforms = SlotFillUniforms {
             slot_count: slots.len() as u32,
             pad: 0,
             fill_tsdf_weight: fill.tsdf_weight,
             fill_color: fill.color,
         };
-        let buf_uniforms =
-            self.kept
-                .uniform_with(ctx, "fill_uniforms", bytemuck::bytes_of(&uniforms));
-        let buf_slots = self
-            .kept
-            .storage_with(ctx, "fill_slots", bytemuck::cast_slice(slots));
-        let bind = self.kept.bind_group(
+        let u = bytemuck::bytes_of(&uniforms);
+        self.over_slots(
             ctx,
-            "fill_slots",
-            &kernel.layout,
-            &[&buf_uniforms, &buf_slots, &self.buffer],
-        );
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("fill_slots"),
-            });
-        ctx.record_dispatch(
-            &mut encoder,
-            &kernel,
-            &bind,
-            slots.len() as u64 * VOXELS_PER_BLOCK as u64,
-        )?;
-        ctx.submit(encoder);
-        scope.pop("writing empty blocks on the GPU")
+            &shaders::FILL_SLOTS,
+            u,
+            slots,
+            "writing empty blocks on the GPU",
+        )
     }
 
     /// Clears the updated marks of every voxel of `slots` on the device
     /// (`shaders/clear_updated.wgsl`): after their blocks were copied back, instead of uploading
     /// the copies again. Reaches the device with this submit; nothing waits for it.
     pub(crate) fn clear_updated(&mut self, ctx: &GpuContext, slots: &[u32]) -> Result<()> {
-        if slots.is_empty() {
-            return Ok(());
-        }
-        let kernel = ctx.kernel(&shaders::CLEAR_UPDATED)?;
-        let scope = ErrorScopes::push(&ctx.device);
         let uniforms = SlotListUniforms {
             slot_count: slots.len() as u32,
             pad: [0; 3],
         };
-        let buf_uniforms =
-            self.kept
-                .uniform_with(ctx, "clear_uniforms", bytemuck::bytes_of(&uniforms));
+        let u = bytemuck::bytes_of(&uniforms);
+        self.over_slots(
+            ctx,
+            &shaders::CLEAR_UPDATED,
+            u,
+            slots,
+            "clearing updated marks on the GPU",
+        )
+    }
+
+    /// Runs `kernel` (bindings: `uniforms`, the slot list, the pool) with one invocation per
+    /// voxel of `slots`, in its own submit through kept buffers; nothing waits for it. Errors
+    /// say what it was `doing`.
+    fn over_slots(
+        &mut self,
+        ctx: &GpuContext,
+        kernel: &shaders::ShaderSource,
+        uniforms: &[u8],
+        slots: &[u32],
+        doing: &str,
+    ) -> Result<()> {
+        if slots.is_empty() {
+            return Ok(());
+        }
+        let k = ctx.kernel(kernel)?;
+        let scope = ErrorScopes::push(&ctx.device);
+        let name = k.name;
+        let buf_uniforms = self.kept.uniform_with(ctx, name, uniforms);
         let buf_slots = self
             .kept
-            .storage_with(ctx, "clear_slots", bytemuck::cast_slice(slots));
+            .storage_with(ctx, "slot_list", bytemuck::cast_slice(slots));
         let bind = self.kept.bind_group(
             ctx,
-            "clear_updated",
-            &kernel.layout,
+            name,
+            &k.layout,
             &[&buf_uniforms, &buf_slots, &self.buffer],
         );
         let mut encoder = ctx
             .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("clear_updated"),
-            });
-        ctx.record_dispatch(
-            &mut encoder,
-            &kernel,
-            &bind,
-            slots.len() as u64 * VOXELS_PER_BLOCK as u64,
-        )?;
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) });
+        let invocations = slots.len() as u64 * VOXELS_PER_BLOCK as u64;
+        ctx.record_dispatch(&mut encoder, &k, &bind, invocations)?;
         ctx.submit(encoder);
-        scope.pop("clearing updated marks on the GPU")
+        scope.pop(doing)
     }
 }
 
