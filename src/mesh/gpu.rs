@@ -77,26 +77,21 @@ pub fn extract_mesh_gpu(
     let cap = ctx.max_binding_bytes();
     let mut start = 0;
     while start < list.len() {
-        let t = std::time::Instant::now();
-        let upload = plan_batch(layer, &list, start, cap);
-        phases.plan_s += t.elapsed().as_secs_f64();
+        let upload = timed(&mut phases.plan_s, || plan_batch(layer, &list, start, cap));
         let end = start + upload.meshed;
         merge.more_to_come |= end < list.len();
-        let t = std::time::Instant::now();
-        let batch = Batch::upload(ctx, layer, field, &upload, &table, stride)?;
-        phases.upload_s += t.elapsed().as_secs_f64();
-        let t = std::time::Instant::now();
-        let counts = batch.count(ctx)?;
-        phases.count_s += t.elapsed().as_secs_f64();
+        let batch = timed(&mut phases.upload_s, || {
+            Batch::upload(ctx, layer, field, &upload, &table, stride)
+        })?;
+        let counts = timed(&mut phases.count_s, || batch.count(ctx))?;
         let parts = plan_parts(&counts, cap);
         merge.more_to_come |= parts.len() > 1;
         for part in parts {
-            let t = std::time::Instant::now();
-            let (vertices, triangles) = batch.mesh_part(ctx, part, &counts)?;
-            phases.mesh_s += t.elapsed().as_secs_f64();
-            let t = std::time::Instant::now();
-            merge.add(&upload.places, &vertices, &triangles);
-            phases.merge_s += t.elapsed().as_secs_f64();
+            let (vertices, triangles) =
+                timed(&mut phases.mesh_s, || batch.mesh_part(ctx, part, &counts))?;
+            timed(&mut phases.merge_s, || {
+                merge.add(&upload.places, &vertices, &triangles)
+            });
         }
         start = end;
     }
@@ -120,6 +115,14 @@ struct Phases {
     count_s: f64,
     mesh_s: f64,
     merge_s: f64,
+}
+
+/// `f()`, its wall time added to `seconds`.
+fn timed<T>(seconds: &mut f64, f: impl FnOnce() -> T) -> T {
+    let t = std::time::Instant::now();
+    let out = f();
+    *seconds += t.elapsed().as_secs_f64();
+    out
 }
 
 /// The triangle table as the kernels read it: per sign case, its triangle count, then three
