@@ -27,7 +27,7 @@ fn grey(x: i32, y: i32) -> i32 {
     let cx = u32(clamp(x, 0, i32(params.width) - 1));
     let cy = u32(clamp(y, 0, i32(params.height) - 1));
     let j = cy * params.width + cx;
-    return i32((image[j >> 2u] >> ((j & 3u) * 8u)) & 0xffu);
+    return i32(packed_byte(image[j >> 2u], j));
 }
 
 @compute @workgroup_size(64)

@@ -25,7 +25,7 @@ struct WindowUniforms {
 @group(0) @binding(3) var<storage, read_write> counts: array<u32>;
 
 fn cost_at(j: u32) -> u32 {
-    return (volume[j >> 2u] >> ((j & 3u) * 8u)) & 0xffu;
+    return packed_byte(volume[j >> 2u], j);
 }
 
 // The window of pixel i inside the image, (x0, y0, x1, y1) inclusive; writes its pixel count

@@ -39,7 +39,7 @@ fn cost(i: u32, k: u32) -> f32 {
     if (params.cost_bytes == 2u) {
         c = (costs[j >> 1u] >> ((j & 1u) * 16u)) & 0xffffu;
     } else {
-        c = (costs[j >> 2u] >> ((j & 3u) * 8u)) & 0xffu;
+        c = packed_byte(costs[j >> 2u], j);
     }
     return f32(c) / f32(counts[i]);
 }

@@ -25,7 +25,7 @@ struct TensorUniforms {
 
 fn level(x: u32, y: u32) -> f32 {
     let j = y * params.width + x;
-    return f32((image[j >> 2u] >> ((j & 3u) * 8u)) & 0xffu) / 255.0;
+    return f32(packed_byte(image[j >> 2u], j)) / 255.0;
 }
 
 @compute @workgroup_size(64)

@@ -297,19 +297,15 @@ fn fuse_blocks(
                 .unwrap_or(0);
         })?;
         let rays_per_pass = (LOOP_BUDGET / (longest_walk + 1)).max(1);
-        let buf_voxels = ctx.storage_filled("lidar_voxels", voxel_count * 8, |out| {
-            let (slots, _) = out.into_chunks::<{ BLOCK_BYTES as usize }>();
-            let slots: Vec<_> = slots.into_iter().collect();
-            slots
-                .into_par_iter()
-                .zip(order.par_iter())
-                .for_each(|(dst, &b)| {
-                    let mut voxels = Vec::with_capacity(VOXELS_PER_BLOCK);
-                    pack_block_into(&blocks[b].1, &mut voxels);
-                    let mut dst: wgpu::WriteOnly<'_, [u8]> = dst.into();
-                    dst.copy_from_slice(bytemuck::cast_slice(&voxels));
-                });
-        })?;
+        let buf_voxels = ctx.storage_by_piece::<{ BLOCK_BYTES as usize }>(
+            "lidar_voxels",
+            order.len(),
+            |k, dst| {
+                let mut voxels = Vec::with_capacity(VOXELS_PER_BLOCK);
+                pack_block_into(&blocks[order[k]].1, &mut voxels);
+                dst.copy_from_slice(bytemuck::cast_slice(&voxels));
+            },
+        )?;
         let scope = ErrorScopes::push(&ctx.device);
         let buf_offsets = ctx.storage("lidar_ray_offsets", bytemuck::cast_slice(&offsets));
         let buf_counters = ctx.storage("lidar_counters", bytemuck::cast_slice(&[0u32; 4]));

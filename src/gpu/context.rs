@@ -276,6 +276,26 @@ impl GpuContext {
         Ok(buffer)
     }
 
+    /// [`GpuContext::storage_filled`] of `pieces` pieces of `N` bytes, piece `k` written by
+    /// `fill(k, piece)` on every core (each piece is given exactly `N` bytes to write).
+    pub(crate) fn storage_by_piece<const N: usize>(
+        &self,
+        label: &str,
+        pieces: usize,
+        fill: impl Fn(usize, &mut [u8; N]) + Sync,
+    ) -> Result<wgpu::Buffer> {
+        use rayon::prelude::*;
+        self.storage_filled(label, (pieces * N) as u64, |out| {
+            let (slots, _) = out.into_chunks::<N>();
+            let slots: Vec<_> = slots.into_iter().collect();
+            slots.into_par_iter().enumerate().for_each(|(k, slot)| {
+                let mut piece = [0u8; N];
+                fill(k, &mut piece);
+                slot.write(piece);
+            });
+        })
+    }
+
     /// A zero-filled storage buffer of `bytes` (at least 4), usable as a copy source for
     /// readback: wgpu clears it on the device, with no upload. Only the census kernels use it:
     /// on an H200 their 60 MB cost volume took 3× less time than with uploaded zeros, whereas

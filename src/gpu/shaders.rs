@@ -151,14 +151,14 @@ pub const TGV_PRIMAL: ShaderSource = kernel!(
 /// Point-wise search of the stereo decoupling.
 pub const TGV_POINTWISE: ShaderSource = kernel!(
     "tgv_pointwise.wgsl",
-    ["shared/dispatch.wgsl"],
+    ["shared/dispatch.wgsl", "shared/packed_bytes.wgsl"],
     [Uniform, Read, Read, Read, ReadWrite]
 );
 
 /// Census transform.
 pub const CENSUS: ShaderSource = kernel!(
     "census.wgsl",
-    ["shared/dispatch.wgsl"],
+    ["shared/dispatch.wgsl", "shared/packed_bytes.wgsl"],
     [Uniform, Read, ReadWrite]
 );
 
@@ -172,14 +172,14 @@ pub const CENSUS_COST: ShaderSource = kernel!(
 /// TGV-tensor's diffusion tensors from the left image, on the device.
 pub const TGV_TENSORS: ShaderSource = kernel!(
     "tgv_tensors.wgsl",
-    ["shared/dispatch.wgsl"],
+    ["shared/dispatch.wgsl", "shared/packed_bytes.wgsl"],
     [Uniform, Read, ReadWrite]
 );
 
 /// Census costs summed over a window, on the device.
 pub const COST_WINDOW: ShaderSource = kernel!(
     "cost_window.wgsl",
-    ["shared/dispatch.wgsl"],
+    ["shared/dispatch.wgsl", "shared/packed_bytes.wgsl"],
     [Uniform, Read, ReadWrite, ReadWrite]
 );
 

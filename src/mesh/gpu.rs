@@ -250,28 +250,26 @@ impl Batch {
         let bytes = upload.places.len() as u64 * SAMPLE_BYTES;
         ctx.check_binding("marching-cubes samples", bytes)?;
         // Packed straight into the upload's mapping, a block per task.
-        let samples = ctx.storage_filled("mc_samples", bytes, |out| {
-            let (blocks, _) = out.into_chunks::<{ SAMPLE_BYTES as usize }>();
-            let blocks: Vec<_> = blocks.into_iter().collect();
-            blocks
-                .into_par_iter()
-                .zip(upload.places.par_iter())
-                .for_each(|(dst, index)| {
-                    let block = layer.get(index).expect("an uploaded block is allocated");
-                    let mut words = [0u32; 2 * VOXELS_PER_BLOCK];
-                    for (i, w) in words.chunks_exact_mut(2).enumerate() {
-                        let value = match field {
-                            Field::Raw => decode_tsdf(block.tsdf[i]),
-                            Field::Regularized => block.regularized_or_raw(i),
-                        };
-                        let valid = block.omega(i) && block.weight(i) > 0;
-                        w[0] = value.to_bits();
-                        w[1] = pack_rgb(block.color[i]) | if valid { VALID_BIT } else { 0 };
-                    }
-                    let mut dst: wgpu::WriteOnly<'_, [u8]> = dst.into();
-                    dst.copy_from_slice(bytemuck::cast_slice(&words));
-                });
-        })?;
+        let samples = ctx.storage_by_piece::<{ SAMPLE_BYTES as usize }>(
+            "mc_samples",
+            upload.places.len(),
+            |k, dst| {
+                let block = layer
+                    .get(&upload.places[k])
+                    .expect("an uploaded block is allocated");
+                // Two little-endian words per voxel (the piece has no word alignment).
+                for (i, w) in dst.chunks_exact_mut(8).enumerate() {
+                    let value = match field {
+                        Field::Raw => decode_tsdf(block.tsdf[i]),
+                        Field::Regularized => block.regularized_or_raw(i),
+                    };
+                    let valid = block.omega(i) && block.weight(i) > 0;
+                    let color = pack_rgb(block.color[i]) | if valid { VALID_BIT } else { 0 };
+                    w[..4].copy_from_slice(&value.to_bits().to_le_bytes());
+                    w[4..].copy_from_slice(&color.to_le_bytes());
+                }
+            },
+        )?;
         let centres: Vec<[f32; 24]> = upload
             .places
             .par_iter()
