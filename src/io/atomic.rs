@@ -35,8 +35,18 @@ fn unregister(p: &Path) {
 /// Removes every temporary file and folder still pending (called from a signal handler just
 /// before the process exits). Returns how many were removed.
 pub fn remove_pending() -> usize {
+    remove_pending_where(|_| true)
+}
+
+/// Removes the pending temporary files and folders for which `which` holds (the rest stay
+/// pending). Returns how many were removed.
+fn remove_pending_where(which: impl Fn(&Path) -> bool) -> usize {
     let list = match PENDING.lock() {
-        Ok(mut v) => std::mem::take(&mut *v),
+        Ok(mut v) => {
+            let (chosen, kept) = std::mem::take(&mut *v).into_iter().partition(|p| which(p));
+            *v = kept;
+            chosen
+        }
         Err(_) => return 0,
     };
     list.iter()
@@ -289,12 +299,13 @@ mod tests {
         write_file(&target, b"new").expect("write");
         assert_eq!(std::fs::read(&target).expect("read"), b"new");
         assert_eq!(std::fs::read_dir(dir.path()).expect("ls").count(), 1);
-        // What a signal handler removes (in the same test: the list is process-wide).
+        // What a signal handler removes. The list is process-wide and other tests write at the
+        // same time: only this folder's temporaries are removed here.
         let t = TempPath::for_target(&dir.path().join("x.laz"));
         assert!(t.path().to_string_lossy().ends_with(".partial.laz"));
         std::fs::write(t.path(), b"x").expect("write");
-        let before = remove_pending();
-        assert!(before >= 1);
+        let removed = remove_pending_where(|p| p.starts_with(dir.path()));
+        assert_eq!(removed, 1);
         assert!(!t.path().exists());
         std::mem::forget(t);
     }
