@@ -6,6 +6,8 @@
 //! |---|---|---|
 //! | [`MANIFEST_FILE`] | the writer's commit ([`super::store::MapStore::commit`]) | never deleted; rebuilt by [`super::repair`] when lost |
 //! | [`MANIFEST_TMP`] | a local commit before its rename | removed by the next writer at open |
+//! | [`MANIFEST_NEXT`] | every commit, before the manifest: the manifest being committed | never deleted (the next commit replaces it); one generation past the manifest, a commit a kill cut short, completed by the next writer at open; further past, a rollback |
+//! | [`MANIFEST_NEXT_TMP`] | a local write of [`MANIFEST_NEXT`] before its rename | removed by the next writer at open |
 //! | [`COMMIT_MARK`] | every commit, after the manifest | never deleted; a manifest older than it is a rollback, refused by every opener |
 //! | [`INCOMPLETE_MARK`] | a job that builds a new map over several commits (`merge`), before its first commit | removed by that job when it completes; while present every opener refuses the map, naming the job, except the job's own resume |
 //! | `chunks/c_X_Y_Z_SEQ.dchk` ([`CHUNKS_DIR`]) | [`super::store::ChunkWriter`] | kept while a committed manifest names it (current or kept pass); see below |
@@ -19,11 +21,20 @@
 //! | `not-committed/…` ([`NOT_COMMITTED_DIR`]) | [`super::repair`]: chunk files stamped after the last commit the [`COMMIT_MARK`] names, moved out of `chunks/` | never read or deleted by the engine; the user's to inspect and remove |
 //! | anything else | — | reported and left alone |
 //!
+//! A commit writes the new manifest twice: first as [`MANIFEST_NEXT`], then as [`MANIFEST_FILE`],
+//! then the [`COMMIT_MARK`]. The commit point is the first write: from then on the commit's
+//! manifest exists whatever happens to `manifest.dmf`. A writer that opens a map whose
+//! [`MANIFEST_NEXT`] is one generation past its manifest (of the same map, naming files that
+//! exist) completes that commit before anything else (a kill between the two writes, or a restore
+//! of the previous manifest after one); [`super::repair`] keeps the files of the newest commit
+//! either mark shows.
+//!
 //! Before anything is deleted, a writer checks that its manifest is the map's latest: a
-//! [`COMMIT_MARK`] of a newer generation, or a chunk file of this map stamped with a commit
-//! generation past the manifest's next one (format 4), means the manifest was rolled back; the map
-//! is then refused ([`crate::Error::MapRolledBack`]) until `repair` rebuilds it. Readers check the
-//! mark too (reading it before the manifest, so a commit in between is no false alarm).
+//! [`COMMIT_MARK`] of a newer generation, a [`MANIFEST_NEXT`] more than one generation newer, or
+//! a chunk file of this map stamped with a commit generation past the manifest's next one
+//! (format 4), means the manifest was rolled back; the map is then refused
+//! ([`crate::Error::MapRolledBack`]) until `repair` rebuilds it. Readers check both marks too
+//! (reading them before the manifest, so a commit in between is no false alarm).
 //!
 //! A chunk file the manifest does not name is deleted by a writer only when the writer can prove
 //! it is this map's own leftover: its header names this map, this chunk and this file number
@@ -51,6 +62,11 @@
 pub const MANIFEST_FILE: &str = "manifest.dmf";
 /// The temporary manifest a local commit renames (only writers make it).
 pub const MANIFEST_TMP: &str = "manifest.tmp";
+/// The manifest a commit is committing, written before [`MANIFEST_FILE`]: the commit point (see
+/// above and `formats/manifest.md`).
+pub const MANIFEST_NEXT: &str = "manifest.next.dmf";
+/// The temporary [`MANIFEST_NEXT`] of a local write (only writers make it).
+pub const MANIFEST_NEXT_TMP: &str = "manifest.next.tmp";
 /// The generation of the map's last commit, written after each commit (`formats/manifest.md`):
 /// a manifest older than it was put back by a restore or a sync, and is refused.
 pub const COMMIT_MARK: &str = "last-commit";

@@ -7,10 +7,11 @@
 //! file number) that decodes: the commit generation of format-4 headers orders a regularization
 //! shard's files (numbered far above the writer's) below any later commit, and files without one
 //! (formats 1–3) count as generation 0 — and writes a new manifest naming those, committed past
-//! every generation the files and the commit mark show. The map is rebuilt as of its last commit:
-//! where the commit mark of this map names it, files stamped with a later generation (written
-//! after it by a run a kill cut short) are not part of any committed map and are reported, not
-//! kept; they are moved to `not-committed/` (so that no later repair, once the map's generations
+//! every generation the files and the commit marks show. The map is rebuilt as of its last commit
+//! begun: where the commit mark, or the manifest of a commit begun (`manifest.next.dmf`, whose
+//! files were all written before it), of this map names it, files stamped with a later
+//! generation (written after it by a run a kill cut short) are not part of any committed map and
+//! are reported, not kept; they are moved to `not-committed/` (so that no later repair, once the map's generations
 //! pass their stamps, takes them for committed files). Files whose grid (voxel size, μ, chunk edge)
 //! or map id disagree with the majority are not kept, nor are damaged files; each is reported with
 //! the reason. The regularization state is rebuilt from the kept files: the latest pass and its
@@ -21,7 +22,7 @@
 //! written after the last commit, which move to `not-committed/`.
 //!
 //! How many frames of the reconstruct job the map holds (the fusion cursor) is not in the chunk
-//! files. The commit mark records it with every commit; when the rebuilt map is exactly the mark's
+//! files. The commit marks record it with every commit; when the rebuilt map is exactly the marked
 //! commit (every kept file stamped at or before its generation, none replaced by an older version
 //! because the newest was damaged), the cursor is restored from it and `reconstruct --map` resumes
 //! (a manifest rolled back or deleted after a clean commit). Otherwise the new manifest says
@@ -33,13 +34,13 @@ use super::codec::{
     FLAG_HAS_REGULARIZED,
 };
 use super::files::{LocalFiles, MapFiles};
-use super::layout::{CHUNKS_DIR, COMMIT_MARK, MANIFEST_FILE, NOT_COMMITTED_DIR};
+use super::layout::{CHUNKS_DIR, COMMIT_MARK, MANIFEST_FILE, MANIFEST_NEXT, NOT_COMMITTED_DIR};
 use super::manifest::{
     new_map_id, parse_chunk_file_name, ChunkEntry, Manifest, ManifestHeader, PassStatus,
     ENTRY_HAS_REGULARIZED, FRAMES_UNKNOWN,
 };
 use super::store::{
-    check_latest, read_chunk_object, read_commit_mark_frames, read_manifest_at, MapStore,
+    check_latest, read_chunk_object, read_commit_marks, read_manifest_at, MapStore,
 };
 use super::ChunkIndex;
 use crate::error::{Error, Result};
@@ -180,8 +181,8 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
     let mut rolled_back: Option<ManifestHeader> = None;
     let mut notes = Vec::new();
     // The newest commit generation any evidence shows: the rebuilt manifest commits past it.
-    let mark = read_commit_mark_frames(&*files)?;
-    let mut newest_generation = mark.map_or(0, |(_, g, _)| g);
+    let marks = read_commit_marks(&*files)?;
+    let mut newest_generation = marks.begun(None).map_or(0, |(_, g, _)| g);
     if files.exists(MANIFEST_FILE)? {
         match read_manifest_at(&*files) {
             Ok((m, _)) => {
@@ -308,8 +309,8 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
         if let Some(h) = rolled_back {
             // A map whose last commit held no chunk yet, rolled back: rebuilt empty, with the
             // rolled-back manifest's grid and identity and the commit mark's fusion cursor.
-            let frames = match mark {
-                Some((id, _, Some(f))) if id == h.map_id => f,
+            let frames = match marks.begun(Some(h.map_id)) {
+                Some((_, _, Some(f))) => f,
                 _ => FRAMES_UNKNOWN,
             };
             let manifest = Manifest {
@@ -393,19 +394,25 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
         }
         true
     });
-    // The map is rebuilt as of its last commit: where the commit mark of this map names it, files
-    // stamped with a later generation were written after it (a checkpoint or pass a kill cut
-    // short) and are not part of any committed map. They are reported and left in place.
-    let last_commit = mark
-        .filter(|(id, _, _)| Some(*id) == map_id)
-        .map(|(_, g, _)| g);
+    // The map is rebuilt as of its last commit begun: where the commit mark or the manifest of a
+    // commit begun ([`MANIFEST_NEXT`]) of this map names it, files stamped with a later
+    // generation were written after it (a checkpoint or pass a kill cut short) and are not part
+    // of any committed map. They are reported and moved aside below.
+    let mark = map_id.and_then(|id| marks.begun(Some(id)));
+    let evidence = match mark {
+        Some((_, g, _)) if marks.next.is_some_and(|n| Some(n.0) == map_id && n.1 == g) => {
+            files.path(MANIFEST_NEXT)
+        }
+        _ => files.path(COMMIT_MARK),
+    };
+    let last_commit = mark.map(|(_, g, _)| g);
     if let Some(g) = last_commit {
         // Every file stamped later, intact or not (moved below, once the new manifest commits).
         for (_, (stamped, _), name) in &versions {
             if *stamped > g {
                 not_kept.push(format!(
                     "{name}: written after the last commit (generation {g}, recorded in {}): not part of the committed map; moved to {NOT_COMMITTED_DIR}/",
-                    files.path(COMMIT_MARK).display()
+                    evidence.display()
                 ));
                 after_commit.push(name.clone());
             }
@@ -513,11 +520,7 @@ pub fn repair_files(files: std::sync::Arc<dyn MapFiles>) -> Result<RepairReport>
     // The fusion cursor: the commit mark's, when the map rebuilt is exactly that commit's (every
     // kept file stamped at or before it, none replaced by an older version); else unknown.
     let frames_committed = match mark {
-        Some((id, gen, Some(frames)))
-            if Some(id) == map_id && last_commit == Some(gen) && older_versions_used.is_empty() =>
-        {
-            frames
-        }
+        Some((_, _, Some(frames))) if older_versions_used.is_empty() => frames,
         _ => FRAMES_UNKNOWN,
     };
     let fallback = TvParams::paper(voxel_size_m);

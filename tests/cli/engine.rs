@@ -379,9 +379,10 @@ fn a_deleted_manifest_is_refused_then_repaired() {
     assert_eq!(after["frames_committed"], before["frames_committed"]);
     ok(&quick("m", "out", &[]), d);
     assert_eq!(map_json("m", d)["summary"], before["summary"]);
-    // Without it (a commit mark of denser 0.2.0 has no cursor), fusion cannot resume: refused,
-    // the map untouched.
+    // Without it (a map of denser 0.2.0: a commit mark without the cursor, no
+    // `manifest.next.dmf`), fusion cannot resume: refused, the map untouched.
     std::fs::remove_file(d.join("m/manifest.dmf")).expect("rm manifest");
+    std::fs::remove_file(d.join("m/manifest.next.dmf")).expect("rm the begun commit's manifest");
     let mark = std::fs::read_to_string(d.join("m/last-commit")).expect("mark");
     let old_mark: String = mark
         .lines()

@@ -8,7 +8,7 @@ use super::engine::{
     CHUNK_BLOCKS,
 };
 use denser::grid::Layer;
-use denser::map::layout::{COMMIT_MARK, LOCK_FILE, MANIFEST_FILE};
+use denser::map::layout::{COMMIT_MARK, LOCK_FILE, MANIFEST_FILE, MANIFEST_NEXT};
 use denser::map::repair::repair;
 use denser::map::store::MapStore;
 use denser::outofcore::shards::Shard;
@@ -197,6 +197,79 @@ fn repair_rebuilds_the_last_commit_and_its_fusion_cursor() {
     assert!(r.verify().is_empty(), "{:?}", r.verify());
     assert_eq!(r.manifest().header.frames_committed, 7);
     assert_layers_identical(&a, &store_layer(&r));
+}
+
+/// A map of two commits after its creation, `a` (4 frames) then `b` (9 frames), left as a kill
+/// just after the second commit's commit point leaves it: the manifest and the mark still of the
+/// first. Returns the creation's manifest, the second commit's generation, `a` and `b`.
+fn a_commit_cut_short(root: &Path) -> (Vec<u8>, u64, Layer, Layer) {
+    let a = surface_layer(3, 2, 5);
+    let mut w = MapStore::create(root, grid(), CHUNK_BLOCKS).expect("create");
+    let created = manifest_bytes(root);
+    w.header_mut().frames_committed = 4;
+    write_layer(&mut w, &a);
+    let (manifest, mark) = (
+        manifest_bytes(root),
+        std::fs::read(root.join(COMMIT_MARK)).expect("mark"),
+    );
+    let b = changed(&a, 2);
+    w.header_mut().frames_committed = 9;
+    // A reader open meanwhile: the files the commit supersedes stay, as they do until its mark.
+    let reader = MapStore::open_read_only(root).expect("reader");
+    write_layer(&mut w, &b);
+    let generation = w.manifest().header.generation;
+    drop(w);
+    drop(reader);
+    assert!(root.join(MANIFEST_NEXT).exists());
+    std::fs::write(root.join(MANIFEST_FILE), manifest).expect("manifest as before");
+    std::fs::write(root.join(COMMIT_MARK), mark).expect("mark as before");
+    (created, generation, a, b)
+}
+
+/// A commit cut short between its first write and its mark (a kill, a full disk), also with the
+/// previous manifest put back after a kill between the manifest and the mark (the same files).
+/// Before, the next writer took the commit's files for a dead writer's leftovers and deleted
+/// them, and `repair` moved them aside (the random operations' seed 4: "repair lost blocks
+/// 398 → 0"). A commit's point is now its first write, the whole manifest under its own name:
+/// readers see the previous commit, the next writer completes the begun one, and `repair` keeps
+/// its files and its fusion cursor.
+#[test]
+fn a_commit_cut_short_after_its_commit_point_is_completed_not_lost() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let root = dir.path().join("map");
+    let (_, generation, a, b) = a_commit_cut_short(&root);
+    let r = MapStore::open_read_only(&root).expect("a reader");
+    assert_eq!(r.manifest().header.generation, generation - 1);
+    assert!(r.verify().is_empty(), "{:?}", r.verify());
+    assert_layers_identical(&a, &store_layer(&r));
+    drop(r);
+    let w = MapStore::open(&root).expect("the next writer");
+    assert_eq!(w.manifest().header.generation, generation);
+    assert_eq!(w.manifest().header.frames_committed, 9);
+    assert!(w.verify().is_empty(), "{:?}", w.verify());
+    assert_layers_identical(&b, &store_layer(&w));
+    drop(w);
+    let mark = std::fs::read_to_string(root.join(COMMIT_MARK)).expect("mark");
+    assert!(
+        mark.contains(&format!("generation {generation}\n")),
+        "{mark}"
+    );
+
+    // The same, then an older manifest put back: refused by every opener; `repair` rebuilds the
+    // begun commit, not the one the mark names.
+    let root = dir.path().join("older");
+    let (created, generation, _, b) = a_commit_cut_short(&root);
+    std::fs::write(root.join(MANIFEST_FILE), created).expect("restore the first manifest");
+    let before = files(&root);
+    let (m, newer) = rolled_back(MapStore::open(&root).expect_err("writer"));
+    assert_eq!((m, newer), (generation - 2, generation - 1));
+    rolled_back(MapStore::open_read_only(&root).expect_err("reader"));
+    assert_eq!(files(&root), before, "nothing deleted");
+    let report = repair(&root).expect("repair");
+    assert_eq!(report.frames_committed, Some(9), "{report:?}");
+    let r = MapStore::open_read_only(&root).expect("repaired");
+    assert!(r.verify().is_empty(), "{:?}", r.verify());
+    assert_layers_identical(&b, &store_layer(&r));
 }
 
 fn store_chunks(layer: &Layer) -> usize {

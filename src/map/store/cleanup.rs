@@ -19,8 +19,8 @@ impl MapStore {
         h.chunk == c && origin.is_none_or(|o| o.file_seq == seq && (id == 0 || o.map_id == id))
     }
 
-    /// The writer's cleanup at open: `*.tmp` chunk files and `manifest.tmp` (only writers make
-    /// them), chunk files numbered at or after the committed next sequence number (allocated after
+    /// The writer's cleanup at open: `*.tmp` chunk files, `manifest.tmp` and `manifest.next.tmp`
+    /// (only writers make them), chunk files numbered at or after the committed next sequence number (allocated after
     /// the last commit by a writer that died) unless a shard plan still open reserves their
     /// numbers, and older versions of chunks the manifest names (superseded; only while no reader
     /// can need them). Everything else is reported and left alone.
@@ -108,6 +108,7 @@ impl MapStore {
         }
         if self.location().as_dir().is_some() {
             self.files.delete(MANIFEST_TMP)?;
+            self.files.delete(MANIFEST_NEXT_TMP)?;
         }
         if !out.removed_uncommitted.is_empty() {
             tracing::info!(
@@ -166,14 +167,14 @@ impl MapStore {
 }
 
 /// An error ([`Error::MapRolledBack`]) when manifest `m` is not the latest of its map: the commit
-/// mark records a newer generation, or a chunk file of this map that `m` does not name carries a
+/// mark records a newer generation, a commit begun after a newer one ([`MANIFEST_NEXT`]), or a chunk file of this map that `m` does not name carries a
 /// commit generation past `m`'s generation + 1 (written after a commit `m` does not know). Reads
 /// the mark and the headers of the files numbered at or after `m`'s next number only (the
 /// files written after `m`, which a writer's clean-up would delete). Writers check this before
 /// anything is committed or deleted, and `repair` to tell a rolled-back manifest from an intact
 /// one.
 pub fn check_latest(files: &dyn MapFiles, m: &Manifest) -> Result<()> {
-    check_commit_mark(files, m, read_commit_mark(files)?)?;
+    check_commit_mark(files, m, &read_commit_marks(files)?)?;
     let h = m.header;
     let mut newest: Option<(u64, String)> = None;
     for obj in files.list(CHUNKS_DIR)? {

@@ -128,21 +128,96 @@ pub fn read_commit_mark_frames(files: &dyn MapFiles) -> Result<Option<(u64, u64,
     }
 }
 
-/// An error when the commit mark says this map committed a generation newer than `m`'s.
+/// What a map records of its commits beside `manifest.dmf`, each as (map id, generation, frames
+/// committed where recorded): the commit mark (the last commit recorded complete) and the
+/// manifest of the last commit begun ([`MANIFEST_NEXT`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CommitMarks {
+    /// The commit mark ([`COMMIT_MARK`]).
+    pub mark: Option<(u64, u64, Option<u64>)>,
+    /// The manifest a commit wrote before `manifest.dmf` ([`MANIFEST_NEXT`]).
+    pub next: Option<(u64, u64, Option<u64>)>,
+}
+
+impl CommitMarks {
+    /// The newest generation of map `id` known to have committed, with the object that shows it:
+    /// the mark's, or the one before the begun commit's (a commit begins after the previous one
+    /// completed).
+    fn committed(&self, id: u64) -> Option<(u64, &'static str)> {
+        let mark = self.mark.filter(|m| m.0 == id).map(|m| (m.1, COMMIT_MARK));
+        let next = self
+            .next
+            .filter(|m| m.0 == id && m.1 > 0)
+            .map(|m| (m.1 - 1, MANIFEST_NEXT));
+        mark.into_iter().chain(next).max_by_key(|g| g.0)
+    }
+
+    /// The newest commit begun of map `id` (of any map for `None`): the mark's or the begun
+    /// commit's, whichever is newer. Every file such a commit names was written before it began,
+    /// so [`crate::map::repair`] rebuilds the map as of it.
+    pub fn begun(&self, id: Option<u64>) -> Option<(u64, u64, Option<u64>)> {
+        [self.mark, self.next]
+            .into_iter()
+            .flatten()
+            .filter(|m| id.is_none_or(|i| i == m.0))
+            .max_by_key(|m| m.1)
+    }
+}
+
+/// The map's [`CommitMarks`]. A [`MANIFEST_NEXT`] that does not decode is no evidence (reported).
+pub fn read_commit_marks(files: &dyn MapFiles) -> Result<CommitMarks> {
+    let mark = read_commit_mark_frames(files)?;
+    let next = read_next_manifest(files)?.map(|m| {
+        let h = m.header;
+        let frames = (h.frames_committed != FRAMES_UNKNOWN).then_some(h.frames_committed);
+        (h.map_id, h.generation, frames)
+    });
+    Ok(CommitMarks { mark, next })
+}
+
+/// The manifest of the last commit begun ([`MANIFEST_NEXT`]), with its bytes; `None` when there
+/// is none or it does not decode (reported: a damaged one is no evidence).
+pub(super) fn read_next_manifest_bytes(
+    files: &dyn MapFiles,
+) -> Result<Option<(Manifest, Vec<u8>)>> {
+    let Some(bytes) = files.read(MANIFEST_NEXT)? else {
+        return Ok(None);
+    };
+    match decode_manifest(&bytes) {
+        Ok(m) => Ok(Some((m, bytes.to_vec()))),
+        Err(e) => {
+            tracing::warn!("{}: {e}; ignored", files.path(MANIFEST_NEXT).display());
+            Ok(None)
+        }
+    }
+}
+
+fn read_next_manifest(files: &dyn MapFiles) -> Result<Option<Manifest>> {
+    Ok(read_next_manifest_bytes(files)?.map(|(m, _)| m))
+}
+
+/// An error when the commit mark, or the manifest of a commit begun, shows that this map
+/// committed a generation newer than `m`'s.
 pub(super) fn check_commit_mark(
     files: &dyn MapFiles,
     m: &Manifest,
-    mark: Option<(u64, u64)>,
+    marks: &CommitMarks,
 ) -> Result<()> {
-    match mark {
-        Some((id, gen)) if id == m.header.map_id && gen > m.header.generation => {
-            Err(Error::MapRolledBack {
-                map: files.location().display_path(),
-                manifest_generation: m.header.generation,
-                newer_generation: gen,
-                evidence: format!("{} records it", files.path(COMMIT_MARK).display()),
-            })
-        }
+    match marks.committed(m.header.map_id) {
+        Some((gen, what)) if gen > m.header.generation => Err(Error::MapRolledBack {
+            map: files.location().display_path(),
+            manifest_generation: m.header.generation,
+            newer_generation: gen,
+            evidence: if what == COMMIT_MARK {
+                format!("{} records it", files.path(what).display())
+            } else {
+                format!(
+                    "{} holds generation {}, begun after it",
+                    files.path(what).display(),
+                    gen + 1
+                )
+            },
+        }),
         _ => Ok(()),
     }
 }

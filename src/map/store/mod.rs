@@ -24,11 +24,14 @@ use super::codec::{
     NO_PARAMS,
 };
 use super::files::{Conditional, MapFiles, ObjectBytes, ObjectVersion, ReaderHold, WriterHold};
-use super::layout::{CHUNKS_DIR, COMMIT_MARK, INCOMPLETE_MARK, MANIFEST_FILE, MANIFEST_TMP};
+use super::layout::{
+    CHUNKS_DIR, COMMIT_MARK, INCOMPLETE_MARK, MANIFEST_FILE, MANIFEST_NEXT, MANIFEST_NEXT_TMP,
+    MANIFEST_TMP,
+};
 use super::location::MapLocation;
 use super::manifest::{
     chunk_file_name, decode_manifest, encode_manifest, new_map_id, parse_chunk_file_name,
-    ChunkEntry, Manifest, ManifestHeader, ENTRY_HAS_REGULARIZED,
+    ChunkEntry, Manifest, ManifestHeader, ENTRY_HAS_REGULARIZED, FRAMES_UNKNOWN,
 };
 use super::ChunkIndex;
 use crate::error::{Error, Result};
@@ -46,12 +49,12 @@ mod manifest_io;
 mod open;
 
 use manifest_io::{
-    check_commit_mark, chunk_object, commit_mark_text, lost_manifest, refuse_incomplete,
-    require_manifest,
+    check_commit_mark, chunk_object, commit_mark_text, lost_manifest, read_next_manifest_bytes,
+    refuse_incomplete, require_manifest,
 };
 pub use manifest_io::{
     count_chunk_files, count_chunk_objects, read_commit_mark, read_commit_mark_frames,
-    read_manifest, read_manifest_at,
+    read_commit_marks, read_manifest, read_manifest_at, CommitMarks,
 };
 
 use cache::ChunkCache;
@@ -339,6 +342,13 @@ impl MapStore {
         let read_generation = self.manifest.header.generation;
         self.manifest.header.generation += 1;
         let bytes = encode_manifest(&self.manifest);
+        // The commit point: the manifest being committed, whole, under a name of its own. From
+        // here on a kill, a failed write or a restore of the previous manifest cannot lose this
+        // commit: the next writer completes it (`open.rs`), `repair` keeps its files.
+        if let Err(e) = self.files.write(MANIFEST_NEXT, &bytes) {
+            self.manifest.header.generation = read_generation;
+            return Err(e);
+        }
         match self
             .files
             .write_if(MANIFEST_FILE, &bytes, self.manifest_version.as_ref())?

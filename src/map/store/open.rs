@@ -227,6 +227,7 @@ impl MapStore {
             );
         }
         let (manifest, version) = read_manifest_at(&*files)?;
+        let (manifest, version) = complete_begun_commit(&*files, manifest, version)?;
         // Before anything is committed or deleted: is this manifest the map's latest?
         check_latest(&*files, &manifest)?;
         let mut store = MapStore::with_files(files, manifest, Some(version), Access::Writer(lock));
@@ -269,11 +270,12 @@ impl MapStore {
         require_manifest(&*files)?;
         refuse_incomplete(&*files)?;
         let guard = files.hold_readers();
-        // The mark before the manifest: a commit between the two reads only makes the manifest
-        // newer than the mark, never older.
-        let mark = read_commit_mark(&*files)?;
+        // The marks before the manifest: a commit between the reads only makes the manifest newer
+        // than the marks, never older. A commit begun and not completed (its writer at work, or
+        // killed) leaves the manifest one generation behind the begun one: the map as committed.
+        let marks = read_commit_marks(&*files)?;
         let (manifest, version) = read_manifest_at(&*files)?;
-        check_commit_mark(&*files, &manifest, mark)?;
+        check_commit_mark(&*files, &manifest, &marks)?;
         Ok(MapStore::with_files(
             files,
             manifest,
@@ -290,4 +292,60 @@ impl MapStore {
     ) -> Self {
         MapStore::with_files(files, manifest, None, Access::Writer(lock))
     }
+}
+
+/// Completes a commit that was begun and not completed: when [`MANIFEST_NEXT`] holds the next
+/// generation of this map (the commit point passed), the commit mark has not recorded it, and
+/// every file it names exists, it becomes `manifest.dmf` and the mark records it. This is the
+/// state a kill (or a failed write) between a commit's first write and its mark leaves, also
+/// when the previous manifest was put back after it. Otherwise the manifest is returned as read.
+/// Called by a writer, holding the lock, before anything is checked or deleted.
+fn complete_begun_commit(
+    files: &dyn MapFiles,
+    manifest: Manifest,
+    version: ObjectVersion,
+) -> Result<(Manifest, ObjectVersion)> {
+    let Some((next, bytes)) = read_next_manifest_bytes(files)? else {
+        return Ok((manifest, version));
+    };
+    let (h, n) = (manifest.header, next.header);
+    let marked =
+        read_commit_mark(files)?.is_some_and(|(id, g)| id == n.map_id && g >= n.generation);
+    if n.map_id != h.map_id || n.generation != h.generation + 1 || marked {
+        return Ok((manifest, version));
+    }
+    // Files the begun commit adds were written before it began; the files it supersedes are
+    // deleted only after its mark. One missing means the begun commit is not this map's.
+    for (c, e) in next.chunks.iter().chain(next.kept.iter()) {
+        let name = chunk_object(*c, e.file_seq);
+        if !manifest.names(*c, e.file_seq) && !files.exists(&name)? {
+            tracing::warn!(
+                "{}: names {}, which is missing; the commit it began is not completed",
+                files.path(MANIFEST_NEXT).display(),
+                files.path(&name).display()
+            );
+            return Ok((manifest, version));
+        }
+    }
+    let version = match files.write_if(MANIFEST_FILE, &bytes, Some(&version))? {
+        Conditional::Written(v) => v,
+        Conditional::Conflict => {
+            return Err(Error::CommitConflict {
+                map: files.location().display_path(),
+                read_generation: h.generation,
+            })
+        }
+    };
+    files.write(COMMIT_MARK, commit_mark_text(&n).as_bytes())?;
+    let frames = if n.frames_committed == FRAMES_UNKNOWN {
+        "unknown".to_string()
+    } else {
+        n.frames_committed.to_string()
+    };
+    tracing::warn!(
+        "{}: completed commit {} (frames committed: {frames}), begun by a writer that stopped before recording it",
+        files.location(),
+        n.generation
+    );
+    Ok((next, version))
 }
