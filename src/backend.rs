@@ -17,7 +17,7 @@
 
 use crate::depth::tgv::HoleFill;
 use crate::depth::SgmParams;
-use crate::depth::{DisparityEstimator, StereoMethod, TgvMatcherGpu};
+use crate::depth::{DisparityEstimator, SgmMatcher, SgmMatcherGpu, StereoMethod, TgvMatcherGpu};
 use crate::frame::DepthFrame;
 use crate::fusion::{
     integrate_depth_plan, integrate_depth_resident, integrate_lidar_gpu, integrate_lidar_plan,
@@ -148,6 +148,7 @@ impl GpuStages {
             out.extend([
                 &shaders::CENSUS,
                 &shaders::CENSUS_COST,
+                &shaders::SGM_PATHS,
                 &shaders::COST_WINDOW,
                 &shaders::TGV_TENSORS,
                 &shaders::TGV_POINTWISE,
@@ -473,8 +474,9 @@ impl Backend {
         )
     }
 
-    /// A matcher for `method` with `fill` hole filling: the variational methods run on the GPU
-    /// when the backend has one; SGM on the CPU. `sgm`: the SGM parameters (SGM's, and those of
+    /// A matcher for `method` with `fill` hole filling, on the GPU when the backend runs stereo
+    /// there (SGM: its cost volume and path aggregation; the variational methods: all but
+    /// SGM's selection and the invalidation). `sgm`: the SGM parameters (SGM's, and those of
     /// the variational methods' initialisation), the disparity range included.
     pub fn stereo_matcher(
         &self,
@@ -488,13 +490,18 @@ impl Backend {
         ) {
             (Some(m), Some(ctx)) => Ok(Box::new(TgvMatcherGpu::new(ctx.clone(), m))),
             (Some(m), None) => Ok(Box::new(m)),
-            (None, _) => method.estimator_with_fill(sgm, fill),
+            (None, Some(ctx)) => Ok(Box::new(SgmMatcherGpu::new(
+                ctx.clone(),
+                SgmMatcher::new(sgm)?,
+            ))),
+            (None, None) => method.estimator_with_fill(sgm, fill),
         }
     }
 
-    /// The device each stereo method runs on with this backend.
-    pub fn stereo_device(&self, method: StereoMethod) -> String {
-        if let (true, Some(ctx)) = (method.is_variational(), self.gpu_if(self.stages.stereo)) {
+    /// The device the stereo methods run on with this backend (every method: see
+    /// [`Backend::stereo_matcher`]).
+    pub fn stereo_device(&self) -> String {
+        if let Some(ctx) = self.gpu_if(self.stages.stereo) {
             ctx.name()
         } else {
             "CPU".to_string()

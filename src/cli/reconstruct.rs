@@ -324,9 +324,7 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
         ),
         _ => None,
     };
-    let stereo_device = stereo
-        .as_ref()
-        .map(|_| backend.stereo_device(job.stereo_method));
+    let stereo_device = stereo.as_ref().map(|_| backend.stereo_device());
     // Where the results go is checked before any work (a file, a read-only folder, no space).
     denser::io::atomic::check_output_dir(&job.out_dir)
         .with_context(|| format!("checking the output folder {}", job.out_dir.display()))?;

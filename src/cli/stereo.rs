@@ -260,7 +260,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         method,
         kernel_times,
         traffic,
-        device: backend.stereo_device(method),
+        device: backend.stereo_device(),
         width: left.width,
         height: left.height,
         valid_px: map.valid_count(),

@@ -23,8 +23,9 @@
 //! cost volume where it was made (`data_cost.rs`, `shaders/cost_window.wgsl`; integer sums, equal
 //! to the CPU's), and in [`estimate_tgv_gpu`] TGV-tensor's diffusion tensors from the left image
 //! the census read (`shaders/tgv_tensors.wgsl`; the device's `exp` and `pow`: 1.8e-7 from the
-//! CPU's on llvmpipe). What stays on the CPU: SGM (the initialisation, which reads the volume
-//! back), the invalidation (and the CPU's own tensors, computed with the initial problem and
+//! CPU's on llvmpipe). SGM's path aggregation runs there too (`sgm.rs`,
+//! `shaders/sgm_paths.wgsl`: integer sums, equal to the CPU's). What stays on the CPU: SGM's
+//! selection and filters (over the sums read back, and the volume), the invalidation (and the CPU's own tensors, computed with the initial problem and
 //! not used). Every array must fit one storage binding (the
 //! largest is the window sums, 2 bytes per pixel and disparity: 119 MB for 1241×376×128, under
 //! llvmpipe's 128 MiB); a larger input is an [`crate::Error::GpuCapacity`], never truncated.
@@ -44,6 +45,8 @@ const ITERATIONS_PER_SUBMIT: u32 = 64;
 
 mod data_cost;
 use data_cost::DataCostGpu;
+mod sgm;
+pub use sgm::{aggregate_paths_gpu, SgmMatcherGpu, GPU_SGM_MAX_DISPARITIES};
 
 /// A [`TgvProblem`] resident on the GPU: tensors, coupling target, primal, over-relaxed primal
 /// and dual, in the CPU's layout (`[u, v1, v2]`, `[p1, p2, q11, q22, q12]` per pixel).
@@ -619,8 +622,9 @@ fn refine_on_device(
     gpu.u()
 }
 
-/// [`TgvMatcher::estimate_with_stages`] with the cost volume ([`cost_volume_gpu`]) and the
-/// refinement ([`refine_gpu`]) on the GPU; SGM and the invalidation run on the CPU.
+/// [`TgvMatcher::estimate_with_stages`] with the cost volume ([`cost_volume_gpu`]), SGM's path
+/// aggregation ([`SgmMatcherGpu`]) and the refinement ([`refine_gpu`]) on the GPU; SGM's
+/// selection and the invalidation run on the CPU.
 pub fn estimate_tgv_gpu(
     ctx: &GpuContext,
     matcher: &TgvMatcher,
@@ -632,7 +636,7 @@ pub fn estimate_tgv_gpu(
     let sgm = SgmMatcher::new(p.sgm)?;
     let census = (&p.sgm.census, p.sgm.min_disparity_px, p.sgm.num_disparities);
     let (volume, on_device) = cost_volume_on_device(ctx, left, right, census)?;
-    let init = sgm.estimate_from_volume(left, &volume)?;
+    let init = sgm::sgm_from_device(ctx, &sgm, left, &volume, &on_device)?;
     let dense = refine_on_device(ctx, matcher, left, (&volume, Some(&on_device)), &init)?;
     let result = matcher.invalidate(&dense, &init, &volume);
     Ok(TgvStages {

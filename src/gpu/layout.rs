@@ -348,6 +348,33 @@ pub struct McUniforms {
     pub pad: [u32; 2],
 }
 
+/// Uniforms of `shaders/sgm_paths.wgsl` (WGSL twin: `SgmPathUniforms` there): one direction of
+/// SGM's path aggregation.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct SgmPathUniforms {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Disparity slices.
+    pub num_disparities: u32,
+    /// Path direction along x, pixels per step (−1, 0 or 1).
+    pub dx: i32,
+    /// Path direction along y, pixels per step (−1, 0 or 1).
+    pub dy: i32,
+    /// P1.
+    pub p1: u32,
+    /// P2.
+    pub p2: u32,
+    /// Intensity scale of the adaptive P2; 0: P2 throughout.
+    pub p2_scale: u32,
+    /// Path lines of the direction (one workgroup each).
+    pub lines: u32,
+    /// Padding to 48 bytes.
+    pub pad: [u32; 3],
+}
+
 /// Every buffer struct the kernels share with the host: its WGSL name and the size of its Rust
 /// twin, bytes. `tests/gpu.rs` checks each against the size naga computes for the WGSL struct
 /// (and that every struct a kernel binds is listed here).
@@ -370,6 +397,7 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("McUniforms", std::mem::size_of::<McUniforms>()),
     ("WindowUniforms", std::mem::size_of::<WindowUniforms>()),
     ("TensorUniforms", std::mem::size_of::<TensorUniforms>()),
+    ("SgmPathUniforms", std::mem::size_of::<SgmPathUniforms>()),
 ];
 
 /// Appends `block`'s 512 voxels, packed, to `out` (the layout every fusion kernel reads).

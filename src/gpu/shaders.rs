@@ -183,6 +183,13 @@ pub const COST_WINDOW: ShaderSource = kernel!(
     [Uniform, Read, ReadWrite, ReadWrite]
 );
 
+/// SGM's path aggregation along one direction, into the summed costs S.
+pub const SGM_PATHS: ShaderSource = kernel!(
+    "sgm_paths.wgsl",
+    ["shared/packed_bytes.wgsl"],
+    [Uniform, Read, Read, ReadWrite]
+);
+
 /// Marching cubes, pass 1: triangles per meshed block.
 pub const MC_COUNT: ShaderSource = kernel!(
     "mc_count.wgsl",
@@ -251,6 +258,7 @@ pub const ALL: &[ShaderSource] = &[
     CENSUS_COST,
     COST_WINDOW,
     TGV_TENSORS,
+    SGM_PATHS,
     // Marching cubes.
     MC_COUNT,
     MC_EMIT,

@@ -287,6 +287,36 @@ fn stereo_on_the_gpu_writes_the_cpu_disparities() {
     assert!(valid > cpu.data.len() / 2);
     assert!(same_validity as f64 >= 0.995 * cpu.data.len() as f64);
     assert!(far as f64 <= 0.005 * cpu.data.len() as f64);
+    // SGM: its path aggregation on the GPU, integer sums equal to the CPU's: the same file.
+    let mut files = Vec::new();
+    for device in ["cpu", "gpu"] {
+        let out = format!("sgm_{device}.pfm");
+        let o = denser(
+            &[
+                "stereo",
+                "l.png",
+                "r.png",
+                "--out",
+                &out,
+                "--method",
+                "sgm",
+                "--num-disparities",
+                "24",
+                "--device",
+                device,
+            ],
+            d,
+        );
+        assert!(o.status.success(), "{}", text(&o));
+        if device == "gpu" {
+            assert!(text(&o).contains("device: GPU"), "{}", text(&o));
+        }
+        files.push(std::fs::read(d.join(out)).expect("pfm"));
+    }
+    assert!(
+        files[0] == files[1],
+        "SGM's disparities differ between the devices"
+    );
 }
 
 /// Issue 13: `denser stereo left.jpg right.jpg` said "The image format Jpeg is not supported".

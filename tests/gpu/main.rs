@@ -10,6 +10,7 @@ mod agreement;
 mod compare;
 mod lidar;
 mod mesh;
+mod sgm;
 mod shaders;
 mod stereo;
 mod traffic;
