@@ -149,6 +149,8 @@ impl GpuStages {
                 &shaders::CENSUS,
                 &shaders::CENSUS_COST,
                 &shaders::SGM_PATHS,
+                &shaders::SGM_RIGHT,
+                &shaders::SGM_SELECT,
                 &shaders::COST_WINDOW,
                 &shaders::TGV_TENSORS,
                 &shaders::TGV_POINTWISE,

@@ -23,19 +23,17 @@
 //! cost volume where it was made (`data_cost.rs`, `shaders/cost_window.wgsl`; integer sums, equal
 //! to the CPU's), and in [`estimate_tgv_gpu`] TGV-tensor's diffusion tensors from the left image
 //! the census read (`shaders/tgv_tensors.wgsl`; the device's `exp` and `pow`: 1.8e-7 from the
-//! CPU's on llvmpipe). SGM's path aggregation runs there too (`sgm.rs`,
-//! `shaders/sgm_paths.wgsl`: integer sums, equal to the CPU's). What stays on the CPU: SGM's
-//! selection and filters (over the sums read back, and the volume), the invalidation (and the CPU's own tensors, computed with the initial problem and
+//! CPU's on llvmpipe). SGM's path aggregation and winner selection run there too (`sgm.rs`).
+//! What stays on the CPU: SGM's median and speckle filters, the invalidation (and the CPU's own tensors, computed with the initial problem and
 //! not used). Every array must fit one storage binding (the
 //! largest is the window sums, 2 bytes per pixel and disparity: 119 MB for 1241×376×128, under
 //! llvmpipe's 128 MiB); a larger input is an [`crate::Error::GpuCapacity`], never truncated.
 
-use crate::depth::census::{CensusImage, CensusKind, CensusParams};
 use crate::depth::sgm::{CostVolume, SgmMatcher};
 use crate::depth::tgv::{check_search, Regularizer, TgvMatcher, TgvProblem, TgvStages};
 use crate::depth::{DisparityEstimator, DisparityMap};
 use crate::frame::GreyImage;
-use crate::gpu::layout::{CensusUniforms, CostUniforms, TensorUniforms, TgvUniforms};
+use crate::gpu::layout::{TensorUniforms, TgvUniforms};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
 use crate::{Error, Result};
@@ -45,8 +43,13 @@ const ITERATIONS_PER_SUBMIT: u32 = 64;
 
 mod data_cost;
 use data_cost::DataCostGpu;
+mod census;
+pub use census::{census_transform_gpu, cost_volume_gpu};
+use census::{cost_volume_kept_on_device, cost_volume_on_device, OnDevice};
 mod sgm;
-pub use sgm::{aggregate_paths_gpu, SgmMatcherGpu, GPU_SGM_MAX_DISPARITIES};
+pub use sgm::{
+    aggregate_paths_gpu, select_disparities_gpu, SgmMatcherGpu, GPU_SGM_MAX_DISPARITIES,
+};
 
 /// A [`TgvProblem`] resident on the GPU: tensors, coupling target, primal, over-relaxed primal
 /// and dual, in the CPU's layout (`[u, v1, v2]`, `[p1, p2, q11, q22, q12]` per pixel).
@@ -311,65 +314,6 @@ pub fn pointwise_search_gpu(
     ctx.read_back_as(&buf_a, n as usize)
 }
 
-/// Checks that a stereo pair is non-empty, equally sized, with consistent buffers.
-fn check_pair(left: &GreyImage, right: &GreyImage) -> Result<()> {
-    for img in [left, right] {
-        if img.data.len() != img.width as usize * img.height as usize {
-            return Err(Error::InvalidArgument(
-                "image buffer length does not match its size".into(),
-            ));
-        }
-    }
-    if (left.width, left.height) != (right.width, right.height) {
-        return Err(Error::InvalidArgument(format!(
-            "stereo images differ in size: {}×{} vs {}×{}",
-            left.width, left.height, right.width, right.height
-        )));
-    }
-    if left.width == 0 || left.height == 0 {
-        return Err(Error::InvalidArgument("stereo images are empty".into()));
-    }
-    Ok(())
-}
-
-/// Records the census transform of `image` into a new signature buffer (`words` u32 per pixel);
-/// returns it and the image's buffer on the device (grey levels, 4 per word).
-fn record_census(
-    ctx: &GpuContext,
-    encoder: &mut wgpu::CommandEncoder,
-    image: &GreyImage,
-    params: &CensusParams,
-    words: u32,
-) -> Result<(wgpu::Buffer, wgpu::Buffer)> {
-    let n = image.width as u64 * image.height as u64;
-    ctx.check_binding("census signatures", n * words as u64 * 4)?;
-    let kernel = ctx.kernel(&shaders::CENSUS)?;
-    let (ternary, threshold) = match params.kind {
-        CensusKind::Binary => (0, 0),
-        CensusKind::Ternary { threshold } => (1, threshold as u32),
-    };
-    let uniforms = CensusUniforms {
-        width: image.width,
-        height: image.height,
-        window_width: params.window_width,
-        window_height: params.window_height,
-        ternary,
-        threshold,
-        words,
-        pad: 0,
-    };
-    let buf_uniforms = ctx.uniform("census_uniforms", bytemuck::bytes_of(&uniforms));
-    let buf_image = ctx.storage("census_image", &image.data);
-    let buf_sig = ctx.storage_zeroed("census_signatures", n * words as u64 * 4);
-    let bind = ctx.bind_group(
-        "census",
-        &kernel.layout,
-        &[&buf_uniforms, &buf_image, &buf_sig],
-    );
-    ctx.record_dispatch(encoder, &kernel, &bind, n)?;
-    Ok((buf_sig, buf_image))
-}
-
 /// Records `shaders/tgv_tensors.wgsl`: `gpu`'s tensors from the grey levels in `image`.
 fn record_tensors(
     ctx: &GpuContext,
@@ -411,156 +355,6 @@ pub fn diffusion_tensors_gpu(
     let buf_image = ctx.storage("tensor_image", &image.data);
     let gpu = TgvProblemGpu::upload_with(ctx, &problem, Some((&buf_image, gamma, beta)))?;
     ctx.read_back_as(&gpu.tensors, n)
-}
-
-/// `u32` words of a signature of `params` (two per `u64` word of [`CensusImage`]).
-fn census_words(params: &CensusParams) -> u32 {
-    if params.bits() > 64 {
-        4
-    } else {
-        2
-    }
-}
-
-/// [`crate::depth::census::census_transform`] on the GPU (bit-identical: integer comparisons).
-pub fn census_transform_gpu(
-    ctx: &GpuContext,
-    image: &GreyImage,
-    params: &CensusParams,
-) -> Result<CensusImage> {
-    params.validate()?;
-    if image.data.len() != image.width as usize * image.height as usize {
-        return Err(Error::InvalidArgument(format!(
-            "image data holds {} pixels, expected {}×{}",
-            image.data.len(),
-            image.width,
-            image.height
-        )));
-    }
-    let words = census_words(params);
-    let n = image.width as u64 * image.height as u64;
-    if n == 0 {
-        return Ok(CensusImage {
-            width: image.width,
-            height: image.height,
-            words_per_pixel: words as usize / 2,
-            bits: params.bits(),
-            data: Vec::new(),
-        });
-    }
-    let scope = ErrorScopes::push(&ctx.device);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("census"),
-        });
-    let (sig, _) = record_census(ctx, &mut encoder, image, params, words)?;
-    ctx.submit(encoder);
-    scope.pop("running the census kernel")?;
-    // `words` u32 per pixel, read back as u64 words.
-    let data = ctx.read_back_as::<u64>(&sig, n as usize * words as usize / 2)?;
-    Ok(CensusImage {
-        width: image.width,
-        height: image.height,
-        words_per_pixel: words as usize / 2,
-        bits: params.bits(),
-        data,
-    })
-}
-
-/// The census cost volume of a rectified pair on the GPU: census signatures of both images and
-/// their Hamming distances for disparities `[min_disparity_px, min_disparity_px +
-/// num_disparities)`, bit-identical to [`SgmMatcher::cost_volume`] (CPU: `census_transform` and
-/// `CostVolume::from_census`). Fails with [`Error::GpuCapacity`] when the volume (1 byte per
-/// pixel and disparity) does not fit one binding.
-pub fn cost_volume_gpu(
-    ctx: &GpuContext,
-    left: &GreyImage,
-    right: &GreyImage,
-    census: &CensusParams,
-    min_disparity_px: i32,
-    num_disparities: usize,
-) -> Result<CostVolume> {
-    let args = (census, min_disparity_px, num_disparities);
-    cost_volume_on_device(ctx, left, right, args).map(|(volume, _)| volume)
-}
-
-/// The cost volume on the device (u8 costs packed 4 per word) and the left image there (grey
-/// levels, 4 per word), for the stages that read them there.
-struct OnDevice {
-    volume: wgpu::Buffer,
-    left: wgpu::Buffer,
-}
-
-/// [`cost_volume_gpu`], also returning the volume and the left image on the device.
-fn cost_volume_on_device(
-    ctx: &GpuContext,
-    left: &GreyImage,
-    right: &GreyImage,
-    (census, min_disparity_px, num_disparities): (&CensusParams, i32, usize),
-) -> Result<(CostVolume, OnDevice)> {
-    census.validate()?;
-    check_pair(left, right)?;
-    let max_cost = u8::try_from(census.bits()).map_err(|_| {
-        Error::InvalidArgument(format!(
-            "census signatures of {} bits do not fit u8 costs",
-            census.bits()
-        ))
-    })?;
-    let n = left.width as u64 * left.height as u64;
-    let entries = n * num_disparities as u64;
-    ctx.check_binding("cost volume (1 byte per pixel and disparity)", entries)?;
-    if entries > u32::MAX as u64 || num_disparities == 0 {
-        return Err(Error::InvalidArgument(format!(
-            "cost volume of {entries} entries: must be between 1 and 2³² − 1"
-        )));
-    }
-    let words = census_words(census);
-    let kernel = ctx.kernel(&shaders::CENSUS_COST)?;
-    let scope = ErrorScopes::push(&ctx.device);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("census_cost"),
-        });
-    let (sig_left, left_image) = record_census(ctx, &mut encoder, left, census, words)?;
-    let (sig_right, _) = record_census(ctx, &mut encoder, right, census, words)?;
-    let uniforms = CostUniforms {
-        width: left.width,
-        height: left.height,
-        num_disparities: num_disparities as u32,
-        min_disparity_px,
-        max_cost: max_cost as u32,
-        words,
-        entries: entries as u32,
-        pad: 0,
-    };
-    let buf_uniforms = ctx.uniform("cost_uniforms", bytemuck::bytes_of(&uniforms));
-    let packed_words = entries.div_ceil(4);
-    let buf_volume = ctx.storage_zeroed("cost_volume", packed_words * 4);
-    let bind = ctx.bind_group(
-        "census_cost",
-        &kernel.layout,
-        &[&buf_uniforms, &sig_left, &sig_right, &buf_volume],
-    );
-    ctx.record_dispatch(&mut encoder, &kernel, &bind, packed_words)?;
-    ctx.submit(encoder);
-    scope.pop("running the census cost kernels")?;
-    let mut cost: Vec<u8> = ctx.read_back_as(&buf_volume, packed_words as usize * 4)?;
-    cost.truncate(entries as usize);
-    let volume = CostVolume {
-        width: left.width,
-        height: left.height,
-        min_disparity_px,
-        num_disparities,
-        max_cost,
-        cost,
-    };
-    let on_device = OnDevice {
-        volume: buf_volume,
-        left: left_image,
-    };
-    Ok((volume, on_device))
 }
 
 /// [`TgvMatcher::refine`] on the GPU: the same rounds (point-wise search, then
@@ -622,9 +416,9 @@ fn refine_on_device(
     gpu.u()
 }
 
-/// [`TgvMatcher::estimate_with_stages`] with the cost volume ([`cost_volume_gpu`]), SGM's path
-/// aggregation ([`SgmMatcherGpu`]) and the refinement ([`refine_gpu`]) on the GPU; SGM's
-/// selection and the invalidation run on the CPU.
+/// [`TgvMatcher::estimate_with_stages`] with the cost volume ([`cost_volume_gpu`]), SGM's
+/// aggregation and selection ([`SgmMatcherGpu`]) and the refinement ([`refine_gpu`]) on the
+/// GPU; SGM's filters and the invalidation run on the CPU.
 pub fn estimate_tgv_gpu(
     ctx: &GpuContext,
     matcher: &TgvMatcher,
@@ -636,7 +430,11 @@ pub fn estimate_tgv_gpu(
     let sgm = SgmMatcher::new(p.sgm)?;
     let census = (&p.sgm.census, p.sgm.min_disparity_px, p.sgm.num_disparities);
     let (volume, on_device) = cost_volume_on_device(ctx, left, right, census)?;
-    let init = sgm::sgm_from_device(ctx, &sgm, left, &volume, &on_device)?;
+    let init = if p.sgm.num_disparities <= GPU_SGM_MAX_DISPARITIES {
+        sgm::sgm_on_device(ctx, &sgm, &on_device)?
+    } else {
+        sgm.estimate_from_volume(left, &volume)?
+    };
     let dense = refine_on_device(ctx, matcher, left, (&volume, Some(&on_device)), &init)?;
     let result = matcher.invalidate(&dense, &init, &volume);
     Ok(TgvStages {

@@ -601,8 +601,13 @@ impl SgmMatcher {
         Ok(self.filtered(disparity, confidence))
     }
 
-    /// The median and speckle filters, and confidence 0 where the disparity is invalid.
-    fn filtered(&self, mut disparity: Image<f32>, mut confidence: Image<f32>) -> DisparityMap {
+    /// The median and speckle filters, and confidence 0 where the disparity is invalid (after
+    /// the selection, on either device).
+    pub(crate) fn filtered(
+        &self,
+        mut disparity: Image<f32>,
+        mut confidence: Image<f32>,
+    ) -> DisparityMap {
         let p = &self.params;
         if p.median_filter {
             disparity = median_filter_3x3(&disparity);

@@ -375,6 +375,29 @@ pub struct SgmPathUniforms {
     pub pad: [u32; 3],
 }
 
+/// Uniforms of `shaders/sgm_right.wgsl` and `shaders/sgm_select.wgsl` (WGSL twin:
+/// `SgmSelectUniforms` in `shaders/shared/sgm_select_common.wgsl`): SGM's winner selection.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct SgmSelectUniforms {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Disparity slices.
+    pub num_disparities: u32,
+    /// Disparity of slice 0, pixels.
+    pub min_disparity_px: i32,
+    /// Uniqueness margin (0: off).
+    pub uniqueness: f32,
+    /// Sub-pixel fit: 0 none, 1 parabola, 2 equiangular.
+    pub subpixel: u32,
+    /// Radius of the raw costs' window of the fit; 0: the fit reads S.
+    pub radius: u32,
+    /// Largest left–right difference, slices; `0xffff`: no check.
+    pub lr_max_diff: u32,
+}
+
 /// Every buffer struct the kernels share with the host: its WGSL name and the size of its Rust
 /// twin, bytes. `tests/gpu.rs` checks each against the size naga computes for the WGSL struct
 /// (and that every struct a kernel binds is listed here).
@@ -398,6 +421,10 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("WindowUniforms", std::mem::size_of::<WindowUniforms>()),
     ("TensorUniforms", std::mem::size_of::<TensorUniforms>()),
     ("SgmPathUniforms", std::mem::size_of::<SgmPathUniforms>()),
+    (
+        "SgmSelectUniforms",
+        std::mem::size_of::<SgmSelectUniforms>(),
+    ),
 ];
 
 /// Appends `block`'s 512 voxels, packed, to `out` (the layout every fusion kernel reads).

@@ -190,6 +190,24 @@ pub const SGM_PATHS: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite]
 );
 
+/// SGM's right-image winners (the left–right check's), from S.
+pub const SGM_RIGHT: ShaderSource = kernel!(
+    "sgm_right.wgsl",
+    ["shared/dispatch.wgsl", "shared/sgm_select_common.wgsl"],
+    [Uniform, Read, ReadWrite]
+);
+
+/// SGM's winner selection: disparity and confidence per pixel, from S.
+pub const SGM_SELECT: ShaderSource = kernel!(
+    "sgm_select.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/packed_bytes.wgsl",
+        "shared/sgm_select_common.wgsl"
+    ],
+    [Uniform, Read, Read, Read, ReadWrite, ReadWrite]
+);
+
 /// Marching cubes, pass 1: triangles per meshed block.
 pub const MC_COUNT: ShaderSource = kernel!(
     "mc_count.wgsl",
@@ -259,6 +277,8 @@ pub const ALL: &[ShaderSource] = &[
     COST_WINDOW,
     TGV_TENSORS,
     SGM_PATHS,
+    SGM_RIGHT,
+    SGM_SELECT,
     // Marching cubes.
     MC_COUNT,
     MC_EMIT,

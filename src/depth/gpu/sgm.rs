@@ -1,19 +1,22 @@
 //! SGM on the GPU: the path aggregation (`shaders/sgm_paths.wgsl`, one dispatch per direction)
-//! runs where the cost volume was made, and the summed costs `S` come back for the selection
-//! (winner, uniqueness, sub-pixel fit, left–right check), the median and the speckle filter,
-//! which run on the CPU exactly as [`SgmMatcher`]'s do. The sums are integers, equal to the CPU's
-//! ([`crate::depth::sgm::aggregate_paths`]), so the disparities are identical to the CPU
-//! matcher's bit for bit, on any device.
+//! and the winner selection (`shaders/sgm_right.wgsl`, the right image's winners, then
+//! `shaders/sgm_select.wgsl`: winner-take-all, uniqueness, sub-pixel fit, left–right check,
+//! confidence) run where the cost volume was made, in one submit; the disparities and
+//! confidences come back (8 bytes per pixel) for the median and the speckle filter, which run on
+//! the CPU as [`SgmMatcher`]'s do. The sums are integers, equal to the CPU's
+//! ([`crate::depth::sgm::aggregate_paths`]); so are the winners and the checks. The sub-pixel
+//! fit and the confidence divide two integers in f32: exact (IEEE) on llvmpipe, where the
+//! disparities equal the CPU matcher's bit for bit; within 2.5 ULP on other devices, as WGSL
+//! allows (a difference of at most about 1e-7 px).
 //!
-//! What crosses the bus for one pair: the two images up; the cost volume (1 byte per pixel and
-//! disparity, which the selection's sub-pixel window and the variational matcher read) and `S`
-//! (2 bytes) down.
+//! What crosses the bus for one pair of `SgmMatcherGpu`: the two images up, the disparities and
+//! confidences down; the cost volume and `S` stay on the device.
 
-use super::{cost_volume_on_device, OnDevice};
-use crate::depth::sgm::{CostVolume, SgmMatcher, SgmParams, SgmPaths};
+use super::{cost_volume_kept_on_device, cost_volume_on_device, OnDevice};
+use crate::depth::sgm::{CostVolume, SgmMatcher, SgmParams, SgmPaths, SubpixelFit};
 use crate::depth::{DisparityEstimator, DisparityMap};
-use crate::frame::GreyImage;
-use crate::gpu::layout::SgmPathUniforms;
+use crate::frame::{GreyImage, Image};
+use crate::gpu::layout::{SgmPathUniforms, SgmSelectUniforms};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
 use crate::{Error, Result};
@@ -40,11 +43,12 @@ fn directions(paths: SgmPaths) -> &'static [(i32, i32)] {
     }
 }
 
-/// Aggregates the paths of `params` over the cost volume `volume` (u8 costs, 4 per word) of a
-/// `width` × `height` image whose grey levels `image` holds (4 per word), on the device; returns
-/// the buffer of `S` (u16, 2 per word, the volume's order). One submit.
-fn aggregate_on_device(
+/// Records the aggregation of the paths of `params` over the cost volume `volume` (u8 costs, 4
+/// per word) of a `width` × `height` image whose grey levels `image` holds (4 per word); returns
+/// the buffer of `S` (u16, 2 per word, the volume's order).
+fn record_aggregation(
     ctx: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
     (volume, image): (&wgpu::Buffer, &wgpu::Buffer),
     (width, height): (u32, u32),
     params: &SgmParams,
@@ -63,11 +67,6 @@ fn aggregate_on_device(
     let kernel = ctx.kernel(&shaders::SGM_PATHS)?;
     let words = entries.div_ceil(2);
     let sums = ctx.storage_zeroed("sgm_sums", words * 4);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("sgm_paths"),
-        });
     for &(dx, dy) in directions(params.paths) {
         let lines = match (dx, dy) {
             (_, 0) => height,
@@ -93,10 +92,58 @@ fn aggregate_on_device(
             &[&buf_uniforms, volume, image, &sums],
         );
         // One workgroup (64 invocations) per path line.
-        ctx.record_dispatch(&mut encoder, &kernel, &bind, lines as u64 * 64)?;
+        ctx.record_dispatch(encoder, &kernel, &bind, lines as u64 * 64)?;
     }
-    ctx.submit(encoder);
     Ok(sums)
+}
+
+/// Records the winner selection over `sums` (and the raw costs `volume`, for the windowed fit)
+/// of a `width` × `height` image; returns the buffers of the disparities and confidences (f32
+/// per pixel, NaN and 0 where invalid).
+fn record_selection(
+    ctx: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    (sums, volume): (&wgpu::Buffer, &wgpu::Buffer),
+    (width, height): (u32, u32),
+    params: &SgmParams,
+) -> Result<(wgpu::Buffer, wgpu::Buffer)> {
+    let right = ctx.kernel(&shaders::SGM_RIGHT)?;
+    let select = ctx.kernel(&shaders::SGM_SELECT)?;
+    let n = width as u64 * height as u64;
+    let uniforms = SgmSelectUniforms {
+        width,
+        height,
+        num_disparities: params.num_disparities as u32,
+        min_disparity_px: params.min_disparity_px,
+        uniqueness: params.uniqueness_ratio,
+        subpixel: match params.subpixel {
+            SubpixelFit::None => 0,
+            SubpixelFit::Parabola => 1,
+            SubpixelFit::Equiangular => 2,
+        },
+        radius: params.subpixel_cost_window / 2,
+        lr_max_diff: params.lr_max_diff_px.map_or(0xffff, |d| d.min(0xfffe)),
+    };
+    let buf_uniforms = ctx.uniform("sgm_select_uniforms", bytemuck::bytes_of(&uniforms));
+    let right_k = ctx.storage_zeroed("sgm_right_k", n * 4);
+    let disparity = ctx.storage_zeroed("sgm_disparity", n * 4);
+    let confidence = ctx.storage_zeroed("sgm_confidence", n * 4);
+    let bind = ctx.bind_group("sgm_right", &right.layout, &[&buf_uniforms, sums, &right_k]);
+    ctx.record_dispatch(encoder, &right, &bind, n)?;
+    let bind = ctx.bind_group(
+        "sgm_select",
+        &select.layout,
+        &[
+            &buf_uniforms,
+            sums,
+            volume,
+            &right_k,
+            &disparity,
+            &confidence,
+        ],
+    );
+    ctx.record_dispatch(encoder, &select, &bind, n)?;
+    Ok((disparity, confidence))
 }
 
 /// Reads `S` back: `entries` u16 values.
@@ -134,47 +181,101 @@ pub fn aggregate_paths_gpu(
     let scope = ErrorScopes::push(&ctx.device);
     let buf_volume = ctx.storage("sgm_volume", &volume.cost);
     let buf_image = ctx.storage("sgm_image", &image.data);
-    let sums = aggregate_on_device(
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("sgm_paths"),
+        });
+    let sums = record_aggregation(
         ctx,
+        &mut encoder,
         (&buf_volume, &buf_image),
         (volume.width, volume.height),
         params,
     )?;
+    ctx.submit(encoder);
     scope.pop("running the SGM path kernels")?;
     read_sums(ctx, &sums, volume.cost.len())
 }
 
-/// SGM of a pair whose cost volume is on the device (`on_device`, read back as `volume`; `left`
-/// its left image): the paths aggregated there, the selection and filters of [`SgmMatcher`] on
-/// the CPU. Beyond [`GPU_SGM_MAX_DISPARITIES`] the aggregation runs on the CPU (the same result).
-pub(super) fn sgm_from_device(
+/// SGM of a pair whose cost volume is on the device (`on_device`): the paths aggregated and the
+/// winners selected there in one submit, the disparities and confidences read back and filtered
+/// as [`SgmMatcher`] filters them. At most [`GPU_SGM_MAX_DISPARITIES`] disparities.
+pub(super) fn sgm_on_device(
     ctx: &GpuContext,
     matcher: &SgmMatcher,
-    left: &GreyImage,
-    volume: &CostVolume,
     on_device: &OnDevice,
 ) -> Result<DisparityMap> {
     let p = &matcher.params;
     p.validate()?;
-    if p.num_disparities > GPU_SGM_MAX_DISPARITIES {
-        return matcher.estimate_from_volume(left, volume);
-    }
-    if volume.width == 0 || volume.height == 0 {
-        return Err(Error::InvalidArgument("stereo images are empty".into()));
-    }
+    let size = (on_device.width, on_device.height);
     let scope = ErrorScopes::push(&ctx.device);
-    let sums = aggregate_on_device(
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sgm") });
+    let sums = record_aggregation(
         ctx,
+        &mut encoder,
         (&on_device.volume, &on_device.left),
-        (volume.width, volume.height),
+        size,
         p,
     )?;
-    scope.pop("running the SGM path kernels")?;
-    let sums = read_sums(ctx, &sums, volume.cost.len())?;
-    matcher.estimate_from_sums(volume, &sums)
+    let (disparity, confidence) =
+        record_selection(ctx, &mut encoder, (&sums, &on_device.volume), size, p)?;
+    ctx.submit(encoder);
+    scope.pop("running the SGM kernels")?;
+    let image = || Image::filled(size.0, size.1, 0.0f32);
+    let (mut d, mut c) = (image(), image());
+    ctx.read_back_into(&mut [
+        (&disparity, bytemuck::cast_slice_mut(&mut d.data)),
+        (&confidence, bytemuck::cast_slice_mut(&mut c.data)),
+    ])?;
+    Ok(matcher.filtered(d, c))
 }
 
-/// [`SgmMatcher`] with its cost volume and path aggregation on the GPU; the same disparities.
+/// SGM's selection over sums computed elsewhere, on the device: [`crate::depth::sgm::select_disparities`]'s
+/// twin, for tests. Uploads `sums` and the raw costs of `volume`.
+pub fn select_disparities_gpu(
+    ctx: &GpuContext,
+    sums: &[u16],
+    volume: &CostVolume,
+    params: &SgmParams,
+) -> Result<(Image<f32>, Image<f32>)> {
+    params.validate()?;
+    let (w, h) = (volume.width, volume.height);
+    if sums.len() != volume.cost.len() || volume.num_disparities != params.num_disparities {
+        return Err(Error::InvalidArgument(format!(
+            "{} sums for a volume of {} entries and {} disparities ({} in the parameters)",
+            sums.len(),
+            volume.cost.len(),
+            volume.num_disparities,
+            params.num_disparities
+        )));
+    }
+    let scope = ErrorScopes::push(&ctx.device);
+    let buf_sums = ctx.storage("sgm_sums", bytemuck::cast_slice(sums));
+    let buf_volume = ctx.storage("sgm_volume", &volume.cost);
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("sgm_select"),
+        });
+    let (disparity, confidence) =
+        record_selection(ctx, &mut encoder, (&buf_sums, &buf_volume), (w, h), params)?;
+    ctx.submit(encoder);
+    scope.pop("running the SGM selection kernels")?;
+    let (mut d, mut c) = (Image::filled(w, h, 0.0f32), Image::filled(w, h, 0.0f32));
+    ctx.read_back_into(&mut [
+        (&disparity, bytemuck::cast_slice_mut(&mut d.data)),
+        (&confidence, bytemuck::cast_slice_mut(&mut c.data)),
+    ])?;
+    Ok((d, c))
+}
+
+/// [`SgmMatcher`] on the GPU: the cost volume, the path aggregation and the selection there, the
+/// filters on the CPU; the same disparities (see the module documentation). Beyond
+/// [`GPU_SGM_MAX_DISPARITIES`] the aggregation and selection run on the CPU over the volume
+/// read back (the same result).
 #[derive(Debug)]
 pub struct SgmMatcherGpu {
     ctx: std::sync::Arc<GpuContext>,
@@ -197,7 +298,11 @@ impl DisparityEstimator for SgmMatcherGpu {
         let p = &self.matcher.params;
         p.validate()?;
         let census = (&p.census, p.min_disparity_px, p.num_disparities);
-        let (volume, on_device) = cost_volume_on_device(&self.ctx, left, right, census)?;
-        sgm_from_device(&self.ctx, &self.matcher, left, &volume, &on_device)
+        if p.num_disparities > GPU_SGM_MAX_DISPARITIES {
+            let (volume, _) = cost_volume_on_device(&self.ctx, left, right, census)?;
+            return self.matcher.estimate_from_volume(left, &volume);
+        }
+        let on_device = cost_volume_kept_on_device(&self.ctx, left, right, census)?;
+        sgm_on_device(&self.ctx, &self.matcher, &on_device)
     }
 }
