@@ -38,7 +38,7 @@ pub const SHARD: &str = "Do only this task's share of the work (regularize: regi
 /// `--json`.
 pub const JSON: &str = "Print JSON instead of text";
 /// `--device`.
-pub const DEVICE: &str = "Where stereo (tv/tgv/tgv-tensor), fusion, regularization and, with \
+pub const DEVICE: &str = "Where stereo (every method), fusion, regularization and, with \
     `gpu`, an in-memory run's meshing run (`auto`: each where it was measured faster, \
     docs/bench/gpu.md) [default: auto; bench's: cpu, so its recorded figures stay comparable]";
 /// `--max-depth-m`.

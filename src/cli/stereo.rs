@@ -91,7 +91,7 @@ impl fmt::Display for Matched {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "{} on {}: {}×{} px, {} valid disparities ({:.1} %), matched in {:.2} s",
+            "{} on {}: {}×{} px, {} valid disparities ({:.1} %), matched in {:.3} s",
             self.method,
             self.device,
             self.width,

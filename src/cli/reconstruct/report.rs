@@ -95,8 +95,8 @@ impl fmt::Display for Report {
         if let Some(dev) = &self.stereo_device {
             writeln!(
                 f,
-                "stereo on {dev}: {:.2} s per frame (reading and matching)",
-                t.input_s / t.frames_fused.max(1) as f64
+                "stereo on {dev}: {:.1} ms per frame (reading and matching)",
+                1e3 * t.input_s / t.frames_fused.max(1) as f64
             )?;
         }
         writeln!(
