@@ -1,22 +1,24 @@
 // SGM's winner selection (CPU twin: `RowSelect::finish` and `winner` in
-// src/depth/aggregate/select.rs): winner-take-all over S (the first slice of the smallest sum),
-// the uniqueness test against the smallest sum more than one slice away, the sub-pixel fit (on
-// S, or on the raw costs summed over a window), the left–right check against the right image's
-// winners (sgm_right.wgsl) and the confidence. Integer until the fit; the fit's and the
-// confidence's divisions are the device's (IEEE on llvmpipe, within 2.5 ULP elsewhere). One
-// invocation per pixel; NaN where invalid. Shared files and bindings: src/gpu/shaders.rs.
+// src/depth/aggregate/select.rs): winner-take-all over S (the first slice of the smallest sum)
+// and the smallest sum more than one slice away, the sub-pixel fit's terms (on S, or on the raw
+// costs summed over a window), the left–right check against the right image's winners
+// (sgm_right.wgsl). Integers only: the uniqueness test and the fit's and the confidence's
+// divisions (f32) are left to the host (`decode_selection` in src/depth/gpu/sgm.rs), which divides as
+// the CPU matcher does, so the disparities are the CPU's bit for bit on every device (WGSL lets a
+// device divide within 2.5 ULP). One invocation per pixel, four words out:
+//   0: the winning slice, or INVALID (matched outside the right image, or inconsistent);
+//   1: the fit's numerator a − c (i32);  2: its denominator 2·den (0: no fit);
+//   3: the runner-up's sum << 16 | the winner's sum (the confidence's terms).
+// Shared files and bindings: src/gpu/shaders.rs.
 
 @group(0) @binding(0) var<uniform> params: SgmSelectUniforms;
 @group(0) @binding(1) var<storage, read> sums: array<u32>;
 // u8 costs, 4 per word (the raw costs of the windowed fit).
 @group(0) @binding(2) var<storage, read> volume: array<u32>;
 @group(0) @binding(3) var<storage, read> right_k: array<u32>;
-@group(0) @binding(4) var<storage, read_write> disparity: array<f32>;
-@group(0) @binding(5) var<storage, read_write> confidence: array<f32>;
+@group(0) @binding(4) var<storage, read_write> selection: array<u32>;
 
-fn nan() -> f32 {
-    return bitcast<f32>(0x7fc00000u);
-}
+const INVALID: u32 = 0xffffffffu;
 
 fn raw_at(e: u32) -> u32 {
     return packed_byte(volume[e >> 2u], e);
@@ -53,55 +55,14 @@ fn main(
             second = min(second, sum_at(base + k));
         }
     }
-    disparity[i] = nan();
-    confidence[i] = 0.0;
+    let out = i * 4u;
+    selection[out] = INVALID;
+    selection[out + 1u] = 0u;
+    selection[out + 2u] = 0u;
+    selection[out + 3u] = (second << 16u) | best;
     let xr = i32(x) - params.min_disparity_px - i32(bk);
     if (xr < 0 || xr >= i32(w)) {
         return;
-    }
-    let uniq = params.uniqueness;
-    if (uniq > 0.0 && f32(second) * (1.0 - uniq) < f32(best)) {
-        return;
-    }
-    var d = f32(params.min_disparity_px + i32(bk));
-    if (bk > 0u && bk + 1u < nd) {
-        var a = f32(sum_at(base + bk - 1u));
-        var b = f32(best);
-        var c = f32(sum_at(base + bk + 1u));
-        let r = params.radius;
-        if (r > 0u) {
-            var abc = vec3<u32>(0u, 0u, 0u);
-            let y0 = select(0u, y - r, y >= r);
-            let y1 = min(y + r + 1u, h);
-            let x0 = select(0u, x - r, x >= r);
-            let x1 = min(x + r + 1u, w);
-            for (var yy = y0; yy < y1; yy = yy + 1u) {
-                for (var xx = x0; xx < x1; xx = xx + 1u) {
-                    let e = (yy * w + xx) * nd + bk - 1u;
-                    abc = abc + vec3<u32>(raw_at(e), raw_at(e + 1u), raw_at(e + 2u));
-                }
-            }
-            a = f32(abc.x);
-            b = f32(abc.y);
-            c = f32(abc.z);
-        }
-        var offset = 0.0;
-        if (params.subpixel == 1u) {
-            let den = a - 2.0 * b + c;
-            if (den > 0.0) {
-                offset = (a - c) / (2.0 * den);
-            }
-        } else if (params.subpixel == 2u) {
-            let den = max(a, c) - b;
-            if (den > 0.0) {
-                offset = (a - c) / (2.0 * den);
-            }
-        }
-        d = d + clamp(offset, -0.5, 0.5);
-    }
-    var conf = 0.0;
-    if (second != NO_SLICE && second != 0u) {
-        conf = f32(second - min(second, best)) / f32(second);
     }
     if (params.lr_max_diff != NO_SLICE) {
         let rk = right_k[y * w + (w - 1u - u32(xr))];
@@ -110,6 +71,37 @@ fn main(
             return;
         }
     }
-    disparity[i] = d;
-    confidence[i] = conf;
+    selection[out] = bk;
+    if (params.subpixel == 0u || bk == 0u || bk + 1u >= nd) {
+        return;
+    }
+    var a = i32(sum_at(base + bk - 1u));
+    var b = i32(best);
+    var c = i32(sum_at(base + bk + 1u));
+    let r = params.radius;
+    if (r > 0u) {
+        var abc = vec3<u32>(0u, 0u, 0u);
+        let y0 = select(0u, y - r, y >= r);
+        let y1 = min(y + r + 1u, h);
+        let x0 = select(0u, x - r, x >= r);
+        let x1 = min(x + r + 1u, w);
+        for (var yy = y0; yy < y1; yy = yy + 1u) {
+            for (var xx = x0; xx < x1; xx = xx + 1u) {
+                let e = (yy * w + xx) * nd + bk - 1u;
+                abc = abc + vec3<u32>(raw_at(e), raw_at(e + 1u), raw_at(e + 2u));
+            }
+        }
+        a = i32(abc.x);
+        b = i32(abc.y);
+        c = i32(abc.z);
+    }
+    // Parabola: a − 2b + c; equiangular: max(a, c) − b (the CPU's, exact in f32 for these sums).
+    var den = max(a, c) - b;
+    if (params.subpixel == 1u) {
+        den = a - 2 * b + c;
+    }
+    if (den > 0) {
+        selection[out + 1u] = bitcast<u32>(a - c);
+        selection[out + 2u] = u32(2 * den);
+    }
 }

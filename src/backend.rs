@@ -95,7 +95,7 @@ impl GpuStages {
     };
 
     /// What `--device auto` runs on a hardware GPU: the rule applied to the project's records
-    /// ([`RECORDED_FASTER`]), today TV and marching cubes.
+    /// ([`RECORDED_FASTER`]), today TV, stereo and marching cubes.
     pub const MEASURED_FASTER: GpuStages =
         GpuStages::auto_rule(AdapterClass::Hardware, RECORDED_FASTER);
 
@@ -240,8 +240,9 @@ pub struct StageRecord {
     pub record: &'static str,
 }
 
-/// The records `--device auto` follows. TV: 1.7–2.1× an H100 machine's 16 cores; not depth
-/// fusion (2.8× slower), LiDAR fusion (3.5× slower) or stereo; a software adapter is slower than
+/// The records `--device auto` follows. TV: 1.7–2.1× an H100 machine's 16 cores; marching
+/// cubes 8–10×; stereo 1.5–2.8× an H200 machine's; not depth fusion (1.8× slower) or LiDAR
+/// fusion (1.6× slower); a software adapter is slower than
 /// the CPU code at every stage (`benches/gpu.rs`).
 pub const RECORDED_FASTER: &[StageRecord] = &[
     StageRecord {
@@ -254,6 +255,12 @@ pub const RECORDED_FASTER: &[StageRecord] = &[
         class: AdapterClass::Hardware,
         record: "docs/bench/gpu.md, run 14 (NVIDIA H100, `denser bench`: 7.2 against 60.5 ms at \
                  10 cm, 19.8 against 192.9 ms at 5 cm)",
+    },
+    StageRecord {
+        stage: Stage::Stereo,
+        class: AdapterClass::Hardware,
+        record: "docs/bench/gpu.md, run 16 (NVIDIA H200, 1241×376 pairs: SGM 39.9 against 112.9 \
+                 ms per frame, TGV-tensor 124.7 against 184.9 ms)",
     },
 ];
 
@@ -574,11 +581,11 @@ mod tests {
 
     #[test]
     fn auto_places_a_stage_on_an_adapter_only_where_a_record_says_it_is_faster() {
-        // The project's records: TV and meshing on hardware GPUs, nothing on lavapipe.
+        // The project's records: TV, stereo and meshing on hardware GPUs, nothing on lavapipe.
         let hw = GpuStages::auto_rule(AdapterClass::Hardware, RECORDED_FASTER);
         assert_eq!(
             (hw.fusion, hw.tv, hw.stereo, hw.mesh),
-            (false, true, false, true)
+            (false, true, true, true)
         );
         assert_eq!(hw, GpuStages::MEASURED_FASTER);
         assert!(!GpuStages::auto_rule(AdapterClass::Software, RECORDED_FASTER).any());

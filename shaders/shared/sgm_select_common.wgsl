@@ -8,14 +8,13 @@ struct SgmSelectUniforms {
     num_disparities: u32,
     // Disparity of slice 0, pixels.
     min_disparity_px: i32,
-    // Uniqueness margin (0: off).
-    uniqueness: f32,
     // 0: none, 1: parabola, 2: equiangular (SubpixelFit).
     subpixel: u32,
     // Radius of the raw costs' window of the sub-pixel fit; 0: the fit reads S.
     radius: u32,
     // Largest left–right difference, slices; NO_SLICE: no check.
     lr_max_diff: u32,
+    _pad0: u32,
 }
 
 // "No slice" (the CPU's u16::MAX).

@@ -305,7 +305,8 @@ pub(crate) fn mib(bytes: u64) -> f64 {
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub(crate) enum DeviceArg {
     /// On a hardware GPU, the stages measured faster there than on the CPU (today TV
-    /// regularization; fusion and stereo stay on the CPU); without one, the CPU.
+    /// regularization, stereo and in-memory meshing; fusion stays on the CPU); without one, the
+    /// CPU.
     Auto,
     /// The CPU.
     Cpu,

@@ -15,7 +15,7 @@ pub const WORKGROUP_SIZE: u32 = 64;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DeviceChoice {
     /// The adapter, for the stages the records show faster on its class of adapter than on the
-    /// CPU (`crate::backend::GpuStages::auto_rule`: today TV and marching cubes on a hardware
+    /// CPU (`crate::backend::GpuStages::auto_rule`: today TV, stereo and marching cubes on a hardware
     /// GPU, nothing on a software one such as lavapipe, which is slower than the CPU code,
     /// `benches/gpu.rs`); the CPU for the rest, and for everything when no adapter exists.
     #[default]

@@ -378,7 +378,7 @@ pub struct SgmPathUniforms {
 /// Uniforms of `shaders/sgm_right.wgsl` and `shaders/sgm_select.wgsl` (WGSL twin:
 /// `SgmSelectUniforms` in `shaders/shared/sgm_select_common.wgsl`): SGM's winner selection.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
 pub struct SgmSelectUniforms {
     /// Image width, pixels.
     pub width: u32,
@@ -388,14 +388,14 @@ pub struct SgmSelectUniforms {
     pub num_disparities: u32,
     /// Disparity of slice 0, pixels.
     pub min_disparity_px: i32,
-    /// Uniqueness margin (0: off).
-    pub uniqueness: f32,
     /// Sub-pixel fit: 0 none, 1 parabola, 2 equiangular.
     pub subpixel: u32,
     /// Radius of the raw costs' window of the fit; 0: the fit reads S.
     pub radius: u32,
     /// Largest left–right difference, slices; `0xffff`: no check.
     pub lr_max_diff: u32,
+    /// Padding to 32 bytes.
+    pub pad: u32,
 }
 
 /// Every buffer struct the kernels share with the host: its WGSL name and the size of its Rust

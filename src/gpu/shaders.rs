@@ -197,7 +197,8 @@ pub const SGM_RIGHT: ShaderSource = kernel!(
     [Uniform, Read, ReadWrite]
 );
 
-/// SGM's winner selection: disparity and confidence per pixel, from S.
+/// SGM's winner selection: each pixel's winner and its fit's and confidence's integer terms,
+/// from S.
 pub const SGM_SELECT: ShaderSource = kernel!(
     "sgm_select.wgsl",
     [
@@ -205,7 +206,7 @@ pub const SGM_SELECT: ShaderSource = kernel!(
         "shared/packed_bytes.wgsl",
         "shared/sgm_select_common.wgsl"
     ],
-    [Uniform, Read, Read, Read, ReadWrite, ReadWrite]
+    [Uniform, Read, Read, Read, ReadWrite]
 );
 
 /// Marching cubes, pass 1: triangles per meshed block.

@@ -1,13 +1,13 @@
 //! SGM on the GPU against its CPU twin (issue 35 item 1): the summed path costs `S` of
-//! `shaders/sgm_paths.wgsl` equal `aggregate_paths`'s (integers, on any device) in every path
-//! mode, with and without the adaptive P2; the selection of `shaders/sgm_select.wgsl` equals
+//! `shaders/sgm_paths.wgsl` equal `aggregate_paths`'s in every path mode, with and without the
+//! adaptive P2; the selection of `shaders/sgm_select.wgsl`, finished on the host, equals
 //! `select_disparities`'s for every sub-pixel fit, with and without its window, the uniqueness
 //! test and the left–right check; and `SgmMatcherGpu` (everything but the median and speckle
-//! filters on the GPU) gives the CPU matcher's disparities and confidences. Bit for bit on
-//! llvmpipe; elsewhere the fit's and the confidence's f32 divisions may differ by 2.5 ULP (WGSL),
-//! so there validity must agree and values within 1e-5. On the generated pair, an odd-sized
-//! crop of it, Middlebury 2014 Motorcycle (quarter size) and KITTI 00 frame 0 (cropped, to keep
-//! lavapipe's time down), the real pairs skipped when `../shared/data` is absent.
+//! filters on the GPU) gives the CPU matcher's disparities and confidences. Bit for bit on every
+//! device: the device computes integers only (src/depth/gpu/sgm.rs). On the generated pair, an
+//! odd-sized crop of it, Middlebury 2014 Motorcycle (quarter size) and KITTI 00 frame 0
+//! (cropped, to keep lavapipe's time down), the real pairs skipped when `../shared/data` is
+//! absent.
 
 use crate::common;
 use crate::depth_support::{city_like_planes, piecewise_planar_pair};
@@ -64,17 +64,9 @@ fn check_sums(ctx: &GpuContext, what: &str, left: &GreyImage, right: &GreyImage,
     }
 }
 
-/// Whether `a` and `b` agree (`None`) or the first pixel where they do not: bit for bit on
-/// llvmpipe, else equal validity and within 1e-5.
-fn agree(ctx: &GpuContext, a: &[f32], b: &[f32]) -> Option<usize> {
-    let exact = ctx.describe().contains("llvmpipe");
-    (0..a.len()).find(|&k| {
-        if exact {
-            a[k].to_bits() != b[k].to_bits()
-        } else {
-            a[k].is_nan() != b[k].is_nan() || (a[k] - b[k]).abs() > 1e-5
-        }
-    })
+/// The first pixel where `a` and `b` differ in any bit (NaN included), or `None`.
+fn agree(a: &[f32], b: &[f32]) -> Option<usize> {
+    (0..a.len()).find(|&k| a[k].to_bits() != b[k].to_bits())
 }
 
 /// The selection on both devices over the same sums, for each fit and rule.
@@ -112,7 +104,7 @@ fn check_selection(ctx: &GpuContext, what: &str, left: &GreyImage, right: &GreyI
         let (dc, cc) = select_disparities(&sums, Some(&volume), w, h, &params).expect("CPU");
         let (dg, cg) = select_disparities_gpu(ctx, &sums, &volume, &params).expect("GPU");
         for (name, a, b) in [("disparity", &dc, &dg), ("confidence", &cc, &cg)] {
-            if let Some(k) = agree(ctx, &a.data, &b.data) {
+            if let Some(k) = agree(&a.data, &b.data) {
                 panic!(
                     "{what}, {params:?}: {name} at pixel ({}, {}): CPU {} GPU {}",
                     k % w as usize,
@@ -148,10 +140,10 @@ fn check_matcher(
         "{what}: {valid} valid pixels"
     );
     let (dc, dg) = (&cpu.disparity_px.data, &gpu.disparity_px.data);
-    assert_eq!(agree(ctx, dc, dg), None, "{what}: disparities differ");
+    assert_eq!(agree(dc, dg), None, "{what}: disparities differ");
     let conf = |d: &denser::depth::DisparityMap| d.confidence.clone().expect("confidence").data;
     assert_eq!(
-        agree(ctx, &conf(&cpu), &conf(&gpu)),
+        agree(&conf(&cpu), &conf(&gpu)),
         None,
         "{what}: confidences differ"
     );
@@ -205,7 +197,7 @@ fn sgm_on_the_gpu_equals_the_cpu_matcher() {
 #[test]
 fn sgm_on_the_gpu_sends_the_images_up_and_the_disparities_down() {
     // The cost volume and S stay on the device: up go the two images (1 byte per pixel each)
-    // and uniforms, down the disparities and confidences (4 bytes per pixel each); a submit for
+    // and uniforms, down the selection's four words per pixel; a submit for
     // the costs, one for the paths and the selection and one for the read-back copy, one wait.
     let Some(ctx) = gpu() else { return };
     let ctx = Arc::new(ctx);
@@ -226,6 +218,6 @@ fn sgm_on_the_gpu_sends_the_images_up_and_the_disparities_down() {
     let pixels = (w * h) as u64;
     eprintln!("{pixels} pixels: {t:?}");
     assert!(t.upload_bytes <= 2 * pixels + (64 << 10), "{t:?}");
-    assert!(t.readback_bytes <= 8 * pixels, "{t:?}");
+    assert!(t.readback_bytes <= 16 * pixels, "{t:?}");
     assert!(t.submits <= 3 && t.waits <= 1, "{t:?}");
 }

@@ -533,10 +533,10 @@ fn the_gpu_matcher_sends_no_costs_up() {
     // bytes per entry and 4 per pixel): 3.2 MB here against this bound's 0.43 MB.
     assert!(t.upload_bytes <= 18 * pixels + (64 << 10), "{t:?}");
     // Down: the cost volume once (for the CPU's initial problem and invalidation), SGM's
-    // disparities and confidences (4 bytes per pixel each; its sums stay on the device) and the
-    // primal ([u, v1, v2] per pixel).
+    // selection (16 bytes per pixel; its sums stay on the device) and the primal ([u, v1, v2]
+    // per pixel).
     assert!(
-        t.readback_bytes <= entries.next_multiple_of(4) + 20 * pixels,
+        t.readback_bytes <= entries.next_multiple_of(4) + 28 * pixels,
         "{t:?}"
     );
 }

@@ -1,16 +1,16 @@
 //! SGM on the GPU: the path aggregation (`shaders/sgm_paths.wgsl`, one dispatch per direction)
 //! and the winner selection (`shaders/sgm_right.wgsl`, the right image's winners, then
-//! `shaders/sgm_select.wgsl`: winner-take-all, uniqueness, sub-pixel fit, left–right check,
-//! confidence) run where the cost volume was made, in one submit; the disparities and
-//! confidences come back (8 bytes per pixel) for the median and the speckle filter, which run on
-//! the CPU as [`SgmMatcher`]'s do. The sums are integers, equal to the CPU's
-//! ([`crate::depth::sgm::aggregate_paths`]); so are the winners and the checks. The sub-pixel
-//! fit and the confidence divide two integers in f32: exact (IEEE) on llvmpipe, where the
-//! disparities equal the CPU matcher's bit for bit; within 2.5 ULP on other devices, as WGSL
-//! allows (a difference of at most about 1e-7 px).
+//! `shaders/sgm_select.wgsl`: winner-take-all, the runner-up, the sub-pixel fit's terms, the
+//! left–right check) run where the cost volume was made, in one submit. Only integers are
+//! computed there: the sums equal the CPU's ([`crate::depth::sgm::aggregate_paths`]), and so do
+//! the winners and the checks. Four words per pixel come back (16 bytes), and the host finishes
+//! them with the CPU's f32 operations (the uniqueness test, the fit's and the confidence's
+//! divisions, which WGSL would let a device round within 2.5 ULP): the disparities and
+//! confidences are the CPU matcher's bit for bit on every device. The median and the speckle
+//! filter then run on the CPU as [`SgmMatcher`]'s do.
 //!
-//! What crosses the bus for one pair of `SgmMatcherGpu`: the two images up, the disparities and
-//! confidences down; the cost volume and `S` stay on the device.
+//! What crosses the bus for one pair of `SgmMatcherGpu`: the two images up, the selection's 16
+//! bytes per pixel down; the cost volume and `S` stay on the device.
 
 use super::{cost_volume_kept_on_device, cost_volume_on_device, OnDevice};
 use crate::depth::sgm::{CostVolume, SgmMatcher, SgmParams, SgmPaths, SubpixelFit};
@@ -98,15 +98,15 @@ fn record_aggregation(
 }
 
 /// Records the winner selection over `sums` (and the raw costs `volume`, for the windowed fit)
-/// of a `width` × `height` image; returns the buffers of the disparities and confidences (f32
-/// per pixel, NaN and 0 where invalid).
+/// of a `width` × `height` image; returns the buffer of its four words per pixel
+/// ([`decode_selection`] reads them).
 fn record_selection(
     ctx: &GpuContext,
     encoder: &mut wgpu::CommandEncoder,
     (sums, volume): (&wgpu::Buffer, &wgpu::Buffer),
     (width, height): (u32, u32),
     params: &SgmParams,
-) -> Result<(wgpu::Buffer, wgpu::Buffer)> {
+) -> Result<wgpu::Buffer> {
     let right = ctx.kernel(&shaders::SGM_RIGHT)?;
     let select = ctx.kernel(&shaders::SGM_SELECT)?;
     let n = width as u64 * height as u64;
@@ -115,7 +115,6 @@ fn record_selection(
         height,
         num_disparities: params.num_disparities as u32,
         min_disparity_px: params.min_disparity_px,
-        uniqueness: params.uniqueness_ratio,
         subpixel: match params.subpixel {
             SubpixelFit::None => 0,
             SubpixelFit::Parabola => 1,
@@ -123,27 +122,69 @@ fn record_selection(
         },
         radius: params.subpixel_cost_window / 2,
         lr_max_diff: params.lr_max_diff_px.map_or(0xffff, |d| d.min(0xfffe)),
+        pad: 0,
     };
     let buf_uniforms = ctx.uniform("sgm_select_uniforms", bytemuck::bytes_of(&uniforms));
     let right_k = ctx.storage_zeroed("sgm_right_k", n * 4);
-    let disparity = ctx.storage_zeroed("sgm_disparity", n * 4);
-    let confidence = ctx.storage_zeroed("sgm_confidence", n * 4);
+    let selection = ctx.storage_zeroed("sgm_selection", n * SELECTION_BYTES);
     let bind = ctx.bind_group("sgm_right", &right.layout, &[&buf_uniforms, sums, &right_k]);
     ctx.record_dispatch(encoder, &right, &bind, n)?;
     let bind = ctx.bind_group(
         "sgm_select",
         &select.layout,
-        &[
-            &buf_uniforms,
-            sums,
-            volume,
-            &right_k,
-            &disparity,
-            &confidence,
-        ],
+        &[&buf_uniforms, sums, volume, &right_k, &selection],
     );
     ctx.record_dispatch(encoder, &select, &bind, n)?;
-    Ok((disparity, confidence))
+    Ok(selection)
+}
+
+/// Bytes per pixel of the selection's output: four words.
+const SELECTION_BYTES: u64 = 16;
+
+/// The winner's word of a pixel the selection found invalid.
+const INVALID: u32 = u32::MAX;
+
+/// Reads the selection's output back and finishes it as the CPU's selection does: the
+/// uniqueness test, the sub-pixel offset `(a − c) / (2·den)` clamped to ±½ and the confidence
+/// `(S_second − S_best) / S_second`, in the same f32 operations (`RowSelect::finish`), so
+/// that the disparities and confidences are the CPU matcher's bit for bit. Returns them (NaN
+/// and 0 where invalid).
+fn decode_selection(
+    ctx: &GpuContext,
+    selection: &wgpu::Buffer,
+    (width, height): (u32, u32),
+    params: &SgmParams,
+) -> Result<(Image<f32>, Image<f32>)> {
+    use rayon::prelude::*;
+    let n = width as usize * height as usize;
+    let words: Vec<[u32; 4]> = ctx.read_back_as(selection, n)?;
+    let (mut d, mut c) = (
+        Image::filled(width, height, f32::NAN),
+        Image::filled(width, height, 0.0f32),
+    );
+    let (dmin, uniq) = (params.min_disparity_px, params.uniqueness_ratio);
+    d.data
+        .par_iter_mut()
+        .zip(c.data.par_iter_mut())
+        .zip(words.par_iter())
+        .for_each(|((d, c), &[bk, num, den2, terms])| {
+            let (second, best) = ((terms >> 16) as u16, terms as u16);
+            if bk == INVALID || (uniq > 0.0 && (second as f32) * (1.0 - uniq) < best as f32) {
+                return;
+            }
+            let mut v = (dmin as i64 + bk as i64) as f32;
+            if den2 > 0 {
+                let offset: f32 = num as i32 as f32 / den2 as f32;
+                v += offset.clamp(-0.5, 0.5);
+            }
+            *d = v;
+            *c = if second == u16::MAX || second == 0 {
+                0.0
+            } else {
+                (second.saturating_sub(best)) as f32 / second as f32
+            };
+        });
+    Ok((d, c))
 }
 
 /// Reads `S` back: `entries` u16 values.
@@ -220,16 +261,10 @@ pub(super) fn sgm_on_device(
         size,
         p,
     )?;
-    let (disparity, confidence) =
-        record_selection(ctx, &mut encoder, (&sums, &on_device.volume), size, p)?;
+    let selection = record_selection(ctx, &mut encoder, (&sums, &on_device.volume), size, p)?;
     ctx.submit(encoder);
     scope.pop("running the SGM kernels")?;
-    let image = || Image::filled(size.0, size.1, 0.0f32);
-    let (mut d, mut c) = (image(), image());
-    ctx.read_back_into(&mut [
-        (&disparity, bytemuck::cast_slice_mut(&mut d.data)),
-        (&confidence, bytemuck::cast_slice_mut(&mut c.data)),
-    ])?;
+    let (d, c) = decode_selection(ctx, &selection, size, p)?;
     Ok(matcher.filtered(d, c))
 }
 
@@ -260,16 +295,10 @@ pub fn select_disparities_gpu(
         .create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("sgm_select"),
         });
-    let (disparity, confidence) =
-        record_selection(ctx, &mut encoder, (&buf_sums, &buf_volume), (w, h), params)?;
+    let selection = record_selection(ctx, &mut encoder, (&buf_sums, &buf_volume), (w, h), params)?;
     ctx.submit(encoder);
     scope.pop("running the SGM selection kernels")?;
-    let (mut d, mut c) = (Image::filled(w, h, 0.0f32), Image::filled(w, h, 0.0f32));
-    ctx.read_back_into(&mut [
-        (&disparity, bytemuck::cast_slice_mut(&mut d.data)),
-        (&confidence, bytemuck::cast_slice_mut(&mut c.data)),
-    ])?;
-    Ok((d, c))
+    decode_selection(ctx, &selection, (w, h), params)
 }
 
 /// [`SgmMatcher`] on the GPU: the cost volume, the path aggregation and the selection there, the
