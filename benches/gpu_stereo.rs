@@ -12,6 +12,9 @@
 //! - `tgv_iterate_50/{cpu,gpu}`: 50 TGV-tensor primal–dual iterations at θ = 0.2 (GPU: upload
 //!   of the problem, 100 dispatches, readback of u).
 //! - `refine/{cpu,gpu}`: the whole refinement (4 rounds × 10 iterations) from the SGM map.
+//! - `sgm/{cpu,gpu}`: the SGM matcher on the pair (GPU: `SgmMatcherGpu`, upload of the images,
+//!   the cost volume, paths and selection on the device, the selection's 16 bytes per pixel read
+//!   back and finished, filters on the CPU).
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -25,7 +28,10 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use denser::depth::sgm::SgmMatcher;
 use denser::depth::tgv::{decoupling_search, TgvMatcher, TgvParams, TgvProblem};
 use denser::depth::SgmParams;
-use denser::depth::{cost_volume_gpu, pointwise_search_gpu, refine_gpu, TgvProblemGpu};
+use denser::depth::{
+    cost_volume_gpu, pointwise_search_gpu, refine_gpu, DisparityEstimator, SgmMatcherGpu,
+    TgvProblemGpu,
+};
 use std::hint::black_box;
 
 fn bench_stereo(c: &mut Criterion) {
@@ -119,6 +125,26 @@ fn bench_stereo(c: &mut Criterion) {
     if let Some(ctx) = &ctx {
         g.bench_function("gpu", |b| {
             b.iter(|| refine_gpu(ctx, &tgv, &left, &volume, &init).expect("refine"))
+        });
+    }
+    g.finish();
+
+    let mut g = c.benchmark_group("sgm");
+    g.sample_size(10);
+    g.bench_function("cpu", |b| {
+        b.iter(|| {
+            sgm.estimate(black_box(&left), black_box(&right))
+                .expect("sgm")
+        })
+    });
+    if let Some(ctx) = ctx {
+        let gpu_sgm = SgmMatcherGpu::new(std::sync::Arc::new(ctx), sgm.clone());
+        g.bench_function("gpu", |b| {
+            b.iter(|| {
+                gpu_sgm
+                    .estimate(black_box(&left), black_box(&right))
+                    .expect("sgm")
+            })
         });
     }
     g.finish();
