@@ -24,9 +24,9 @@
 //! to the CPU's), and in [`estimate_tgv_gpu`] TGV-tensor's diffusion tensors from the left image
 //! the census read (`shaders/tgv_tensors.wgsl`; the device's `exp` and `pow`: 1.8e-7 from the
 //! CPU's on llvmpipe). SGM's path aggregation and winner selection run there too (`sgm.rs`).
-//! What stays on the CPU: SGM's median and speckle filters, the invalidation (and the CPU's own tensors, computed with the initial problem and
-//! not used). Every array must fit one storage binding (the
-//! largest is the window sums, 2 bytes per pixel and disparity: 119 MB for 1241×376×128, under
+//! What stays on the CPU: SGM's median and speckle filters, the initial problem (without
+//! TGV-tensor's tensors, made on the device) and the invalidation. Every array must fit one
+//! storage binding (the largest is the window sums, 2 bytes per pixel and disparity: 119 MB for 1241×376×128, under
 //! llvmpipe's 128 MiB); a larger input is an [`crate::Error::GpuCapacity`], never truncated.
 
 use crate::depth::sgm::{CostVolume, SgmMatcher};
@@ -383,11 +383,12 @@ fn refine_on_device(
 ) -> Result<Vec<f32>> {
     let p = &matcher.params;
     p.validate()?;
-    let (problem, _u0) = matcher.initial_problem(left, volume, init)?;
     let tensors = match (on_device, p.regularizer) {
         (Some(d), Regularizer::TgvTensor) => Some((&d.left, p.gamma, p.beta)),
         _ => None,
     };
+    // TGV-tensor's tensors are made on the device when the image is there: not on the CPU too.
+    let (problem, _u0) = matcher.initial_problem(left, volume, init, tensors.is_none())?;
     let gpu = TgvProblemGpu::upload_with(ctx, &problem, tensors)?;
     drop(problem);
     let data = DataCostGpu::new(ctx, volume, on_device.map(|d| &d.volume), p.cost_window)?;

@@ -339,7 +339,7 @@ impl TgvMatcher {
         filtered: &mut (Vec<u16>, Vec<u16>),
     ) -> Result<Vec<f32>> {
         let p = &self.params;
-        let (mut problem, u0) = self.initial_problem(left, volume, init)?;
+        let (mut problem, u0) = self.initial_problem(left, volume, init, true)?;
         let data = DataCost::with_buffers(volume, p.cost_window, std::mem::take(filtered));
         let mut a = u0;
         for k in 0..p.outer_iterations {
@@ -352,12 +352,15 @@ impl TgvMatcher {
     }
 
     /// The convex subproblem of [`TgvMatcher::refine`] before its first round, and its initial
-    /// disparity (SGM's, holes filled from the background side), pixels.
+    /// disparity (SGM's, holes filled from the background side), pixels. Without
+    /// `image_tensors` TGV-tensor's diffusion tensors are left as identities (a caller that
+    /// computes them elsewhere: the GPU matcher, from the image on the device).
     pub(crate) fn initial_problem(
         &self,
         left: &GreyImage,
         volume: &CostVolume,
         init: &DisparityMap,
+        image_tensors: bool,
     ) -> Result<(TgvProblem, Vec<f32>)> {
         let p = &self.params;
         let w = volume.width as usize;
@@ -370,8 +373,8 @@ impl TgvMatcher {
         let dmin = volume.min_disparity_px as f32;
         let u0 = fill_from_background(&init.disparity_px, dmin);
         let tensors = match p.regularizer {
-            Regularizer::TgvTensor => diffusion_tensors(left, p.gamma, p.beta),
-            Regularizer::Tv | Regularizer::Tgv => vec![[1.0, 0.0, 1.0]; w * h],
+            Regularizer::TgvTensor if image_tensors => diffusion_tensors(left, p.gamma, p.beta),
+            _ => vec![[1.0, 0.0, 1.0]; w * h],
         };
         let problem = TgvProblem::new(&u0, w, h, p.regularizer, p.alpha1, p.alpha2, tensors)?;
         Ok((problem, u0))
