@@ -398,7 +398,11 @@ pub fn aggregate_paths(
 }
 
 /// Checks that `image` and `volume` agree in size and `params` in disparity range.
-fn check_volume(volume: &CostVolume, image: &GreyImage, params: &SgmParams) -> Result<()> {
+pub(crate) fn check_volume(
+    volume: &CostVolume,
+    image: &GreyImage,
+    params: &SgmParams,
+) -> Result<()> {
     if image.width != volume.width || image.height != volume.height {
         return Err(Error::InvalidArgument(format!(
             "image ({}×{}) and cost volume ({}×{}) sizes differ",

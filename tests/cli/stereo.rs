@@ -243,9 +243,9 @@ fn stereo_on_the_gpu_writes_the_cpu_disparities() {
     let (left, right, _) = depth_support::planar_pair(w, h, 10.0, 0.03, 0.01, 9);
     write_grey_png(d.join("l.png"), &left).unwrap();
     write_grey_png(d.join("r.png"), &right).unwrap();
-    let mut maps = Vec::new();
-    for device in ["cpu", "gpu"] {
-        let out = format!("disp_{device}.pfm");
+    // `denser stereo` on `device` with `method`, the disparity file it wrote.
+    let run = |method: &str, device: &str| {
+        let out = format!("{method}_{device}.pfm");
         let o = denser(
             &[
                 "stereo",
@@ -253,6 +253,8 @@ fn stereo_on_the_gpu_writes_the_cpu_disparities() {
                 "r.png",
                 "--out",
                 &out,
+                "--method",
+                method,
                 "--num-disparities",
                 "24",
                 "--device",
@@ -264,8 +266,11 @@ fn stereo_on_the_gpu_writes_the_cpu_disparities() {
         if device == "gpu" {
             assert!(text(&o).contains("device: GPU"), "{}", text(&o));
         }
-        maps.push(read_pfm(d.join(out)).unwrap());
-    }
+        d.join(out)
+    };
+    let maps: Vec<_> = ["cpu", "gpu"]
+        .map(|device| read_pfm(run("tgv-tensor", device)).unwrap())
+        .into();
     let (cpu, gpu) = (&maps[0], &maps[1]);
     let same_validity = cpu
         .data
@@ -287,32 +292,9 @@ fn stereo_on_the_gpu_writes_the_cpu_disparities() {
     assert!(valid > cpu.data.len() / 2);
     assert!(same_validity as f64 >= 0.995 * cpu.data.len() as f64);
     assert!(far as f64 <= 0.005 * cpu.data.len() as f64);
-    // SGM: its path aggregation on the GPU, integer sums equal to the CPU's: the same file.
-    let mut files = Vec::new();
-    for device in ["cpu", "gpu"] {
-        let out = format!("sgm_{device}.pfm");
-        let o = denser(
-            &[
-                "stereo",
-                "l.png",
-                "r.png",
-                "--out",
-                &out,
-                "--method",
-                "sgm",
-                "--num-disparities",
-                "24",
-                "--device",
-                device,
-            ],
-            d,
-        );
-        assert!(o.status.success(), "{}", text(&o));
-        if device == "gpu" {
-            assert!(text(&o).contains("device: GPU"), "{}", text(&o));
-        }
-        files.push(std::fs::read(d.join(out)).expect("pfm"));
-    }
+    // SGM: its aggregation and selection on the GPU in integers, finished as the CPU does: the
+    // same file.
+    let files = ["cpu", "gpu"].map(|device| std::fs::read(run("sgm", device)).expect("pfm"));
     assert!(
         files[0] == files[1],
         "SGM's disparities differ between the devices"

@@ -13,7 +13,7 @@
 //! bytes per pixel down; the cost volume and `S` stay on the device.
 
 use super::{cost_volume_kept_on_device, cost_volume_on_device, OnDevice};
-use crate::depth::sgm::{CostVolume, SgmMatcher, SgmParams, SgmPaths, SubpixelFit};
+use crate::depth::sgm::{check_volume, CostVolume, SgmMatcher, SgmParams, SgmPaths, SubpixelFit};
 use crate::depth::{DisparityEstimator, DisparityMap};
 use crate::frame::{GreyImage, Image};
 use crate::gpu::layout::{SgmPathUniforms, SgmSelectUniforms};
@@ -203,19 +203,7 @@ pub fn aggregate_paths_gpu(
     params: &SgmParams,
 ) -> Result<Vec<u16>> {
     params.validate()?;
-    if (image.width, image.height) != (volume.width, volume.height)
-        || volume.num_disparities != params.num_disparities
-    {
-        return Err(Error::InvalidArgument(format!(
-            "image {}×{} and cost volume {}×{}×{} do not match the parameters' {} disparities",
-            image.width,
-            image.height,
-            volume.width,
-            volume.height,
-            volume.num_disparities,
-            params.num_disparities
-        )));
-    }
+    check_volume(volume, image, params)?;
     if volume.width == 0 || volume.height == 0 {
         return Ok(Vec::new());
     }
