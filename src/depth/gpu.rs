@@ -432,7 +432,12 @@ pub fn estimate_tgv_gpu(
     let census = (&p.sgm.census, p.sgm.min_disparity_px, p.sgm.num_disparities);
     let (volume, on_device) = cost_volume_on_device(ctx, left, right, census)?;
     let init = if p.sgm.num_disparities <= GPU_SGM_MAX_DISPARITIES {
-        sgm::sgm_on_device(ctx, &sgm, &on_device)?
+        sgm::sgm_on_device(
+            ctx,
+            &sgm,
+            &mut crate::gpu::kept::Kept::default(),
+            &on_device,
+        )?
     } else {
         sgm.estimate_from_volume(left, &volume)?
     };

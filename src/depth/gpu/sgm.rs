@@ -10,12 +10,15 @@
 //! filter then run on the CPU as [`SgmMatcher`]'s do.
 //!
 //! What crosses the bus for one pair of `SgmMatcherGpu`: the two images up, the selection's 16
-//! bytes per pixel down; the cost volume and `S` stay on the device.
+//! bytes per pixel down, read back in the submit of the aggregation and selection (one wait);
+//! the cost volume and `S` stay on the device. The aggregation's and selection's buffers and
+//! bind groups are kept between pairs (`crate::gpu::kept`).
 
 use super::{cost_volume_kept_on_device, cost_volume_on_device, OnDevice};
 use crate::depth::sgm::{check_volume, CostVolume, SgmMatcher, SgmParams, SgmPaths, SubpixelFit};
 use crate::depth::{DisparityEstimator, DisparityMap};
 use crate::frame::{GreyImage, Image};
+use crate::gpu::kept::Kept;
 use crate::gpu::layout::{SgmPathUniforms, SgmSelectUniforms};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
@@ -43,12 +46,35 @@ fn directions(paths: SgmPaths) -> &'static [(i32, i32)] {
     }
 }
 
+/// The kept uniforms and bind groups of the (at most 8) directions.
+const PATH_UNIFORMS: [&str; 8] = [
+    "sgm_path_uniforms_0",
+    "sgm_path_uniforms_1",
+    "sgm_path_uniforms_2",
+    "sgm_path_uniforms_3",
+    "sgm_path_uniforms_4",
+    "sgm_path_uniforms_5",
+    "sgm_path_uniforms_6",
+    "sgm_path_uniforms_7",
+];
+const PATH_BINDS: [&str; 8] = [
+    "sgm_paths_0",
+    "sgm_paths_1",
+    "sgm_paths_2",
+    "sgm_paths_3",
+    "sgm_paths_4",
+    "sgm_paths_5",
+    "sgm_paths_6",
+    "sgm_paths_7",
+];
+
 /// Records the aggregation of the paths of `params` over the cost volume `volume` (u8 costs, 4
 /// per word) of a `width` × `height` image whose grey levels `image` holds (4 per word); returns
 /// the buffer of `S` (u16, 2 per word, the volume's order).
 fn record_aggregation(
     ctx: &GpuContext,
     encoder: &mut wgpu::CommandEncoder,
+    kept: &mut Kept,
     (volume, image): (&wgpu::Buffer, &wgpu::Buffer),
     (width, height): (u32, u32),
     params: &SgmParams,
@@ -66,8 +92,9 @@ fn record_aggregation(
     )?;
     let kernel = ctx.kernel(&shaders::SGM_PATHS)?;
     let words = entries.div_ceil(2);
-    let sums = ctx.storage_zeroed("sgm_sums", words * 4);
-    for &(dx, dy) in directions(params.paths) {
+    let sums = kept.scratch(ctx, "sgm_sums", words * 4);
+    encoder.clear_buffer(&sums, 0, Some(words * 4));
+    for (k, &(dx, dy)) in directions(params.paths).iter().enumerate() {
         let lines = match (dx, dy) {
             (_, 0) => height,
             (0, _) => width,
@@ -85,9 +112,10 @@ fn record_aggregation(
             lines,
             pad: [0; 3],
         };
-        let buf_uniforms = ctx.uniform("sgm_path_uniforms", bytemuck::bytes_of(&uniforms));
-        let bind = ctx.bind_group(
-            "sgm_paths",
+        let buf_uniforms = kept.uniform_with(ctx, PATH_UNIFORMS[k], bytemuck::bytes_of(&uniforms));
+        let bind = kept.bind_group(
+            ctx,
+            PATH_BINDS[k],
             &kernel.layout,
             &[&buf_uniforms, volume, image, &sums],
         );
@@ -99,10 +127,11 @@ fn record_aggregation(
 
 /// Records the winner selection over `sums` (and the raw costs `volume`, for the windowed fit)
 /// of a `width` × `height` image; returns the buffer of its four words per pixel
-/// ([`decode_selection`] reads them).
+/// ([`read_selection`] reads them).
 fn record_selection(
     ctx: &GpuContext,
     encoder: &mut wgpu::CommandEncoder,
+    kept: &mut Kept,
     (sums, volume): (&wgpu::Buffer, &wgpu::Buffer),
     (width, height): (u32, u32),
     params: &SgmParams,
@@ -124,12 +153,19 @@ fn record_selection(
         lr_max_diff: params.lr_max_diff_px.map_or(0xffff, |d| d.min(0xfffe)),
         pad: 0,
     };
-    let buf_uniforms = ctx.uniform("sgm_select_uniforms", bytemuck::bytes_of(&uniforms));
-    let right_k = ctx.storage_zeroed("sgm_right_k", n * 4);
-    let selection = ctx.storage_zeroed("sgm_selection", n * SELECTION_BYTES);
-    let bind = ctx.bind_group("sgm_right", &right.layout, &[&buf_uniforms, sums, &right_k]);
+    let buf_uniforms = kept.uniform_with(ctx, "sgm_select_uniforms", bytemuck::bytes_of(&uniforms));
+    // Every entry of both is written by its kernel.
+    let right_k = kept.scratch(ctx, "sgm_right_k", n * 4);
+    let selection = kept.scratch(ctx, "sgm_selection", n * SELECTION_BYTES);
+    let bind = kept.bind_group(
+        ctx,
+        "sgm_right",
+        &right.layout,
+        &[&buf_uniforms, sums, &right_k],
+    );
     ctx.record_dispatch(encoder, &right, &bind, n)?;
-    let bind = ctx.bind_group(
+    let bind = kept.bind_group(
+        ctx,
         "sgm_select",
         &select.layout,
         &[&buf_uniforms, sums, volume, &right_k, &selection],
@@ -144,20 +180,25 @@ const SELECTION_BYTES: u64 = 16;
 /// The winner's word of a pixel the selection found invalid.
 const INVALID: u32 = u32::MAX;
 
-/// Reads the selection's output back and finishes it as the CPU's selection does: the
+/// Submits `encoder` with the selection's output read back in the same submit (one wait), and
+/// finishes it as the CPU's selection does: the
 /// uniqueness test, the sub-pixel offset `(a − c) / (2·den)` clamped to ±½ and the confidence
 /// `(S_second − S_best) / S_second`, in the same f32 operations (`RowSelect::finish`), so
 /// that the disparities and confidences are the CPU matcher's bit for bit. Returns them (NaN
 /// and 0 where invalid).
-fn decode_selection(
+fn read_selection(
     ctx: &GpuContext,
+    encoder: wgpu::CommandEncoder,
+    kept: &mut Kept,
     selection: &wgpu::Buffer,
     (width, height): (u32, u32),
     params: &SgmParams,
 ) -> Result<(Image<f32>, Image<f32>)> {
     use rayon::prelude::*;
     let n = width as usize * height as usize;
-    let words: Vec<[u32; 4]> = ctx.read_back_as(selection, n)?;
+    let mut words: Vec<[u32; 4]> = bytemuck::zeroed_vec(n);
+    let target = bytemuck::cast_slice_mut(&mut words);
+    ctx.submit_and_read_back(encoder, kept, &mut [(selection, target)])?;
     let (mut d, mut c) = (
         Image::filled(width, height, f32::NAN),
         Image::filled(width, height, 0.0f32),
@@ -218,6 +259,7 @@ pub fn aggregate_paths_gpu(
     let sums = record_aggregation(
         ctx,
         &mut encoder,
+        &mut Kept::default(),
         (&buf_volume, &buf_image),
         (volume.width, volume.height),
         params,
@@ -233,6 +275,7 @@ pub fn aggregate_paths_gpu(
 pub(super) fn sgm_on_device(
     ctx: &GpuContext,
     matcher: &SgmMatcher,
+    kept: &mut Kept,
     on_device: &OnDevice,
 ) -> Result<DisparityMap> {
     let p = &matcher.params;
@@ -242,17 +285,11 @@ pub(super) fn sgm_on_device(
     let mut encoder = ctx
         .device
         .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sgm") });
-    let sums = record_aggregation(
-        ctx,
-        &mut encoder,
-        (&on_device.volume, &on_device.left),
-        size,
-        p,
-    )?;
-    let selection = record_selection(ctx, &mut encoder, (&sums, &on_device.volume), size, p)?;
-    ctx.submit(encoder);
+    let volume = (&on_device.volume, &on_device.left);
+    let sums = record_aggregation(ctx, &mut encoder, kept, volume, size, p)?;
+    let selection = record_selection(ctx, &mut encoder, kept, (&sums, volume.0), size, p)?;
+    let (d, c) = read_selection(ctx, encoder, kept, &selection, size, p)?;
     scope.pop("running the SGM kernels")?;
-    let (d, c) = decode_selection(ctx, &selection, size, p)?;
     Ok(matcher.filtered(d, c))
 }
 
@@ -283,10 +320,12 @@ pub fn select_disparities_gpu(
         .create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("sgm_select"),
         });
-    let selection = record_selection(ctx, &mut encoder, (&buf_sums, &buf_volume), (w, h), params)?;
-    ctx.submit(encoder);
+    let mut kept = Kept::default();
+    let pair = (&buf_sums, &buf_volume);
+    let selection = record_selection(ctx, &mut encoder, &mut kept, pair, (w, h), params)?;
+    let out = read_selection(ctx, encoder, &mut kept, &selection, (w, h), params)?;
     scope.pop("running the SGM selection kernels")?;
-    decode_selection(ctx, &selection, (w, h), params)
+    Ok(out)
 }
 
 /// [`SgmMatcher`] on the GPU: the cost volume, the path aggregation and the selection there, the
@@ -297,12 +336,18 @@ pub fn select_disparities_gpu(
 pub struct SgmMatcherGpu {
     ctx: std::sync::Arc<GpuContext>,
     matcher: SgmMatcher,
+    /// The buffers and bind groups of the aggregation and selection, kept between pairs.
+    kept: std::sync::Mutex<Kept>,
 }
 
 impl SgmMatcherGpu {
     /// `matcher` on the device of `ctx`.
     pub fn new(ctx: std::sync::Arc<GpuContext>, matcher: SgmMatcher) -> Self {
-        SgmMatcherGpu { ctx, matcher }
+        SgmMatcherGpu {
+            ctx,
+            matcher,
+            kept: Default::default(),
+        }
     }
 }
 
@@ -320,6 +365,7 @@ impl DisparityEstimator for SgmMatcherGpu {
             return self.matcher.estimate_from_volume(left, &volume);
         }
         let on_device = cost_volume_kept_on_device(&self.ctx, left, right, census)?;
-        sgm_on_device(&self.ctx, &self.matcher, &on_device)
+        let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
+        sgm_on_device(&self.ctx, &self.matcher, &mut kept, &on_device)
     }
 }
