@@ -45,7 +45,7 @@ mod data_cost;
 use data_cost::DataCostGpu;
 mod census;
 pub use census::{census_transform_gpu, cost_volume_gpu};
-use census::{cost_volume_kept_on_device, cost_volume_on_device, OnDevice};
+use census::{cost_volume_on_device, record_cost_volume, OnDevice};
 mod sgm;
 pub use sgm::{
     aggregate_paths_gpu, select_disparities_gpu, SgmMatcherGpu, GPU_SGM_MAX_DISPARITIES,

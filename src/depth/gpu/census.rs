@@ -6,6 +6,7 @@
 use crate::depth::census::{CensusImage, CensusKind, CensusParams};
 use crate::depth::sgm::CostVolume;
 use crate::frame::GreyImage;
+use crate::gpu::kept::Kept;
 use crate::gpu::layout::{CensusUniforms, CostUniforms};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
@@ -32,11 +33,37 @@ pub(super) fn check_pair(left: &GreyImage, right: &GreyImage) -> Result<()> {
     Ok(())
 }
 
-/// Records the census transform of `image` into a new signature buffer (`words` u32 per pixel);
-/// returns it and the image's buffer on the device (grey levels, 4 per word).
+/// The names of one image's kept census buffers and bind group.
+struct CensusNames {
+    uniforms: &'static str,
+    image: &'static str,
+    signatures: &'static str,
+    bind: &'static str,
+}
+
+/// The left and the right image's.
+const CENSUS_NAMES: [CensusNames; 2] = [
+    CensusNames {
+        uniforms: "census_uniforms_left",
+        image: "census_image_left",
+        signatures: "census_signatures_left",
+        bind: "census_left",
+    },
+    CensusNames {
+        uniforms: "census_uniforms_right",
+        image: "census_image_right",
+        signatures: "census_signatures_right",
+        bind: "census_right",
+    },
+];
+
+/// Records the census transform of `image` into a kept signature buffer (`words` u32 per
+/// pixel, every one written); returns it and the image's buffer on the device (grey levels, 4
+/// per word).
 fn record_census(
     ctx: &GpuContext,
     encoder: &mut wgpu::CommandEncoder,
+    (kept, names): (&mut Kept, &CensusNames),
     image: &GreyImage,
     params: &CensusParams,
     words: u32,
@@ -58,11 +85,12 @@ fn record_census(
         words,
         pad: 0,
     };
-    let buf_uniforms = ctx.uniform("census_uniforms", bytemuck::bytes_of(&uniforms));
-    let buf_image = ctx.storage("census_image", &image.data);
-    let buf_sig = ctx.storage_zeroed("census_signatures", n * words as u64 * 4);
-    let bind = ctx.bind_group(
-        "census",
+    let buf_uniforms = kept.uniform_with(ctx, names.uniforms, bytemuck::bytes_of(&uniforms));
+    let buf_image = kept.storage_with(ctx, names.image, &image.data);
+    let buf_sig = kept.scratch(ctx, names.signatures, n * words as u64 * 4);
+    let bind = kept.bind_group(
+        ctx,
+        names.bind,
         &kernel.layout,
         &[&buf_uniforms, &buf_image, &buf_sig],
     );
@@ -111,7 +139,9 @@ pub fn census_transform_gpu(
         .create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("census"),
         });
-    let (sig, _) = record_census(ctx, &mut encoder, image, params, words)?;
+    let mut kept = Kept::default();
+    let names = (&mut kept, &CENSUS_NAMES[0]);
+    let (sig, _) = record_census(ctx, &mut encoder, names, image, params, words)?;
     ctx.submit(encoder);
     scope.pop("running the census kernel")?;
     // `words` u32 per pixel, read back as u64 words.
@@ -161,7 +191,16 @@ pub(super) fn cost_volume_on_device(
     right: &GreyImage,
     args: (&CensusParams, i32, usize),
 ) -> Result<(CostVolume, OnDevice)> {
-    let on_device = cost_volume_kept_on_device(ctx, left, right, args)?;
+    let scope = ErrorScopes::push(&ctx.device);
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("census_cost"),
+        });
+    let on_device =
+        record_cost_volume(ctx, &mut encoder, &mut Kept::default(), (left, right), args)?;
+    ctx.submit(encoder);
+    scope.pop("running the census cost kernels")?;
     let entries = on_device.width as usize * on_device.height as usize * args.2;
     let mut cost: Vec<u8> = ctx.read_back_as(&on_device.volume, entries.div_ceil(4) * 4)?;
     cost.truncate(entries);
@@ -176,12 +215,13 @@ pub(super) fn cost_volume_on_device(
     Ok((volume, on_device))
 }
 
-/// The cost volume of [`cost_volume_gpu`] made on the device and kept there (nothing read
-/// back), with the left image.
-pub(super) fn cost_volume_kept_on_device(
+/// Records the making of the cost volume of [`cost_volume_gpu`] on the device, where it stays
+/// (nothing read back), in `kept`'s buffers; returns it with the left image.
+pub(super) fn record_cost_volume(
     ctx: &GpuContext,
-    left: &GreyImage,
-    right: &GreyImage,
+    encoder: &mut wgpu::CommandEncoder,
+    kept: &mut Kept,
+    (left, right): (&GreyImage, &GreyImage),
     (census, min_disparity_px, num_disparities): (&CensusParams, i32, usize),
 ) -> Result<OnDevice> {
     census.validate()?;
@@ -202,14 +242,9 @@ pub(super) fn cost_volume_kept_on_device(
     }
     let words = census_words(census);
     let kernel = ctx.kernel(&shaders::CENSUS_COST)?;
-    let scope = ErrorScopes::push(&ctx.device);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("census_cost"),
-        });
-    let (sig_left, left_image) = record_census(ctx, &mut encoder, left, census, words)?;
-    let (sig_right, _) = record_census(ctx, &mut encoder, right, census, words)?;
+    let [l, r] = &CENSUS_NAMES;
+    let (sig_left, left_image) = record_census(ctx, encoder, (kept, l), left, census, words)?;
+    let (sig_right, _) = record_census(ctx, encoder, (kept, r), right, census, words)?;
     let uniforms = CostUniforms {
         width: left.width,
         height: left.height,
@@ -220,17 +255,17 @@ pub(super) fn cost_volume_kept_on_device(
         entries: entries as u32,
         pad: 0,
     };
-    let buf_uniforms = ctx.uniform("cost_uniforms", bytemuck::bytes_of(&uniforms));
+    let buf_uniforms = kept.uniform_with(ctx, "cost_uniforms", bytemuck::bytes_of(&uniforms));
     let packed_words = entries.div_ceil(4);
-    let buf_volume = ctx.storage_zeroed("cost_volume", packed_words * 4);
-    let bind = ctx.bind_group(
+    // Every word is written by the kernel.
+    let buf_volume = kept.scratch(ctx, "cost_volume", packed_words * 4);
+    let bind = kept.bind_group(
+        ctx,
         "census_cost",
         &kernel.layout,
         &[&buf_uniforms, &sig_left, &sig_right, &buf_volume],
     );
-    ctx.record_dispatch(&mut encoder, &kernel, &bind, packed_words)?;
-    ctx.submit(encoder);
-    scope.pop("running the census cost kernels")?;
+    ctx.record_dispatch(encoder, &kernel, &bind, packed_words)?;
     Ok(OnDevice {
         volume: buf_volume,
         left: left_image,

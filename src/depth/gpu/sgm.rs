@@ -10,11 +10,11 @@
 //! filter then run on the CPU as [`SgmMatcher`]'s do.
 //!
 //! What crosses the bus for one pair of `SgmMatcherGpu`: the two images up, the selection's 16
-//! bytes per pixel down, read back in the submit of the aggregation and selection (one wait);
-//! the cost volume and `S` stay on the device. The aggregation's and selection's buffers and
-//! bind groups are kept between pairs (`crate::gpu::kept`).
+//! bytes per pixel down, in one submit (census, costs, paths, selection and the read-back copy)
+//! and one wait; the cost volume and `S` stay on the device. Every buffer and bind group is kept
+//! between pairs (`crate::gpu::kept`): after the first pair of a size, a pair creates none.
 
-use super::{cost_volume_kept_on_device, cost_volume_on_device, OnDevice};
+use super::{cost_volume_on_device, record_cost_volume, OnDevice};
 use crate::depth::sgm::{check_volume, CostVolume, SgmMatcher, SgmParams, SgmPaths, SubpixelFit};
 use crate::depth::{DisparityEstimator, DisparityMap};
 use crate::frame::{GreyImage, Image};
@@ -278,13 +278,25 @@ pub(super) fn sgm_on_device(
     kept: &mut Kept,
     on_device: &OnDevice,
 ) -> Result<DisparityMap> {
+    let encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sgm") });
+    sgm_recorded(ctx, encoder, matcher, kept, on_device)
+}
+
+/// [`sgm_on_device`] appended to `encoder` (which may hold the work that makes the volume):
+/// one submit and one wait for all of it.
+fn sgm_recorded(
+    ctx: &GpuContext,
+    mut encoder: wgpu::CommandEncoder,
+    matcher: &SgmMatcher,
+    kept: &mut Kept,
+    on_device: &OnDevice,
+) -> Result<DisparityMap> {
     let p = &matcher.params;
     p.validate()?;
     let size = (on_device.width, on_device.height);
     let scope = ErrorScopes::push(&ctx.device);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sgm") });
     let volume = (&on_device.volume, &on_device.left);
     let sums = record_aggregation(ctx, &mut encoder, kept, volume, size, p)?;
     let selection = record_selection(ctx, &mut encoder, kept, (&sums, volume.0), size, p)?;
@@ -364,8 +376,16 @@ impl DisparityEstimator for SgmMatcherGpu {
             let (volume, _) = cost_volume_on_device(&self.ctx, left, right, census)?;
             return self.matcher.estimate_from_volume(left, &volume);
         }
-        let on_device = cost_volume_kept_on_device(&self.ctx, left, right, census)?;
         let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
-        sgm_on_device(&self.ctx, &self.matcher, &mut kept, &on_device)
+        let mut encoder = self
+            .ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sgm") });
+        let scope = ErrorScopes::push(&self.ctx.device);
+        let on_device =
+            record_cost_volume(&self.ctx, &mut encoder, &mut kept, (left, right), census)?;
+        let map = sgm_recorded(&self.ctx, encoder, &self.matcher, &mut kept, &on_device)?;
+        scope.pop("recording the census cost kernels")?;
+        Ok(map)
     }
 }
