@@ -174,7 +174,16 @@ impl MapStore {
 /// anything is committed or deleted, and `repair` to tell a rolled-back manifest from an intact
 /// one.
 pub fn check_latest(files: &dyn MapFiles, m: &Manifest) -> Result<()> {
-    check_commit_mark(files, m, &read_commit_marks(files)?)?;
+    check_latest_with(files, m, &read_commit_marks(files)?)
+}
+
+/// [`check_latest`] with the map's marks already read.
+pub(super) fn check_latest_with(
+    files: &dyn MapFiles,
+    m: &Manifest,
+    marks: &CommitMarks,
+) -> Result<()> {
+    check_commit_mark(files, m, marks)?;
     let h = m.header;
     let mut newest: Option<(u64, String)> = None;
     for obj in files.list(CHUNKS_DIR)? {

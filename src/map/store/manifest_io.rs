@@ -140,6 +140,16 @@ pub struct CommitMarks {
 }
 
 impl CommitMarks {
+    /// The marks of the commit mark `mark` and the begun commit's manifest `next`.
+    pub(super) fn of(mark: Option<(u64, u64, Option<u64>)>, next: Option<&Manifest>) -> Self {
+        let next = next.map(|m| {
+            let h = m.header;
+            let frames = (h.frames_committed != FRAMES_UNKNOWN).then_some(h.frames_committed);
+            (h.map_id, h.generation, frames)
+        });
+        CommitMarks { mark, next }
+    }
+
     /// The newest generation of map `id` known to have committed, with the object that shows it:
     /// the mark's, or the one before the begun commit's (a commit begins after the previous one
     /// completed).
@@ -167,12 +177,7 @@ impl CommitMarks {
 /// The map's [`CommitMarks`]. A [`MANIFEST_NEXT`] that does not decode is no evidence (reported).
 pub fn read_commit_marks(files: &dyn MapFiles) -> Result<CommitMarks> {
     let mark = read_commit_mark_frames(files)?;
-    let next = read_next_manifest(files)?.map(|m| {
-        let h = m.header;
-        let frames = (h.frames_committed != FRAMES_UNKNOWN).then_some(h.frames_committed);
-        (h.map_id, h.generation, frames)
-    });
-    Ok(CommitMarks { mark, next })
+    Ok(CommitMarks::of(mark, read_next_manifest(files)?.as_ref()))
 }
 
 /// The manifest of the last commit begun ([`MANIFEST_NEXT`]), with its bytes; `None` when there

@@ -61,6 +61,7 @@ use cache::ChunkCache;
 pub use cache::DEFAULT_OBJECT_CACHE_BYTES;
 pub use chunk_io::{read_chunk_file, read_chunk_object, ChunkWriter};
 pub use cleanup::check_latest;
+use cleanup::check_latest_with;
 
 /// How a [`MapStore`] was opened.
 #[derive(Debug)]

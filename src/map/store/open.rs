@@ -227,19 +227,26 @@ impl MapStore {
             );
         }
         let (manifest, version) = read_manifest_at(&*files)?;
-        let (manifest, version) = complete_begun_commit(&*files, manifest, version)?;
+        // The marks and the begun commit's manifest, read once for the steps below.
+        let next = read_next_manifest_bytes(&*files)?;
+        let mut marks = CommitMarks::of(
+            read_commit_mark_frames(&*files)?,
+            next.as_ref().map(|(m, _)| m),
+        );
+        let (manifest, version) =
+            complete_begun_commit(&*files, (manifest, version), next, &mut marks)?;
         // Before anything is committed or deleted: is this manifest the map's latest?
-        check_latest(&*files, &manifest)?;
+        check_latest_with(&*files, &manifest, &marks)?;
         let mut store = MapStore::with_files(files, manifest, Some(version), Access::Writer(lock));
-        if store.files.needs_fencing() {
+        let fenced = store.files.needs_fencing();
+        if fenced {
+            // Its commit writes the mark too.
             store.commit()?;
         }
         // A commit whose mark was not written (a kill or a failed write between the two) gets it
         // now, before anything is deleted: `repair` rebuilds the commit the mark names.
         let h = store.manifest.header;
-        if read_commit_mark_frames(&*store.files)?
-            != Some((h.map_id, h.generation, Some(h.frames_committed)))
-        {
+        if !fenced && marks.mark != Some((h.map_id, h.generation, Some(h.frames_committed))) {
             store
                 .files
                 .write(COMMIT_MARK, commit_mark_text(&h).as_bytes())?;
@@ -299,18 +306,21 @@ impl MapStore {
 /// every file it names exists, it becomes `manifest.dmf` and the mark records it. This is the
 /// state a kill (or a failed write) between a commit's first write and its mark leaves, also
 /// when the previous manifest was put back after it. Otherwise the manifest is returned as read.
-/// Called by a writer, holding the lock, before anything is checked or deleted.
+/// Called by a writer, holding the lock, before anything is checked or deleted, with `next`
+/// ([`read_next_manifest_bytes`]) and the map's `marks`, which it updates when it writes the mark.
 fn complete_begun_commit(
     files: &dyn MapFiles,
-    manifest: Manifest,
-    version: ObjectVersion,
+    (manifest, version): (Manifest, ObjectVersion),
+    next: Option<(Manifest, Vec<u8>)>,
+    marks: &mut CommitMarks,
 ) -> Result<(Manifest, ObjectVersion)> {
-    let Some((next, bytes)) = read_next_manifest_bytes(files)? else {
+    let Some((next, bytes)) = next else {
         return Ok((manifest, version));
     };
     let (h, n) = (manifest.header, next.header);
-    let marked =
-        read_commit_mark(files)?.is_some_and(|(id, g)| id == n.map_id && g >= n.generation);
+    let marked = marks
+        .mark
+        .is_some_and(|(id, g, _)| id == n.map_id && g >= n.generation);
     if n.map_id != h.map_id || n.generation != h.generation + 1 || marked {
         return Ok((manifest, version));
     }
@@ -337,6 +347,7 @@ fn complete_begun_commit(
         }
     };
     files.write(COMMIT_MARK, commit_mark_text(&n).as_bytes())?;
+    marks.mark = Some((n.map_id, n.generation, Some(n.frames_committed)));
     let frames = if n.frames_committed == FRAMES_UNKNOWN {
         "unknown".to_string()
     } else {
