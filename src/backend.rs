@@ -153,6 +153,7 @@ impl GpuStages {
                 &shaders::SGM_SELECT,
                 &shaders::COST_WINDOW,
                 &shaders::TGV_TENSORS,
+                &shaders::TGV_COST_AT,
                 &shaders::TGV_POINTWISE,
                 &shaders::TGV_DUAL,
                 &shaders::TGV_PRIMAL,

@@ -23,17 +23,21 @@
 //! cost volume where it was made (`data_cost.rs`, `shaders/cost_window.wgsl`; integer sums, equal
 //! to the CPU's), and in [`estimate_tgv_gpu`] TGV-tensor's diffusion tensors from the left image
 //! the census read (`shaders/tgv_tensors.wgsl`; the device's `exp` and `pow`: 1.8e-7 from the
-//! CPU's on llvmpipe). SGM's path aggregation and winner selection run there too (`sgm.rs`).
-//! What stays on the CPU: SGM's median and speckle filters, the initial problem (without
-//! TGV-tensor's tensors, made on the device) and the invalidation. Every array must fit one
-//! storage binding (the largest is the window sums, 2 bytes per pixel and disparity: 119 MB for 1241×376×128, under
-//! llvmpipe's 128 MiB); a larger input is an [`crate::Error::GpuCapacity`], never truncated.
+//! CPU's on llvmpipe). SGM's path aggregation and winner selection run there too (`sgm.rs`),
+//! and at the end each pixel's disparity and its cost at that disparity are gathered there
+//! (`shaders/tgv_cost_at.wgsl`, 5 bytes per pixel), so neither the volume nor the TGV state
+//! comes back. What stays on the CPU: SGM's median and speckle filters, the initial problem
+//! (without TGV-tensor's tensors, made on the device) and the invalidation over the gathered
+//! costs. Every array must fit one storage binding (the largest is the window sums, 2 bytes
+//! per pixel and disparity: 119 MB for 1241×376×128, under llvmpipe's 128 MiB); a larger input
+//! is an [`crate::Error::GpuCapacity`], never truncated.
 
-use crate::depth::sgm::{CostVolume, SgmMatcher};
+use crate::depth::sgm::{CostVolume, SgmMatcher, VolumeShape};
 use crate::depth::tgv::{check_search, Regularizer, TgvMatcher, TgvProblem, TgvStages};
 use crate::depth::{DisparityEstimator, DisparityMap};
 use crate::frame::GreyImage;
-use crate::gpu::layout::{TensorUniforms, TgvUniforms};
+use crate::gpu::kept::Kept;
+use crate::gpu::layout::{CostAtUniforms, TensorUniforms, TgvUniforms};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
 use crate::{Error, Result};
@@ -111,7 +115,8 @@ impl<'c> TgvProblemGpu<'c> {
                 Some(_) => ctx.storage_zeroed("tgv_tensors", n * 12),
                 None => ctx.storage("tgv_tensors", bytemuck::cast_slice(problem.tensors())),
             },
-            target: ctx.storage("tgv_target", &vec![0u8; n as usize * 4]),
+            // Written by the point-wise search (or `iterate`) before any iteration reads it.
+            target: ctx.storage_zeroed("tgv_target", n * 4),
             primal: ctx.storage("tgv_primal", bytemuck::cast_slice(&primal)),
             // A fresh problem's over-relaxed primal is its primal and its dual is zero: copied
             // and cleared on the device, not uploaded.
@@ -281,7 +286,7 @@ pub fn window_costs_gpu(
             "window sums need a window of 2 or more pixels, got {window}"
         )));
     }
-    DataCostGpu::new(ctx, volume, None, window)?.read_back(ctx)
+    DataCostGpu::new(ctx, volume, window)?.read_back(ctx)
 }
 
 /// [`crate::depth::tgv::decoupling_search`] on the GPU: for each pixel the disparity `a`
@@ -299,7 +304,7 @@ pub fn pointwise_search_gpu(
 ) -> Result<Vec<f32>> {
     check_search(volume, cost_window, u, lambda, theta)?;
     let n = u.len() as u64;
-    let data = DataCostGpu::new(ctx, volume, None, cost_window)?;
+    let data = DataCostGpu::new(ctx, volume, cost_window)?;
     let scope = ErrorScopes::push(&ctx.device);
     let buf_u = ctx.storage("pointwise_u", bytemuck::cast_slice(u));
     let buf_a = ctx.storage("pointwise_a", &vec![0u8; u.len() * 4]);
@@ -369,29 +374,31 @@ pub fn refine_gpu(
     volume: &CostVolume,
     init: &DisparityMap,
 ) -> Result<Vec<f32>> {
-    refine_on_device(ctx, matcher, left, (volume, None), init)
+    matcher.params.validate()?;
+    let data = DataCostGpu::new(ctx, volume, matcher.params.cost_window)?;
+    refine_on_device(ctx, matcher, (left, None), (volume.shape(), &data), init)?.u()
 }
 
-/// [`refine_gpu`] reading the costs and the left image from `on_device` when given (the
-/// tensors of TGV-tensor are then computed there).
-fn refine_on_device(
-    ctx: &GpuContext,
+/// [`refine_gpu`] over the data term `data` already on the device (of a volume of shape
+/// `volume`), with TGV-tensor's tensors made there from `left_on_device` (the left image's
+/// buffer) when given; returns the problem, still on the device.
+fn refine_on_device<'c>(
+    ctx: &'c GpuContext,
     matcher: &TgvMatcher,
-    left: &GreyImage,
-    (volume, on_device): (&CostVolume, Option<&OnDevice>),
+    (left, left_on_device): (&GreyImage, Option<&wgpu::Buffer>),
+    (volume, data): (VolumeShape, &DataCostGpu),
     init: &DisparityMap,
-) -> Result<Vec<f32>> {
+) -> Result<TgvProblemGpu<'c>> {
     let p = &matcher.params;
     p.validate()?;
-    let tensors = match (on_device, p.regularizer) {
-        (Some(d), Regularizer::TgvTensor) => Some((&d.left, p.gamma, p.beta)),
+    let tensors = match (left_on_device, p.regularizer) {
+        (Some(image), Regularizer::TgvTensor) => Some((image, p.gamma, p.beta)),
         _ => None,
     };
     // TGV-tensor's tensors are made on the device when the image is there: not on the CPU too.
     let (problem, _u0) = matcher.initial_problem(left, volume, init, tensors.is_none())?;
     let gpu = TgvProblemGpu::upload_with(ctx, &problem, tensors)?;
     drop(problem);
-    let data = DataCostGpu::new(ctx, volume, on_device.map(|d| &d.volume), p.cost_window)?;
     for k in 0..p.outer_iterations {
         let theta = p.theta(k);
         let scope = ErrorScopes::push(&ctx.device);
@@ -414,15 +421,104 @@ fn refine_on_device(
         scope.pop("running the point-wise search")?;
         gpu.run(theta, p.inner_iterations)?;
     }
-    gpu.u()
+    Ok(gpu)
 }
 
-/// [`TgvMatcher::estimate_with_stages`] with the cost volume ([`cost_volume_gpu`]), SGM's
-/// aggregation and selection ([`SgmMatcherGpu`]) and the refinement ([`refine_gpu`]) on the
-/// GPU; SGM's filters and the invalidation run on the CPU.
+/// Records `shaders/tgv_cost_at.wgsl` over `gpu`'s disparity and the raw costs `raw` (of a
+/// volume of shape `volume`), and reads back in the same submit each pixel's disparity and its
+/// cost ([`crate::depth::tgv::costs_at_disparities`]): 5 bytes per pixel, in `kept`'s buffers.
+fn disparities_and_costs(
+    ctx: &GpuContext,
+    kept: &mut Kept,
+    gpu: &TgvProblemGpu,
+    (raw, volume): (&wgpu::Buffer, VolumeShape),
+) -> Result<(Vec<f32>, Vec<u8>)> {
+    let n = gpu.pixels();
+    if (volume.width as usize, volume.height as usize) != (gpu.width, gpu.height) {
+        return Err(Error::InvalidArgument(format!(
+            "a {}×{} cost volume for a {}×{} problem",
+            volume.width, volume.height, gpu.width, gpu.height
+        )));
+    }
+    if n == 0 {
+        return Ok((Vec::new(), Vec::new()));
+    }
+    let kernel = ctx.kernel(&shaders::TGV_COST_AT)?;
+    let uniforms = CostAtUniforms {
+        width: volume.width,
+        height: volume.height,
+        num_disparities: volume.num_disparities as u32,
+        min_disparity_px: volume.min_disparity_px as f32,
+    };
+    let scope = ErrorScopes::push(&ctx.device);
+    let buf_uniforms = kept.uniform_with(ctx, "cost_at_uniforms", bytemuck::bytes_of(&uniforms));
+    let words = n + n.div_ceil(4);
+    let out = kept.scratch(ctx, "cost_at_out", words as u64 * 4);
+    let bind = kept.bind_group(
+        ctx,
+        "tgv_cost_at",
+        &kernel.layout,
+        &[&buf_uniforms, raw, &gpu.primal, &out],
+    );
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("tgv_cost_at"),
+        });
+    ctx.record_dispatch(&mut encoder, &kernel, &bind, n.div_ceil(4) as u64)?;
+    let mut back = vec![0u32; words];
+    ctx.submit_and_read_back(
+        encoder,
+        kept,
+        &mut [(&out, bytemuck::cast_slice_mut(&mut back))],
+    )?;
+    scope.pop("gathering the disparities' costs")?;
+    let dense = back[..n].iter().map(|&b| f32::from_bits(b)).collect();
+    let mut costs = bytemuck::cast_slice::<u32, u8>(&back[n..]).to_vec();
+    costs.truncate(n);
+    Ok((dense, costs))
+}
+
+/// [`crate::depth::tgv::costs_at_disparities`] on the GPU (`shaders/tgv_cost_at.wgsl`): the
+/// disparities `dense` as the TGV primal, `volume` uploaded; returns the disparities as the
+/// kernel read them and their costs (for comparing with the CPU).
+pub fn costs_at_disparities_gpu(
+    ctx: &GpuContext,
+    volume: &CostVolume,
+    dense: &[f32],
+) -> Result<(Vec<f32>, Vec<u8>)> {
+    let (w, h) = (volume.width as usize, volume.height as usize);
+    let identity = vec![[1.0, 0.0, 1.0]; w * h];
+    let problem = TgvProblem::new(dense, w, h, Regularizer::Tv, 1.0, 1.0, identity)?;
+    let gpu = TgvProblemGpu::upload(ctx, &problem)?;
+    ctx.check_binding(
+        "cost volume (1 byte per pixel and disparity)",
+        volume.cost.len() as u64,
+    )?;
+    let raw = ctx.storage("cost_at_volume", &volume.cost);
+    disparities_and_costs(ctx, &mut Kept::default(), &gpu, (&raw, volume.shape()))
+}
+
+/// [`TgvMatcher::estimate_with_stages`] on the GPU: the census, the cost volume and SGM's
+/// aggregation and selection in one submit and one wait ([`SgmMatcherGpu`]'s), then the
+/// refinement ([`refine_gpu`]) over the volume where it was made, then each pixel's disparity
+/// and its cost gathered there for the invalidation. SGM's filters, the initial problem and the
+/// invalidation run on the CPU; neither the volume nor the TGV state comes back.
 pub fn estimate_tgv_gpu(
     ctx: &GpuContext,
     matcher: &TgvMatcher,
+    left: &GreyImage,
+    right: &GreyImage,
+) -> Result<TgvStages> {
+    estimate_kept(ctx, matcher, &mut Kept::default(), left, right)
+}
+
+/// [`estimate_tgv_gpu`] with the census, cost, SGM and gathering buffers and bind groups kept
+/// in `kept` between pairs.
+fn estimate_kept(
+    ctx: &GpuContext,
+    matcher: &TgvMatcher,
+    kept: &mut Kept,
     left: &GreyImage,
     right: &GreyImage,
 ) -> Result<TgvStages> {
@@ -430,19 +526,27 @@ pub fn estimate_tgv_gpu(
     p.validate()?;
     let sgm = SgmMatcher::new(p.sgm)?;
     let census = (&p.sgm.census, p.sgm.min_disparity_px, p.sgm.num_disparities);
-    let (volume, on_device) = cost_volume_on_device(ctx, left, right, census)?;
-    let init = if p.sgm.num_disparities <= GPU_SGM_MAX_DISPARITIES {
-        sgm::sgm_on_device(
-            ctx,
-            &sgm,
-            &mut crate::gpu::kept::Kept::default(),
-            &on_device,
-        )?
+    let (init, on_device) = if p.sgm.num_disparities <= GPU_SGM_MAX_DISPARITIES {
+        let scope = ErrorScopes::push(&ctx.device);
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sgm") });
+        let on_device = record_cost_volume(ctx, &mut encoder, kept, (left, right), census)?;
+        let init = sgm::sgm_recorded(ctx, encoder, &sgm, kept, &on_device)?;
+        scope.pop("recording the census cost kernels")?;
+        (init, on_device)
     } else {
-        sgm.estimate_from_volume(left, &volume)?
+        // More disparities than the device's aggregation holds: SGM on the CPU over the volume
+        // read back.
+        let (volume, on_device) = cost_volume_on_device(ctx, left, right, census)?;
+        (sgm.estimate_from_volume(left, &volume)?, on_device)
     };
-    let dense = refine_on_device(ctx, matcher, left, (&volume, Some(&on_device)), &init)?;
-    let result = matcher.invalidate(&dense, &init, &volume);
+    let shape = on_device.shape;
+    let data = DataCostGpu::on_device(ctx, shape, &on_device.volume, p.cost_window)?;
+    let left_on_device = (left, Some(&on_device.left));
+    let gpu = refine_on_device(ctx, matcher, left_on_device, (shape, &data), &init)?;
+    let (dense, costs) = disparities_and_costs(ctx, kept, &gpu, (&on_device.volume, shape))?;
+    let result = matcher.invalidate_with(&dense, &init, &costs, shape);
     Ok(TgvStages {
         sgm: init,
         dense_px: dense,
@@ -456,12 +560,18 @@ pub fn estimate_tgv_gpu(
 pub struct TgvMatcherGpu {
     ctx: std::sync::Arc<GpuContext>,
     matcher: TgvMatcher,
+    /// The census, cost, SGM and gathering buffers and bind groups, kept between pairs.
+    kept: std::sync::Mutex<Kept>,
 }
 
 impl TgvMatcherGpu {
     /// `matcher` on the device of `ctx`.
     pub fn new(ctx: std::sync::Arc<GpuContext>, matcher: TgvMatcher) -> Self {
-        TgvMatcherGpu { ctx, matcher }
+        TgvMatcherGpu {
+            ctx,
+            matcher,
+            kept: Default::default(),
+        }
     }
 }
 
@@ -471,6 +581,7 @@ impl DisparityEstimator for TgvMatcherGpu {
     }
 
     fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap> {
-        Ok(estimate_tgv_gpu(&self.ctx, &self.matcher, left, right)?.result)
+        let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
+        Ok(estimate_kept(&self.ctx, &self.matcher, &mut kept, left, right)?.result)
     }
 }

@@ -189,7 +189,34 @@ pub struct CostVolume {
     pub cost: Vec<u8>,
 }
 
+/// The size and disparity range of a [`CostVolume`] without its costs (the GPU matchers keep
+/// the costs on the device).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct VolumeShape {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Disparity of slice 0, pixels.
+    pub min_disparity_px: i32,
+    /// Number of disparity slices.
+    pub num_disparities: usize,
+    /// Largest possible cost.
+    pub max_cost: u8,
+}
+
 impl CostVolume {
+    /// Its size and disparity range.
+    pub fn shape(&self) -> VolumeShape {
+        VolumeShape {
+            width: self.width,
+            height: self.height,
+            min_disparity_px: self.min_disparity_px,
+            num_disparities: self.num_disparities,
+            max_cost: self.max_cost,
+        }
+    }
+
     /// Costs of all disparities at pixel (x, y).
     #[inline]
     pub fn pixel_costs(&self, x: u32, y: u32) -> &[u8] {

@@ -42,7 +42,7 @@
 //! point-wise search and the primal–dual iterations is `crate::gpu::refine_gpu` /
 //! `crate::gpu::estimate_tgv_gpu` (`src/gpu/stereo.rs`).
 
-use super::sgm::{CostVolume, SgmMatcher, SgmParams, SgmScratch};
+use super::sgm::{CostVolume, SgmMatcher, SgmParams, SgmScratch, VolumeShape};
 use super::{DisparityEstimator, DisparityMap, ScratchPool};
 use crate::error::{Error, Result};
 use crate::frame::{GreyImage, Image};
@@ -257,6 +257,24 @@ pub fn fill_from_background(disparity: &Image<f32>, fallback: f32) -> Vec<f32> {
     out
 }
 
+/// Each pixel's census cost at its disparity `dense[i]` rounded to the nearest slice (halves
+/// away from zero; below the range: slice 0; above it, or infinite: the last; NaN: slice 0):
+/// what the invalidation tests against [`TgvParams::max_cost_fraction`]. GPU twin:
+/// `shaders/tgv_cost_at.wgsl`.
+pub fn costs_at_disparities(dense: &[f32], volume: &CostVolume) -> Vec<u8> {
+    let nd = volume.num_disparities;
+    let dmin = volume.min_disparity_px as f32;
+    dense
+        .iter()
+        .enumerate()
+        .map(|(i, &d)| {
+            // `as usize` saturates (and takes NaN to 0): the CPU's rule, which the kernel states.
+            let k = ((d - dmin).round().max(0.0) as usize).min(nd - 1);
+            volume.cost[i * nd + k]
+        })
+        .collect()
+}
+
 /// Occlusion under the disparity `u` (uniqueness of right-image positions): pixel `x` of a row
 /// is occluded when its right-image position `x − u(x)` is more than `tol` right of the minimum
 /// of `x' − u(x')` over the pixels `x' > x` (a nearer surface to its right covers it).
@@ -339,7 +357,7 @@ impl TgvMatcher {
         filtered: &mut (Vec<u16>, Vec<u16>),
     ) -> Result<Vec<f32>> {
         let p = &self.params;
-        let (mut problem, u0) = self.initial_problem(left, volume, init, true)?;
+        let (mut problem, u0) = self.initial_problem(left, volume.shape(), init, true)?;
         let data = DataCost::with_buffers(volume, p.cost_window, std::mem::take(filtered));
         let mut a = u0;
         for k in 0..p.outer_iterations {
@@ -358,7 +376,7 @@ impl TgvMatcher {
     pub(crate) fn initial_problem(
         &self,
         left: &GreyImage,
-        volume: &CostVolume,
+        volume: VolumeShape,
         init: &DisparityMap,
         image_tensors: bool,
     ) -> Result<(TgvProblem, Vec<f32>)> {
@@ -406,11 +424,22 @@ impl TgvMatcher {
         init: &DisparityMap,
         volume: &CostVolume,
     ) -> DisparityMap {
+        let costs = costs_at_disparities(dense, volume);
+        self.invalidate_with(dense, init, &costs, volume.shape())
+    }
+
+    /// [`TgvMatcher::invalidate`] given each pixel's census cost at its disparity
+    /// ([`costs_at_disparities`]; the GPU matcher gathers them where the volume is).
+    pub(crate) fn invalidate_with(
+        &self,
+        dense: &[f32],
+        init: &DisparityMap,
+        costs_at: &[u8],
+        volume: VolumeShape,
+    ) -> DisparityMap {
         let p = &self.params;
         let w = volume.width as usize;
         let h = volume.height as usize;
-        let nd = volume.num_disparities;
-        let dmin = volume.min_disparity_px as f32;
         let occ = occluded(dense, w, h, p.occlusion_tolerance_px);
         let max_bits = p.max_cost_fraction * volume.max_cost as f32;
         let sgm_conf = init.confidence.as_ref();
@@ -422,8 +451,7 @@ impl TgvMatcher {
             if !d.is_finite() || (p.hole_fill != HoleFill::All && (x as f32) - d < -0.5) {
                 continue;
             }
-            let k = ((d - dmin).round().max(0.0) as usize).min(nd - 1);
-            let c = volume.cost[i * nd + k] as f32;
+            let c = costs_at[i] as f32;
             let sgm_valid = init.disparity_px.data[i].is_finite();
             let agrees = sgm_valid && (init.disparity_px.data[i] - d).abs() <= 1.0;
             let keep = sgm_valid

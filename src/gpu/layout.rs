@@ -309,6 +309,20 @@ pub struct TensorUniforms {
     pub pad: [u32; 4],
 }
 
+/// Uniforms of `shaders/tgv_cost_at.wgsl` (WGSL twin: `CostAtUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct CostAtUniforms {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Disparity slices.
+    pub num_disparities: u32,
+    /// Disparity of slice 0, pixels.
+    pub min_disparity_px: f32,
+}
+
 /// Uniforms of `shaders/cost_window.wgsl` (WGSL twin: `WindowUniforms` there).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
@@ -420,6 +434,7 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("McUniforms", std::mem::size_of::<McUniforms>()),
     ("WindowUniforms", std::mem::size_of::<WindowUniforms>()),
     ("TensorUniforms", std::mem::size_of::<TensorUniforms>()),
+    ("CostAtUniforms", std::mem::size_of::<CostAtUniforms>()),
     ("SgmPathUniforms", std::mem::size_of::<SgmPathUniforms>()),
     (
         "SgmSelectUniforms",

@@ -183,6 +183,18 @@ pub const COST_WINDOW: ShaderSource = kernel!(
     [Uniform, Read, ReadWrite, ReadWrite]
 );
 
+/// The GPU variational matcher's disparities and their census costs, for the host's
+/// invalidation.
+pub const TGV_COST_AT: ShaderSource = kernel!(
+    "tgv_cost_at.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/packed_bytes.wgsl",
+        "shared/rounding.wgsl"
+    ],
+    [Uniform, Read, Read, ReadWrite]
+);
+
 /// SGM's path aggregation along one direction, into the summed costs S.
 pub const SGM_PATHS: ShaderSource = kernel!(
     "sgm_paths.wgsl",
@@ -277,6 +289,7 @@ pub const ALL: &[ShaderSource] = &[
     CENSUS_COST,
     COST_WINDOW,
     TGV_TENSORS,
+    TGV_COST_AT,
     SGM_PATHS,
     SGM_RIGHT,
     SGM_SELECT,

@@ -25,12 +25,12 @@ use denser::depth::census::{census_transform, CensusKind, CensusParams};
 use denser::depth::metrics::mask_from_middlebury;
 use denser::depth::sgm::CostVolume;
 use denser::depth::tgv::{
-    box_filtered_costs, decoupling_search, diffusion_tensors, Regularizer, TgvMatcher, TgvParams,
-    TgvProblem,
+    box_filtered_costs, costs_at_disparities, decoupling_search, diffusion_tensors, Regularizer,
+    TgvMatcher, TgvParams, TgvProblem,
 };
 use denser::depth::{
-    census_transform_gpu, cost_volume_gpu, diffusion_tensors_gpu, estimate_tgv_gpu,
-    pointwise_search_gpu, window_costs_gpu, TgvProblemGpu,
+    census_transform_gpu, cost_volume_gpu, costs_at_disparities_gpu, diffusion_tensors_gpu,
+    estimate_tgv_gpu, pointwise_search_gpu, window_costs_gpu, TgvProblemGpu,
 };
 use denser::depth::{evaluate_disparity, SgmMatcher, SgmParams};
 use denser::frame::{GreyImage, Image};
@@ -508,11 +508,12 @@ fn pairs_volume((_, left, right, nd): &(&str, GreyImage, GreyImage, usize)) -> C
 }
 
 #[test]
-fn the_gpu_matcher_sends_no_costs_up() {
-    // TGV-tensor on the GPU: the cost volume is made on the device, read back once, aggregated
-    // along SGM's paths (the winners selected there) and summed over its window there; what goes up is the two images, the tensors and the
-    // problem's state (4 bytes per pixel each), never the costs (1 byte per pixel and disparity
-    // raw, 2 as window sums).
+fn the_gpu_matcher_sends_no_costs_up_and_reads_back_no_volume() {
+    // TGV-tensor on the GPU: the cost volume is made on the device, aggregated along SGM's
+    // paths there (the winners selected there), summed over its window there, and each pixel's
+    // cost at its final disparity is gathered there for the invalidation. What goes up is the
+    // two images and the initial primal; what comes down is SGM's selection and the disparities
+    // with their costs, never the costs of every disparity.
     let Some(ctx) = gpu() else { return };
     let (left, right, _) = generated_pair();
     let nd = 48;
@@ -527,18 +528,101 @@ fn the_gpu_matcher_sends_no_costs_up() {
     let pixels = (left.width * left.height) as u64;
     let entries = pixels * nd as u64;
     eprintln!("{pixels} pixels, {entries} cost entries: {t:?}");
-    // Images (1 byte per pixel each), target (1 float) and primal (3): 18 bytes per pixel, plus
-    // uniforms; the tensors are computed from the left image, the relaxed primal copied and the
-    // dual cleared on the device. Before, those went up too, and the window sums and counts (2
-    // bytes per entry and 4 per pixel): 3.2 MB here against this bound's 0.43 MB.
-    assert!(t.upload_bytes <= 18 * pixels + (64 << 10), "{t:?}");
-    // Down: the cost volume once (for the CPU's initial problem and invalidation), SGM's
-    // selection (16 bytes per pixel; its sums stay on the device) and the primal ([u, v1, v2]
-    // per pixel).
-    assert!(
-        t.readback_bytes <= entries.next_multiple_of(4) + 28 * pixels,
-        "{t:?}"
+    // Images (1 byte per pixel each) and the primal ([u, v1, v2]: 12), plus uniforms; the
+    // tensors are computed from the left image, the relaxed primal copied and the dual and the
+    // coupling target cleared on the device. Before, the target went up too (4 bytes per
+    // pixel), and before that the window sums and counts (2 bytes per entry and 4 per pixel).
+    assert!(t.upload_bytes <= 14 * pixels + (64 << 10), "{t:?}");
+    // Down: SGM's selection (16 bytes per pixel; its sums stay on the device), then each
+    // pixel's disparity and cost (5). Before, the cost volume came down too (1 byte per entry,
+    // 48 per pixel here) for the CPU's invalidation, and the whole primal (12 per pixel).
+    assert!(t.readback_bytes <= 21 * pixels + (64 << 10), "{t:?}");
+    // One wait for SGM, one for the gathered disparities (before: three, the volume's first).
+    assert_eq!(t.waits, 2, "{t:?}");
+}
+
+#[test]
+fn the_costs_at_the_disparities_are_gathered_on_the_gpu_as_on_the_cpu() {
+    // The invalidation's cost lookup: the slice nearest each disparity (halves away from zero,
+    // clamped to the range) on both devices, on the halves and next to them, below and above
+    // the range, and on arbitrary disparities; a non-finite disparity (which TGV never makes)
+    // only has to leave the kernel in bounds.
+    let Some(ctx) = gpu() else { return };
+    let (w, h, nd, dmin) = (37u32, 5u32, 13usize, -2i32);
+    let n = (w * h) as usize;
+    let mut state = 0x2545_f491u32;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 17;
+        state ^= state << 5;
+        state
+    };
+    let volume = CostVolume {
+        width: w,
+        height: h,
+        min_disparity_px: dmin,
+        num_disparities: nd,
+        max_cost: 62,
+        cost: (0..n * nd).map(|_| (next() % 63) as u8).collect(),
+    };
+    // Slice 5.5 and its neighbouring floats, less d_min (exact: the result has finer steps).
+    let near_half = |step: i32| f32::from_bits((5.5f32.to_bits() as i32 + step) as u32) - 2.0;
+    let mut dense: Vec<f32> = vec![
+        -2.5,
+        -1.5,
+        near_half(0),
+        near_half(-1),
+        near_half(1),
+        -2.0 + 0.49999997,
+        -2.0 - 0.49999997,
+        -1e9,
+        1e9,
+        10.5,
+        10.499999,
+        11.0,
+        0.0,
+        -0.0,
+        f32::NAN,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+    ];
+    let finite_listed = dense.len() - 3;
+    while dense.len() < n {
+        dense.push(-5.0 + (next() % 20_000) as f32 * 1e-3);
+    }
+    let cpu = costs_at_disparities(&dense, &volume);
+    let (u, gpu_costs) = costs_at_disparities_gpu(&ctx, &volume, &dense).expect("GPU");
+    assert_eq!((u.len(), gpu_costs.len()), (n, n));
+    let mut compared = 0;
+    for i in 0..n {
+        if !dense[i].is_finite() {
+            continue;
+        }
+        assert_eq!(
+            u[i].to_bits(),
+            dense[i].to_bits(),
+            "pixel {i}: disparity read back"
+        );
+        assert_eq!(cpu[i], gpu_costs[i], "pixel {i}: disparity {}", dense[i]);
+        compared += 1;
+    }
+    assert_eq!(compared, n - 3);
+    // The rule itself, on the listed values: slice 0 below the range, the last above it.
+    let slice = |i: usize| volume.cost[i * nd..(i + 1) * nd].to_vec();
+    assert_eq!(
+        cpu[0],
+        slice(0)[0],
+        "-2.5 is slice 0 (−0.5 rounds to −1, clamped)"
     );
+    assert_eq!(
+        cpu[2],
+        slice(2)[6],
+        "3.5 − (−2) = 5.5 rounds away from zero to 6"
+    );
+    assert_eq!(cpu[3], slice(3)[5], "just below 5.5 rounds to 5");
+    assert_eq!(cpu[4], slice(4)[6], "just above 5.5 rounds to 6");
+    assert_eq!(cpu[8], slice(8)[nd - 1], "above the range: the last slice");
+    assert!(finite_listed < n);
 }
 
 #[test]

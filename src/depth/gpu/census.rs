@@ -4,7 +4,7 @@
 //! ([`OnDevice`]); it is read back only where the CPU needs it.
 
 use crate::depth::census::{CensusImage, CensusKind, CensusParams};
-use crate::depth::sgm::CostVolume;
+use crate::depth::sgm::{CostVolume, VolumeShape};
 use crate::frame::GreyImage;
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{CensusUniforms, CostUniforms};
@@ -177,11 +177,8 @@ pub fn cost_volume_gpu(
 pub(super) struct OnDevice {
     pub(super) volume: wgpu::Buffer,
     pub(super) left: wgpu::Buffer,
-    /// The image's size, pixels.
-    pub(super) width: u32,
-    pub(super) height: u32,
-    /// The largest cost (the signature's bits).
-    pub(super) max_cost: u8,
+    /// The volume's size, disparity range and largest cost (the signature's bits).
+    pub(super) shape: VolumeShape,
 }
 
 /// [`cost_volume_gpu`], also returning the volume and the left image on the device.
@@ -201,15 +198,16 @@ pub(super) fn cost_volume_on_device(
         record_cost_volume(ctx, &mut encoder, &mut Kept::default(), (left, right), args)?;
     ctx.submit(encoder);
     scope.pop("running the census cost kernels")?;
-    let entries = on_device.width as usize * on_device.height as usize * args.2;
+    let shape = on_device.shape;
+    let entries = shape.width as usize * shape.height as usize * shape.num_disparities;
     let mut cost: Vec<u8> = ctx.read_back_as(&on_device.volume, entries.div_ceil(4) * 4)?;
     cost.truncate(entries);
     let volume = CostVolume {
-        width: left.width,
-        height: left.height,
-        min_disparity_px: args.1,
-        num_disparities: args.2,
-        max_cost: on_device.max_cost,
+        width: shape.width,
+        height: shape.height,
+        min_disparity_px: shape.min_disparity_px,
+        num_disparities: shape.num_disparities,
+        max_cost: shape.max_cost,
         cost,
     };
     Ok((volume, on_device))
@@ -269,8 +267,12 @@ pub(super) fn record_cost_volume(
     Ok(OnDevice {
         volume: buf_volume,
         left: left_image,
-        width: left.width,
-        height: left.height,
-        max_cost,
+        shape: VolumeShape {
+            width: left.width,
+            height: left.height,
+            min_disparity_px,
+            num_disparities,
+            max_cost,
+        },
     })
 }

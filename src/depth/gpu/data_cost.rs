@@ -1,7 +1,7 @@
 //! The data term on the GPU: the census costs where the cost volume was made, summed over the
 //! window there (`shaders/cost_window.wgsl`), and the point-wise search over them.
 
-use crate::depth::sgm::CostVolume;
+use crate::depth::sgm::{CostVolume, VolumeShape};
 use crate::gpu::layout::{PointwiseUniforms, WindowUniforms};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
@@ -20,16 +20,18 @@ pub(super) struct DataCostGpu {
 }
 
 impl DataCostGpu {
-    /// The data term of `volume` averaged over `window` × `window` (raw when 1), from the cost
-    /// volume already on the device (`on_device`: [`super::cost_volume_on_device`]'s buffer), or
-    /// uploaded once. The window sums are taken on the device (`shaders/cost_window.wgsl`, equal
-    /// to the CPU's `box_filter_into`), so only the raw costs ever go up.
-    pub(super) fn new(
-        ctx: &GpuContext,
-        volume: &CostVolume,
-        on_device: Option<&wgpu::Buffer>,
-        window: u32,
-    ) -> Result<Self> {
+    /// The data term of `volume` averaged over `window` × `window` (raw when 1), its costs
+    /// uploaded once ([`DataCostGpu::on_device`]).
+    pub(super) fn new(ctx: &GpuContext, volume: &CostVolume, window: u32) -> Result<Self> {
+        let shape = volume.shape();
+        Self::check(ctx, shape, window)?;
+        let raw = ctx.storage("tgv_raw_costs", &volume.cost);
+        Self::on_device(ctx, shape, &raw, window)
+    }
+
+    /// Fails with [`Error::GpuCapacity`] when the costs of `volume` over `window` do not fit
+    /// one binding or u32 indices.
+    fn check(ctx: &GpuContext, volume: VolumeShape, window: u32) -> Result<()> {
         let n = volume.width as u64 * volume.height as u64;
         let entries = n * volume.num_disparities as u64;
         if entries > u32::MAX as u64 || volume.num_disparities > u32::MAX as usize {
@@ -44,12 +46,24 @@ impl DataCostGpu {
         ctx.check_binding(
             &format!("census costs ({cost_bytes} bytes per pixel and disparity)"),
             entries * cost_bytes,
-        )?;
+        )
+    }
+
+    /// The data term of the cost volume of shape `volume` on the device (`raw`:
+    /// [`super::record_cost_volume`]'s buffer, u8 costs 4 per word) averaged over `window` ×
+    /// `window` (raw when 1). The window sums are taken on the device
+    /// (`shaders/cost_window.wgsl`, equal to the CPU's `box_filter_into`), so no cost goes up.
+    pub(super) fn on_device(
+        ctx: &GpuContext,
+        volume: VolumeShape,
+        raw: &wgpu::Buffer,
+        window: u32,
+    ) -> Result<Self> {
+        Self::check(ctx, volume, window)?;
+        let n = volume.width as u64 * volume.height as u64;
+        let entries = n * volume.num_disparities as u64;
+        let cost_bytes = if window > 1 { 2 } else { 1 };
         let scope = ErrorScopes::push(&ctx.device);
-        let raw = match on_device {
-            Some(b) => b.clone(),
-            None => ctx.storage("tgv_raw_costs", &volume.cost),
-        };
         let (costs, counts) = if window > 1 {
             let kernel = ctx.kernel(&shaders::COST_WINDOW)?;
             let uniforms = WindowUniforms {
@@ -67,7 +81,7 @@ impl DataCostGpu {
             let bind = ctx.bind_group(
                 "cost_window",
                 &kernel.layout,
-                &[&buf_uniforms, &raw, &sums, &counts],
+                &[&buf_uniforms, raw, &sums, &counts],
             );
             let mut encoder = ctx
                 .device
@@ -79,7 +93,10 @@ impl DataCostGpu {
             (sums, counts)
         } else {
             let ones = vec![1u32; n as usize];
-            (raw, ctx.storage("tgv_counts", bytemuck::cast_slice(&ones)))
+            (
+                raw.clone(),
+                ctx.storage("tgv_counts", bytemuck::cast_slice(&ones)),
+            )
         };
         scope.pop("summing the census costs over their window")?;
         Ok(DataCostGpu {

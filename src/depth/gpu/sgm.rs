@@ -269,24 +269,12 @@ pub fn aggregate_paths_gpu(
     read_sums(ctx, &sums, volume.cost.len())
 }
 
-/// SGM of a pair whose cost volume is on the device (`on_device`): the paths aggregated and the
-/// winners selected there in one submit, the disparities and confidences read back and filtered
-/// as [`SgmMatcher`] filters them. At most [`GPU_SGM_MAX_DISPARITIES`] disparities.
-pub(super) fn sgm_on_device(
-    ctx: &GpuContext,
-    matcher: &SgmMatcher,
-    kept: &mut Kept,
-    on_device: &OnDevice,
-) -> Result<DisparityMap> {
-    let encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sgm") });
-    sgm_recorded(ctx, encoder, matcher, kept, on_device)
-}
-
-/// [`sgm_on_device`] appended to `encoder` (which may hold the work that makes the volume):
-/// one submit and one wait for all of it.
-fn sgm_recorded(
+/// SGM of a pair whose cost volume is on the device (`on_device`), appended to `encoder`
+/// (which may hold the work that makes the volume): the paths aggregated and the winners
+/// selected there, all in one submit and one wait, the disparities and confidences read back
+/// and filtered as [`SgmMatcher`] filters them. At most [`GPU_SGM_MAX_DISPARITIES`]
+/// disparities.
+pub(super) fn sgm_recorded(
     ctx: &GpuContext,
     mut encoder: wgpu::CommandEncoder,
     matcher: &SgmMatcher,
@@ -295,7 +283,7 @@ fn sgm_recorded(
 ) -> Result<DisparityMap> {
     let p = &matcher.params;
     p.validate()?;
-    let size = (on_device.width, on_device.height);
+    let size = (on_device.shape.width, on_device.shape.height);
     let scope = ErrorScopes::push(&ctx.device);
     let volume = (&on_device.volume, &on_device.left);
     let sums = record_aggregation(ctx, &mut encoder, kept, volume, size, p)?;
