@@ -157,6 +157,7 @@ impl GpuStages {
                 &shaders::TGV_POINTWISE,
                 &shaders::TGV_DUAL,
                 &shaders::TGV_PRIMAL,
+                &shaders::TGV_INIT,
             ]);
         }
         if self.mesh {

@@ -39,7 +39,7 @@ use crate::frame::GreyImage;
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{CostAtUniforms, TensorUniforms, TgvUniforms};
 use crate::gpu::shaders;
-use crate::gpu::{ErrorScopes, GpuContext};
+use crate::gpu::{ErrorScopes, GpuContext, Kernel};
 use crate::{Error, Result};
 
 /// Primal–dual iterations recorded per command buffer (bounds the size of one submission).
@@ -56,7 +56,9 @@ pub use sgm::{
 };
 
 /// A [`TgvProblem`] resident on the GPU: tensors, coupling target, primal, over-relaxed primal
-/// and dual, in the CPU's layout (`[u, v1, v2]`, `[p1, p2, q11, q22, q12]` per pixel).
+/// and dual, in the CPU's layout (`[u, v1, v2]`, `[p1, p2, q11, q22, q12]` per pixel). Its
+/// buffers, uniforms and bind groups are kept ([`Kept`]): a matcher hands them from one pair
+/// to the next, so a pair of the same size creates none.
 #[derive(Debug)]
 pub struct TgvProblemGpu<'c> {
     ctx: &'c GpuContext,
@@ -72,19 +74,23 @@ pub struct TgvProblemGpu<'c> {
     primal: wgpu::Buffer,
     primal_bar: wgpu::Buffer,
     dual: wgpu::Buffer,
+    kept: Kept,
 }
 
 impl<'c> TgvProblemGpu<'c> {
-    /// Uploads `problem` (its parameters and whole state). Fails with
+    /// Uploads `problem` (its parameters and whole state; a fresh problem's state, from
+    /// [`TgvProblem::new`], is made on the device from its disparity). Fails with
     /// [`Error::GpuCapacity`] when the dual (20 bytes per pixel) does not fit one binding.
     pub fn upload(ctx: &'c GpuContext, problem: &TgvProblem) -> Result<Self> {
-        Self::upload_with(ctx, problem, None)
+        Self::upload_in(ctx, Kept::default(), problem, None)
     }
 
-    /// [`TgvProblemGpu::upload`], the tensors computed on the device from `tensors_from` (the
-    /// left image's buffer, γ, β: `shaders/tgv_tensors.wgsl`) instead of uploaded when given.
-    fn upload_with(
+    /// [`TgvProblemGpu::upload`] into the buffers of `kept`, the tensors computed on the device
+    /// from `tensors_from` (the left image's buffer, γ, β: `shaders/tgv_tensors.wgsl`) instead of
+    /// uploaded when given.
+    fn upload_in(
         ctx: &'c GpuContext,
+        mut kept: Kept,
         problem: &TgvProblem,
         tensors_from: Option<(&wgpu::Buffer, f32, f32)>,
     ) -> Result<Self> {
@@ -101,7 +107,18 @@ impl<'c> TgvProblemGpu<'c> {
         let (primal, primal_bar, dual) = problem.state();
         let words = |a: &[[f32; 3]]| bytemuck::cast_slice::<[f32; 3], u32>(a).to_vec();
         let bar_is_primal = words(&primal_bar) == words(&primal);
+        // A fresh problem: v = 0, ū = u, dual 0 (bit patterns, so −0 is not fresh).
+        let fresh = bar_is_primal
+            && primal
+                .iter()
+                .all(|p| p[1].to_bits() == 0 && p[2].to_bits() == 0)
+            && dual.iter().all(|d| d.iter().all(|&v| v.to_bits() == 0));
         let scope = ErrorScopes::push(&ctx.device);
+        let state = |kept: &mut Kept, name, data: &[u8]| match fresh {
+            true => kept.scratch(ctx, name, data.len() as u64),
+            false => kept.storage_with(ctx, name, data),
+        };
+        let u0: Vec<f32> = primal.iter().map(|p| p[0]).collect();
         let gpu = TgvProblemGpu {
             ctx,
             width: problem.width,
@@ -112,41 +129,47 @@ impl<'c> TgvProblemGpu<'c> {
             tau,
             sigma,
             tensors: match tensors_from {
-                Some(_) => ctx.storage_zeroed("tgv_tensors", n * 12),
-                None => ctx.storage("tgv_tensors", bytemuck::cast_slice(problem.tensors())),
+                Some(_) => kept.scratch(ctx, "tgv_tensors", n * 12),
+                None => {
+                    kept.storage_with(ctx, "tgv_tensors", bytemuck::cast_slice(problem.tensors()))
+                }
             },
-            // Written by the point-wise search (or `iterate`) before any iteration reads it.
-            target: ctx.storage_zeroed("tgv_target", n * 4),
-            primal: ctx.storage("tgv_primal", bytemuck::cast_slice(&primal)),
-            // A fresh problem's over-relaxed primal is its primal and its dual is zero: copied
-            // and cleared on the device, not uploaded.
-            primal_bar: if bar_is_primal {
-                ctx.storage_zeroed("tgv_primal_bar", n * 12)
-            } else {
-                ctx.storage("tgv_primal_bar", bytemuck::cast_slice(&primal_bar))
+            // A fresh problem's disparity goes up here, where `tgv_init` reads it; otherwise
+            // the target is written (point-wise search, `iterate`) before any iteration reads it.
+            target: match fresh {
+                true => kept.storage_with(ctx, "tgv_target", bytemuck::cast_slice(&u0)),
+                false => kept.scratch(ctx, "tgv_target", n * 4),
             },
-            dual: if dual.iter().all(|d| d.iter().all(|&v| v.to_bits() == 0)) {
-                ctx.storage_zeroed("tgv_dual", n * 20)
-            } else {
-                ctx.storage("tgv_dual", bytemuck::cast_slice(&dual))
-            },
+            primal: state(&mut kept, "tgv_primal", bytemuck::cast_slice(&primal)),
+            primal_bar: state(
+                &mut kept,
+                "tgv_primal_bar",
+                bytemuck::cast_slice(&primal_bar),
+            ),
+            dual: state(&mut kept, "tgv_dual", bytemuck::cast_slice(&dual)),
+            kept,
         };
-        if bar_is_primal || tensors_from.is_some() {
-            let mut encoder = ctx
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("tgv_state"),
-                });
-            if bar_is_primal {
-                encoder.copy_buffer_to_buffer(&gpu.primal, 0, &gpu.primal_bar, 0, n * 12);
-            }
-            if let Some((image, gamma, beta)) = tensors_from {
-                record_tensors(ctx, &mut encoder, &gpu, image, (gamma, beta))?;
-            }
-            ctx.submit(encoder);
+        let mut gpu = gpu;
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("tgv_state"),
+            });
+        if fresh {
+            let (kernel, bind) = gpu.prepare(&shaders::TGV_INIT, 1.0)?;
+            ctx.record_dispatch(&mut encoder, &kernel, &bind, n)?;
         }
+        if let Some((image, gamma, beta)) = tensors_from {
+            gpu.record_tensors(&mut encoder, image, (gamma, beta))?;
+        }
+        ctx.submit(encoder);
         scope.pop("uploading the TGV problem")?;
         Ok(gpu)
+    }
+
+    /// Its kept buffers, uniforms and bind groups, for the next problem.
+    fn into_kept(self) -> Kept {
+        self.kept
     }
 
     /// Width, pixels.
@@ -180,7 +203,6 @@ impl<'c> TgvProblemGpu<'c> {
             return Ok(());
         }
         self.ctx
-            .queue
             .write_buffer(&self.target, 0, bytemuck::cast_slice(a));
         self.run(theta, iterations)
     }
@@ -194,12 +216,15 @@ impl<'c> TgvProblemGpu<'c> {
         Ok(())
     }
 
-    /// `iterations` iterations toward the target already in `self.target`.
-    fn run(&self, theta: f32, iterations: u32) -> Result<()> {
+    /// `kernel` (of the iterations' layout, `shared/tgv_common.wgsl`) and its kept bind group,
+    /// the kept uniforms written for the coupling weight `1/(2θ)`.
+    fn prepare(
+        &mut self,
+        kernel: &'static shaders::ShaderSource,
+        theta: f32,
+    ) -> Result<(std::sync::Arc<Kernel>, wgpu::BindGroup)> {
         let ctx = self.ctx;
-        let n = self.pixels() as u64;
-        let dual_kernel = ctx.kernel(&shaders::TGV_DUAL)?;
-        let primal_kernel = ctx.kernel(&shaders::TGV_PRIMAL)?;
+        let compiled = ctx.kernel(kernel)?;
         let uniforms = TgvUniforms {
             width: self.width as u32,
             height: self.height as u32,
@@ -213,8 +238,8 @@ impl<'c> TgvProblemGpu<'c> {
             coupling: self.tau / theta,
             pad1: [0; 3],
         };
-        let scope = ErrorScopes::push(&ctx.device);
-        let buf_uniforms = ctx.uniform("tgv_uniforms", bytemuck::bytes_of(&uniforms));
+        let bytes = bytemuck::bytes_of(&uniforms);
+        let buf_uniforms = self.kept.uniform_with(ctx, "tgv_uniforms", bytes);
         let buffers = [
             &buf_uniforms,
             &self.tensors,
@@ -223,10 +248,21 @@ impl<'c> TgvProblemGpu<'c> {
             &self.primal_bar,
             &self.dual,
         ];
-        // The two kernels share one layout (shared/tgv_common.wgsl), but each pipeline has its
-        // own layout object: one bind group per kernel.
-        let bind_dual = ctx.bind_group("tgv_dual", &dual_kernel.layout, &buffers);
-        let bind_primal = ctx.bind_group("tgv_primal", &primal_kernel.layout, &buffers);
+        // The kernels share one layout (shared/tgv_common.wgsl), but each pipeline has its own
+        // layout object: one bind group per kernel.
+        let bind = self
+            .kept
+            .bind_group(ctx, kernel.file, &compiled.layout, &buffers);
+        Ok((compiled, bind))
+    }
+
+    /// `iterations` iterations toward the target already in `self.target`.
+    fn run(&mut self, theta: f32, iterations: u32) -> Result<()> {
+        let ctx = self.ctx;
+        let n = self.pixels() as u64;
+        let scope = ErrorScopes::push(&ctx.device);
+        let (dual_kernel, bind_dual) = self.prepare(&shaders::TGV_DUAL, theta)?;
+        let (primal_kernel, bind_primal) = self.prepare(&shaders::TGV_PRIMAL, theta)?;
         let mut left = iterations;
         while left > 0 {
             let batch = left.min(ITERATIONS_PER_SUBMIT);
@@ -243,6 +279,31 @@ impl<'c> TgvProblemGpu<'c> {
             ctx.submit(encoder);
         }
         scope.pop("running the TGV kernels")
+    }
+
+    /// Records `shaders/tgv_tensors.wgsl`: the tensors from the grey levels in `image`.
+    fn record_tensors(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        image: &wgpu::Buffer,
+        (gamma, beta): (f32, f32),
+    ) -> Result<()> {
+        let ctx = self.ctx;
+        let kernel = ctx.kernel(&shaders::TGV_TENSORS)?;
+        let uniforms = TensorUniforms {
+            width: self.width as u32,
+            height: self.height as u32,
+            gamma,
+            beta,
+            pad: [0; 4],
+        };
+        let bytes = bytemuck::bytes_of(&uniforms);
+        let buf_uniforms = self.kept.uniform_with(ctx, "tensor_uniforms", bytes);
+        let buffers = [&buf_uniforms, image, &self.tensors];
+        let bind = self
+            .kept
+            .bind_group(ctx, "tgv_tensors", &kernel.layout, &buffers);
+        ctx.record_dispatch(encoder, &kernel, &bind, self.pixels() as u64)
     }
 
     /// The disparity `u`, pixels (read back).
@@ -313,35 +374,11 @@ pub fn pointwise_search_gpu(
         .create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("pointwise"),
         });
-    data.record_search(ctx, &mut encoder, &buf_u, 1, &buf_a, lambda, theta)?;
+    let kept = &mut Kept::default();
+    data.record_search((ctx, kept), &mut encoder, &buf_u, 1, &buf_a, lambda, theta)?;
     ctx.submit(encoder);
     scope.pop("running the point-wise search")?;
     ctx.read_back_as(&buf_a, n as usize)
-}
-
-/// Records `shaders/tgv_tensors.wgsl`: `gpu`'s tensors from the grey levels in `image`.
-fn record_tensors(
-    ctx: &GpuContext,
-    encoder: &mut wgpu::CommandEncoder,
-    gpu: &TgvProblemGpu,
-    image: &wgpu::Buffer,
-    (gamma, beta): (f32, f32),
-) -> Result<()> {
-    let kernel = ctx.kernel(&shaders::TGV_TENSORS)?;
-    let uniforms = TensorUniforms {
-        width: gpu.width as u32,
-        height: gpu.height as u32,
-        gamma,
-        beta,
-        pad: [0; 4],
-    };
-    let buf_uniforms = ctx.uniform("tensor_uniforms", bytemuck::bytes_of(&uniforms));
-    let bind = ctx.bind_group(
-        "tgv_tensors",
-        &kernel.layout,
-        &[&buf_uniforms, image, &gpu.tensors],
-    );
-    ctx.record_dispatch(encoder, &kernel, &bind, gpu.pixels() as u64)
 }
 
 /// [`crate::depth::tgv::diffusion_tensors`] on the GPU (`shaders/tgv_tensors.wgsl`), read back
@@ -358,7 +395,8 @@ pub fn diffusion_tensors_gpu(
     let identity = vec![[1.0, 0.0, 1.0]; n];
     let problem = TgvProblem::new(&u0, w, h, Regularizer::TgvTensor, 1.0, 1.0, identity)?;
     let buf_image = ctx.storage("tensor_image", &image.data);
-    let gpu = TgvProblemGpu::upload_with(ctx, &problem, Some((&buf_image, gamma, beta)))?;
+    let tensors = Some((&buf_image, gamma, beta));
+    let gpu = TgvProblemGpu::upload_in(ctx, Kept::default(), &problem, tensors)?;
     ctx.read_back_as(&gpu.tensors, n)
 }
 
@@ -375,18 +413,20 @@ pub fn refine_gpu(
     init: &DisparityMap,
 ) -> Result<Vec<f32>> {
     matcher.params.validate()?;
-    let data = DataCostGpu::new(ctx, volume, matcher.params.cost_window)?;
-    refine_on_device(ctx, matcher, (left, None), (volume.shape(), &data), init)?.u()
+    let raw = data_cost::upload_costs(ctx, volume, matcher.params.cost_window)?;
+    let on_device = (volume.shape(), &raw);
+    refine_on_device(ctx, Kept::default(), matcher, (left, None), on_device, init)?.u()
 }
 
-/// [`refine_gpu`] over the data term `data` already on the device (of a volume of shape
+/// [`refine_gpu`] over the raw costs `raw` already on the device (of a volume of shape
 /// `volume`), with TGV-tensor's tensors made there from `left_on_device` (the left image's
-/// buffer) when given; returns the problem, still on the device.
+/// buffer) when given, in the buffers of `kept`; returns the problem, still on the device.
 fn refine_on_device<'c>(
     ctx: &'c GpuContext,
+    kept: Kept,
     matcher: &TgvMatcher,
     (left, left_on_device): (&GreyImage, Option<&wgpu::Buffer>),
-    (volume, data): (VolumeShape, &DataCostGpu),
+    (volume, raw): (VolumeShape, &wgpu::Buffer),
     init: &DisparityMap,
 ) -> Result<TgvProblemGpu<'c>> {
     let p = &matcher.params;
@@ -397,8 +437,9 @@ fn refine_on_device<'c>(
     };
     // TGV-tensor's tensors are made on the device when the image is there: not on the CPU too.
     let (problem, _u0) = matcher.initial_problem(left, volume, init, tensors.is_none())?;
-    let gpu = TgvProblemGpu::upload_with(ctx, &problem, tensors)?;
+    let mut gpu = TgvProblemGpu::upload_in(ctx, kept, &problem, tensors)?;
     drop(problem);
+    let data = DataCostGpu::on_device(ctx, &mut gpu.kept, volume, raw, p.cost_window)?;
     for k in 0..p.outer_iterations {
         let theta = p.theta(k);
         let scope = ErrorScopes::push(&ctx.device);
@@ -409,7 +450,7 @@ fn refine_on_device<'c>(
             });
         // u is the first of the primal's three floats per pixel; a is the problem's target.
         data.record_search(
-            ctx,
+            (ctx, &mut gpu.kept),
             &mut encoder,
             &gpu.primal,
             3,
@@ -424,59 +465,59 @@ fn refine_on_device<'c>(
     Ok(gpu)
 }
 
-/// Records `shaders/tgv_cost_at.wgsl` over `gpu`'s disparity and the raw costs `raw` (of a
-/// volume of shape `volume`), and reads back in the same submit each pixel's disparity and its
-/// cost ([`crate::depth::tgv::costs_at_disparities`]): 5 bytes per pixel, in `kept`'s buffers.
-fn disparities_and_costs(
-    ctx: &GpuContext,
-    kept: &mut Kept,
-    gpu: &TgvProblemGpu,
-    (raw, volume): (&wgpu::Buffer, VolumeShape),
-) -> Result<(Vec<f32>, Vec<u8>)> {
-    let n = gpu.pixels();
-    if (volume.width as usize, volume.height as usize) != (gpu.width, gpu.height) {
-        return Err(Error::InvalidArgument(format!(
-            "a {}×{} cost volume for a {}×{} problem",
-            volume.width, volume.height, gpu.width, gpu.height
-        )));
+impl TgvProblemGpu<'_> {
+    /// Records `shaders/tgv_cost_at.wgsl` over the disparity and the raw costs `raw` (of a
+    /// volume of shape `volume`), and reads back in the same submit each pixel's disparity and
+    /// its cost ([`crate::depth::tgv::costs_at_disparities`]): 5 bytes per pixel, in kept
+    /// buffers.
+    fn disparities_and_costs(
+        &mut self,
+        (volume, raw): (VolumeShape, &wgpu::Buffer),
+    ) -> Result<(Vec<f32>, Vec<u8>)> {
+        let (ctx, n) = (self.ctx, self.pixels());
+        if (volume.width as usize, volume.height as usize) != (self.width, self.height) {
+            return Err(Error::InvalidArgument(format!(
+                "a {}×{} cost volume for a {}×{} problem",
+                volume.width, volume.height, self.width, self.height
+            )));
+        }
+        if n == 0 {
+            return Ok((Vec::new(), Vec::new()));
+        }
+        let kernel = ctx.kernel(&shaders::TGV_COST_AT)?;
+        let uniforms = CostAtUniforms {
+            width: volume.width,
+            height: volume.height,
+            num_disparities: volume.num_disparities as u32,
+            min_disparity_px: volume.min_disparity_px as f32,
+        };
+        let scope = ErrorScopes::push(&ctx.device);
+        let bytes = bytemuck::bytes_of(&uniforms);
+        let buf_uniforms = self.kept.uniform_with(ctx, "cost_at_uniforms", bytes);
+        let words = n + n.div_ceil(4);
+        let out = self.kept.scratch(ctx, "cost_at_out", words as u64 * 4);
+        let buffers = [&buf_uniforms, raw, &self.primal, &out];
+        let bind = self
+            .kept
+            .bind_group(ctx, "tgv_cost_at", &kernel.layout, &buffers);
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("tgv_cost_at"),
+            });
+        ctx.record_dispatch(&mut encoder, &kernel, &bind, n.div_ceil(4) as u64)?;
+        let mut back = vec![0u32; words];
+        ctx.submit_and_read_back(
+            encoder,
+            &mut self.kept,
+            &mut [(&out, bytemuck::cast_slice_mut(&mut back))],
+        )?;
+        scope.pop("gathering the disparities' costs")?;
+        let dense = back[..n].iter().map(|&b| f32::from_bits(b)).collect();
+        let mut costs = bytemuck::cast_slice::<u32, u8>(&back[n..]).to_vec();
+        costs.truncate(n);
+        Ok((dense, costs))
     }
-    if n == 0 {
-        return Ok((Vec::new(), Vec::new()));
-    }
-    let kernel = ctx.kernel(&shaders::TGV_COST_AT)?;
-    let uniforms = CostAtUniforms {
-        width: volume.width,
-        height: volume.height,
-        num_disparities: volume.num_disparities as u32,
-        min_disparity_px: volume.min_disparity_px as f32,
-    };
-    let scope = ErrorScopes::push(&ctx.device);
-    let buf_uniforms = kept.uniform_with(ctx, "cost_at_uniforms", bytemuck::bytes_of(&uniforms));
-    let words = n + n.div_ceil(4);
-    let out = kept.scratch(ctx, "cost_at_out", words as u64 * 4);
-    let bind = kept.bind_group(
-        ctx,
-        "tgv_cost_at",
-        &kernel.layout,
-        &[&buf_uniforms, raw, &gpu.primal, &out],
-    );
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("tgv_cost_at"),
-        });
-    ctx.record_dispatch(&mut encoder, &kernel, &bind, n.div_ceil(4) as u64)?;
-    let mut back = vec![0u32; words];
-    ctx.submit_and_read_back(
-        encoder,
-        kept,
-        &mut [(&out, bytemuck::cast_slice_mut(&mut back))],
-    )?;
-    scope.pop("gathering the disparities' costs")?;
-    let dense = back[..n].iter().map(|&b| f32::from_bits(b)).collect();
-    let mut costs = bytemuck::cast_slice::<u32, u8>(&back[n..]).to_vec();
-    costs.truncate(n);
-    Ok((dense, costs))
 }
 
 /// [`crate::depth::tgv::costs_at_disparities`] on the GPU (`shaders/tgv_cost_at.wgsl`): the
@@ -490,13 +531,9 @@ pub fn costs_at_disparities_gpu(
     let (w, h) = (volume.width as usize, volume.height as usize);
     let identity = vec![[1.0, 0.0, 1.0]; w * h];
     let problem = TgvProblem::new(dense, w, h, Regularizer::Tv, 1.0, 1.0, identity)?;
-    let gpu = TgvProblemGpu::upload(ctx, &problem)?;
-    ctx.check_binding(
-        "cost volume (1 byte per pixel and disparity)",
-        volume.cost.len() as u64,
-    )?;
-    let raw = ctx.storage("cost_at_volume", &volume.cost);
-    disparities_and_costs(ctx, &mut Kept::default(), &gpu, (&raw, volume.shape()))
+    let mut gpu = TgvProblemGpu::upload(ctx, &problem)?;
+    let raw = data_cost::upload_costs(ctx, volume, 1)?;
+    gpu.disparities_and_costs((volume.shape(), &raw))
 }
 
 /// [`TgvMatcher::estimate_with_stages`] on the GPU: the census, the cost volume and SGM's
@@ -541,11 +578,14 @@ fn estimate_kept(
         let (volume, on_device) = cost_volume_on_device(ctx, left, right, census)?;
         (sgm.estimate_from_volume(left, &volume)?, on_device)
     };
-    let shape = on_device.shape;
-    let data = DataCostGpu::on_device(ctx, shape, &on_device.volume, p.cost_window)?;
+    let volume = (on_device.shape, &on_device.volume);
     let left_on_device = (left, Some(&on_device.left));
-    let gpu = refine_on_device(ctx, matcher, left_on_device, (shape, &data), &init)?;
-    let (dense, costs) = disparities_and_costs(ctx, kept, &gpu, (&on_device.volume, shape))?;
+    let taken = std::mem::take(kept);
+    let mut gpu = refine_on_device(ctx, taken, matcher, left_on_device, volume, &init)?;
+    let gathered = gpu.disparities_and_costs(volume);
+    *kept = gpu.into_kept();
+    let (dense, costs) = gathered?;
+    let shape = on_device.shape;
     let result = matcher.invalidate_with(&dense, &init, &costs, shape);
     Ok(TgvStages {
         sgm: init,

@@ -33,9 +33,13 @@ impl Kept {
                 return b.clone();
             }
         }
+        // Grown to a power of two, but never past the largest binding where the need itself
+        // fits (the whole buffer is bound; a need past it fails where the caller checks it).
+        let limit = ctx.max_binding_bytes();
         let size = bytes
             .max(MIN_KEPT_BYTES)
             .next_power_of_two()
+            .min(limit.max(bytes))
             .next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
         let b = ctx.create_buffer(&wgpu::BufferDescriptor {
             label: Some(name),

@@ -141,6 +141,13 @@ pub const TGV_DUAL: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite]
 );
 
+/// A fresh TGV problem's state from its initial disparity, on the device.
+pub const TGV_INIT: ShaderSource = kernel!(
+    "tgv_init.wgsl",
+    ["shared/dispatch.wgsl", "shared/tgv_common.wgsl"],
+    [Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite]
+);
+
 /// TGV stereo primal step (`u` with the coupling, `v`) and over-relaxation.
 pub const TGV_PRIMAL: ShaderSource = kernel!(
     "tgv_primal.wgsl",
@@ -284,6 +291,7 @@ pub const ALL: &[ShaderSource] = &[
     // Stereo.
     TGV_DUAL,
     TGV_PRIMAL,
+    TGV_INIT,
     TGV_POINTWISE,
     CENSUS,
     CENSUS_COST,

@@ -2,6 +2,7 @@
 //! window there (`shaders/cost_window.wgsl`), and the point-wise search over them.
 
 use crate::depth::sgm::{CostVolume, VolumeShape};
+use crate::gpu::kept::Kept;
 use crate::gpu::layout::{PointwiseUniforms, WindowUniforms};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
@@ -23,10 +24,8 @@ impl DataCostGpu {
     /// The data term of `volume` averaged over `window` × `window` (raw when 1), its costs
     /// uploaded once ([`DataCostGpu::on_device`]).
     pub(super) fn new(ctx: &GpuContext, volume: &CostVolume, window: u32) -> Result<Self> {
-        let shape = volume.shape();
-        Self::check(ctx, shape, window)?;
-        let raw = ctx.storage("tgv_raw_costs", &volume.cost);
-        Self::on_device(ctx, shape, &raw, window)
+        let raw = upload_costs(ctx, volume, window)?;
+        Self::on_device(ctx, &mut Kept::default(), volume.shape(), &raw, window)
     }
 
     /// Fails with [`Error::GpuCapacity`] when the costs of `volume` over `window` do not fit
@@ -55,6 +54,7 @@ impl DataCostGpu {
     /// (`shaders/cost_window.wgsl`, equal to the CPU's `box_filter_into`), so no cost goes up.
     pub(super) fn on_device(
         ctx: &GpuContext,
+        kept: &mut Kept,
         volume: VolumeShape,
         raw: &wgpu::Buffer,
         window: u32,
@@ -74,11 +74,14 @@ impl DataCostGpu {
                 entries: entries as u32,
                 pad: [0; 3],
             };
-            let buf_uniforms = ctx.uniform("window_uniforms", bytemuck::bytes_of(&uniforms));
+            let bytes = bytemuck::bytes_of(&uniforms);
+            let buf_uniforms = kept.uniform_with(ctx, "window_uniforms", bytes);
             let words = entries.div_ceil(2);
-            let sums = ctx.storage_zeroed("tgv_costs", words * 4);
-            let counts = ctx.storage_zeroed("tgv_counts", n * 4);
-            let bind = ctx.bind_group(
+            // The kernel writes every word of both.
+            let sums = kept.scratch(ctx, "tgv_costs", words * 4);
+            let counts = kept.scratch(ctx, "tgv_counts", n * 4);
+            let bind = kept.bind_group(
+                ctx,
                 "cost_window",
                 &kernel.layout,
                 &[&buf_uniforms, raw, &sums, &counts],
@@ -93,10 +96,8 @@ impl DataCostGpu {
             (sums, counts)
         } else {
             let ones = vec![1u32; n as usize];
-            (
-                raw.clone(),
-                ctx.storage("tgv_counts", bytemuck::cast_slice(&ones)),
-            )
+            let counts = kept.storage_with(ctx, "tgv_counts", bytemuck::cast_slice(&ones));
+            (raw.clone(), counts)
         };
         scope.pop("summing the census costs over their window")?;
         Ok(DataCostGpu {
@@ -121,11 +122,12 @@ impl DataCostGpu {
         Ok((sums, counts.iter().map(|&c| c as u16).collect()))
     }
 
-    /// Records one point-wise search reading `u` (stride `u_stride` floats) and writing `a`.
-    #[allow(clippy::too_many_arguments)]
+    /// Records one point-wise search reading `u` (stride `u_stride` floats) and writing `a`,
+    /// with uniforms and a bind group kept in `kept` (the uniforms are written through the
+    /// queue: one search per submit).
     pub(super) fn record_search(
         &self,
-        ctx: &GpuContext,
+        (ctx, kept): (&GpuContext, &mut Kept),
         encoder: &mut wgpu::CommandEncoder,
         u: &wgpu::Buffer,
         u_stride: u32,
@@ -147,8 +149,10 @@ impl DataCostGpu {
             min_disparity_px: self.min_disparity_px,
             pad: [0; 3],
         };
-        let buf_uniforms = ctx.uniform("pointwise_uniforms", bytemuck::bytes_of(&uniforms));
-        let bind = ctx.bind_group(
+        let bytes = bytemuck::bytes_of(&uniforms);
+        let buf_uniforms = kept.uniform_with(ctx, "pointwise_uniforms", bytes);
+        let bind = kept.bind_group(
+            ctx,
             "tgv_pointwise",
             &kernel.layout,
             &[&buf_uniforms, &self.costs, &self.counts, u, a],
@@ -156,4 +160,15 @@ impl DataCostGpu {
         let n = self.width as u64 * self.height as u64;
         ctx.record_dispatch(encoder, &kernel, &bind, n)
     }
+}
+
+/// The raw costs of `volume` in a new device buffer (u8, 4 per word), after checking that its
+/// data term over `window` fits.
+pub(super) fn upload_costs(
+    ctx: &GpuContext,
+    volume: &CostVolume,
+    window: u32,
+) -> Result<wgpu::Buffer> {
+    DataCostGpu::check(ctx, volume.shape(), window)?;
+    Ok(ctx.storage("tgv_raw_costs", &volume.cost))
 }
