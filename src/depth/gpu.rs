@@ -375,7 +375,14 @@ pub fn pointwise_search_gpu(
             label: Some("pointwise"),
         });
     let kept = &mut Kept::default();
-    data.record_search((ctx, kept), &mut encoder, &buf_u, 1, &buf_a, lambda, theta)?;
+    data.record_search(
+        (ctx, kept),
+        &mut encoder,
+        (&buf_u, 1),
+        &buf_a,
+        lambda,
+        theta,
+    )?;
     ctx.submit(encoder);
     scope.pop("running the point-wise search")?;
     ctx.read_back_as(&buf_a, n as usize)
@@ -452,8 +459,7 @@ fn refine_on_device<'c>(
         data.record_search(
             (ctx, &mut gpu.kept),
             &mut encoder,
-            &gpu.primal,
-            3,
+            (&gpu.primal, 3),
             &gpu.target,
             p.lambda,
             theta,
