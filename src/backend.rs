@@ -25,7 +25,7 @@ use crate::fusion::{
 };
 use crate::gpu::shaders::{self, ShaderSource};
 use crate::gpu::{
-    DeviceChoice, GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats,
+    DeviceChoice, GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats, StageTally,
 };
 use crate::grid::{BlockIndex, Layer, TouchedBlocks};
 use crate::mesh::{extract_mesh, extract_mesh_gpu, Field, Mesh};
@@ -64,6 +64,10 @@ pub struct StageTraffic {
     pub write_backs: u64,
     /// Their traffic.
     pub write_back: GpuTraffic,
+    /// Stereo pairs matched on the GPU.
+    pub stereo_pairs: u64,
+    /// Their traffic (census, costs, SGM and, for the variational methods, the refinement).
+    pub stereo: GpuTraffic,
     /// Meshes extracted on the GPU.
     pub meshes: u64,
     /// Their traffic.
@@ -274,6 +278,8 @@ pub struct Backend {
     resident_options: ResidentOptions,
     tv: TvDevices,
     traffic: StageTraffic,
+    /// The traffic of the stereo matchers made by [`Backend::stereo_matcher`].
+    stereo_tally: StageTally,
 }
 
 /// The GPU traffic of `work` added to `into` (nothing without a GPU).
@@ -311,6 +317,7 @@ impl Backend {
             resident_options: ResidentOptions::default(),
             tv: TvDevices::default(),
             traffic: StageTraffic::default(),
+            stereo_tally: StageTally::default(),
         }
     }
 
@@ -405,8 +412,11 @@ impl Backend {
 
     /// What the stages of this run cost the GPU so far (`None` on the CPU).
     pub fn gpu_traffic(&self) -> Option<StageTraffic> {
+        let (stereo_pairs, stereo) = self.stereo_tally.get();
         self.gpu.as_ref().map(|ctx| StageTraffic {
             total: ctx.traffic(),
+            stereo_pairs,
+            stereo,
             ..self.traffic
         })
     }
@@ -499,12 +509,14 @@ impl Backend {
             method.tgv_matcher(sgm, fill)?,
             self.gpu_if(self.stages.stereo),
         ) {
-            (Some(m), Some(ctx)) => Ok(Box::new(TgvMatcherGpu::new(ctx.clone(), m))),
+            (Some(m), Some(ctx)) => Ok(Box::new(
+                TgvMatcherGpu::new(ctx.clone(), m).counting_into(self.stereo_tally.clone()),
+            )),
             (Some(m), None) => Ok(Box::new(m)),
-            (None, Some(ctx)) => Ok(Box::new(SgmMatcherGpu::new(
-                ctx.clone(),
-                SgmMatcher::new(sgm)?,
-            ))),
+            (None, Some(ctx)) => Ok(Box::new(
+                SgmMatcherGpu::new(ctx.clone(), SgmMatcher::new(sgm)?)
+                    .counting_into(self.stereo_tally.clone()),
+            )),
             (None, None) => method.estimator_with_fill(sgm, fill),
         }
     }

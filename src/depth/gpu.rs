@@ -39,7 +39,7 @@ use crate::frame::GreyImage;
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{CostAtUniforms, TensorUniforms, TgvUniforms};
 use crate::gpu::shaders;
-use crate::gpu::{ErrorScopes, GpuContext, Kernel};
+use crate::gpu::{ErrorScopes, GpuContext, Kernel, StageTally};
 use crate::{Error, Result};
 
 /// Primal–dual iterations recorded per command buffer (bounds the size of one submission).
@@ -608,6 +608,8 @@ pub struct TgvMatcherGpu {
     matcher: TgvMatcher,
     /// The census, cost, SGM and gathering buffers and bind groups, kept between pairs.
     kept: std::sync::Mutex<Kept>,
+    /// Where each pair's traffic is added.
+    tally: StageTally,
 }
 
 impl TgvMatcherGpu {
@@ -617,7 +619,14 @@ impl TgvMatcherGpu {
             ctx,
             matcher,
             kept: Default::default(),
+            tally: StageTally::default(),
         }
+    }
+
+    /// Adds each pair's GPU traffic to `tally` (a run's stereo figures).
+    pub fn counting_into(mut self, tally: StageTally) -> Self {
+        self.tally = tally;
+        self
     }
 }
 
@@ -628,6 +637,9 @@ impl DisparityEstimator for TgvMatcherGpu {
 
     fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap> {
         let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
-        Ok(estimate_kept(&self.ctx, &self.matcher, &mut kept, left, right)?.result)
+        let stages = self.tally.count(&self.ctx, || {
+            estimate_kept(&self.ctx, &self.matcher, &mut kept, left, right)
+        })?;
+        Ok(stages.result)
     }
 }

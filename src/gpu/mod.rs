@@ -32,4 +32,4 @@ pub(crate) use kernels::Kernel;
 pub use kernels::KernelCompilation;
 pub use resident::{ResidentMap, ResidentOptions, ResidentStats};
 pub use timing::KernelTime;
-pub use traffic::GpuTraffic;
+pub use traffic::{GpuTraffic, StageTally};

@@ -5,7 +5,10 @@
 
 use crate::common::{self, gpu, Rng, SphereScene};
 use crate::compare::{orbit_frames, random_problem};
+use crate::depth_support::{city_like_planes, piecewise_planar_pair};
 use denser::backend::Backend;
+use denser::depth::tgv::HoleFill;
+use denser::depth::{DisparityEstimator, SgmParams, StereoMethod};
 use denser::gpu::resident::SLOT_BYTES;
 use denser::gpu::{GpuTraffic, ResidentOptions};
 use denser::grid::{GridParams, VOXELS_PER_BLOCK};
@@ -252,6 +255,7 @@ fn a_run_counts_its_stages_traffic() {
     ] {
         assert!(part > 0 && part <= whole, "{part} of {whole}");
     }
+    assert_eq!(g.stereo_pairs, 0, "no stereo in this run");
     // A CPU backend has no traffic to report.
     assert!(common::reconstructor_over(
         config,
@@ -260,6 +264,40 @@ fn a_run_counts_its_stages_traffic() {
     )
     .gpu_traffic()
     .is_none());
+}
+
+#[test]
+fn a_backends_stereo_matchers_count_each_pair() {
+    // The matchers belong to the input sequence, the figures to the backend's run summary: each
+    // pair's traffic reaches the backend through the tally, exactly as the context counted it.
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let backend = Backend::gpu(ctx.clone(), ResidentOptions::default());
+    let (w, h) = (96, 48);
+    let (left, right, _) = piecewise_planar_pair(w, h, &city_like_planes(w, h), 4.0);
+    let sgm = SgmParams {
+        num_disparities: 32,
+        ..SgmParams::default()
+    };
+    let mut spent = GpuTraffic::default();
+    for method in [StereoMethod::Sgm, StereoMethod::TgvTensor] {
+        let m = backend
+            .stereo_matcher(method, sgm, HoleFill::None)
+            .expect("matcher");
+        for _ in 0..2 {
+            let before = ctx.traffic();
+            m.estimate(&left, &right).expect("pair");
+            spent = spent.plus(ctx.traffic().since(before));
+        }
+    }
+    let g = backend.gpu_traffic().expect("on a GPU");
+    assert_eq!(g.stereo_pairs, 4);
+    assert_eq!(g.stereo, spent);
+    // Both matchers sent their images up and read results back, in at least a submit and a
+    // wait per pair.
+    let pixels = (w * h) as u64;
+    assert!(g.stereo.upload_bytes >= 4 * 2 * pixels, "{g:?}");
+    assert!(g.stereo.submits >= 4 && g.stereo.waits >= 4, "{g:?}");
 }
 
 #[test]

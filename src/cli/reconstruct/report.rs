@@ -40,6 +40,7 @@ impl fmt::Display for TrafficLines<'_> {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let g = self.0;
         for (what, n, t) in [
+            ("stereo pair", g.stereo_pairs, &g.stereo),
             ("depth frame", g.depth_frames, &g.depth),
             ("LiDAR scan", g.lidar_scans, &g.lidar),
             ("TV solve", g.tv_solves, &g.tv),

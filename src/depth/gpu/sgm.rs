@@ -21,7 +21,7 @@ use crate::frame::{GreyImage, Image};
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{SgmPathUniforms, SgmSelectUniforms};
 use crate::gpu::shaders;
-use crate::gpu::{ErrorScopes, GpuContext};
+use crate::gpu::{ErrorScopes, GpuContext, StageTally};
 use crate::{Error, Result};
 
 /// Most disparities one aggregation workgroup holds (64 invocations, 4 slices each; keep in sync
@@ -338,6 +338,8 @@ pub struct SgmMatcherGpu {
     matcher: SgmMatcher,
     /// The buffers and bind groups of the aggregation and selection, kept between pairs.
     kept: std::sync::Mutex<Kept>,
+    /// Where each pair's traffic is added.
+    tally: StageTally,
 }
 
 impl SgmMatcherGpu {
@@ -347,7 +349,14 @@ impl SgmMatcherGpu {
             ctx,
             matcher,
             kept: Default::default(),
+            tally: StageTally::default(),
         }
+    }
+
+    /// Adds each pair's GPU traffic to `tally` (a run's stereo figures).
+    pub fn counting_into(mut self, tally: StageTally) -> Self {
+        self.tally = tally;
+        self
     }
 }
 
@@ -357,6 +366,13 @@ impl DisparityEstimator for SgmMatcherGpu {
     }
 
     fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap> {
+        self.tally
+            .count(&self.ctx, || self.estimate_uncounted(left, right))
+    }
+}
+
+impl SgmMatcherGpu {
+    fn estimate_uncounted(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap> {
         let p = &self.matcher.params;
         p.validate()?;
         let census = (&p.census, p.min_disparity_px, p.num_disparities);
