@@ -8,7 +8,7 @@ use crate::compare::{orbit_frames, random_problem};
 use crate::depth_support::{city_like_planes, piecewise_planar_pair};
 use denser::backend::Backend;
 use denser::depth::tgv::HoleFill;
-use denser::depth::{DisparityEstimator, SgmParams, StereoMethod};
+use denser::depth::{SgmParams, StereoMethod};
 use denser::gpu::resident::SLOT_BYTES;
 use denser::gpu::{GpuTraffic, ResidentOptions};
 use denser::grid::{GridParams, VOXELS_PER_BLOCK};
