@@ -6,12 +6,15 @@
 // when the intensity scale s is not 0 (else P2). Integers throughout: the sums equal the CPU's.
 //
 // One workgroup walks one path line: it starts at a pixel whose predecessor is outside the image
-// and steps by r while inside. Its 64 invocations own the disparities d ≡ local (mod 64), at most
-// 4 each (256 disparities). Each step reads the previous pixel's L_r and its minimum from
-// workgroup memory and writes the new ones into the other half (one barrier per step). L_r is
-// added into S, u16 entries packed two per word, by atomicAdd of the value shifted to its half:
-// 8 paths of census costs with P2 ≤ 2000 stay below 2¹⁶, so no half carries into the other,
-// and the order of the directions' additions does not matter.
+// and steps by r while inside. Every direction's lines are in one dispatch (the directions are
+// independent, and S's additions commute), the longest lines first, so the device works on all
+// of them at once instead of one direction after the other. Its 64 invocations own the
+// disparities d ≡ local (mod 64), at most 4 each (256 disparities). Each step reads the previous
+// pixel's L_r and its minimum from workgroup memory and writes the new ones into the other half
+// (one barrier per step); the next pixel's costs and grey level are loaded before the barrier,
+// so their latency overlaps it. L_r is added into S, u16 entries packed two per word, by
+// atomicAdd of the value shifted to its half: 8 paths of census costs with P2 ≤ 2000 stay below
+// 2¹⁶, so no half carries into the other, and the order of the additions does not matter.
 // Keep SgmPathUniforms in sync with src/gpu/layout.rs. Shared files and bindings:
 // src/gpu/shaders.rs.
 
@@ -19,18 +22,17 @@ struct SgmPathUniforms {
     width: u32,
     height: u32,
     num_disparities: u32,
-    // Path direction, pixels per step: each −1, 0 or 1, not both 0.
-    dx: i32,
-    dy: i32,
     p1: u32,
     p2: u32,
     // Intensity scale s of the adaptive P2; 0: P2 throughout.
     p2_scale: u32,
-    // Path lines of this direction (workgroups that work).
+    // Directions in `dirs`.
+    directions: u32,
+    // Path lines of all directions (workgroups that work).
     lines: u32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
+    // Per direction: its step (dx, dy), pixels (each −1, 0 or 1, not both 0), its first line
+    // (workgroup) and its number of lines; the first lines of the directions increase.
+    dirs: array<vec4<i32>, 8>,
 }
 
 @group(0) @binding(0) var<uniform> params: SgmPathUniforms;
@@ -75,15 +77,23 @@ fn main(
     @builtin(num_workgroups) num_wg: vec3<u32>,
     @builtin(local_invocation_index) lane: u32,
 ) {
-    let line = wg.y * num_wg.x + wg.x;
-    if (line >= params.lines) {
+    let global_line = wg.y * num_wg.x + wg.x;
+    if (global_line >= params.lines) {
         return;
     }
+    var r = 0u;
+    for (var k = 1u; k < params.directions; k = k + 1u) {
+        if (global_line >= u32(params.dirs[k].z)) {
+            r = k;
+        }
+    }
+    let dir = params.dirs[r];
+    let line = global_line - u32(dir.z);
     let w = i32(params.width);
     let h = i32(params.height);
     let nd = params.num_disparities;
-    let dx = params.dx;
-    let dy = params.dy;
+    let dx = dir.x;
+    let dy = dir.y;
     // The line's first pixel: on the entry row (dy ≠ 0), then down the entry column; a row or
     // a column per line when r is axis-aligned.
     let x_entry = select(w - 1, 0, dx >= 0);
@@ -120,11 +130,19 @@ fn main(
         atomicStore(&mins[1], PAD);
         atomicStore(&mins[2], PAD);
     }
+    // The first pixel's costs and grey level; each step loads the next pixel's.
+    var pix = u32(y * w + x);
+    var costs: array<u32, 4>;
+    for (var j = 0u; j < PER_LANE; j = j + 1u) {
+        let d = lane + j * LANES;
+        if (d < nd) {
+            costs[j] = cost_at(pix * nd + d);
+        }
+    }
+    var grey = grey_at(pix);
     workgroupBarrier();
     var grey_prev = 0u;
     for (var k = 0; k < steps; k = k + 1) {
-        let pix = u32(y * w + x);
-        let grey = grey_at(pix);
         let cur = u32(k & 1);
         let prev = 1u - cur;
         let slot = u32(k % 3);
@@ -135,7 +153,7 @@ fn main(
             let d = lane + j * LANES;
             if (d < nd) {
                 let e = pix * nd + d;
-                let c = cost_at(e);
+                let c = costs[j];
                 var v = c;
                 if (k > 0) {
                     let base = prev * stride + d;
@@ -157,6 +175,16 @@ fn main(
         grey_prev = grey;
         x = x + dx;
         y = y + dy;
+        if (k + 1 < steps) {
+            pix = u32(y * w + x);
+            for (var j = 0u; j < PER_LANE; j = j + 1u) {
+                let d = lane + j * LANES;
+                if (d < nd) {
+                    costs[j] = cost_at(pix * nd + d);
+                }
+            }
+            grey = grey_at(pix);
+        }
         workgroupBarrier();
     }
 }

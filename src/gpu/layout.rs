@@ -362,8 +362,8 @@ pub struct McUniforms {
     pub pad: [u32; 2],
 }
 
-/// Uniforms of `shaders/sgm_paths.wgsl` (WGSL twin: `SgmPathUniforms` there): one direction of
-/// SGM's path aggregation.
+/// Uniforms of `shaders/sgm_paths.wgsl` (WGSL twin: `SgmPathUniforms` there): SGM's path
+/// aggregation, every direction in one dispatch.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
 pub struct SgmPathUniforms {
@@ -373,20 +373,19 @@ pub struct SgmPathUniforms {
     pub height: u32,
     /// Disparity slices.
     pub num_disparities: u32,
-    /// Path direction along x, pixels per step (−1, 0 or 1).
-    pub dx: i32,
-    /// Path direction along y, pixels per step (−1, 0 or 1).
-    pub dy: i32,
     /// P1.
     pub p1: u32,
     /// P2.
     pub p2: u32,
     /// Intensity scale of the adaptive P2; 0: P2 throughout.
     pub p2_scale: u32,
-    /// Path lines of the direction (one workgroup each).
+    /// Directions in `dirs`.
+    pub directions: u32,
+    /// Path lines of all directions (one workgroup each).
     pub lines: u32,
-    /// Padding to 48 bytes.
-    pub pad: [u32; 3],
+    /// Per direction: its step `dx`, `dy` (pixels, each −1, 0 or 1), its first line and its
+    /// number of lines.
+    pub dirs: [[i32; 4]; 8],
 }
 
 /// Uniforms of `shaders/sgm_right.wgsl` and `shaders/sgm_select.wgsl` (WGSL twin:

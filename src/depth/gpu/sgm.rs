@@ -1,4 +1,4 @@
-//! SGM on the GPU: the path aggregation (`shaders/sgm_paths.wgsl`, one dispatch per direction)
+//! SGM on the GPU: the path aggregation (`shaders/sgm_paths.wgsl`, all directions in one dispatch)
 //! and the winner selection (`shaders/sgm_right.wgsl`, the right image's winners, then
 //! `shaders/sgm_select.wgsl`: winner-take-all, the runner-up, the sub-pixel fit's terms, the
 //! left–right check) run where the cost volume was made, in one submit. Only integers are
@@ -46,28 +46,6 @@ fn directions(paths: SgmPaths) -> &'static [(i32, i32)] {
     }
 }
 
-/// The kept uniforms and bind groups of the (at most 8) directions.
-const PATH_UNIFORMS: [&str; 8] = [
-    "sgm_path_uniforms_0",
-    "sgm_path_uniforms_1",
-    "sgm_path_uniforms_2",
-    "sgm_path_uniforms_3",
-    "sgm_path_uniforms_4",
-    "sgm_path_uniforms_5",
-    "sgm_path_uniforms_6",
-    "sgm_path_uniforms_7",
-];
-const PATH_BINDS: [&str; 8] = [
-    "sgm_paths_0",
-    "sgm_paths_1",
-    "sgm_paths_2",
-    "sgm_paths_3",
-    "sgm_paths_4",
-    "sgm_paths_5",
-    "sgm_paths_6",
-    "sgm_paths_7",
-];
-
 /// Records the aggregation of the paths of `params` over the cost volume `volume` (u8 costs, 4
 /// per word) of a `width` × `height` image whose grey levels `image` holds (4 per word); returns
 /// the buffer of `S` (u16, 2 per word, the volume's order).
@@ -94,34 +72,39 @@ fn record_aggregation(
     let words = entries.div_ceil(2);
     let sums = kept.scratch(ctx, "sgm_sums", words * 4);
     encoder.clear_buffer(&sums, 0, Some(words * 4));
-    for (k, &(dx, dy)) in directions(params.paths).iter().enumerate() {
+    let mut uniforms = SgmPathUniforms {
+        width,
+        height,
+        num_disparities: nd as u32,
+        p1: params.p1 as u32,
+        p2: params.p2 as u32,
+        p2_scale: params.p2_intensity_scale.map_or(0, u32::from),
+        ..Default::default()
+    };
+    // The longest lines first (the horizontal ones: `width` steps each), so that they start
+    // first; a direction's lines are consecutive workgroups.
+    let mut dirs: Vec<(i32, i32)> = directions(params.paths).to_vec();
+    dirs.sort_by_key(|&(_, dy)| dy != 0);
+    for (k, &(dx, dy)) in dirs.iter().enumerate() {
         let lines = match (dx, dy) {
             (_, 0) => height,
             (0, _) => width,
             _ => width + height - 1,
         };
-        let uniforms = SgmPathUniforms {
-            width,
-            height,
-            num_disparities: nd as u32,
-            dx,
-            dy,
-            p1: params.p1 as u32,
-            p2: params.p2 as u32,
-            p2_scale: params.p2_intensity_scale.map_or(0, u32::from),
-            lines,
-            pad: [0; 3],
-        };
-        let buf_uniforms = kept.uniform_with(ctx, PATH_UNIFORMS[k], bytemuck::bytes_of(&uniforms));
-        let bind = kept.bind_group(
-            ctx,
-            PATH_BINDS[k],
-            &kernel.layout,
-            &[&buf_uniforms, volume, image, &sums],
-        );
-        // One workgroup (64 invocations) per path line.
-        ctx.record_dispatch(encoder, &kernel, &bind, lines as u64 * 64)?;
+        uniforms.dirs[k] = [dx, dy, uniforms.lines as i32, lines as i32];
+        uniforms.lines += lines;
     }
+    uniforms.directions = dirs.len() as u32;
+    let bytes = bytemuck::bytes_of(&uniforms);
+    let buf_uniforms = kept.uniform_with(ctx, "sgm_path_uniforms", bytes);
+    let bind = kept.bind_group(
+        ctx,
+        "sgm_paths",
+        &kernel.layout,
+        &[&buf_uniforms, volume, image, &sums],
+    );
+    // One workgroup (64 invocations) per path line, of every direction.
+    ctx.record_dispatch(encoder, &kernel, &bind, uniforms.lines as u64 * 64)?;
     Ok(sums)
 }
 
