@@ -405,6 +405,11 @@ impl Backend {
         self.gpu.as_ref()
     }
 
+    /// The GPU meshing runs on, if it runs on one.
+    pub fn mesh_context(&self) -> Option<&Arc<GpuContext>> {
+        self.gpu_if(self.stages.mesh)
+    }
+
     /// Counters of the GPU-resident blocks, once a depth frame was fused on a GPU.
     pub fn resident_stats(&self) -> Option<ResidentStats> {
         self.resident.as_ref().map(|r| r.stats())

@@ -55,6 +55,10 @@ pub(crate) struct Args {
     pass: Option<u32>,
     #[arg(long, value_name = "I/N", help = super::help::SHARD)]
     shard: Option<String>,
+    // `cpu` by default: chunk by chunk, GPU meshing is not yet measured faster than the CPU's
+    // (whole in-memory layers are: docs/bench/gpu.md run 14).
+    #[arg(long, value_enum, default_value = "cpu", help = super::help::DEVICE, help_heading = "Device")]
+    device: super::DeviceArg,
 }
 
 struct PartWritten {
@@ -204,6 +208,12 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
         None => store,
     };
     let mut options = ExportOptions::new(field);
+    let device = super::DeviceArgs { device: a.device };
+    let backend = device.backend().context("opening the device")?;
+    if let Some(ctx) = backend.mesh_context() {
+        options.mesher = export::Mesher::Gpu(ctx.clone());
+        notes.push(format!("meshing the chunks on {}", ctx.name()));
+    }
     options.bbox = a.bbox.as_deref().map(Bbox::parse).transpose()?;
     options.memory_budget_bytes = a.memory_budget;
     options.frame = match (&a.georef, a.world_frame) {
@@ -236,8 +246,9 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
             (None, _) => WorldFrame::local_z_up(),
         };
         let chunks = export::chunks_in(&store, &frame, options.bbox);
-        let stats = denser::export::parts::write_part(&store, field, &chunks, shard)
-            .with_context(|| format!("export shard {shard} of {}", a.dir))?;
+        let stats =
+            denser::export::parts::write_part(&store, field, &chunks, shard, &options.mesher)
+                .with_context(|| format!("export shard {shard} of {}", a.dir))?;
         return Ok(Box::new(PartWritten {
             map: a.dir,
             shard,

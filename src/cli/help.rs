@@ -38,9 +38,10 @@ pub const SHARD: &str = "Do only this task's share of the work (regularize: regi
 /// `--json`.
 pub const JSON: &str = "Print JSON instead of text";
 /// `--device`.
-pub const DEVICE: &str = "Where stereo (every method), fusion, regularization and, with \
-    `gpu`, an in-memory run's meshing run (`auto`: each where it was measured faster, \
-    docs/bench/gpu.md) [default: auto; bench's: cpu, so its recorded figures stay comparable]";
+pub const DEVICE: &str = "Where stereo (every method), fusion, regularization and meshing \
+    (an in-memory run's, and export's chunks) run (`auto`: each where it was measured faster, \
+    docs/bench/gpu.md) [default: auto; bench's: cpu, so its recorded figures stay comparable; export's: cpu, \
+    chunk-by-chunk meshing not yet measured faster on a GPU]";
 /// `--max-depth-m`.
 pub const MAX_DEPTH_M: &str = "Ignore depths (and LiDAR returns) beyond this, metres \
     [reconstruct's default: 40 for depth maps, 80 for LiDAR; bench's: 10]";

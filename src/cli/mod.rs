@@ -305,7 +305,7 @@ pub(crate) fn mib(bytes: u64) -> f64 {
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub(crate) enum DeviceArg {
     /// On a hardware GPU, the stages measured faster there than on the CPU (today TV
-    /// regularization, stereo and in-memory meshing; fusion stays on the CPU); without one, the
+    /// regularization, stereo and meshing; fusion stays on the CPU); without one, the
     /// CPU.
     Auto,
     /// The CPU.

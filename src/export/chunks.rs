@@ -5,11 +5,35 @@
 
 use crate::error::{Error, Result};
 use crate::geo::WorldFrame;
+use crate::gpu::GpuContext;
 use crate::grid::{BlockIndex, Layer};
 use crate::map::store::MapStore;
 use crate::map::ChunkIndex;
-use crate::mesh::{extract_mesh_keyed, EdgeKey, Field, Mesh};
+use crate::mesh::{extract_mesh_gpu, extract_mesh_keyed, EdgeKey, Field, Mesh};
 use std::collections::BTreeMap;
+use std::sync::Arc;
+
+/// Where chunks are meshed: on the CPU, or on a GPU by the CPU mesher's twin
+/// ([`crate::mesh::extract_mesh_gpu`]: the same triangles over the same vertices, positions
+/// within [`crate::mesh::POSITION_TOLERANCE_VOXELS`], equal on lavapipe).
+#[derive(Clone, Debug, Default)]
+pub enum Mesher {
+    /// The CPU mesher.
+    #[default]
+    Cpu,
+    /// Marching cubes on this GPU.
+    Gpu(Arc<GpuContext>),
+}
+
+impl Mesher {
+    /// The device in words ("CPU" or the adapter).
+    pub fn device_name(&self) -> String {
+        match self {
+            Mesher::Cpu => "CPU".to_string(),
+            Mesher::Gpu(ctx) => ctx.name(),
+        }
+    }
+}
 
 /// An axis-aligned box in world coordinates, metres.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -86,12 +110,13 @@ pub fn chunks_in(store: &MapStore, frame: &WorldFrame, bbox: Option<Bbox>) -> Ve
         .collect()
 }
 
-/// Meshes chunk `c` of the map (reading the neighbour blocks its cubes need): the mesh in the map
-/// frame, each vertex's edge key, and the number of the chunk's own blocks.
+/// Meshes chunk `c` of the map (reading the neighbour blocks its cubes need) with `mesher`: the
+/// mesh in the map frame, each vertex's edge key, and the number of the chunk's own blocks.
 pub fn mesh_chunk(
     store: &MapStore,
     c: ChunkIndex,
     field: Field,
+    mesher: &Mesher,
 ) -> Result<(Mesh, Vec<EdgeKey>, usize)> {
     let cb = store.chunk_blocks();
     let mut layer = Layer::new(store.grid());
@@ -112,7 +137,10 @@ pub fn mesh_chunk(
             }
         }
     }
-    let (m, keys) = extract_mesh_keyed(&layer, field, Some(&own));
+    let (m, keys) = match mesher {
+        Mesher::Cpu => extract_mesh_keyed(&layer, field, Some(&own)),
+        Mesher::Gpu(ctx) => extract_mesh_gpu(ctx, &layer, field, Some(&own))?,
+    };
     Ok((m, keys, own.len()))
 }
 

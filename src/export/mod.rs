@@ -26,7 +26,7 @@ mod chunks;
 pub mod parts;
 pub mod tileset;
 
-pub use chunks::{chunk_bounds_m, chunks_in, frame_bounds, mesh_chunk, Bbox};
+pub use chunks::{chunk_bounds_m, chunks_in, frame_bounds, mesh_chunk, Bbox, Mesher};
 
 use crate::error::{Error, Result};
 use crate::geo::WorldFrame;
@@ -79,9 +79,19 @@ pub struct ExportOptions {
     /// Chunk meshes made by `export --shard` runs ([`parts`]): taken from there instead
     /// of meshed again.
     pub parts: Option<std::sync::Arc<parts::ExportParts>>,
+    /// Where the chunks are meshed (`export --device`).
+    pub mesher: Mesher,
 }
 
 impl ExportOptions {
+    /// Where its chunk meshes come from: its parts, else its mesher.
+    pub fn source(&self) -> parts::ChunkSource<'_> {
+        parts::ChunkSource {
+            parts: self.parts.as_deref(),
+            mesher: &self.mesher,
+        }
+    }
+
     /// `field`, everything, default frame, 1 GiB.
     pub fn new(field: Field) -> Self {
         ExportOptions {
@@ -90,6 +100,7 @@ impl ExportOptions {
             frame: None,
             memory_budget_bytes: 1 << 30,
             parts: None,
+            mesher: Mesher::Cpu,
         }
     }
 }
@@ -216,7 +227,7 @@ pub fn export_with(
                 options.bbox,
                 &frame,
                 dir,
-                options.parts.as_deref(),
+                options.source(),
                 options.memory_budget_bytes,
             )?;
             return Ok(ExportStats {
@@ -310,8 +321,8 @@ pub fn export_with(
     // Chunks are meshed on every thread, at most two windows ahead of the stitching, which takes
     // them one by one in their sorted order: the output is byte for byte the single-threaded one.
     let window = meshing_window(store, &chunks, options.memory_budget_bytes / 2);
-    let mesh_chunk =
-        |k: usize| parts::chunk_mesh(store, chunks[k], field, options.parts.as_deref());
+    let source = options.source();
+    let mesh_chunk = |k: usize| source.mesh(store, chunks[k], field);
     chunks::in_order(chunks.len(), 2 * window, mesh_chunk, |meshed| {
         let (m, keys, own) = meshed?;
         stats.voxels += own as u64 * 512;

@@ -9,7 +9,7 @@
 //! The key is a hash of the map id, the field and every chunk's committed file: parts of another
 //! state of the map are never used (and are removed by the next final export).
 
-use super::chunks::mesh_chunk;
+use super::chunks::{mesh_chunk, Mesher};
 use crate::error::{Error, Result};
 use crate::grid::VoxelIndex;
 use crate::map::layout::EXPORTS_AREA;
@@ -165,6 +165,7 @@ pub fn write_part(
     field: Field,
     chunks: &[ChunkIndex],
     shard: Shard,
+    mesher: &Mesher,
 ) -> Result<PartStats> {
     let t0 = std::time::Instant::now();
     let key = export_key(store.manifest(), field);
@@ -184,7 +185,7 @@ pub fn write_part(
         .collect();
     let bar = crate::progress::bar(mine.len() as u64, "meshing");
     for c in mine {
-        let cm = mesh_chunk(store, c, field)?;
+        let cm = mesh_chunk(store, c, field, mesher)?;
         stats.vertices += cm.0.positions_m.len() as u64;
         stats.triangles += cm.0.triangles.len() as u64;
         let raw = encode_record(c, &cm);
@@ -331,17 +332,24 @@ impl ExportParts {
     }
 }
 
-/// The chunk's mesh from `parts` when one holds it, else meshed from the map.
-pub fn chunk_mesh(
-    store: &MapStore,
-    c: ChunkIndex,
-    field: Field,
-    parts: Option<&ExportParts>,
-) -> Result<ChunkMesh> {
-    if let Some(p) = parts {
-        if let Some(m) = p.mesh(c)? {
-            return Ok(m);
+/// Where an export's chunk meshes come from: the part of an `export --shard` run that holds
+/// one, else the map, meshed by `mesher`.
+#[derive(Clone, Copy, Debug)]
+pub struct ChunkSource<'a> {
+    /// The parts of `export --shard` runs, if any.
+    pub parts: Option<&'a ExportParts>,
+    /// What meshes the chunks no part holds.
+    pub mesher: &'a Mesher,
+}
+
+impl ChunkSource<'_> {
+    /// Chunk `c`'s mesh of `field`.
+    pub fn mesh(&self, store: &MapStore, c: ChunkIndex, field: Field) -> Result<ChunkMesh> {
+        if let Some(p) = self.parts {
+            if let Some(m) = p.mesh(c)? {
+                return Ok(m);
+            }
         }
+        mesh_chunk(store, c, field, self.mesher)
     }
-    mesh_chunk(store, c, field)
 }

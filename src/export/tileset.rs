@@ -149,7 +149,7 @@ impl Clusters {
 
 struct Writer<'a> {
     store: &'a MapStore,
-    parts: Option<&'a super::parts::ExportParts>,
+    source: super::parts::ChunkSource<'a>,
     field: Field,
     bbox: Option<Bbox>,
     frame: &'a WorldFrame,
@@ -192,7 +192,8 @@ impl Writer<'_> {
     /// The full-resolution mesh of the chunk of level-0 key `key`, and its own blocks.
     fn chunk_mesh(&self, key: [i32; 3]) -> Result<(Mesh, usize)> {
         let c = ChunkIndex([0, 1, 2].map(|a| key[a] + self.origin[a]));
-        super::parts::chunk_mesh(self.store, c, self.field, self.parts).map(|(m, _, own)| (m, own))
+        let (m, _, own) = self.source.mesh(self.store, c, self.field)?;
+        Ok((m, own))
     }
 
     /// Builds tile (level, key) and its subtree; returns the tile, its content mesh (map frame)
@@ -389,18 +390,23 @@ pub fn write_tileset(
     dir: &Path,
 ) -> Result<TilesetStats> {
     let budget = super::ExportOptions::new(field).memory_budget_bytes;
-    write_tileset_with(store, field, bbox, frame, dir, None, budget)
+    let source = super::parts::ChunkSource {
+        parts: None,
+        mesher: &super::Mesher::Cpu,
+    };
+    write_tileset_with(store, field, bbox, frame, dir, source, budget)
 }
 
-/// [`write_tileset`] taking the full-resolution chunk meshes from `export --shard` parts where
-/// they hold them, within `memory_budget_bytes` (`--memory-budget`).
+/// [`write_tileset`] taking the full-resolution chunk meshes from `source` (`export --shard`
+/// parts where they hold them, else meshed on its device), within `memory_budget_bytes`
+/// (`--memory-budget`).
 pub fn write_tileset_with(
     store: &MapStore,
     field: Field,
     bbox: Option<Bbox>,
     frame: &WorldFrame,
     dir: &Path,
-    parts: Option<&super::parts::ExportParts>,
+    source: super::parts::ChunkSource,
     memory_budget_bytes: u64,
 ) -> Result<TilesetStats> {
     // The tileset is built in a hidden sibling folder and swapped in when complete, so `dir`
@@ -439,7 +445,7 @@ pub fn write_tileset_with(
         bbox,
         frame,
         build.path(),
-        parts,
+        source,
         memory_budget_bytes,
     )?;
     if dir.exists() {
@@ -501,7 +507,7 @@ fn build_tileset(
     bbox: Option<Bbox>,
     frame: &WorldFrame,
     dir: &Path,
-    parts: Option<&super::parts::ExportParts>,
+    source: super::parts::ChunkSource,
     memory_budget_bytes: u64,
 ) -> Result<TilesetStats> {
     let chunks = chunks_in(store, frame, bbox);
@@ -527,7 +533,7 @@ fn build_tileset(
     }
     let w = Writer {
         store,
-        parts,
+        source,
         field,
         bbox,
         frame,

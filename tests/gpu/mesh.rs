@@ -5,8 +5,11 @@
 
 use crate::common::{gpu, Rng};
 use crate::compare::sphere_layer;
+use denser::export::{export_with, ExportOptions, ExportTarget, Mesher};
 use denser::gpu::GpuContext;
 use denser::grid::{BlockIndex, GridParams, Layer, OMEGA_BIT, VOXELS_PER_BLOCK};
+use denser::io::ply::read_mesh_ply;
+use denser::map::store::MapStore;
 use denser::mesh::POSITION_TOLERANCE_VOXELS;
 use denser::mesh::{extract_mesh_gpu, extract_mesh_keyed, EdgeKey, Field, Mesh};
 use denser::regularize::{regularize_layer, TvParams};
@@ -147,4 +150,59 @@ fn gpu_marching_cubes_traffic_is_the_samples_up_and_the_mesh_down() {
     // per vertex.
     let down = 4 * blocks + 4 * (blocks + 1) + 12 * tri + 20 * v;
     assert_eq!(t.readback_bytes, down, "{t:?}");
+}
+
+#[test]
+fn export_meshes_the_chunks_on_the_gpu_as_on_the_cpu() {
+    // `export --device gpu`: every chunk meshed by the GPU twin, then stitched as the CPU's
+    // chunks are. The same vertices (positions within the tolerance) and the same triangles;
+    // on llvmpipe, where the twins agree exactly, the same PLY bytes.
+    let Some(ctx) = gpu() else { return };
+    let ctx = std::sync::Arc::new(ctx);
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let layer = scene();
+    // Chunks of 2³ blocks: many chunk borders to stitch across.
+    let chunk_blocks = 2;
+    let mut store = MapStore::create(&tmp.path().join("map"), GRID, chunk_blocks).expect("map");
+    for (c, blocks) in denser::map::group_by_chunk(layer.indices_sorted(), chunk_blocks) {
+        let refs: Vec<_> = blocks
+            .iter()
+            .map(|b| (*b, layer.get(b).expect("block")))
+            .collect();
+        store.write_chunk(c, &refs, 0).expect("write chunk");
+    }
+    store.commit().expect("commit");
+    let mut options = ExportOptions::new(Field::Raw);
+    let cpu_path = tmp.path().join("cpu.ply");
+    let cpu = export_with(&store, &options, &ExportTarget::Mesh(cpu_path.clone())).expect("CPU");
+    options.mesher = Mesher::Gpu(ctx.clone());
+    let gpu_path = tmp.path().join("gpu.ply");
+    let before = ctx.traffic();
+    let on_gpu = export_with(&store, &options, &ExportTarget::Mesh(gpu_path.clone())).expect("GPU");
+    let t = ctx.traffic().since(before);
+    assert!(cpu.chunks > 20, "{cpu:?}");
+    assert!(
+        t.dispatches >= cpu.chunks as u64 && t.waits >= cpu.chunks as u64,
+        "the chunks were meshed on the GPU: {t:?}"
+    );
+    assert_eq!(
+        (cpu.vertices, cpu.triangles),
+        (on_gpu.vertices, on_gpu.triangles)
+    );
+    let (c, g) = (
+        read_mesh_ply(&cpu_path).unwrap(),
+        read_mesh_ply(&gpu_path).unwrap(),
+    );
+    assert_eq!(c.triangles, g.triangles);
+    let tolerance_m = 2.0 * POSITION_TOLERANCE_VOXELS * GRID.voxel_size_m;
+    for (a, b) in c.positions_m.iter().zip(&g.positions_m) {
+        let d = (0..3).map(|k| (a[k] - b[k]).abs()).fold(0f32, f32::max);
+        assert!(
+            d <= tolerance_m + 1e-6 * a.iter().fold(0f32, |m, v| m.max(v.abs())),
+            "{a:?} {b:?}"
+        );
+    }
+    if ctx.describe().contains("llvmpipe") {
+        assert!(std::fs::read(&cpu_path).unwrap() == std::fs::read(&gpu_path).unwrap());
+    }
 }
