@@ -14,7 +14,8 @@
 //! - point-wise search: |Δa| ≤ 1e-3 px on ≥ 99.9 % of pixels (a near-tie between two slices
 //!   may flip on other GPUs); on llvmpipe bit-identical;
 //! - whole matcher: ≤ 0.5 % of dense pixels differ by > 0.1 px and bad-2.0 within 0.2 points
-//!   (measured on llvmpipe: none by > 0.1 px, bad-2.0 equal); with TV bit-identical on llvmpipe.
+//!   on the generated pair, Motorcycle and KITTI 00/0 (its LiDAR scan as ground truth; measured
+//!   on llvmpipe: none by > 0.1 px, bad-2.0 equal); with TV bit-identical on llvmpipe.
 
 use crate::common;
 
@@ -33,7 +34,7 @@ use denser::depth::{
     estimate_tgv_gpu, pointwise_search_gpu, window_costs_gpu, DisparityEstimator, DisparityMap,
     TgvMatcherGpu, TgvProblemGpu,
 };
-use denser::depth::{evaluate_disparity, SgmMatcher, SgmParams};
+use denser::depth::{disparity_from_points, evaluate_disparity, SgmMatcher, SgmParams};
 use denser::frame::{GreyImage, Image};
 use denser::gpu::GpuContext;
 use depth_support::{city_like_planes, piecewise_planar_pair};
@@ -469,6 +470,32 @@ fn tgv_matcher_on_the_gpu_matches_the_cpu() {
         .unwrap();
         check_matcher(&ctx, "Motorcycle TgvTensor", &m, &left, &right, &gt);
     }
+    if let Some((left, right, gt)) = kitti_pair() {
+        let m = TgvMatcher::new(TgvParams {
+            sgm: sgm_params(128),
+            ..TgvParams::default()
+        })
+        .unwrap();
+        check_matcher(&ctx, "KITTI 00/0 TgvTensor", &m, &left, &right, &gt);
+    }
+}
+
+/// KITTI odometry 00 frame 0 (1241×376) with its LiDAR scan projected into image_0 as ground
+/// truth.
+fn kitti_pair() -> Option<(GreyImage, GreyImage, Image<f32>)> {
+    let root = common::shared_data("kitti_odom00_frames000-005")?;
+    let seq = denser::io::kitti::KittiSequence::open(root.join("sequences/00"), None).ok()?;
+    let (left, right) = (seq.grey(0, 0).ok()?, seq.grey(1, 0).ok()?);
+    let k = seq.intrinsics(0).ok()?;
+    let cam0_from_velo = seq.calib().cam_from_velo(0);
+    let points: Vec<[f64; 3]> = (seq.velodyne(0).ok()?.points_sensor_m.iter())
+        .map(|p| {
+            let c = cam0_from_velo * nalgebra::Point3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+            [c.x, c.y, c.z]
+        })
+        .collect();
+    let gt = disparity_from_points(&points, &k, seq.calib().baseline_m(0, 1));
+    Some((left, right, gt))
 }
 
 #[test]
