@@ -33,7 +33,10 @@
 //! is an [`crate::Error::GpuCapacity`], never truncated.
 
 use crate::depth::sgm::{CostVolume, SgmMatcher, VolumeShape};
-use crate::depth::tgv::{check_search, Regularizer, TgvMatcher, TgvProblem, TgvStages};
+use crate::depth::tgv::{
+    check_search, diffusion_tensors, steps_for, Regularizer, Tensor, TgvMatcher, TgvProblem,
+    TgvStages,
+};
 use crate::depth::{DisparityEstimator, DisparityMap};
 use crate::frame::GreyImage;
 use crate::gpu::kept::Kept;
@@ -77,24 +80,55 @@ pub struct TgvProblemGpu<'c> {
     kept: Kept,
 }
 
+/// Where a GPU problem's diffusion tensors come from.
+enum Tensors<'a> {
+    /// Uploaded, `[t11, t12, t22]` per pixel.
+    Host(&'a [Tensor]),
+    /// Made on the device from the left image's grey levels in this buffer (4 per word), with
+    /// γ and β (`shaders/tgv_tensors.wgsl`).
+    Device(&'a wgpu::Buffer, f32, f32),
+}
+
 impl<'c> TgvProblemGpu<'c> {
     /// Uploads `problem` (its parameters and whole state; a fresh problem's state, from
     /// [`TgvProblem::new`], is made on the device from its disparity). Fails with
     /// [`Error::GpuCapacity`] when the dual (20 bytes per pixel) does not fit one binding.
     pub fn upload(ctx: &'c GpuContext, problem: &TgvProblem) -> Result<Self> {
-        Self::upload_in(ctx, Kept::default(), problem, None)
+        let (w, h) = (problem.width, problem.height);
+        let tensors = Tensors::Host(problem.tensors());
+        let setup = (problem.regularizer, problem.alpha1, problem.alpha2);
+        if problem.is_fresh() {
+            return Self::fresh_in(
+                ctx,
+                Kept::default(),
+                (problem.u_slice(), w, h),
+                setup,
+                tensors,
+            );
+        }
+        let mut gpu = Self::allocate(ctx, Kept::default(), (w, h), setup)?;
+        let scope = ErrorScopes::push(&ctx.device);
+        let (primal, primal_bar, dual) = problem.state();
+        let kept = &mut gpu.kept;
+        let bytes = |a: &[[f32; 3]]| bytemuck::cast_slice::<[f32; 3], u8>(a).to_vec();
+        kept.storage_with(ctx, "tgv_tensors", bytemuck::cast_slice(problem.tensors()));
+        kept.storage_with(ctx, "tgv_primal", &bytes(&primal));
+        kept.storage_with(ctx, "tgv_primal_bar", &bytes(&primal_bar));
+        kept.storage_with(ctx, "tgv_dual", bytemuck::cast_slice(&dual));
+        scope.pop("uploading the TGV problem")?;
+        Ok(gpu)
     }
 
-    /// [`TgvProblemGpu::upload`] into the buffers of `kept`, the tensors computed on the device
-    /// from `tensors_from` (the left image's buffer, γ, β: `shaders/tgv_tensors.wgsl`) instead of
-    /// uploaded when given.
-    fn upload_in(
+    /// The buffers of a `width` × `height` problem in `kept` (contents unspecified), with its
+    /// regularizer and weights. Fails with [`Error::GpuCapacity`] when the dual (20 bytes per
+    /// pixel) does not fit one binding.
+    fn allocate(
         ctx: &'c GpuContext,
         mut kept: Kept,
-        problem: &TgvProblem,
-        tensors_from: Option<(&wgpu::Buffer, f32, f32)>,
+        (width, height): (usize, usize),
+        (regularizer, alpha1, alpha2): (Regularizer, f32, f32),
     ) -> Result<Self> {
-        let n = (problem.width * problem.height) as u64;
+        let n = (width * height) as u64;
         ctx.check_binding("TGV dual (20 bytes per pixel)", n * 20)?;
         if n > u32::MAX as u64 / 5 {
             return Err(Error::GpuCapacity {
@@ -103,67 +137,71 @@ impl<'c> TgvProblemGpu<'c> {
                 limit_bytes: u32::MAX as u64 / 5,
             });
         }
-        let (tau, sigma) = problem.steps();
-        let (primal, primal_bar, dual) = problem.state();
-        let words = |a: &[[f32; 3]]| bytemuck::cast_slice::<[f32; 3], u32>(a).to_vec();
-        let bar_is_primal = words(&primal_bar) == words(&primal);
-        // A fresh problem: v = 0, ū = u, dual 0 (bit patterns, so −0 is not fresh).
-        let fresh = bar_is_primal
-            && primal
-                .iter()
-                .all(|p| p[1].to_bits() == 0 && p[2].to_bits() == 0)
-            && dual.iter().all(|d| d.iter().all(|&v| v.to_bits() == 0));
+        let (tau, sigma) = steps_for(regularizer);
         let scope = ErrorScopes::push(&ctx.device);
-        let state = |kept: &mut Kept, name, data: &[u8]| match fresh {
-            true => kept.scratch(ctx, name, data.len() as u64),
-            false => kept.storage_with(ctx, name, data),
-        };
-        let u0: Vec<f32> = primal.iter().map(|p| p[0]).collect();
         let gpu = TgvProblemGpu {
             ctx,
-            width: problem.width,
-            height: problem.height,
-            regularizer: problem.regularizer,
-            alpha1: problem.alpha1,
-            alpha2: problem.alpha2,
+            width,
+            height,
+            regularizer,
+            alpha1,
+            alpha2,
             tau,
             sigma,
-            tensors: match tensors_from {
-                Some(_) => kept.scratch(ctx, "tgv_tensors", n * 12),
-                None => {
-                    kept.storage_with(ctx, "tgv_tensors", bytemuck::cast_slice(problem.tensors()))
-                }
-            },
-            // A fresh problem's disparity goes up here, where `tgv_init` reads it; otherwise
-            // the target is written (point-wise search, `iterate`) before any iteration reads it.
-            target: match fresh {
-                true => kept.storage_with(ctx, "tgv_target", bytemuck::cast_slice(&u0)),
-                false => kept.scratch(ctx, "tgv_target", n * 4),
-            },
-            primal: state(&mut kept, "tgv_primal", bytemuck::cast_slice(&primal)),
-            primal_bar: state(
-                &mut kept,
-                "tgv_primal_bar",
-                bytemuck::cast_slice(&primal_bar),
-            ),
-            dual: state(&mut kept, "tgv_dual", bytemuck::cast_slice(&dual)),
+            tensors: kept.scratch(ctx, "tgv_tensors", n * 12),
+            target: kept.scratch(ctx, "tgv_target", n * 4),
+            primal: kept.scratch(ctx, "tgv_primal", n * 12),
+            primal_bar: kept.scratch(ctx, "tgv_primal_bar", n * 12),
+            dual: kept.scratch(ctx, "tgv_dual", n * 20),
             kept,
         };
-        let mut gpu = gpu;
+        scope.pop("allocating the TGV problem")?;
+        Ok(gpu)
+    }
+
+    /// A fresh problem ([`TgvProblem::new`]'s: primal `[u0, 0, 0]`, the over-relaxed primal
+    /// equal to it, the dual zero) made on the device from `u0` (`shaders/tgv_init.wgsl`: 4 bytes
+    /// per pixel go up, not the 40-byte state), in `kept`'s buffers, with `tensors`.
+    fn fresh_in(
+        ctx: &'c GpuContext,
+        kept: Kept,
+        (u0, width, height): (&[f32], usize, usize),
+        setup: (Regularizer, f32, f32),
+        tensors: Tensors,
+    ) -> Result<Self> {
+        if u0.len() != width * height {
+            return Err(Error::InvalidArgument(format!(
+                "a {width}×{height} TGV problem from {} disparities",
+                u0.len()
+            )));
+        }
+        let mut gpu = Self::allocate(ctx, kept, (width, height), setup)?;
+        let n = u0.len() as u64;
+        let scope = ErrorScopes::push(&ctx.device);
+        // The disparity goes up where `tgv_init` reads it; the first point-wise search then
+        // overwrites it with the coupling target.
+        gpu.kept
+            .storage_with(ctx, "tgv_target", bytemuck::cast_slice(u0));
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("tgv_state"),
             });
-        if fresh {
-            let (kernel, bind) = gpu.prepare(&shaders::TGV_INIT, 1.0)?;
+        let (kernel, bind) = gpu.prepare(&shaders::TGV_INIT, 1.0)?;
+        if n > 0 {
             ctx.record_dispatch(&mut encoder, &kernel, &bind, n)?;
         }
-        if let Some((image, gamma, beta)) = tensors_from {
-            gpu.record_tensors(&mut encoder, image, (gamma, beta))?;
+        match tensors {
+            Tensors::Host(t) => {
+                gpu.kept
+                    .storage_with(ctx, "tgv_tensors", bytemuck::cast_slice(t));
+            }
+            Tensors::Device(image, gamma, beta) => {
+                gpu.record_tensors(&mut encoder, image, (gamma, beta))?;
+            }
         }
         ctx.submit(encoder);
-        scope.pop("uploading the TGV problem")?;
+        scope.pop("making the TGV problem")?;
         Ok(gpu)
     }
 
@@ -396,15 +434,13 @@ pub fn diffusion_tensors_gpu(
     gamma: f32,
     beta: f32,
 ) -> Result<Vec<[f32; 3]>> {
-    let n = image.width as usize * image.height as usize;
-    let u0 = vec![0.0f32; n];
     let (w, h) = (image.width as usize, image.height as usize);
-    let identity = vec![[1.0, 0.0, 1.0]; n];
-    let problem = TgvProblem::new(&u0, w, h, Regularizer::TgvTensor, 1.0, 1.0, identity)?;
+    let u0 = vec![0.0f32; w * h];
     let buf_image = ctx.storage("tensor_image", &image.data);
-    let tensors = Some((&buf_image, gamma, beta));
-    let gpu = TgvProblemGpu::upload_in(ctx, Kept::default(), &problem, tensors)?;
-    ctx.read_back_as(&gpu.tensors, n)
+    let tensors = Tensors::Device(&buf_image, gamma, beta);
+    let setup = (Regularizer::TgvTensor, 1.0, 1.0);
+    let gpu = TgvProblemGpu::fresh_in(ctx, Kept::default(), (&u0, w, h), setup, tensors)?;
+    ctx.read_back_as(&gpu.tensors, w * h)
 }
 
 /// [`TgvMatcher::refine`] on the GPU: the same rounds (point-wise search, then
@@ -438,14 +474,23 @@ fn refine_on_device<'c>(
 ) -> Result<TgvProblemGpu<'c>> {
     let p = &matcher.params;
     p.validate()?;
-    let tensors = match (left_on_device, p.regularizer) {
-        (Some(image), Regularizer::TgvTensor) => Some((image, p.gamma, p.beta)),
-        _ => None,
-    };
+    let (w, h) = (volume.width as usize, volume.height as usize);
+    let u0 = matcher.initial_disparity(left, volume, init)?;
     // TGV-tensor's tensors are made on the device when the image is there: not on the CPU too.
-    let (problem, _u0) = matcher.initial_problem(left, volume, init, tensors.is_none())?;
-    let mut gpu = TgvProblemGpu::upload_in(ctx, kept, &problem, tensors)?;
-    drop(problem);
+    let host_tensors;
+    let tensors = match (left_on_device, p.regularizer) {
+        (Some(image), Regularizer::TgvTensor) => Tensors::Device(image, p.gamma, p.beta),
+        (None, Regularizer::TgvTensor) => {
+            host_tensors = diffusion_tensors(left, p.gamma, p.beta);
+            Tensors::Host(&host_tensors)
+        }
+        _ => {
+            host_tensors = vec![[1.0, 0.0, 1.0]; w * h];
+            Tensors::Host(&host_tensors)
+        }
+    };
+    let setup = (p.regularizer, p.alpha1, p.alpha2);
+    let mut gpu = TgvProblemGpu::fresh_in(ctx, kept, (&u0, w, h), setup, tensors)?;
     let data = DataCostGpu::on_device(ctx, &mut gpu.kept, volume, raw, p.cost_window)?;
     for k in 0..p.outer_iterations {
         let theta = p.theta(k);

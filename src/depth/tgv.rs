@@ -357,7 +357,7 @@ impl TgvMatcher {
         filtered: &mut (Vec<u16>, Vec<u16>),
     ) -> Result<Vec<f32>> {
         let p = &self.params;
-        let (mut problem, u0) = self.initial_problem(left, volume.shape(), init, true)?;
+        let (mut problem, u0) = self.initial_problem(left, volume.shape(), init)?;
         let data = DataCost::with_buffers(volume, p.cost_window, std::mem::take(filtered));
         let mut a = u0;
         for k in 0..p.outer_iterations {
@@ -369,29 +369,39 @@ impl TgvMatcher {
         Ok(problem.u())
     }
 
-    /// The convex subproblem of [`TgvMatcher::refine`] before its first round, and its initial
-    /// disparity (SGM's, holes filled from the background side), pixels. Without
-    /// `image_tensors` TGV-tensor's diffusion tensors are left as identities (a caller that
-    /// computes them elsewhere: the GPU matcher, from the image on the device).
-    pub(crate) fn initial_problem(
+    /// The initial disparity of [`TgvMatcher::refine`] (SGM's `init`, holes filled from the
+    /// background side), pixels. Errors when the image, the volume and `init` differ in size.
+    pub(crate) fn initial_disparity(
         &self,
         left: &GreyImage,
         volume: VolumeShape,
         init: &DisparityMap,
-        image_tensors: bool,
-    ) -> Result<(TgvProblem, Vec<f32>)> {
-        let p = &self.params;
-        let w = volume.width as usize;
-        let h = volume.height as usize;
-        if left.width as usize != w || left.height as usize != h {
-            return Err(Error::InvalidArgument(
-                "image and cost volume sizes differ".into(),
-            ));
+    ) -> Result<Vec<f32>> {
+        let size = (volume.width, volume.height);
+        let init_size = (init.disparity_px.width, init.disparity_px.height);
+        if (left.width, left.height) != size || init_size != size {
+            return Err(Error::InvalidArgument(format!(
+                "image {}×{}, cost volume {}×{} and initial disparity {}×{} differ in size",
+                left.width, left.height, size.0, size.1, init_size.0, init_size.1
+            )));
         }
         let dmin = volume.min_disparity_px as f32;
-        let u0 = fill_from_background(&init.disparity_px, dmin);
+        Ok(fill_from_background(&init.disparity_px, dmin))
+    }
+
+    /// The convex subproblem of [`TgvMatcher::refine`] before its first round, and its initial
+    /// disparity ([`TgvMatcher::initial_disparity`]), pixels.
+    fn initial_problem(
+        &self,
+        left: &GreyImage,
+        volume: VolumeShape,
+        init: &DisparityMap,
+    ) -> Result<(TgvProblem, Vec<f32>)> {
+        let p = &self.params;
+        let (w, h) = (volume.width as usize, volume.height as usize);
+        let u0 = self.initial_disparity(left, volume, init)?;
         let tensors = match p.regularizer {
-            Regularizer::TgvTensor if image_tensors => diffusion_tensors(left, p.gamma, p.beta),
+            Regularizer::TgvTensor => diffusion_tensors(left, p.gamma, p.beta),
             _ => vec![[1.0, 0.0, 1.0]; w * h],
         };
         let problem = TgvProblem::new(&u0, w, h, p.regularizer, p.alpha1, p.alpha2, tensors)?;

@@ -40,6 +40,17 @@ pub struct TgvProblem {
     tp: [Vec<f32>; 2],
 }
 
+/// The step sizes `(τ, σ)` of the iterations with `regularizer`: `1/√8` for TV, `1/√12`
+/// otherwise.
+pub fn steps_for(regularizer: Regularizer) -> (f32, f32) {
+    let step = if regularizer == Regularizer::Tv {
+        1.0 / 8f32.sqrt()
+    } else {
+        1.0 / 12f32.sqrt()
+    };
+    (step, step)
+}
+
 /// Rows handed to one parallel task of the iterations.
 pub(super) const ROWS_PER_TASK: usize = 8;
 
@@ -129,14 +140,20 @@ impl TgvProblem {
         Ok(())
     }
 
-    /// The step sizes `(τ, σ)` of [`TgvProblem::iterate`]: `1/√8` for TV, `1/√12` otherwise.
+    /// The step sizes `(τ, σ)` of [`TgvProblem::iterate`] ([`steps_for`] its regularizer).
     pub fn steps(&self) -> (f32, f32) {
-        let step = if self.regularizer == Regularizer::Tv {
-            1.0 / 8f32.sqrt()
-        } else {
-            1.0 / 12f32.sqrt()
-        };
-        (step, step)
+        steps_for(self.regularizer)
+    }
+
+    /// Whether the state is [`TgvProblem::new`]'s: `v = 0`, the over-relaxed primal equal to
+    /// the primal, the dual zero (bit patterns: −0 is not zero).
+    pub(crate) fn is_fresh(&self) -> bool {
+        let zero = |a: &[f32]| a.iter().all(|v| v.to_bits() == 0);
+        let same = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+        zero(&self.x[1])
+            && zero(&self.x[2])
+            && (0..3).all(|c| same(&self.x[c], &self.x_bar[c]))
+            && self.y.iter().all(|y| zero(y))
     }
 
     /// The disparity `u`.
