@@ -20,7 +20,7 @@ use crate::depth::SgmParams;
 use crate::depth::{DisparityEstimator, SgmMatcher, SgmMatcherGpu, StereoMethod, TgvMatcherGpu};
 use crate::frame::DepthFrame;
 use crate::fusion::{
-    integrate_depth_plan, integrate_depth_resident, integrate_lidar_gpu, integrate_lidar_plan,
+    integrate_depth_plan, integrate_depth_resident, integrate_lidar_plan, integrate_lidar_resident,
     DepthFusionParams, DepthPlan, FusionStats, LidarPlan,
 };
 use crate::gpu::shaders::{self, ShaderSource};
@@ -143,6 +143,7 @@ impl GpuStages {
                 &shaders::CLEAR_UPDATED,
                 &shaders::FILL_SLOTS,
                 &shaders::FUSE_LIDAR,
+                &shaders::FUSE_LIDAR_RESIDENT,
             ]);
         }
         if self.tv {
@@ -457,8 +458,8 @@ impl Backend {
         })
     }
 
-    /// Fuses one LiDAR scan planned by `plan` into `layer`; blocks of the scan resident on the
-    /// GPU are written back first.
+    /// Fuses one LiDAR scan planned by `plan` into `layer` (on a GPU, into the blocks resident
+    /// there, as depth frames are: call [`UpperTier::sync`] before reading the layer whole).
     pub fn fuse_lidar(
         &mut self,
         layer: &mut Layer,
@@ -467,13 +468,17 @@ impl Backend {
         let Some(ctx) = self.gpu.as_ref().filter(|_| self.stages.fusion) else {
             return Ok(integrate_lidar_plan(layer, plan));
         };
-        let resident = &mut self.resident;
+        if self.resident.is_none() {
+            self.resident = Some(ResidentMap::new(
+                ctx.clone(),
+                layer.params(),
+                self.resident_options,
+            )?);
+        }
+        let resident = self.resident.as_mut().expect("just created");
         let t = &mut self.traffic;
         counted(Some(ctx), &mut t.lidar, &mut t.lidar_scans, || {
-            if let Some(r) = resident.as_mut() {
-                r.flush_blocks(layer, &plan.blocks())?;
-            }
-            integrate_lidar_gpu(ctx, layer, plan)
+            integrate_lidar_resident(resident, layer, plan)
         })
     }
 

@@ -46,12 +46,12 @@ const NEVER: f32 = 3.0e38;
 /// after 65 535 iterations in all (`LP_MAX_TGSI_LOOP_ITERATIONS`, shared by every loop of a
 /// shader), silently. Each ray costs one iteration plus one per cell of its walk, so a pass
 /// applies at most `LOOP_BUDGET / (longest walk + 1)` rays of each block.
-const LOOP_BUDGET: u32 = 60_000;
+pub(super) const LOOP_BUDGET: u32 = 60_000;
 
 /// Bytes of one block of [`GpuVoxel`]s.
 const BLOCK_BYTES: u64 = (VOXELS_PER_BLOCK * std::mem::size_of::<GpuVoxel>()) as u64;
 /// Bytes of one [`GpuLidarRay`] (keep the 52 in the messages in sync).
-const RAY_BYTES: u64 = std::mem::size_of::<GpuLidarRay>() as u64;
+pub(super) const RAY_BYTES: u64 = std::mem::size_of::<GpuLidarRay>() as u64;
 
 /// The walk of the ray from `origin_m` along the unit `dir` with return at `range_m` through
 /// `block`, in the block's voxel coordinates (computed in f64, stored in f32): it covers the
@@ -184,6 +184,56 @@ fn block_local_rays(grid: &GridParams, plan: &LidarPlan, range: Range<usize>) ->
         .collect()
 }
 
+/// The rays of the listed blocks `order` (indices into `groups`, `total` rays in all) in that
+/// order, as [`GpuLidarRay`]s written straight into a new upload's mapping, a block per task;
+/// returns it and the rays a pass may apply per block (`LOOP_BUDGET / (longest walk + 1)`).
+pub(super) fn upload_rays(
+    ctx: &GpuContext,
+    grid: &GridParams,
+    (plan, groups): (&LidarPlan, &[(BlockIndex, Range<usize>)]),
+    order: &[usize],
+    total: u32,
+) -> Result<(wgpu::Buffer, u32)> {
+    let count = |b: usize| groups[b].1.len();
+    let mut longest_walk = 0u32;
+    let buf_rays = ctx.storage_filled("lidar_rays", total as u64 * RAY_BYTES, |out| {
+        longest_walk = ray_slots(out, order.iter().map(|&b| count(b)))
+            .into_par_iter()
+            .zip(order.par_iter())
+            .map(|(slots, &b)| {
+                let rays = block_local_rays(grid, plan, groups[b].1.clone());
+                for (slot, ray) in slots.into_iter().zip(&rays) {
+                    slot.write(bytemuck::cast(*ray));
+                }
+                rays.iter().map(|r| r.steps).max().unwrap_or(0)
+            })
+            .max()
+            .unwrap_or(0);
+    })?;
+    Ok((buf_rays, (LOOP_BUDGET / (longest_walk + 1)).max(1)))
+}
+
+/// The listed blocks (indices into `groups`) by decreasing ray count, and each one's first ray
+/// in that order (one more offset at the end: the total). Invocations that run in lockstep
+/// (SIMD lanes, warps) then have similar work, and the blocks with rays left for a pass are a
+/// prefix; a block's result does not depend on its place.
+pub(super) fn dispatch_order(
+    groups: &[(BlockIndex, Range<usize>)],
+    blocks: Range<usize>,
+) -> (Vec<usize>, Vec<u32>) {
+    let count = |b: usize| groups[b].1.len();
+    let mut order: Vec<usize> = blocks.collect();
+    order.sort_by_key(|&b| std::cmp::Reverse(count(b)));
+    let mut offsets = Vec::with_capacity(order.len() + 1);
+    let mut total = 0u32;
+    for &b in &order {
+        offsets.push(total);
+        total += count(b) as u32;
+    }
+    offsets.push(total);
+    (order, offsets)
+}
+
 /// `out` cut into its [`GpuLidarRay`]-sized pieces, grouped by `counts` (their sum at most the
 /// pieces there are).
 #[allow(clippy::type_complexity)]
@@ -265,38 +315,13 @@ fn fuse_blocks(
     // Per batch: the blocks in dispatch order and their voxels as read back.
     let mut results: Vec<(Vec<usize>, Vec<GpuVoxel>)> = Vec::with_capacity(batches.len());
     for batch in &batches {
-        // Blocks in decreasing order of ray count: invocations that run in lockstep (SIMD
-        // lanes, warps) then have similar work, and the blocks with rays left for a pass are a
-        // prefix. A block's result does not depend on its place.
         let count = |b: usize| groups[b].1.len();
-        let mut order: Vec<usize> = batch.clone().collect();
-        order.sort_by_key(|&b| std::cmp::Reverse(count(b)));
-        let mut offsets = Vec::with_capacity(order.len() + 1);
-        let mut total = 0u32;
-        for &b in &order {
-            offsets.push(total);
-            total += count(b) as u32;
-        }
-        offsets.push(total);
+        let (order, offsets) = dispatch_order(groups, batch.clone());
+        let total = *offsets.last().expect("one offset at least");
         let voxel_count = (batch.len() * VOXELS_PER_BLOCK) as u64;
         // The rays and voxels are written straight into the uploads' mappings, a block per
         // task, in dispatch order.
-        let mut longest_walk = 0u32;
-        let buf_rays = ctx.storage_filled("lidar_rays", total as u64 * RAY_BYTES, |out| {
-            longest_walk = ray_slots(out, order.iter().map(|&b| count(b)))
-                .into_par_iter()
-                .zip(order.par_iter())
-                .map(|(slots, &b)| {
-                    let rays = block_local_rays(grid, plan, groups[b].1.clone());
-                    for (slot, ray) in slots.into_iter().zip(&rays) {
-                        slot.write(bytemuck::cast(*ray));
-                    }
-                    rays.iter().map(|r| r.steps).max().unwrap_or(0)
-                })
-                .max()
-                .unwrap_or(0);
-        })?;
-        let rays_per_pass = (LOOP_BUDGET / (longest_walk + 1)).max(1);
+        let (buf_rays, rays_per_pass) = upload_rays(ctx, grid, (plan, groups), &order, total)?;
         let buf_voxels = ctx.storage_by_piece::<{ BLOCK_BYTES as usize }>(
             "lidar_voxels",
             order.len(),

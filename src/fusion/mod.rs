@@ -24,6 +24,7 @@ mod depth_block;
 mod depth_gpu;
 mod lidar;
 mod lidar_gpu;
+mod lidar_resident;
 pub mod traverse;
 
 pub use band::{depth_frame_blocks, depth_frame_blocks_exact, BAND_TILE_PX};
@@ -38,6 +39,7 @@ pub use lidar::{
     LidarFusionParams, LidarPlan,
 };
 pub use lidar_gpu::{block_local_ray, integrate_lidar_gpu, walk_block_ray};
+pub use lidar_resident::integrate_lidar_resident;
 
 /// Work counters of one integration call.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

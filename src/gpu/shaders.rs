@@ -129,9 +129,23 @@ pub const FUSE_LIDAR: ShaderSource = kernel!(
     [
         "shared/dispatch.wgsl",
         "shared/rounding.wgsl",
-        "shared/voxel_fuse.wgsl"
+        "shared/voxel_fuse.wgsl",
+        "shared/lidar_walk.wgsl"
     ],
     [Uniform, Read, Read, ReadWrite, ReadWrite]
+);
+
+/// LiDAR fusion (ray-wise, inside the truncation band) into the blocks resident in the pool.
+pub const FUSE_LIDAR_RESIDENT: ShaderSource = kernel!(
+    "fuse_lidar_resident.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/rounding.wgsl",
+        "shared/voxel_fuse.wgsl",
+        "shared/lidar_walk.wgsl",
+        "shared/block_hash.wgsl"
+    ],
+    [Uniform, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite]
 );
 
 /// TGV stereo dual step (`p` with the tensor, `q`).
@@ -284,6 +298,7 @@ pub const ALL: &[ShaderSource] = &[
     FUSE_DEPTH,
     FUSE_DEPTH_RESIDENT,
     FUSE_LIDAR,
+    FUSE_LIDAR_RESIDENT,
     // The GPU hash table and pool.
     BLOCK_LOOKUP,
     CLEAR_UPDATED,

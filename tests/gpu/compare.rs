@@ -648,7 +648,7 @@ fn resident_sync_keeps_the_regularized_field_in_step() {
 }
 
 #[test]
-fn reconstructor_keeps_depth_blocks_on_the_gpu_and_flushes_them_for_lidar() {
+fn reconstructor_keeps_depth_and_lidar_blocks_on_the_gpu() {
     let Some(ctx) = gpu() else { return };
     let grid = GridParams {
         voxel_size_m: 0.1,
@@ -678,8 +678,8 @@ fn reconstructor_keeps_depth_blocks_on_the_gpu_and_flushes_them_for_lidar() {
         rec.layer().observed_voxel_count(),
         cpu.observed_voxel_count()
     );
-    // A LiDAR scan of the same sphere and floor, from 4.5 m away, flushes
-    // its blocks from the GPU before the CPU updates them.
+    // A LiDAR scan of the same sphere and floor, from 4.5 m away, fuses into the blocks where
+    // they are: the depth frames' stay resident, and the scan's new ones join them.
     let scene = SphereScene::standard();
     let scan = scene.lidar([0.0, -0.5, -4.5], 32, 720, 0.0, &mut Rng(3));
     let mut rec_cpu = reconstructor_over(config, cpu, Backend::cpu());
@@ -688,9 +688,10 @@ fn reconstructor_keeps_depth_blocks_on_the_gpu_and_flushes_them_for_lidar() {
     let fused = rec.fuse_lidar(&scan).expect("lidar");
     assert_eq!(fused, fused_cpu);
     let after = rec.resident_stats().expect("resident").resident_blocks;
-    assert!(after < before, "{after} !< {before}");
+    assert!(after >= before, "{after} < {before}: blocks left the GPU");
     rec.sync().expect("sync");
-    // The LiDAR scan went through the CPU on both sides: only the frames' ties may differ.
+    // The GPU's LiDAR walk is the CPU's (the same f32 walk; equal on llvmpipe): only the
+    // frames' ties may differ.
     let ties = rounding_ties(grid, &frames, &rec_cpu.layer().indices_sorted());
     let r = compare_layers(rec_cpu.layer(), rec.layer(), &ties);
     assert_fusion_agrees("reconstructor vs CPU", &ctx, &r);

@@ -35,10 +35,11 @@ use common::gpu;
 use common::{Rng, SphereScene};
 use denser::backend::Backend;
 use denser::frame::LidarScan;
-use denser::fusion::{integrate_lidar_gpu, integrate_lidar_reference};
+use denser::fusion::{integrate_lidar_gpu, integrate_lidar_reference, integrate_lidar_resident};
 use denser::fusion::{integrate_lidar_plan, LidarFusionParams, LidarPlan};
-use denser::gpu::{GpuContext, ResidentOptions};
-use denser::grid::{Block, GridParams, Layer, MAX_WEIGHT, VOXELS_PER_BLOCK};
+use denser::gpu::resident::SLOT_BYTES;
+use denser::gpu::{GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats};
+use denser::grid::{Block, BlockIndex, GridParams, Layer, MAX_WEIGHT, VOXELS_PER_BLOCK};
 use denser::reconstruct::{ReconstructionConfig, Reconstructor};
 use std::collections::BTreeSet;
 use std::sync::Arc;
@@ -483,6 +484,13 @@ fn reconstructor_fuses_lidar_on_the_gpu_when_one_is_set() {
         let b = on_cpu.fuse_lidar(scan).expect("CPU");
         assert_eq!(a, b);
     }
+    // The scans went into the blocks resident on the GPU: a sync writes them back to RAM.
+    let resident = on_gpu.resident_stats().expect("fused on the GPU");
+    assert!(
+        resident.resident_blocks > 0 && resident.oversize_frames == 0,
+        "{resident:?}"
+    );
+    on_gpu.sync().expect("sync");
     let (gpu_direct, _) = fuse_all(
         grid,
         &scans,
@@ -497,4 +505,99 @@ fn reconstructor_fuses_lidar_on_the_gpu_when_one_is_set() {
         "reconstructor GPU vs CPU",
         &compare(on_cpu.layer(), on_gpu.layer()),
     );
+}
+
+/// Fuses `scans` into the blocks resident in a fresh pool of `options`, then writes them back:
+/// the layer, the touched blocks per scan, the pool's counters and each scan's traffic.
+fn fuse_resident(
+    ctx: &Arc<GpuContext>,
+    grid: GridParams,
+    scans: &[LidarScan],
+    options: ResidentOptions,
+) -> (Layer, Vec<Vec<BlockIndex>>, ResidentStats, Vec<GpuTraffic>) {
+    let mut map = ResidentMap::new(ctx.clone(), grid, options).expect("pool");
+    let mut layer = Layer::new(grid);
+    let (mut touched, mut traffic) = (Vec::new(), Vec::new());
+    for scan in scans {
+        let plan = LidarPlan::new(&grid, scan, &PARAMS);
+        let before = ctx.traffic();
+        let (t, stats) = integrate_lidar_resident(&mut map, &mut layer, &plan).expect("fuse");
+        traffic.push(ctx.traffic().since(before));
+        assert_eq!(t.len(), stats.blocks);
+        touched.push(t);
+    }
+    map.sync(&mut layer).expect("sync");
+    (layer, touched, map.stats(), traffic)
+}
+
+#[test]
+fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_scans() {
+    // The scans fused into the GPU pool, where the blocks stay between scans, give the voxels
+    // and touched blocks of the per-call kernel (which sends every block up and back) bit for
+    // bit: growing the pool, spilling blocks to RAM and back, and scans too large for the pool
+    // (fused per call after their resident blocks went back) change nothing.
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let grid = GRIDS[0];
+    // Six scans: the three origins, then the same again (the second round revisits blocks).
+    let mut scans = sphere_scans(OFFSETS[1]);
+    scans.extend(sphere_scans(OFFSETS[1]));
+    let mut per_call = Layer::new(grid);
+    let mut per_call_touched = Vec::new();
+    for scan in &scans {
+        let plan = LidarPlan::new(&grid, scan, &PARAMS);
+        per_call_touched.push(
+            integrate_lidar_gpu(&ctx, &mut per_call, &plan)
+                .expect("GPU")
+                .0,
+        );
+    }
+    let roomy = ResidentOptions {
+        initial_blocks: 64,
+        max_bytes: 1 << 30,
+    };
+    let (grown, touched, s1, traffic) = fuse_resident(&ctx, grid, &scans, roomy);
+    eprintln!("grow only: {s1:?}");
+    assert!(s1.grows >= 1 && s1.blocks_spilled == 0 && s1.oversize_frames == 0);
+    assert_eq!(touched, per_call_touched, "touched blocks per scan");
+    assert_layers_identical("resident vs per call", &per_call, &grown);
+    // The second round's scans find their blocks resident: up go the (block, ray) pairs (52
+    // bytes each) and small inputs, down the counters and a flag per block; no block either way.
+    for (k, t) in traffic.iter().enumerate().skip(3) {
+        let plan = LidarPlan::new(&grid, &scans[k], &PARAMS);
+        let (pairs, blocks) = (plan.pair_count() as u64, plan.blocks().len() as u64);
+        eprintln!("scan {k}: {pairs} pairs, {blocks} blocks: {t:?}");
+        assert!(
+            t.upload_bytes <= 52 * pairs + 20 * blocks + (64 << 10),
+            "{t:?}"
+        );
+        assert!(t.readback_bytes <= 4 * blocks + (4 << 10), "{t:?}");
+        assert_eq!(t.waits, 1, "{t:?}");
+    }
+    // A pool between the largest scan and the whole map: blocks spill to RAM and come back.
+    let largest = touched.iter().map(|t| t.len()).max().unwrap_or(0) as u64;
+    let all = per_call.block_count() as u64;
+    assert!(all > largest + 1000, "{all} blocks, the largest scan {largest}");
+    let tight = ResidentOptions {
+        initial_blocks: 64,
+        max_bytes: (largest + all) / 2 * SLOT_BYTES,
+    };
+    let (spilled, touched, s2, _) = fuse_resident(&ctx, grid, &scans, tight);
+    eprintln!("tight pool: {s2:?}");
+    assert!(s2.blocks_spilled > 0 && s2.oversize_frames == 0, "{s2:?}");
+    assert_eq!(touched, per_call_touched);
+    assert_layers_identical("spilled vs per call", &per_call, &spilled);
+    let smallest = touched.iter().map(|t| t.len()).min().unwrap_or(0) as u64;
+    let tiny = ResidentOptions {
+        initial_blocks: 16,
+        max_bytes: (smallest + largest) / 2 * SLOT_BYTES,
+    };
+    let (small, touched, s3, _) = fuse_resident(&ctx, grid, &scans, tiny);
+    eprintln!("tiny pool: {s3:?}");
+    assert!(
+        s3.oversize_frames > 0 && s3.oversize_frames < scans.len() as u64,
+        "{s3:?}"
+    );
+    assert_eq!(touched, per_call_touched);
+    assert_layers_identical("tiny pool vs per call", &per_call, &small);
 }

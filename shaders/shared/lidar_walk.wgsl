@@ -1,0 +1,110 @@
+// Shared by fuse_lidar.wgsl (blocks uploaded per call) and fuse_lidar_resident.wgsl (blocks
+// resident in the GPU pool): the uniforms, the (block, ray) pair and the walk of one ray through
+// one listed block (CPU twin: `walk_block_ray` in src/fusion/lidar_gpu.rs). Each kernel declares
+// `voxels` (binding 3) and `voxel_base(b)`, the index of listed block b's first voxel there.
+// Keep in sync with `LidarUniforms`, `GpuLidarRay` and `GpuVoxel` in src/gpu/layout.rs.
+
+struct LidarUniforms {
+    // Blocks in this batch.
+    block_count: u32,
+    // Truncation μ and voxel edge, metres.
+    truncation_m: f32,
+    voxel_size_m: f32,
+    // This pass applies rays first_ray .. first_ray + max_rays of each block (see main).
+    first_ray: u32,
+    max_rays: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+// One (block, ray) pair in block-local voxel coordinates (`GpuLidarRay`).
+struct LidarRay {
+    start_x: f32,
+    start_y: f32,
+    start_z: f32,
+    dir_x: f32,
+    dir_y: f32,
+    dir_z: f32,
+    // Signed distance to the return at the start point, metres.
+    sdf_start_m: f32,
+    // Length of the walk, voxels (negative: nothing to walk).
+    len_vox: f32,
+    // Block-local cell the walk starts in, and the most cells it visits (decided in f64).
+    start_cell_x: i32,
+    start_cell_y: i32,
+    start_cell_z: i32,
+    steps: u32,
+    gray: u32,
+}
+
+// Crossing parameter of an axis the ray does not move along (the CPU's f32::MAX stand-in for ∞).
+const NEVER: f32 = 3.0e38;
+
+// Step (−1, 0, 1), first crossing parameter and crossing interval along one axis, voxels, for
+// direction component `d` from `s` in cell `c`.
+fn axis_setup(d: f32, c: i32, s: f32) -> vec3<f32> {
+    if (d > 0.0) {
+        let inv = 1.0 / d;
+        return vec3<f32>(1.0, (f32(c + 1) - s) * inv, inv);
+    } else if (d < 0.0) {
+        let inv = 1.0 / d;
+        return vec3<f32>(-1.0, (f32(c) - s) * inv, -inv);
+    }
+    return vec3<f32>(0.0, NEVER, NEVER);
+}
+
+// Walks `ray` through listed block `b` (Amanatides–Woo, the order of operations of
+// `walk_block_ray`) and fuses every voxel of the block it visits whose sdf ≥ −μ. Returns the
+// number of updates.
+fn apply_ray(b: u32, ray: LidarRay) -> u32 {
+    let len = ray.len_vox;
+    if (len < 0.0) {
+        return 0u;
+    }
+    let s = vec3<f32>(ray.start_x, ray.start_y, ray.start_z);
+    let d = vec3<f32>(ray.dir_x, ray.dir_y, ray.dir_z);
+    var cell = vec3<i32>(ray.start_cell_x, ray.start_cell_y, ray.start_cell_z);
+    // Per axis (no loop: llvmpipe caps the loop iterations of an invocation).
+    let ax = axis_setup(d.x, cell.x, s.x);
+    let ay = axis_setup(d.y, cell.y, s.y);
+    let az = axis_setup(d.z, cell.z, s.z);
+    let step = vec3<i32>(i32(ax.x), i32(ay.x), i32(az.x));
+    var t_max = vec3<f32>(ax.y, ay.y, az.y);
+    let t_delta = vec3<f32>(ax.z, ay.z, az.z);
+    var remaining = ray.steps;
+    let rgb = ray.gray * 0x010101u;
+    var n = 0u;
+    while (remaining > 0u) {
+        if (all(cell >= vec3<i32>(0)) && all(cell < vec3<i32>(8))) {
+            let c = vec3<f32>(cell) + 0.5 - s;
+            let tc = c.x * d.x + c.y * d.y + c.z * d.z;
+            let sdf = ray.sdf_start_m - tc * params.voxel_size_m;
+            if (sdf >= -params.truncation_m) {
+                let t = min(sdf, params.truncation_m) / params.truncation_m;
+                let gv = voxel_base(b) + u32(cell.x) + 8u * (u32(cell.y) + 8u * u32(cell.z));
+                let v = voxels[gv];
+                let fused = fuse_packed(v.tsdf_weight, v.color, t, rgb, true);
+                voxels[gv] = GpuVoxel(fused.x, fused.y);
+                n = n + 1u;
+            }
+        }
+        remaining = remaining - 1u;
+        // The CPU's choice of axis, ties included.
+        var a = 2;
+        if (t_max.x < t_max.y) {
+            if (t_max.x < t_max.z) {
+                a = 0;
+            }
+        } else if (t_max.y < t_max.z) {
+            a = 1;
+        }
+        if (t_max[a] > len) {
+            break;
+        }
+        cell[a] = cell[a] + step[a];
+        t_max[a] = t_max[a] + t_delta[a];
+    }
+    return n;
+}
+

@@ -1,0 +1,187 @@
+//! LiDAR fusion into the blocks resident on the GPU ([`ResidentMap`], the depth fusion's pool):
+//! `shaders/fuse_lidar_resident.wgsl` applies the per-call kernel's update
+//! ([`super::integrate_lidar_gpu`], the same walk in `shaders/shared/lidar_walk.wgsl`) to the
+//! scan's blocks where they live on the device, so a scan no longer sends its blocks up and
+//! reads them back (4 KiB each, both ways): the blocks already resident stay, those in RAM go up
+//! once (as for a depth frame), new ones are made empty on the device, and what comes back is
+//! the counters and one flag per block. The (block, ray) pairs still go up, 52 bytes each.
+//!
+//! The result equals the per-call kernel's bit for bit (the same f32 operations on the same
+//! values, in the same order per block), so it keeps its relation to the CPU's walk
+//! (`tests/gpu/lidar.rs`).
+
+use super::lidar_gpu::{dispatch_order, upload_rays, RAY_BYTES};
+use super::{integrate_lidar_gpu, FusionStats, LidarPlan};
+use crate::gpu::layout::{LidarUniforms, LookupUniforms};
+use crate::gpu::resident::ResidentMap;
+use crate::gpu::{shaders, ErrorScopes};
+use crate::grid::{BlockIndex, Layer, TouchedBlocks};
+use crate::{Error, Result};
+use std::ops::Range;
+
+/// Fuses the LiDAR scan planned in `plan` into the blocks resident in `map` (the GPU tier over
+/// `layer`), like [`super::integrate_lidar_plan`]: the plan's blocks are made resident (grown
+/// into or spilled for), resolved to pool slots on the GPU (`block_lookup.wgsl`) and updated
+/// in place. A scan whose blocks exceed the largest pool, or whose (block, ray) pairs exceed
+/// one storage binding, goes through [`integrate_lidar_gpu`] after its resident blocks are
+/// written back (counted, with a warning). Returns the touched blocks (sorted).
+pub fn integrate_lidar_resident(
+    map: &mut ResidentMap,
+    layer: &mut Layer,
+    plan: &LidarPlan,
+) -> Result<(TouchedBlocks, FusionStats)> {
+    if layer.params() != map.grid() {
+        return Err(Error::InvalidArgument(
+            "resident GPU map and layer have different grids".into(),
+        ));
+    }
+    let groups = plan.groups();
+    let blocks: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
+    map.begin_frame(blocks.len(), 0.0);
+    if blocks.is_empty() {
+        let stats = FusionStats {
+            measurements: plan.ray_count(),
+            ..FusionStats::default()
+        };
+        return Ok((Vec::new(), stats));
+    }
+    let pair_bytes = plan.pair_count() as u64 * RAY_BYTES;
+    if blocks.len() > map.max_blocks() as usize || pair_bytes > map.context().max_binding_bytes() {
+        map.note_oversize();
+        tracing::warn!(
+            "a LiDAR scan of {} blocks and {} (block, ray) pairs exceeds the GPU pool ({} blocks) \
+             or one binding: fusing it with its blocks uploaded",
+            blocks.len(),
+            plan.pair_count(),
+            map.max_blocks()
+        );
+        map.flush_blocks(layer, &blocks)?;
+        let ctx = map.context().clone();
+        return integrate_lidar_gpu(&ctx, layer, plan);
+    }
+    map.make_resident(layer, &blocks, plan.origin_m())?;
+    let t = std::time::Instant::now();
+    let (updated, voxel_updates, inputs_s) = run_resident(map, plan, &groups)?;
+    map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
+    let touched = map.finish_frame(layer, &blocks, &updated);
+    let stats = FusionStats {
+        blocks: touched.len(),
+        voxel_updates,
+        measurements: plan.ray_count(),
+    };
+    Ok((touched, stats))
+}
+
+/// Resolves the plan's blocks (resident, `groups` in block order) to pool slots and applies
+/// their rays there, in one submit and one wait. Returns, per block in `groups` order, whether
+/// any voxel was updated, the number of voxel updates, and the seconds spent preparing and
+/// writing the inputs.
+fn run_resident(
+    map: &mut ResidentMap,
+    plan: &LidarPlan,
+    groups: &[(BlockIndex, Range<usize>)],
+) -> Result<(Vec<bool>, usize, f64)> {
+    let t = std::time::Instant::now();
+    let (ctx, grid, pool, (table, mask), kept) = map.frame_parts();
+    let n = groups.len();
+    let (order, offsets) = dispatch_order(groups, 0..n);
+    let total = *offsets.last().expect("one offset at least");
+    ctx.check_binding("block keys (16 bytes per block)", n as u64 * 16)?;
+    let (buf_rays, rays_per_pass) = upload_rays(ctx, &grid, (plan, groups), &order, total)?;
+    let keys: Vec<[i32; 4]> = order
+        .iter()
+        .map(|&b| {
+            let k = groups[b].0 .0;
+            [k[0], k[1], k[2], 0]
+        })
+        .collect();
+    let lookup = ctx.kernel(&shaders::BLOCK_LOOKUP)?;
+    let fuse = ctx.kernel(&shaders::FUSE_LIDAR_RESIDENT)?;
+    let lookup_uniforms = LookupUniforms {
+        key_count: n as u32,
+        mask,
+        pad: [0; 2],
+    };
+    let scope = ErrorScopes::push(&ctx.device);
+    let bytes = bytemuck::bytes_of(&lookup_uniforms);
+    let buf_lookup = kept.uniform_with(ctx, "lookup_uniforms", bytes);
+    let buf_keys = kept.storage_with(ctx, "lookup_keys", bytemuck::cast_slice(&keys));
+    // Every listed key's slot is written by the lookup.
+    let buf_slots = kept.scratch(ctx, "lookup_slots", n as u64 * 4);
+    let buf_offsets = kept.storage_with(ctx, "lidar_ray_offsets", bytemuck::cast_slice(&offsets));
+    let buf_counters = kept.scratch(ctx, "lidar_counters", 16);
+    let buf_updated = kept.scratch(ctx, "lidar_updated", n as u64 * 4);
+    let bind_lookup = kept.bind_group(
+        ctx,
+        "block_lookup",
+        &lookup.layout,
+        &[&buf_lookup, table, &buf_keys, &buf_slots],
+    );
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("fuse_lidar_resident"),
+        });
+    // Counters and flags start at zero on the device, not uploaded.
+    encoder.clear_buffer(&buf_counters, 0, Some(16));
+    encoder.clear_buffer(&buf_updated, 0, Some(n as u64 * 4));
+    ctx.record_dispatch(&mut encoder, &lookup, &bind_lookup, n as u64)?;
+    // Passes in order (wgpu orders dispatches that write the same buffer), each over the blocks
+    // that still have rays; each pass its own uniforms (all are recorded before the submit).
+    let count = |b: usize| groups[b].1.len() as u32;
+    let mut first_ray = 0u32;
+    loop {
+        let active = order.partition_point(|&b| count(b) > first_ray);
+        if active == 0 {
+            break;
+        }
+        let uniforms = LidarUniforms {
+            block_count: active as u32,
+            truncation_m: grid.truncation_m,
+            voxel_size_m: grid.voxel_size_m,
+            first_ray,
+            max_rays: rays_per_pass,
+            pad: [0; 3],
+        };
+        let buf_uniforms = ctx.uniform("lidar_uniforms", bytemuck::bytes_of(&uniforms));
+        let bind = ctx.bind_group(
+            "fuse_lidar_resident",
+            &fuse.layout,
+            &[
+                &buf_uniforms,
+                &buf_offsets,
+                &buf_rays,
+                pool,
+                &buf_counters,
+                &buf_slots,
+                &buf_updated,
+            ],
+        );
+        ctx.record_dispatch(&mut encoder, &fuse, &bind, active as u64)?;
+        first_ray += rays_per_pass;
+    }
+    let inputs_s = t.elapsed().as_secs_f64();
+    let mut counters = [0u32; 2];
+    let mut flags = vec![0u32; n];
+    ctx.submit_and_read_back(
+        encoder,
+        kept,
+        &mut [
+            (&buf_counters, bytemuck::cast_slice_mut(&mut counters)),
+            (&buf_updated, bytemuck::cast_slice_mut(&mut flags)),
+        ],
+    )?;
+    scope.pop("running the resident LiDAR fusion kernel")?;
+    if counters[1] != 0 {
+        return Err(Error::Gpu(format!(
+            "the GPU hash table could not resolve {} of {} resident blocks",
+            counters[1], n
+        )));
+    }
+    // The flags come in dispatch order; the caller lists blocks in `groups` order.
+    let mut updated = vec![false; n];
+    for (k, &b) in order.iter().enumerate() {
+        updated[b] = flags[k] != 0;
+    }
+    Ok((updated, counters[0] as usize, inputs_s))
+}
