@@ -143,6 +143,40 @@ fn every_stage_of_reconstruct_and_regularize_runs_on_the_gpu() {
         );
         assert!(g == c, "{mesh}: the GPU map differs from the CPU map");
     }
+    // LiDAR through a paged map: the scans fuse into the GPU-resident blocks (their walk is
+    // the CPU's, equal on lavapipe), so the maps' meshes are the same bytes.
+    for (dev, map, out_dir) in [("gpu", "ml_gpu", "ol_gpu"), ("cpu", "ml_cpu", "ol_cpu")] {
+        let mut args = vec![
+            "reconstruct",
+            seq,
+            "--depth",
+            "lidar",
+            "--map",
+            map,
+            "--out",
+            out_dir,
+        ];
+        args.extend(common);
+        args.extend([
+            "--device",
+            dev,
+            "--memory-budget",
+            "64MiB",
+            "--chunk-blocks",
+            "8",
+        ]);
+        let out = ok(&args, d);
+        if dev == "gpu" {
+            assert!(out.contains("GPU traffic per LiDAR scan"), "{out}");
+        }
+    }
+    for mesh in ["mesh_raw.ply", "mesh_regularized.ply"] {
+        let (g, c) = (
+            std::fs::read(d.join("ol_gpu").join(mesh)).expect("gpu mesh"),
+            std::fs::read(d.join("ol_cpu").join(mesh)).expect("cpu mesh"),
+        );
+        assert!(g == c, "{mesh}: the GPU's LiDAR map differs from the CPU's");
+    }
     // Offline re-regularization of the stored map on the GPU.
     let out = ok(
         &[

@@ -577,7 +577,10 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
     // A pool between the largest scan and the whole map: blocks spill to RAM and come back.
     let largest = touched.iter().map(|t| t.len()).max().unwrap_or(0) as u64;
     let all = per_call.block_count() as u64;
-    assert!(all > largest + 1000, "{all} blocks, the largest scan {largest}");
+    assert!(
+        all > largest + 1000,
+        "{all} blocks, the largest scan {largest}"
+    );
     let tight = ResidentOptions {
         initial_blocks: 64,
         max_bytes: (largest + all) / 2 * SLOT_BYTES,
