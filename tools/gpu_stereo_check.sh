@@ -3,9 +3,9 @@
 # synthetic drive's stereo pairs matched by `reconstruct --depth stereo` with SGM and with
 # TGV-tensor, `--device gpu` and `--device cpu` in alternating rounds (the summary's "stereo on
 # DEVICE: X ms per frame", reading and matching; fusion's own line beside it), then one pair of
-# each method with `stereo --kernel-times` (each kernel's device time); then a 60 m LiDAR map
-# exported with its chunks meshed on the GPU and on the CPU (`export --device`). One log
-# (docs/bench/gpu.md quotes it).
+# each method with `stereo --kernel-times` (each kernel's device time); then a 60 m LiDAR drive
+# fused on either device (rounds), and its map exported with the chunks meshed on the GPU and on
+# the CPU (`export --device`). One log (docs/bench/gpu.md quotes it).
 #
 #   tools/gpu_stereo_check.sh DENSER OUT_DIR [ROUNDS] [FRAMES]
 #
@@ -48,8 +48,16 @@ for method in sgm tgv-tensor; do
     if cmp -s "$work/x.pfm" "$work/y.pfm"; then say "$method: GPU and CPU disparities identical"
     else say "$method: GPU and CPU disparities differ"; fi
 done
-say "### export: a 60 m LiDAR map's raw mesh, chunks meshed with --device gpu and cpu"
 "$d" synth --out "$work/lidar" --length-m 60 --lidar-only --seed 3 >/dev/null 2>&1 || say "synth failed"
+for round in $(seq 1 "$rounds"); do
+    for dev in gpu cpu; do
+        say "### round $round: the 60 m LiDAR drive's fusion on $dev"
+        "$d" reconstruct "$work/lidar/sequences/00" --depth lidar --device "$dev" --skip-regularize \
+            --no-eval --out "$work/r3" 2>&1 | grep -E "^(fused|GPU traffic per LiDAR|GPU tier)" |
+            tee -a "$log"
+    done
+done
+say "### export: the 60 m LiDAR map's raw mesh, chunks meshed with --device gpu and cpu"
 "$d" reconstruct "$work/lidar/sequences/00" --depth lidar --map "$work/map" --skip-regularize \
     --no-eval --out "$work/r2" >/dev/null 2>&1 || say "mapping failed"
 for round in $(seq 1 "$rounds"); do
