@@ -441,21 +441,29 @@ impl Backend {
         params: &DepthFusionParams,
         plan: &DepthPlan,
     ) -> Result<(TouchedBlocks, FusionStats)> {
-        let Some(ctx) = self.gpu.as_ref().filter(|_| self.stages.fusion) else {
+        let Some(ctx) = self.gpu.clone().filter(|_| self.stages.fusion) else {
             return Ok(integrate_depth_plan(layer, frame, params, plan));
         };
-        if self.resident.is_none() {
-            self.resident = Some(ResidentMap::new(
-                ctx.clone(),
-                layer.params(),
-                self.resident_options,
-            )?);
-        }
-        let resident = self.resident.as_mut().expect("just created");
+        let options = self.resident_options;
+        let resident = Self::resident_map(&mut self.resident, options, &ctx, layer)?;
         let t = &mut self.traffic;
-        counted(Some(ctx), &mut t.depth, &mut t.depth_frames, || {
+        counted(Some(&ctx), &mut t.depth, &mut t.depth_frames, || {
             integrate_depth_resident(resident, layer, frame, params, plan)
         })
+    }
+
+    /// The GPU-resident blocks over `layer` in `resident`, opened on `ctx` with `options` by
+    /// the first frame or scan fused there.
+    fn resident_map<'a>(
+        resident: &'a mut Option<ResidentMap>,
+        options: ResidentOptions,
+        ctx: &Arc<GpuContext>,
+        layer: &Layer,
+    ) -> Result<&'a mut ResidentMap> {
+        if resident.is_none() {
+            *resident = Some(ResidentMap::new(ctx.clone(), layer.params(), options)?);
+        }
+        Ok(resident.as_mut().expect("just opened"))
     }
 
     /// Fuses one LiDAR scan planned by `plan` into `layer` (on a GPU, into the blocks resident
@@ -465,19 +473,13 @@ impl Backend {
         layer: &mut Layer,
         plan: &LidarPlan,
     ) -> Result<(TouchedBlocks, FusionStats)> {
-        let Some(ctx) = self.gpu.as_ref().filter(|_| self.stages.fusion) else {
+        let Some(ctx) = self.gpu.clone().filter(|_| self.stages.fusion) else {
             return Ok(integrate_lidar_plan(layer, plan));
         };
-        if self.resident.is_none() {
-            self.resident = Some(ResidentMap::new(
-                ctx.clone(),
-                layer.params(),
-                self.resident_options,
-            )?);
-        }
-        let resident = self.resident.as_mut().expect("just created");
+        let options = self.resident_options;
+        let resident = Self::resident_map(&mut self.resident, options, &ctx, layer)?;
         let t = &mut self.traffic;
-        counted(Some(ctx), &mut t.lidar, &mut t.lidar_scans, || {
+        counted(Some(&ctx), &mut t.lidar, &mut t.lidar_scans, || {
             integrate_lidar_resident(resident, layer, plan)
         })
     }

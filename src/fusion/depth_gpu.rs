@@ -17,6 +17,7 @@
 use super::depth::{usable, DepthFusionParams, DepthPlan};
 use super::FusionStats;
 use crate::frame::DepthFrame;
+use crate::gpu::kept::Kept;
 use crate::gpu::layout::PIXEL_VALID;
 use crate::gpu::layout::{
     apply_updated, pack_block_into, pack_rgb, FuseUniforms, GpuVoxel, LookupUniforms,
@@ -264,29 +265,40 @@ fn run_resident(
     encoder.clear_buffer(&buf_updated, 0, Some((n * 4).next_multiple_of(4)));
     ctx.record_dispatch(&mut encoder, &lookup, &bind_lookup, n)?;
     ctx.record_dispatch(&mut encoder, &fuse, &bind_fuse, voxel_count)?;
-    let mut counters = [0u32; 2];
-    let mut flags: Vec<u32> = bytemuck::zeroed_vec(n as usize);
     let inputs_s = t.elapsed().as_secs_f64();
+    let buffers = (&buf_counters, &buf_updated);
+    let (flags, updates) = submit_resident_frame((ctx, kept), encoder, buffers, n as usize)?;
+    scope.pop("running the resident fusion kernel")?;
+    Ok((flags, updates, inputs_s))
+}
+
+/// Submits a resident frame's `encoder` (its lookup and fusion, which count voxel updates in
+/// `counters[0]` and listed blocks the table could not resolve in `counters[1]`, and set
+/// `updated[k]` for each of the `n` listed blocks they change) and reads both back in the same
+/// submit and one wait. Returns the flags and the voxel updates; an unresolved block is an error.
+pub(super) fn submit_resident_frame(
+    (ctx, kept): (&GpuContext, &mut Kept),
+    encoder: wgpu::CommandEncoder,
+    (counters, updated): (&wgpu::Buffer, &wgpu::Buffer),
+    n: usize,
+) -> Result<(Vec<bool>, usize)> {
+    let mut counts = [0u32; 2];
+    let mut flags: Vec<u32> = bytemuck::zeroed_vec(n);
     ctx.submit_and_read_back(
         encoder,
         kept,
         &mut [
-            (&buf_counters, bytemuck::cast_slice_mut(&mut counters)),
-            (&buf_updated, bytemuck::cast_slice_mut(&mut flags)),
+            (counters, bytemuck::cast_slice_mut(&mut counts)),
+            (updated, bytemuck::cast_slice_mut(&mut flags)),
         ],
     )?;
-    scope.pop("running the resident fusion kernel")?;
-    if counters[1] != 0 {
+    if counts[1] != 0 {
         return Err(Error::Gpu(format!(
-            "the GPU hash table could not resolve {} of {} resident blocks",
-            counters[1], n
+            "the GPU hash table could not resolve {} of {n} resident blocks",
+            counts[1]
         )));
     }
-    Ok((
-        flags.iter().map(|&f| f != 0).collect(),
-        counters[0] as usize,
-        inputs_s,
-    ))
+    Ok((flags.iter().map(|&f| f != 0).collect(), counts[0] as usize))
 }
 
 /// The frame's fusion uniforms (with `voxel_count` 0: set per dispatch), from the plan's

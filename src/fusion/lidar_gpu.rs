@@ -30,7 +30,7 @@
 use crate::fusion::{band_m, FusionStats, LidarPlan};
 use crate::gpu::layout::{apply_updated, pack_block_into, GpuLidarRay, GpuVoxel, LidarUniforms};
 use crate::gpu::shaders;
-use crate::gpu::{ErrorScopes, GpuContext};
+use crate::gpu::{ErrorScopes, GpuContext, Kernel};
 use crate::grid::{
     floor_i64, linear_index, Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK,
     VOXELS_PER_SIDE,
@@ -213,6 +213,37 @@ pub(super) fn upload_rays(
     Ok((buf_rays, (LOOP_BUDGET / (longest_walk + 1)).max(1)))
 }
 
+/// Records the passes of the LiDAR `kernel` over blocks listed by decreasing ray count (`counts`,
+/// the dispatch order's): each pass applies at most `rays_per_pass` rays of every block that
+/// still has rays (a prefix of the list), with its own uniforms, bound by `bind(uniforms)`.
+/// Passes run in order (wgpu orders dispatches that write the same buffer), so each block's rays
+/// are applied in scan order.
+pub(super) fn record_passes(
+    (ctx, encoder): (&GpuContext, &mut wgpu::CommandEncoder),
+    (kernel, bind): (&Kernel, impl Fn(&wgpu::Buffer) -> wgpu::BindGroup),
+    grid: &GridParams,
+    (counts, rays_per_pass): (&[u32], u32),
+) -> Result<()> {
+    let mut first_ray = 0u32;
+    loop {
+        let active = counts.partition_point(|&c| c > first_ray);
+        if active == 0 {
+            return Ok(());
+        }
+        let uniforms = LidarUniforms {
+            block_count: active as u32,
+            truncation_m: grid.truncation_m,
+            voxel_size_m: grid.voxel_size_m,
+            first_ray,
+            max_rays: rays_per_pass,
+            pad: [0; 3],
+        };
+        let buf_uniforms = ctx.uniform("lidar_uniforms", bytemuck::bytes_of(&uniforms));
+        ctx.record_dispatch(encoder, kernel, &bind(&buf_uniforms), active as u64)?;
+        first_ray += rays_per_pass;
+    }
+}
+
 /// The listed blocks (indices into `groups`) by decreasing ray count, and each one's first ray
 /// in that order (one more offset at the end: the total). Invocations that run in lockstep
 /// (SIMD lanes, warps) then have similar work, and the blocks with rays left for a pass are a
@@ -339,37 +370,19 @@ fn fuse_blocks(
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("fuse_lidar"),
             });
-        // Passes in order (wgpu orders dispatches that write the same buffer), each over the
-        // blocks that still have rays.
-        let mut first_ray = 0u32;
-        loop {
-            let active = order.partition_point(|&b| count(b) as u32 > first_ray);
-            if active == 0 {
-                break;
-            }
-            let uniforms = LidarUniforms {
-                block_count: active as u32,
-                truncation_m: grid.truncation_m,
-                voxel_size_m: grid.voxel_size_m,
-                first_ray,
-                max_rays: rays_per_pass,
-                pad: [0; 3],
-            };
-            let buf_uniforms = ctx.uniform("lidar_uniforms", bytemuck::bytes_of(&uniforms));
-            let bind = ctx.bind_group(
-                "fuse_lidar",
-                &kernel.layout,
-                &[
-                    &buf_uniforms,
-                    &buf_offsets,
-                    &buf_rays,
-                    &buf_voxels,
-                    &buf_counters,
-                ],
-            );
-            ctx.record_dispatch(&mut encoder, &kernel, &bind, active as u64)?;
-            first_ray += rays_per_pass;
-        }
+        let counts: Vec<u32> = order.iter().map(|&b| count(b) as u32).collect();
+        let bind = |uniforms: &wgpu::Buffer| {
+            let buffers = [
+                uniforms,
+                &buf_offsets,
+                &buf_rays,
+                &buf_voxels,
+                &buf_counters,
+            ];
+            ctx.bind_group("fuse_lidar", &kernel.layout, &buffers)
+        };
+        let passes = (&counts[..], rays_per_pass);
+        record_passes((ctx, &mut encoder), (&kernel, bind), grid, passes)?;
         ctx.submit(encoder);
         scope.pop("running the LiDAR fusion kernel")?;
         let (voxels, counted) =

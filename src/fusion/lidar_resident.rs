@@ -10,9 +10,10 @@
 //! values, in the same order per block), so it keeps its relation to the CPU's walk
 //! (`tests/gpu/lidar.rs`).
 
-use super::lidar_gpu::{dispatch_order, upload_rays, RAY_BYTES};
+use super::depth_gpu::submit_resident_frame;
+use super::lidar_gpu::{dispatch_order, record_passes, upload_rays, RAY_BYTES};
 use super::{integrate_lidar_gpu, FusionStats, LidarPlan};
-use crate::gpu::layout::{LidarUniforms, LookupUniforms};
+use crate::gpu::layout::LookupUniforms;
 use crate::gpu::resident::ResidentMap;
 use crate::gpu::{shaders, ErrorScopes};
 use crate::grid::{BlockIndex, Layer, TouchedBlocks};
@@ -126,62 +127,29 @@ fn run_resident(
     encoder.clear_buffer(&buf_counters, 0, Some(16));
     encoder.clear_buffer(&buf_updated, 0, Some(n as u64 * 4));
     ctx.record_dispatch(&mut encoder, &lookup, &bind_lookup, n as u64)?;
-    // Passes in order (wgpu orders dispatches that write the same buffer), each over the blocks
-    // that still have rays; each pass its own uniforms (all are recorded before the submit).
-    let count = |b: usize| groups[b].1.len() as u32;
-    let mut first_ray = 0u32;
-    loop {
-        let active = order.partition_point(|&b| count(b) > first_ray);
-        if active == 0 {
-            break;
-        }
-        let uniforms = LidarUniforms {
-            block_count: active as u32,
-            truncation_m: grid.truncation_m,
-            voxel_size_m: grid.voxel_size_m,
-            first_ray,
-            max_rays: rays_per_pass,
-            pad: [0; 3],
-        };
-        let buf_uniforms = ctx.uniform("lidar_uniforms", bytemuck::bytes_of(&uniforms));
-        let bind = ctx.bind_group(
-            "fuse_lidar_resident",
-            &fuse.layout,
-            &[
-                &buf_uniforms,
-                &buf_offsets,
-                &buf_rays,
-                pool,
-                &buf_counters,
-                &buf_slots,
-                &buf_updated,
-            ],
-        );
-        ctx.record_dispatch(&mut encoder, &fuse, &bind, active as u64)?;
-        first_ray += rays_per_pass;
-    }
+    let counts: Vec<u32> = order.iter().map(|&b| groups[b].1.len() as u32).collect();
+    let bind = |uniforms: &wgpu::Buffer| {
+        let buffers = [
+            uniforms,
+            &buf_offsets,
+            &buf_rays,
+            pool,
+            &buf_counters,
+            &buf_slots,
+            &buf_updated,
+        ];
+        ctx.bind_group("fuse_lidar_resident", &fuse.layout, &buffers)
+    };
+    let passes = (&counts[..], rays_per_pass);
+    record_passes((ctx, &mut encoder), (&fuse, bind), &grid, passes)?;
     let inputs_s = t.elapsed().as_secs_f64();
-    let mut counters = [0u32; 2];
-    let mut flags = vec![0u32; n];
-    ctx.submit_and_read_back(
-        encoder,
-        kept,
-        &mut [
-            (&buf_counters, bytemuck::cast_slice_mut(&mut counters)),
-            (&buf_updated, bytemuck::cast_slice_mut(&mut flags)),
-        ],
-    )?;
+    let buffers = (&buf_counters, &buf_updated);
+    let (flags, updates) = submit_resident_frame((ctx, kept), encoder, buffers, n)?;
     scope.pop("running the resident LiDAR fusion kernel")?;
-    if counters[1] != 0 {
-        return Err(Error::Gpu(format!(
-            "the GPU hash table could not resolve {} of {} resident blocks",
-            counters[1], n
-        )));
-    }
     // The flags come in dispatch order; the caller lists blocks in `groups` order.
     let mut updated = vec![false; n];
     for (k, &b) in order.iter().enumerate() {
-        updated[b] = flags[k] != 0;
+        updated[b] = flags[k];
     }
-    Ok((updated, counters[0] as usize, inputs_s))
+    Ok((updated, updates, inputs_s))
 }
