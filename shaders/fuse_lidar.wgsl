@@ -35,14 +35,7 @@ fn main(
     if (b >= params.block_count) {
         return;
     }
-    // At most max_rays rays per pass, so that an invocation stays under llvmpipe's cap of
-    // 65 535 loop iterations (the host chooses max_rays from the longest walk).
-    var n = 0u;
-    let first = ray_offsets[b] + params.first_ray;
-    let end = min(ray_offsets[b + 1u], first + params.max_rays);
-    for (var k = first; k < end; k = k + 1u) {
-        n = n + apply_ray(b, rays[k]);
-    }
+    let n = apply_pass(b);
     if (n > 0u) {
         atomicAdd(&counters[0], n);
     }

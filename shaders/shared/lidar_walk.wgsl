@@ -1,7 +1,8 @@
 // Shared by fuse_lidar.wgsl (blocks uploaded per call) and fuse_lidar_resident.wgsl (blocks
 // resident in the GPU pool): the uniforms, the (block, ray) pair and the walk of one ray through
 // one listed block (CPU twin: `walk_block_ray` in src/fusion/lidar_gpu.rs). Each kernel declares
-// `voxels` (binding 3) and `voxel_base(b)`, the index of listed block b's first voxel there.
+// `ray_offsets` and `rays` (bindings 1 and 2), `voxels` (binding 3) and `voxel_base(b)`, the
+// index of listed block b's first voxel there.
 // Keep in sync with `LidarUniforms`, `GpuLidarRay` and `GpuVoxel` in src/gpu/layout.rs.
 
 struct LidarUniforms {
@@ -108,3 +109,16 @@ fn apply_ray(b: u32, ray: LidarRay) -> u32 {
     return n;
 }
 
+
+// Applies this pass's rays of listed block b in scan order; returns the number of updates. At
+// most max_rays rays per pass, so that an invocation stays under llvmpipe's cap of 65 535 loop
+// iterations (the host chooses max_rays from the longest walk).
+fn apply_pass(b: u32) -> u32 {
+    var n = 0u;
+    let first = ray_offsets[b] + params.first_ray;
+    let end = min(ray_offsets[b + 1u], first + params.max_rays);
+    for (var k = first; k < end; k = k + 1u) {
+        n = n + apply_ray(b, rays[k]);
+    }
+    return n;
+}
