@@ -25,7 +25,7 @@ use denser::outofcore::regional::check_budget_up_front;
 use denser::outofcore::PagedStore;
 use denser::reconstruct::{ReconstructionConfig, Reconstructor};
 use denser::store::{BlockStore, MemoryStore};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 mod report;
 pub(crate) use report::{RegularizeLine, Report};
@@ -182,6 +182,19 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
                 a.how.poses.clone().filter(|_| kind == InputKind::Kitti),
                 range,
             )),
+            // A KITTI layout fused from its images or depth maps, with no scans to score
+            // against (a drive made with `synth --no-lidar`): nothing to evaluate, said once,
+            // rather than an error after the whole run.
+            (None, InputKind::Kitti)
+                if !matches!(a.depth, DepthArg::Lidar) && !has_scans(&a.input.join("velodyne")) =>
+            {
+                tracing::info!(
+                    "not evaluating: {} holds no LiDAR scan to score against (--gt FILE gives a \
+                     ground truth)",
+                    a.input.join("velodyne").display()
+                );
+                None
+            }
             (None, kind)
                 if kind == InputKind::Kitti
                     || (kind.lidar_or_stereo() && matches!(a.depth, DepthArg::Lidar)) =>
@@ -245,6 +258,17 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
 /// The frames `--holdout k` leaves out of `range`: every k-th selected frame, the first at
 /// position k − 1 (the fusion keeps the others).
 /// The input's own LiDAR scans of `frames` as ground truth.
+/// Whether `dir` holds a KITTI scan file (`*.bin`).
+fn has_scans(dir: &Path) -> bool {
+    std::fs::read_dir(dir).is_ok_and(|entries| {
+        entries.flatten().any(|e| {
+            e.path()
+                .extension()
+                .is_some_and(|x| x.eq_ignore_ascii_case("bin"))
+        })
+    })
+}
+
 fn scans_of_input(a: &Args, kind: InputKind, frames: FrameRange) -> GroundTruth {
     if kind == InputKind::Kitti {
         GroundTruth::KittiLidar {

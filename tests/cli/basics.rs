@@ -520,3 +520,47 @@ fn stereo_on_a_lidar_only_drive_says_what_to_use_and_each_cause_once() {
         "{err}"
     );
 }
+
+#[test]
+fn a_drive_without_lidar_is_reconstructed_and_not_evaluated() {
+    // A KITTI layout with no scans (`synth --no-lidar`) fused from its depth maps: nothing to
+    // score against, said once, and the run succeeds with its meshes (it failed at the
+    // evaluation, after the whole run).
+    let dir = tempfile::tempdir().expect("tempdir");
+    let d = dir.path();
+    let synth = [
+        "synth",
+        "--out",
+        "drive",
+        "--length-m",
+        "8",
+        "--frame-spacing-m",
+        "4",
+        "--no-lidar",
+    ];
+    let o = denser(&synth, d);
+    assert!(o.status.success(), "{}", text(&o));
+    let seq = "drive/sequences/00";
+    let run = [
+        "reconstruct",
+        seq,
+        "--depth",
+        "gt",
+        "--voxel-size",
+        "0.2",
+        "--out",
+        "o",
+    ];
+    let o = denser(&run, d);
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(
+        t.contains("not evaluating") && t.contains("velodyne"),
+        "{t}"
+    );
+    assert!(d.join("o/mesh_regularized.ply").is_file(), "{t}");
+    assert!(
+        !d.join("o/report.md").exists(),
+        "no evaluation, no report: {t}"
+    );
+}
