@@ -79,7 +79,7 @@ pub struct StageTraffic {
 /// Which stages a backend with a GPU runs there (the others run on the CPU).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct GpuStages {
-    /// Depth and LiDAR fusion (with the depth blocks resident on the GPU).
+    /// Depth and LiDAR fusion (with their blocks resident on the GPU).
     pub fusion: bool,
     /// TV regularization.
     pub tv: bool,
@@ -322,7 +322,7 @@ impl Backend {
         }
     }
 
-    /// Every stage that has a kernel on `ctx`; depth blocks stay resident within `options`.
+    /// Every stage that has a kernel on `ctx`; fusion's blocks stay resident within `options`.
     pub fn gpu(ctx: Arc<GpuContext>, options: ResidentOptions) -> Self {
         Backend::gpu_for(ctx, options, GpuStages::ALL)
     }

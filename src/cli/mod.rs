@@ -325,8 +325,9 @@ pub(crate) struct DeviceArgs {
 /// The GPU block pool of the commands that fuse (`reconstruct`, `demo`).
 #[derive(Args, Clone, Copy, Debug)]
 pub(crate) struct GpuPoolArgs {
-    /// Largest GPU block pool (4 KiB per block; bounded by the device's largest buffer). Depth
-    /// blocks stay on the GPU between frames; beyond this they spill to RAM.
+    /// Largest GPU block pool (4 KiB per block; bounded by the device's largest buffer). Fused
+    /// blocks (depth frames' and LiDAR scans') stay on the GPU between frames; beyond this they
+    /// spill to RAM.
     #[arg(long, default_value = "2GiB", value_parser = parse_bytes, help_heading = "Device")]
     pub gpu_memory_budget: u64,
 }
