@@ -7,7 +7,8 @@ struct TgvUniforms {
     height: u32,
     // 1 for TV (v ≡ 0, no q), 0 for TGV.
     tv: u32,
-    pad0: u32,
+    // 1: tgv_init.wgsl also writes identity tensors (read by no other kernel).
+    identity_tensors: u32,
     sigma: f32,
     tau: f32,
     alpha1: f32,
@@ -20,8 +21,8 @@ struct TgvUniforms {
 }
 
 @group(0) @binding(0) var<uniform> params: TgvUniforms;
-// Diffusion tensor [t11, t12, t22] per pixel.
-@group(0) @binding(1) var<storage, read> tensors: array<f32>;
+// Diffusion tensor [t11, t12, t22] per pixel (written only by tgv_init.wgsl, for identities).
+@group(0) @binding(1) var<storage, read_write> tensors: array<f32>;
 // Coupling target a per pixel, pixels.
 @group(0) @binding(2) var<storage, read> coupling_target: array<f32>;
 // Primal [u, v1, v2] per pixel.

@@ -82,6 +82,8 @@ pub struct TgvProblemGpu<'c> {
 
 /// Where a GPU problem's diffusion tensors come from.
 enum Tensors<'a> {
+    /// Identities (TV and TGV), written on the device by `shaders/tgv_init.wgsl`.
+    Identity,
     /// Uploaded, `[t11, t12, t22]` per pixel.
     Host(&'a [Tensor]),
     /// Made on the device from the left image's grey levels in this buffer (4 per word), with
@@ -187,11 +189,13 @@ impl<'c> TgvProblemGpu<'c> {
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("tgv_state"),
             });
-        let (kernel, bind) = gpu.prepare(&shaders::TGV_INIT, 1.0)?;
+        let identity = matches!(tensors, Tensors::Identity);
+        let (kernel, bind) = gpu.prepare_init(&shaders::TGV_INIT, 1.0, identity)?;
         if n > 0 {
             ctx.record_dispatch(&mut encoder, &kernel, &bind, n)?;
         }
         match tensors {
+            Tensors::Identity => {}
             Tensors::Host(t) => {
                 gpu.kept
                     .storage_with(ctx, "tgv_tensors", bytemuck::cast_slice(t));
@@ -261,13 +265,24 @@ impl<'c> TgvProblemGpu<'c> {
         kernel: &'static shaders::ShaderSource,
         theta: f32,
     ) -> Result<(std::sync::Arc<Kernel>, wgpu::BindGroup)> {
+        self.prepare_init(kernel, theta, false)
+    }
+
+    /// [`TgvProblemGpu::prepare`], with `tgv_init.wgsl` writing identity tensors when
+    /// `identity_tensors`.
+    fn prepare_init(
+        &mut self,
+        kernel: &'static shaders::ShaderSource,
+        theta: f32,
+        identity_tensors: bool,
+    ) -> Result<(std::sync::Arc<Kernel>, wgpu::BindGroup)> {
         let ctx = self.ctx;
         let compiled = ctx.kernel(kernel)?;
         let uniforms = TgvUniforms {
             width: self.width as u32,
             height: self.height as u32,
             tv: (self.regularizer == Regularizer::Tv) as u32,
-            pad0: 0,
+            identity_tensors: identity_tensors as u32,
             sigma: self.sigma,
             tau: self.tau,
             alpha1: self.alpha1,
@@ -484,10 +499,7 @@ fn refine_on_device<'c>(
             host_tensors = diffusion_tensors(left, p.gamma, p.beta);
             Tensors::Host(&host_tensors)
         }
-        _ => {
-            host_tensors = vec![[1.0, 0.0, 1.0]; w * h];
-            Tensors::Host(&host_tensors)
-        }
+        _ => Tensors::Identity,
     };
     let setup = (p.regularizer, p.alpha1, p.alpha2);
     let mut gpu = TgvProblemGpu::fresh_in(ctx, kept, (&u0, w, h), setup, tensors)?;

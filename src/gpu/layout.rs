@@ -151,8 +151,8 @@ pub struct TgvUniforms {
     pub height: u32,
     /// 1 for TV (`v ≡ 0`, no `q`), 0 for TGV.
     pub tv: u32,
-    /// Padding.
-    pub pad0: u32,
+    /// 1: `tgv_init.wgsl` also writes identity tensors (read by no other kernel).
+    pub identity_tensors: u32,
     /// Dual step σ.
     pub sigma: f32,
     /// Primal step τ.

@@ -152,21 +152,21 @@ pub const FUSE_LIDAR_RESIDENT: ShaderSource = kernel!(
 pub const TGV_DUAL: ShaderSource = kernel!(
     "tgv_dual.wgsl",
     ["shared/dispatch.wgsl", "shared/tgv_common.wgsl"],
-    [Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite]
+    [Uniform, ReadWrite, Read, ReadWrite, ReadWrite, ReadWrite]
 );
 
 /// A fresh TGV problem's state from its initial disparity, on the device.
 pub const TGV_INIT: ShaderSource = kernel!(
     "tgv_init.wgsl",
     ["shared/dispatch.wgsl", "shared/tgv_common.wgsl"],
-    [Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite]
+    [Uniform, ReadWrite, Read, ReadWrite, ReadWrite, ReadWrite]
 );
 
 /// TGV stereo primal step (`u` with the coupling, `v`) and over-relaxation.
 pub const TGV_PRIMAL: ShaderSource = kernel!(
     "tgv_primal.wgsl",
     ["shared/dispatch.wgsl", "shared/tgv_common.wgsl"],
-    [Uniform, Read, Read, ReadWrite, ReadWrite, ReadWrite]
+    [Uniform, ReadWrite, Read, ReadWrite, ReadWrite, ReadWrite]
 );
 
 /// Point-wise search of the stereo decoupling.

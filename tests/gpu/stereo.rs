@@ -537,54 +537,65 @@ fn pairs_volume((_, left, right, nd): &(&str, GreyImage, GreyImage, usize)) -> C
 
 #[test]
 fn the_gpu_matcher_sends_no_costs_up_and_reads_back_no_volume() {
-    // TGV-tensor on the GPU: the cost volume is made on the device, aggregated along SGM's
-    // paths there (the winners selected there), summed over its window there, and each pixel's
-    // cost at its final disparity is gathered there for the invalidation. What goes up is the
-    // two images and the initial disparity; what comes down is SGM's selection and the
-    // disparities with their costs, never the costs of every disparity. After the first pair,
-    // a pair creates no buffer and no bind group.
+    // The variational matchers on the GPU: the cost volume is made on the device, aggregated
+    // along SGM's paths there (the winners selected there), summed over its window there, and
+    // each pixel's cost at its final disparity is gathered there for the invalidation. What
+    // goes up is the two images and the initial disparity; what comes down is SGM's selection
+    // and the disparities with their costs, never the costs of every disparity. After the
+    // first pair, a pair creates no buffer and no bind group.
     let Some(ctx) = gpu() else { return };
     let ctx = std::sync::Arc::new(ctx);
     let (left, right, _) = generated_pair();
     let nd = 48;
-    let m = TgvMatcher::new(TgvParams {
-        sgm: sgm_params(nd),
-        ..TgvParams::default()
-    })
-    .unwrap();
-    let matcher = TgvMatcherGpu::new(ctx.clone(), m.clone());
-    let first = matcher.estimate(&left, &right).expect("GPU");
-    let before = ctx.traffic();
-    let second = matcher.estimate(&left, &right).expect("GPU");
-    let t = ctx.traffic().since(before);
-    let pixels = (left.width * left.height) as u64;
-    let entries = pixels * nd as u64;
-    eprintln!("{pixels} pixels, {entries} cost entries, a later pair: {t:?}");
-    // Images (1 byte per pixel each) and the initial disparity (4), plus uniforms: the
-    // tensors are computed from the left image, the primal, its over-relaxation and the dual
-    // made from the disparity on the device. Before, the primal went up whole (12 bytes per
-    // pixel) and the coupling target as zeros (4), and before that the window sums and counts
-    // (2 bytes per entry and 4 per pixel).
-    assert!(t.upload_bytes <= 6 * pixels + (64 << 10), "{t:?}");
-    // Down: SGM's selection (16 bytes per pixel; its sums stay on the device), then each
-    // pixel's disparity and cost (5). Before, the cost volume came down too (1 byte per entry,
-    // 48 per pixel here) for the CPU's invalidation, and the whole primal (12 per pixel).
-    assert!(t.readback_bytes <= 21 * pixels + (64 << 10), "{t:?}");
-    // One wait for SGM, one for the gathered disparities (before: three, the volume's first).
-    assert_eq!(t.waits, 2, "{t:?}");
-    assert_eq!((t.buffers_created, t.bind_groups_created), (0, 0), "{t:?}");
-    // Kept buffers change nothing: both pairs give the one-shot matcher's map, bit for bit.
-    let once = estimate_tgv_gpu(&ctx, &m, &left, &right)
-        .expect("GPU")
-        .result;
-    let bits = |d: &DisparityMap| {
-        d.disparity_px
-            .data
-            .iter()
-            .map(|v| v.to_bits())
-            .collect::<Vec<_>>()
-    };
-    assert!(bits(&first) == bits(&once) && bits(&second) == bits(&once));
+    for regularizer in [Regularizer::TgvTensor, Regularizer::Tgv, Regularizer::Tv] {
+        let m = TgvMatcher::new(TgvParams {
+            regularizer,
+            sgm: sgm_params(nd),
+            ..TgvParams::default()
+        })
+        .unwrap();
+        let matcher = TgvMatcherGpu::new(ctx.clone(), m.clone());
+        let first = matcher.estimate(&left, &right).expect("GPU");
+        let before = ctx.traffic();
+        let second = matcher.estimate(&left, &right).expect("GPU");
+        let t = ctx.traffic().since(before);
+        let pixels = (left.width * left.height) as u64;
+        let entries = pixels * nd as u64;
+        eprintln!("{regularizer:?}: {pixels} pixels, {entries} cost entries, a later pair: {t:?}");
+        // Images (1 byte per pixel each) and the initial disparity (4), plus uniforms: the
+        // tensors are computed from the left image (TGV-tensor) or written as identities (TV,
+        // TGV), the primal, its over-relaxation and the dual made from the disparity on the
+        // device. Before, the primal went up whole (12 bytes per pixel), the coupling target as
+        // zeros (4), the identity tensors (12), and before that the window sums and counts (2
+        // bytes per entry and 4 per pixel).
+        assert!(
+            t.upload_bytes <= 6 * pixels + (64 << 10),
+            "{regularizer:?}: {t:?}"
+        );
+        // Down: SGM's selection (16 bytes per pixel; its sums stay on the device), then each
+        // pixel's disparity and cost (5). Before, the cost volume came down too (1 byte per
+        // entry, 48 per pixel here) for the CPU's invalidation, and the whole primal (12).
+        assert!(
+            t.readback_bytes <= 21 * pixels + (64 << 10),
+            "{regularizer:?}: {t:?}"
+        );
+        // One wait for SGM, one for the gathered disparities (before: three, the volume's
+        // first).
+        assert_eq!(t.waits, 2, "{regularizer:?}: {t:?}");
+        assert_eq!((t.buffers_created, t.bind_groups_created), (0, 0), "{t:?}");
+        // Kept buffers change nothing: both pairs give the one-shot matcher's map, bit for bit.
+        let once = estimate_tgv_gpu(&ctx, &m, &left, &right)
+            .expect("GPU")
+            .result;
+        let bits = |d: &DisparityMap| {
+            d.disparity_px
+                .data
+                .iter()
+                .map(|v| v.to_bits())
+                .collect::<Vec<_>>()
+        };
+        assert!(bits(&first) == bits(&once) && bits(&second) == bits(&once));
+    }
 }
 
 #[test]
