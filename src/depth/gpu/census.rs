@@ -157,9 +157,9 @@ pub fn census_transform_gpu(
 
 /// The census cost volume of a rectified pair on the GPU: census signatures of both images and
 /// their Hamming distances for disparities `[min_disparity_px, min_disparity_px +
-/// num_disparities)`, bit-identical to [`crate::depth::SgmMatcher::cost_volume`] (CPU: `census_transform` and
-/// `CostVolume::from_census`). Fails with [`Error::GpuCapacity`] when the volume (1 byte per
-/// pixel and disparity) does not fit one binding.
+/// num_disparities)`, bit-identical to [`crate::depth::SgmMatcher::cost_volume`] (CPU:
+/// `census_transform` and `CostVolume::from_census`). Fails with [`Error::GpuCapacity`] when the
+/// volume (1 byte per pixel and disparity) does not fit one binding.
 pub fn cost_volume_gpu(
     ctx: &GpuContext,
     left: &GreyImage,
