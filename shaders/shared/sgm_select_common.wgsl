@@ -14,7 +14,8 @@ struct SgmSelectUniforms {
     radius: u32,
     // Largest left–right difference, slices; NO_SLICE: no check.
     lr_max_diff: u32,
-    _pad0: u32,
+    // 1 − the uniqueness ratio (1: no uniqueness test), the host's f32.
+    uniqueness_factor: f32,
 }
 
 // "No slice" (the CPU's u16::MAX).

@@ -54,6 +54,8 @@ mod sgm;
 pub use sgm::{
     aggregate_paths_gpu, select_disparities_gpu, SgmMatcherGpu, GPU_SGM_MAX_DISPARITIES,
 };
+mod sgm_filters;
+pub use sgm_filters::{fill_from_background_gpu, filter_disparities_gpu};
 
 /// [`crate::depth::tgv::box_filtered_costs`] on the GPU (`shaders/cost_window.wgsl`): the
 /// costs of `volume` summed over `window` × `window` and each pixel's count, read back (the GPU
@@ -122,7 +124,8 @@ pub fn diffusion_tensors_gpu(
     let buf_image = ctx.storage("tensor_image", &image.data);
     let tensors = Tensors::Device(&buf_image, gamma, beta);
     let setup = (Regularizer::TgvTensor, 1.0, 1.0);
-    let gpu = TgvProblemGpu::fresh_in(ctx, Kept::default(), (&u0, w, h), setup, tensors)?;
+    let size = (Some(&u0[..]), w, h);
+    let gpu = TgvProblemGpu::fresh_in(ctx, Kept::default(), size, setup, tensors)?;
     ctx.read_back_as(&gpu.tensors, w * h)
 }
 
@@ -141,24 +144,38 @@ pub fn refine_gpu(
     matcher.params.validate()?;
     let raw = data_cost::upload_costs(ctx, volume, matcher.params.cost_window)?;
     let on_device = (volume.shape(), &raw);
+    let init = Init::Map(init);
     refine_on_device(ctx, Kept::default(), matcher, (left, None), on_device, init)?.u()
 }
 
+/// Where [`refine_on_device`] finds SGM's disparity.
+enum Init<'a> {
+    /// On the host: filled there ([`TgvMatcher::initial_disparity`]) and uploaded.
+    Map(&'a DisparityMap),
+    /// Already filled on the device, in the problem's target buffer
+    /// ([`TgvProblemGpu::target_in`]) of the `kept` handed over.
+    OnDevice,
+}
+
 /// [`refine_gpu`] over the raw costs `raw` already on the device (of a volume of shape
-/// `volume`), with TGV-tensor's tensors made there from `left_on_device` (the left image's
-/// buffer) when given, in the buffers of `kept`; returns the problem, still on the device.
+/// `volume`), from SGM's disparity `init`, with TGV-tensor's tensors made there from
+/// `left_on_device` (the left image's buffer) when given, in the buffers of `kept`; returns the
+/// problem, still on the device.
 fn refine_on_device<'c>(
     ctx: &'c GpuContext,
     kept: Kept,
     matcher: &TgvMatcher,
     (left, left_on_device): (&GreyImage, Option<&wgpu::Buffer>),
     (volume, raw): (VolumeShape, &wgpu::Buffer),
-    init: &DisparityMap,
+    init: Init,
 ) -> Result<TgvProblemGpu<'c>> {
     let p = &matcher.params;
     p.validate()?;
     let (w, h) = (volume.width as usize, volume.height as usize);
-    let u0 = matcher.initial_disparity(left, volume, init)?;
+    let u0 = match init {
+        Init::Map(init) => Some(matcher.initial_disparity(left, volume, init)?),
+        Init::OnDevice => None,
+    };
     // TGV-tensor's tensors are made on the device when the image is there: not on the CPU too.
     let host_tensors;
     let tensors = match (left_on_device, p.regularizer) {
@@ -170,7 +187,7 @@ fn refine_on_device<'c>(
         _ => Tensors::Identity,
     };
     let setup = (p.regularizer, p.alpha1, p.alpha2);
-    let mut gpu = TgvProblemGpu::fresh_in(ctx, kept, (&u0, w, h), setup, tensors)?;
+    let mut gpu = TgvProblemGpu::fresh_in(ctx, kept, (u0.as_deref(), w, h), setup, tensors)?;
     let data = DataCostGpu::on_device(ctx, &mut gpu.kept, volume, raw, p.cost_window)?;
     for k in 0..p.outer_iterations {
         let theta = p.theta(k);
@@ -209,14 +226,16 @@ pub fn costs_at_disparities_gpu(
     let problem = TgvProblem::new(dense, w, h, Regularizer::Tv, 1.0, 1.0, identity)?;
     let mut gpu = TgvProblemGpu::upload(ctx, &problem)?;
     let raw = data_cost::upload_costs(ctx, volume, 1)?;
-    gpu.disparities_and_costs((volume.shape(), &raw))
+    gpu.disparities_and_costs((volume.shape(), &raw), &mut [])
 }
 
-/// [`TgvMatcher::estimate_with_stages`] on the GPU: the census, the cost volume and SGM's
-/// aggregation and selection in one submit and one wait ([`SgmMatcherGpu`]'s), then the
-/// refinement ([`refine_gpu`]) over the volume where it was made, then each pixel's disparity
-/// and its cost gathered there for the invalidation. SGM's filters, the initial problem and the
-/// invalidation run on the CPU; neither the volume nor the TGV state comes back.
+/// [`TgvMatcher::estimate_with_stages`] on the GPU: the census, the cost volume, SGM (its
+/// aggregation, selection and filters) and the fill of the initial disparity in one submit
+/// ([`SgmMatcherGpu`]'s kernels), the refinement ([`refine_gpu`]) over the volume where it was
+/// made, then each pixel's disparity and its cost gathered there for the invalidation, read
+/// back with SGM's result in the pair's one wait. Only the two images go up; the initial
+/// problem (without TGV-tensor's tensors, made on the device) and the invalidation run on the
+/// CPU. Beyond [`GPU_SGM_MAX_DISPARITIES`], SGM runs on the CPU over the volume read back.
 pub fn estimate_tgv_gpu(
     ctx: &GpuContext,
     matcher: &TgvMatcher,
@@ -237,31 +256,55 @@ fn estimate_kept(
 ) -> Result<TgvStages> {
     let p = &matcher.params;
     p.validate()?;
-    let sgm = SgmMatcher::new(p.sgm)?;
     let census = (&p.sgm.census, p.sgm.min_disparity_px, p.sgm.num_disparities);
-    let (init, on_device) = if p.sgm.num_disparities <= GPU_SGM_MAX_DISPARITIES {
-        let scope = ErrorScopes::push(&ctx.device);
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sgm") });
-        let on_device = record_cost_volume(ctx, &mut encoder, kept, (left, right), census)?;
-        let init = sgm::sgm_recorded(ctx, encoder, &sgm, kept, &on_device)?;
-        scope.pop("recording the census cost kernels")?;
-        (init, on_device)
-    } else {
+    if p.sgm.num_disparities > GPU_SGM_MAX_DISPARITIES {
         // More disparities than the device's aggregation holds: SGM on the CPU over the volume
         // read back.
+        let sgm = SgmMatcher::new(p.sgm)?;
         let (volume, on_device) = cost_volume_on_device(ctx, left, right, census)?;
-        (sgm.estimate_from_volume(left, &volume)?, on_device)
-    };
-    let volume = (on_device.shape, &on_device.volume);
+        let init = sgm.estimate_from_volume(left, &volume)?;
+        let volume = (on_device.shape, &on_device.volume);
+        let left_on_device = (left, Some(&on_device.left));
+        let taken = std::mem::take(kept);
+        let mut gpu = refine_on_device(
+            ctx,
+            taken,
+            matcher,
+            left_on_device,
+            volume,
+            Init::Map(&init),
+        )?;
+        let gathered = gpu.disparities_and_costs(volume, &mut []);
+        *kept = gpu.into_kept();
+        let (dense, costs) = gathered?;
+        let result = matcher.invalidate_with(&dense, &init, &costs, on_device.shape);
+        return Ok(TgvStages {
+            sgm: init,
+            dense_px: dense,
+            result,
+        });
+    }
+    let scope = ErrorScopes::push(&ctx.device);
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sgm") });
+    let on_device = record_cost_volume(ctx, &mut encoder, kept, (left, right), census)?;
+    let sgm = sgm::sgm_on_device(ctx, &mut encoder, &p.sgm, kept, &on_device)?;
+    let shape = on_device.shape;
+    let target = TgvProblemGpu::target_in(ctx, kept, shape.width as usize * shape.height as usize);
+    let fallback = shape.min_disparity_px as f32;
+    sgm_filters::record_fill(ctx, &mut encoder, kept, &sgm, fallback, &target)?;
+    ctx.submit(encoder);
+    scope.pop("recording the census, cost and SGM kernels")?;
+    let volume = (shape, &on_device.volume);
     let left_on_device = (left, Some(&on_device.left));
     let taken = std::mem::take(kept);
-    let mut gpu = refine_on_device(ctx, taken, matcher, left_on_device, volume, &init)?;
-    let gathered = gpu.disparities_and_costs(volume);
+    let mut gpu = refine_on_device(ctx, taken, matcher, left_on_device, volume, Init::OnDevice)?;
+    // SGM's result comes back with the gathered disparities and costs, in the same wait.
+    let mut init = sgm_filters::empty_map(&sgm);
+    let gathered = gpu.disparities_and_costs(volume, &mut sgm_filters::targets(&sgm, &mut init));
     *kept = gpu.into_kept();
     let (dense, costs) = gathered?;
-    let shape = on_device.shape;
     let result = matcher.invalidate_with(&dense, &init, &costs, shape);
     Ok(TgvStages {
         sgm: init,

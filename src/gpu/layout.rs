@@ -391,7 +391,7 @@ pub struct SgmPathUniforms {
 /// Uniforms of `shaders/sgm_right.wgsl` and `shaders/sgm_select.wgsl` (WGSL twin:
 /// `SgmSelectUniforms` in `shaders/shared/sgm_select_common.wgsl`): SGM's winner selection.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct SgmSelectUniforms {
     /// Image width, pixels.
     pub width: u32,
@@ -407,8 +407,28 @@ pub struct SgmSelectUniforms {
     pub radius: u32,
     /// Largest left–right difference, slices; `0xffff`: no check.
     pub lr_max_diff: u32,
+    /// `1 − uniqueness_ratio` as the CPU computes it (f32); 1: no uniqueness test.
+    pub uniqueness_factor: f32,
+}
+
+/// Uniforms of SGM's post-filters and of the fill of TGV's initial disparity
+/// (`shaders/sgm_median.wgsl`, `sgm_speckle_*.wgsl`, `tgv_fill_*.wgsl`; WGSL twin:
+/// `SgmFilterUniforms` in `shaders/shared/sgm_filter_common.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct SgmFilterUniforms {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Speckle regions of at most this many pixels are removed.
+    pub max_size_px: u32,
+    /// Neighbours differing by at most this much belong to one speckle region, pixels.
+    pub max_diff_px: f32,
+    /// The fill's value where a column has no disparity, pixels.
+    pub fallback_px: f32,
     /// Padding to 32 bytes.
-    pub pad: u32,
+    pub pad: [u32; 3],
 }
 
 /// Every buffer struct the kernels share with the host: its WGSL name and the size of its Rust
@@ -438,6 +458,10 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     (
         "SgmSelectUniforms",
         std::mem::size_of::<SgmSelectUniforms>(),
+    ),
+    (
+        "SgmFilterUniforms",
+        std::mem::size_of::<SgmFilterUniforms>(),
     ),
 ];
 

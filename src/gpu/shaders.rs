@@ -230,16 +230,64 @@ pub const SGM_RIGHT: ShaderSource = kernel!(
     [Uniform, Read, ReadWrite]
 );
 
-/// SGM's winner selection: each pixel's winner and its fit's and confidence's integer terms,
-/// from S.
+/// SGM's winner selection: each pixel's disparity and confidence, from S.
 pub const SGM_SELECT: ShaderSource = kernel!(
     "sgm_select.wgsl",
     [
         "shared/dispatch.wgsl",
         "shared/packed_bytes.wgsl",
+        "shared/exact_div.wgsl",
         "shared/sgm_select_common.wgsl"
     ],
-    [Uniform, Read, Read, Read, ReadWrite]
+    [Uniform, Read, Read, Read, ReadWrite, ReadWrite]
+);
+
+/// SGM's 3×3 median over valid neighbours.
+pub const SGM_MEDIAN: ShaderSource = kernel!(
+    "sgm_median.wgsl",
+    ["shared/dispatch.wgsl", "shared/sgm_filter_common.wgsl"],
+    [Uniform, Read, ReadWrite]
+);
+
+/// Declares a pass of SGM's speckle filter (they share their bindings).
+macro_rules! speckle_pass {
+    ($file:literal) => {
+        kernel!(
+            $file,
+            [
+                "shared/dispatch.wgsl",
+                "shared/sgm_filter_common.wgsl",
+                "shared/speckle_common.wgsl"
+            ],
+            [Uniform, ReadWrite, ReadWrite, ReadWrite, ReadWrite]
+        )
+    };
+}
+
+/// Speckle filter, pass 1: runs of connected pixels per row.
+pub const SGM_SPECKLE_RUNS: ShaderSource = speckle_pass!("sgm_speckle_runs.wgsl");
+
+/// Speckle filter, pass 2: the runs of consecutive rows joined.
+pub const SGM_SPECKLE_JOIN: ShaderSource = speckle_pass!("sgm_speckle_join.wgsl");
+
+/// Speckle filter, pass 3: region sizes.
+pub const SGM_SPECKLE_COUNT: ShaderSource = speckle_pass!("sgm_speckle_count.wgsl");
+
+/// Speckle filter, pass 4: small regions removed.
+pub const SGM_SPECKLE_CLEAR: ShaderSource = speckle_pass!("sgm_speckle_clear.wgsl");
+
+/// TGV's initial disparity from SGM's, pass 1: holes filled along rows.
+pub const TGV_FILL_ROWS: ShaderSource = kernel!(
+    "tgv_fill_rows.wgsl",
+    ["shared/dispatch.wgsl", "shared/sgm_filter_common.wgsl"],
+    [Uniform, Read, ReadWrite]
+);
+
+/// TGV's initial disparity from SGM's, pass 2: along columns, then the fallback.
+pub const TGV_FILL_COLUMNS: ShaderSource = kernel!(
+    "tgv_fill_columns.wgsl",
+    ["shared/dispatch.wgsl", "shared/sgm_filter_common.wgsl"],
+    [Uniform, Read, ReadWrite]
 );
 
 /// Marching cubes, pass 1: triangles per meshed block.
@@ -316,6 +364,13 @@ pub const ALL: &[ShaderSource] = &[
     SGM_PATHS,
     SGM_RIGHT,
     SGM_SELECT,
+    SGM_MEDIAN,
+    SGM_SPECKLE_RUNS,
+    SGM_SPECKLE_JOIN,
+    SGM_SPECKLE_COUNT,
+    SGM_SPECKLE_CLEAR,
+    TGV_FILL_ROWS,
+    TGV_FILL_COLUMNS,
     // Marching cubes.
     MC_COUNT,
     MC_EMIT,

@@ -538,11 +538,12 @@ fn pairs_volume((_, left, right, nd): &(&str, GreyImage, GreyImage, usize)) -> C
 #[test]
 fn the_gpu_matcher_sends_no_costs_up_and_reads_back_no_volume() {
     // The variational matchers on the GPU: the cost volume is made on the device, aggregated
-    // along SGM's paths there (the winners selected there), summed over its window there, and
-    // each pixel's cost at its final disparity is gathered there for the invalidation. What
-    // goes up is the two images and the initial disparity; what comes down is SGM's selection
-    // and the disparities with their costs, never the costs of every disparity. After the
-    // first pair, a pair creates no buffer and no bind group.
+    // along SGM's paths there, its winners selected and filtered there, the initial disparity
+    // filled there, the costs summed over their window there, and each pixel's cost at its
+    // final disparity gathered there for the invalidation. What goes up is the two images;
+    // what comes down is SGM's result and the disparities with their costs, never the costs of
+    // every disparity; one wait. After the first pair, a pair creates no buffer and no bind
+    // group.
     let Some(ctx) = gpu() else { return };
     let ctx = std::sync::Arc::new(ctx);
     let (left, right, _) = generated_pair();
@@ -562,26 +563,27 @@ fn the_gpu_matcher_sends_no_costs_up_and_reads_back_no_volume() {
         let pixels = (left.width * left.height) as u64;
         let entries = pixels * nd as u64;
         eprintln!("{regularizer:?}: {pixels} pixels, {entries} cost entries, a later pair: {t:?}");
-        // Images (1 byte per pixel each) and the initial disparity (4), plus uniforms: the
-        // tensors are computed from the left image (TGV-tensor) or written as identities (TV,
-        // TGV), the primal, its over-relaxation and the dual made from the disparity on the
-        // device. Before, the primal went up whole (12 bytes per pixel), the coupling target as
-        // zeros (4), the identity tensors (12), and before that the window sums and counts (2
-        // bytes per entry and 4 per pixel).
+        // The images (1 byte per pixel each) and uniforms: the tensors are computed from the
+        // left image (TGV-tensor) or written as identities (TV, TGV), the initial disparity is
+        // filled from SGM's and the primal, its over-relaxation and the dual are made from it,
+        // all on the device. Before, the initial disparity went up (4 bytes per pixel), before
+        // that the primal (12), the coupling target as zeros (4), the identity tensors (12),
+        // and the window sums and counts (2 bytes per entry and 4 per pixel).
         assert!(
-            t.upload_bytes <= 6 * pixels + (64 << 10),
+            t.upload_bytes <= 2 * pixels + (64 << 10),
             "{regularizer:?}: {t:?}"
         );
-        // Down: SGM's selection (16 bytes per pixel; its sums stay on the device), then each
-        // pixel's disparity and cost (5). Before, the cost volume came down too (1 byte per
-        // entry, 48 per pixel here) for the CPU's invalidation, and the whole primal (12).
+        // Down: SGM's disparities and confidences (8 bytes per pixel; its sums stay on the
+        // device), with each pixel's disparity and cost (5). Before, SGM's unfiltered selection
+        // came down (16 bytes per pixel), and before that the cost volume (1 byte per entry, 48
+        // per pixel here) and the whole primal (12).
         assert!(
-            t.readback_bytes <= 21 * pixels + (64 << 10),
+            t.readback_bytes <= 13 * pixels + (64 << 10),
             "{regularizer:?}: {t:?}"
         );
-        // One wait for SGM, one for the gathered disparities (before: three, the volume's
-        // first).
-        assert_eq!(t.waits, 2, "{regularizer:?}: {t:?}");
+        // One wait, for everything that comes back (before: two, SGM's first; before that
+        // three, the volume's first).
+        assert_eq!(t.waits, 1, "{regularizer:?}: {t:?}");
         assert_eq!((t.buffers_created, t.bind_groups_created), (0, 0), "{t:?}");
         // Kept buffers change nothing: both pairs give the one-shot matcher's map, bit for bit.
         let once = estimate_tgv_gpu(&ctx, &m, &left, &right)

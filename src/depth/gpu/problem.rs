@@ -61,7 +61,7 @@ impl<'c> TgvProblemGpu<'c> {
             return Self::fresh_in(
                 ctx,
                 Kept::default(),
-                (problem.u_slice(), w, h),
+                (Some(problem.u_slice()), w, h),
                 setup,
                 tensors,
             );
@@ -109,7 +109,7 @@ impl<'c> TgvProblemGpu<'c> {
             tau,
             sigma,
             tensors: kept.scratch(ctx, "tgv_tensors", n * 12),
-            target: kept.scratch(ctx, "tgv_target", n * 4),
+            target: Self::target_in(ctx, &mut kept, n as usize),
             primal: kept.scratch(ctx, "tgv_primal", n * 12),
             primal_bar: kept.scratch(ctx, "tgv_primal_bar", n * 12),
             dual: kept.scratch(ctx, "tgv_dual", n * 20),
@@ -119,29 +119,39 @@ impl<'c> TgvProblemGpu<'c> {
         Ok(gpu)
     }
 
+    /// The buffer in `kept` where a fresh problem of `pixels` finds its initial disparity
+    /// ([`TgvProblemGpu::fresh_in`] with `None`), and which then holds the coupling target.
+    pub(super) fn target_in(ctx: &GpuContext, kept: &mut Kept, pixels: usize) -> wgpu::Buffer {
+        kept.scratch(ctx, "tgv_target", pixels as u64 * 4)
+    }
+
     /// A fresh problem ([`TgvProblem::new`]'s: primal `[u0, 0, 0]`, the over-relaxed primal
-    /// equal to it, the dual zero) made on the device from `u0` (`shaders/tgv_init.wgsl`: 4 bytes
-    /// per pixel go up, not the 40-byte state), in `kept`'s buffers, with `tensors`.
+    /// equal to it, the dual zero) made on the device from `u0` (`shaders/tgv_init.wgsl`), in
+    /// `kept`'s buffers, with `tensors`. `u0`: uploaded (4 bytes per pixel, not the 40-byte
+    /// state), or `None` when work submitted before wrote it into
+    /// [`TgvProblemGpu::target_in`]'s buffer (SGM's, filled on the device).
     pub(super) fn fresh_in(
         ctx: &'c GpuContext,
         kept: Kept,
-        (u0, width, height): (&[f32], usize, usize),
+        (u0, width, height): (Option<&[f32]>, usize, usize),
         setup: (Regularizer, f32, f32),
         tensors: Tensors,
     ) -> Result<Self> {
-        if u0.len() != width * height {
+        if let Some(u0) = u0.filter(|u0| u0.len() != width * height) {
             return Err(Error::InvalidArgument(format!(
                 "a {width}×{height} TGV problem from {} disparities",
                 u0.len()
             )));
         }
         let mut gpu = Self::allocate(ctx, kept, (width, height), setup)?;
-        let n = u0.len() as u64;
+        let n = (width * height) as u64;
         let scope = ErrorScopes::push(&ctx.device);
         // The disparity goes up where `tgv_init` reads it; the first point-wise search then
         // overwrites it with the coupling target.
-        gpu.kept
-            .storage_with(ctx, "tgv_target", bytemuck::cast_slice(u0));
+        if let Some(u0) = u0 {
+            gpu.kept
+                .storage_with(ctx, "tgv_target", bytemuck::cast_slice(u0));
+        }
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -349,10 +359,11 @@ impl TgvProblemGpu<'_> {
     /// Records `shaders/tgv_cost_at.wgsl` over the disparity and the raw costs `raw` (of a
     /// volume of shape `volume`), and reads back in the same submit each pixel's disparity and
     /// its cost ([`crate::depth::tgv::costs_at_disparities`]): 5 bytes per pixel, in kept
-    /// buffers.
+    /// buffers; `more` (buffers and where they go) are read back in the same wait.
     pub(super) fn disparities_and_costs(
         &mut self,
         (volume, raw): (VolumeShape, &wgpu::Buffer),
+        more: &mut [(&wgpu::Buffer, &mut [u8])],
     ) -> Result<(Vec<f32>, Vec<u8>)> {
         let (ctx, n) = (self.ctx, self.pixels());
         if (volume.width as usize, volume.height as usize) != (self.width, self.height) {
@@ -387,11 +398,9 @@ impl TgvProblemGpu<'_> {
             });
         ctx.record_dispatch(&mut encoder, &kernel, &bind, n.div_ceil(4) as u64)?;
         let mut back = vec![0u32; words];
-        ctx.submit_and_read_back(
-            encoder,
-            &mut self.kept,
-            &mut [(&out, bytemuck::cast_slice_mut(&mut back))],
-        )?;
+        let mut buffers = vec![(&out, bytemuck::cast_slice_mut(&mut back))];
+        buffers.extend(more.iter_mut().map(|(b, t)| (*b, &mut **t)));
+        ctx.submit_and_read_back(encoder, &mut self.kept, &mut buffers)?;
         scope.pop("gathering the disparities' costs")?;
         let dense = back[..n].iter().map(|&b| f32::from_bits(b)).collect();
         let mut costs = bytemuck::cast_slice::<u32, u8>(&back[n..]).to_vec();

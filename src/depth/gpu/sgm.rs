@@ -1,19 +1,21 @@
-//! SGM on the GPU: the path aggregation (`shaders/sgm_paths.wgsl`, all directions in one dispatch)
-//! and the winner selection (`shaders/sgm_right.wgsl`, the right image's winners, then
-//! `shaders/sgm_select.wgsl`: winner-take-all, the runner-up, the sub-pixel fit's terms, the
-//! left–right check) run where the cost volume was made, in one submit. Only integers are
-//! computed there: the sums equal the CPU's ([`crate::depth::sgm::aggregate_paths`]), and so do
-//! the winners and the checks. Four words per pixel come back (16 bytes), and the host finishes
-//! them with the CPU's f32 operations (the uniqueness test, the fit's and the confidence's
-//! divisions, which WGSL would let a device round within 2.5 ULP): the disparities and
-//! confidences are the CPU matcher's bit for bit on every device. The median and the speckle
-//! filter then run on the CPU as [`SgmMatcher`]'s do.
+//! SGM on the GPU, where the cost volume was made: the path aggregation
+//! (`shaders/sgm_paths.wgsl`, all directions in one dispatch), the winner selection
+//! (`shaders/sgm_right.wgsl`, the right image's winners, then `shaders/sgm_select.wgsl`:
+//! winner-take-all, the uniqueness test, the sub-pixel fit, the left–right check and the
+//! confidence) and the median and speckle filters (`sgm_filters.rs`), in one submit. The sums
+//! and the fit's terms are integers, equal to the CPU's ([`crate::depth::sgm::aggregate_paths`]);
+//! the fit's and the confidence's divisions are rounded as the CPU's f32 divisions round them
+//! (`shaders/shared/exact_div.wgsl`, in integers: WGSL would let a device divide within
+//! 2.5 ULP), and the filters repeat the CPU's f32 operations: the disparities and confidences
+//! are the CPU matcher's bit for bit on every device.
 //!
-//! What crosses the bus for one pair of `SgmMatcherGpu`: the two images up, the selection's 16
-//! bytes per pixel down, in one submit (census, costs, paths, selection and the read-back copy)
-//! and one wait; the cost volume and `S` stay on the device. Every buffer and bind group is kept
-//! between pairs (`crate::gpu::kept`): after the first pair of a size, a pair creates none.
+//! What crosses the bus for one pair of `SgmMatcherGpu`: the two images up, the disparities and
+//! confidences down (8 bytes per pixel), in one submit and one wait; the cost volume and `S`
+//! stay on the device. TGV-tensor ([`super::estimate_tgv_gpu`]) keeps SGM's result there too.
+//! Every buffer and bind group is kept between pairs (`crate::gpu::kept`): after the first pair
+//! of a size, a pair creates none.
 
+use super::sgm_filters::{read_sgm, record_filters, SgmOnDevice};
 use super::{cost_volume_on_device, record_cost_volume, OnDevice};
 use crate::depth::sgm::{check_volume, CostVolume, SgmMatcher, SgmParams, SgmPaths, SubpixelFit};
 use crate::depth::{DisparityEstimator, DisparityMap};
@@ -109,8 +111,7 @@ fn record_aggregation(
 }
 
 /// Records the winner selection over `sums` (and the raw costs `volume`, for the windowed fit)
-/// of a `width` × `height` image; returns the buffer of its four words per pixel
-/// ([`read_selection`] reads them).
+/// of a `width` × `height` image; returns its disparities and confidences.
 fn record_selection(
     ctx: &GpuContext,
     encoder: &mut wgpu::CommandEncoder,
@@ -118,10 +119,19 @@ fn record_selection(
     (sums, volume): (&wgpu::Buffer, &wgpu::Buffer),
     (width, height): (u32, u32),
     params: &SgmParams,
-) -> Result<wgpu::Buffer> {
+) -> Result<SgmOnDevice> {
+    let radius = params.subpixel_cost_window / 2;
+    // The window's sums of u8 costs stay below 2^24, exact in f32 as the CPU converts them.
+    if radius > 127 {
+        return Err(Error::InvalidArgument(format!(
+            "a sub-pixel cost window of {} pixels on the GPU (at most 255); use --device cpu",
+            params.subpixel_cost_window
+        )));
+    }
     let right = ctx.kernel(&shaders::SGM_RIGHT)?;
     let select = ctx.kernel(&shaders::SGM_SELECT)?;
     let n = width as u64 * height as u64;
+    let uniq = params.uniqueness_ratio;
     let uniforms = SgmSelectUniforms {
         width,
         height,
@@ -132,14 +142,16 @@ fn record_selection(
             SubpixelFit::Parabola => 1,
             SubpixelFit::Equiangular => 2,
         },
-        radius: params.subpixel_cost_window / 2,
+        radius,
         lr_max_diff: params.lr_max_diff_px.map_or(0xffff, |d| d.min(0xfffe)),
-        pad: 0,
+        // 1: the test `S_second · 1 < S_best` never holds (S_second ≥ S_best).
+        uniqueness_factor: if uniq > 0.0 { 1.0 - uniq } else { 1.0 },
     };
     let buf_uniforms = kept.uniform_with(ctx, "sgm_select_uniforms", bytemuck::bytes_of(&uniforms));
-    // Every entry of both is written by its kernel.
+    // Every entry of these is written by its kernel.
     let right_k = kept.scratch(ctx, "sgm_right_k", n * 4);
-    let selection = kept.scratch(ctx, "sgm_selection", n * SELECTION_BYTES);
+    let disparity = kept.scratch(ctx, "sgm_disparity", n * 4);
+    let confidence = kept.scratch(ctx, "sgm_confidence", n * 4);
     let bind = kept.bind_group(
         ctx,
         "sgm_right",
@@ -151,64 +163,22 @@ fn record_selection(
         ctx,
         "sgm_select",
         &select.layout,
-        &[&buf_uniforms, sums, volume, &right_k, &selection],
+        &[
+            &buf_uniforms,
+            sums,
+            volume,
+            &right_k,
+            &disparity,
+            &confidence,
+        ],
     );
     ctx.record_dispatch(encoder, &select, &bind, n)?;
-    Ok(selection)
-}
-
-/// Bytes per pixel of the selection's output: four words.
-const SELECTION_BYTES: u64 = 16;
-
-/// The winner's word of a pixel the selection found invalid.
-const INVALID: u32 = u32::MAX;
-
-/// Submits `encoder` with the selection's output read back in the same submit (one wait), and
-/// finishes it as the CPU's selection does: the
-/// uniqueness test, the sub-pixel offset `(a − c) / (2·den)` clamped to ±½ and the confidence
-/// `(S_second − S_best) / S_second`, in the same f32 operations (`RowSelect::finish`), so
-/// that the disparities and confidences are the CPU matcher's bit for bit. Returns them (NaN
-/// and 0 where invalid).
-fn read_selection(
-    ctx: &GpuContext,
-    encoder: wgpu::CommandEncoder,
-    kept: &mut Kept,
-    selection: &wgpu::Buffer,
-    (width, height): (u32, u32),
-    params: &SgmParams,
-) -> Result<(Image<f32>, Image<f32>)> {
-    use rayon::prelude::*;
-    let n = width as usize * height as usize;
-    let mut words: Vec<[u32; 4]> = bytemuck::zeroed_vec(n);
-    let target = bytemuck::cast_slice_mut(&mut words);
-    ctx.submit_and_read_back(encoder, kept, &mut [(selection, target)])?;
-    let (mut d, mut c) = (
-        Image::filled(width, height, f32::NAN),
-        Image::filled(width, height, 0.0f32),
-    );
-    let (dmin, uniq) = (params.min_disparity_px, params.uniqueness_ratio);
-    d.data
-        .par_iter_mut()
-        .zip(c.data.par_iter_mut())
-        .zip(words.par_iter())
-        .for_each(|((d, c), &[bk, num, den2, terms])| {
-            let (second, best) = ((terms >> 16) as u16, terms as u16);
-            if bk == INVALID || (uniq > 0.0 && (second as f32) * (1.0 - uniq) < best as f32) {
-                return;
-            }
-            let mut v = (dmin as i64 + bk as i64) as f32;
-            if den2 > 0 {
-                let offset: f32 = num as i32 as f32 / den2 as f32;
-                v += offset.clamp(-0.5, 0.5);
-            }
-            *d = v;
-            *c = if second == u16::MAX || second == 0 {
-                0.0
-            } else {
-                (second.saturating_sub(best)) as f32 / second as f32
-            };
-        });
-    Ok((d, c))
+    Ok(SgmOnDevice {
+        disparity,
+        confidence,
+        width,
+        height,
+    })
 }
 
 /// Reads `S` back: `entries` u16 values.
@@ -253,10 +223,25 @@ pub fn aggregate_paths_gpu(
 }
 
 /// SGM of a pair whose cost volume is on the device (`on_device`), appended to `encoder`
-/// (which may hold the work that makes the volume): the paths aggregated and the winners
-/// selected there, all in one submit and one wait, the disparities and confidences read back
-/// and filtered as [`SgmMatcher`] filters them. At most [`GPU_SGM_MAX_DISPARITIES`]
-/// disparities.
+/// (which may hold the work that makes the volume): the paths aggregated, the winners selected
+/// and the filters applied there ([`SgmMatcher`]'s, with its `params`); returns the result, on
+/// the device. At most [`GPU_SGM_MAX_DISPARITIES`] disparities.
+pub(super) fn sgm_on_device(
+    ctx: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    params: &SgmParams,
+    kept: &mut Kept,
+    on_device: &OnDevice,
+) -> Result<SgmOnDevice> {
+    params.validate()?;
+    let size = (on_device.shape.width, on_device.shape.height);
+    let volume = (&on_device.volume, &on_device.left);
+    let sums = record_aggregation(ctx, encoder, kept, volume, size, params)?;
+    let selection = record_selection(ctx, encoder, kept, (&sums, volume.0), size, params)?;
+    record_filters(ctx, encoder, kept, selection, params)
+}
+
+/// [`sgm_on_device`], submitted and read back: one submit and one wait in all.
 pub(super) fn sgm_recorded(
     ctx: &GpuContext,
     mut encoder: wgpu::CommandEncoder,
@@ -264,16 +249,11 @@ pub(super) fn sgm_recorded(
     kept: &mut Kept,
     on_device: &OnDevice,
 ) -> Result<DisparityMap> {
-    let p = &matcher.params;
-    p.validate()?;
-    let size = (on_device.shape.width, on_device.shape.height);
     let scope = ErrorScopes::push(&ctx.device);
-    let volume = (&on_device.volume, &on_device.left);
-    let sums = record_aggregation(ctx, &mut encoder, kept, volume, size, p)?;
-    let selection = record_selection(ctx, &mut encoder, kept, (&sums, volume.0), size, p)?;
-    let (d, c) = read_selection(ctx, encoder, kept, &selection, size, p)?;
+    let sgm = sgm_on_device(ctx, &mut encoder, &matcher.params, kept, on_device)?;
+    let map = read_sgm(ctx, encoder, kept, &sgm)?;
     scope.pop("running the SGM kernels")?;
-    Ok(matcher.filtered(d, c))
+    Ok(map)
 }
 
 /// SGM's selection over sums computed elsewhere, on the device: [`crate::depth::sgm::select_disparities`]'s
@@ -306,13 +286,16 @@ pub fn select_disparities_gpu(
     let mut kept = Kept::default();
     let pair = (&buf_sums, &buf_volume);
     let selection = record_selection(ctx, &mut encoder, &mut kept, pair, (w, h), params)?;
-    let out = read_selection(ctx, encoder, &mut kept, &selection, (w, h), params)?;
+    let out = read_sgm(ctx, encoder, &mut kept, &selection)?;
     scope.pop("running the SGM selection kernels")?;
-    Ok(out)
+    Ok((
+        out.disparity_px,
+        out.confidence.expect("read with its confidence"),
+    ))
 }
 
-/// [`SgmMatcher`] on the GPU: the cost volume, the path aggregation and the selection there, the
-/// filters on the CPU; the same disparities (see the module documentation). Beyond
+/// [`SgmMatcher`] on the GPU: the cost volume, the path aggregation, the selection and the
+/// filters there; the same disparities (see the module documentation). Beyond
 /// [`GPU_SGM_MAX_DISPARITIES`] the aggregation and selection run on the CPU over the volume
 /// read back (the same result).
 #[derive(Debug)]
