@@ -1,12 +1,10 @@
 // The end of the GPU variational matcher: each pixel's disparity u and its census cost at u
 // rounded to the nearest slice, gathered where the cost volume was made, so that the host's
 // invalidation needs neither the volume nor the TGV state (CPU twin: `costs_at_disparities` in
-// src/depth/tgv.rs). The slice is Rust's `((u − d_min).round().max(0) as usize).min(n − 1)`:
-// halves away from zero (shared/rounding.wgsl), below the range slice 0, above it the last.
-// The subtraction is correctly rounded in WGSL and the rest is exact, so the slice is the
-// CPU's for every finite u (a non-finite u, which TGV never makes and the host skips, gives
-// some slice in range). One invocation per 4 pixels: their u (bits) at out[i], their 4 costs
-// packed in one word at out[n + i / 4]. Keep CostAtUniforms in sync with src/gpu/layout.rs.
+// src/depth/tgv.rs). The slice is the CPU's for every finite u (shared/cost_slice.wgsl; a
+// non-finite u, which TGV never makes and the host skips, gives some slice in range). One
+// invocation per 4 pixels: their u (bits) at out[i], their 4 costs packed in one word at
+// out[n + i / 4]. Keep CostAtUniforms in sync with src/gpu/layout.rs.
 // Shared files and bindings: src/gpu/shaders.rs.
 
 struct CostAtUniforms {
@@ -22,18 +20,6 @@ struct CostAtUniforms {
 // The TGV primal [u, v1, v2] per pixel.
 @group(0) @binding(2) var<storage, read> primal: array<f32>;
 @group(0) @binding(3) var<storage, read_write> out: array<u32>;
-
-fn slice_of(u: f32) -> u32 {
-    let last = params.num_disparities - 1u;
-    let x = round_half_away(u - params.min_disparity_px);
-    if (x >= f32(last)) {
-        return last;
-    }
-    if (x > 0.0) {
-        return u32(x);
-    }
-    return 0u;
-}
 
 @compute @workgroup_size(64)
 fn main(
@@ -52,7 +38,7 @@ fn main(
         if (i < n) {
             let u = primal[3u * i];
             out[i] = bitcast<u32>(u);
-            let j = i * params.num_disparities + slice_of(u);
+            let j = i * params.num_disparities + slice_of(u, params.min_disparity_px, params.num_disparities);
             packed |= packed_byte(volume[j >> 2u], j) << (8u * b);
         }
     }

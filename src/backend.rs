@@ -166,6 +166,8 @@ impl GpuStages {
                 &shaders::COST_WINDOW,
                 &shaders::TGV_TENSORS,
                 &shaders::TGV_COST_AT,
+                &shaders::TGV_OCCLUDED,
+                &shaders::TGV_INVALIDATE,
                 &shaders::TGV_POINTWISE,
                 &shaders::TGV_DUAL,
                 &shaders::TGV_PRIMAL,

@@ -23,21 +23,22 @@
 //! cost volume where it was made (`data_cost.rs`, `shaders/cost_window.wgsl`; integer sums, equal
 //! to the CPU's), and in [`estimate_tgv_gpu`] TGV-tensor's diffusion tensors from the left image
 //! the census read (`shaders/tgv_tensors.wgsl`; the device's `exp` and `pow`: 1.8e-7 from the
-//! CPU's on llvmpipe). SGM's path aggregation and winner selection run there too (`sgm.rs`),
-//! and at the end each pixel's disparity and its cost at that disparity are gathered there
-//! (`shaders/tgv_cost_at.wgsl`, 5 bytes per pixel), so neither the volume nor the TGV state
-//! comes back. What stays on the CPU: SGM's median and speckle filters, the initial problem
-//! (without TGV-tensor's tensors, made on the device) and the invalidation over the gathered
-//! costs. Every array must fit one storage binding (the largest is the window sums, 2 bytes
-//! per pixel and disparity: 119 MB for 1241×376×128, under llvmpipe's 128 MiB); a larger input
-//! is an [`crate::Error::GpuCapacity`], never truncated.
+//! CPU's on llvmpipe). SGM runs there too, filters included (`sgm.rs`, `sgm_filters.rs`), the
+//! initial disparity is filled there from SGM's (`shaders/tgv_fill_*.wgsl`), and at the end the
+//! map is invalidated there (`invalidate.rs`: occlusions, the census cost at each pixel's
+//! disparity, SGM's agreement and confidence), so a pair sends its two images up and reads its
+//! map back (8 bytes per pixel), in one wait; neither the volume nor any stage's state comes
+//! back. What stays on the CPU: the initial problem's setup. Every array must fit one storage
+//! binding (the largest is the window sums, 2 bytes per pixel and disparity: 119 MB for
+//! 1241×376×128, under llvmpipe's 128 MiB); a larger input is an
+//! [`crate::Error::GpuCapacity`], never truncated.
 
 use crate::depth::sgm::{CostVolume, SgmMatcher, VolumeShape};
 use crate::depth::tgv::{
     check_search, diffusion_tensors, Regularizer, TgvMatcher, TgvProblem, TgvStages,
 };
 use crate::depth::{DisparityEstimator, DisparityMap};
-use crate::frame::GreyImage;
+use crate::frame::{GreyImage, Image};
 use crate::gpu::kept::Kept;
 use crate::gpu::{ErrorScopes, GpuContext, StageTally};
 use crate::{Error, Result};
@@ -55,7 +56,9 @@ pub use sgm::{
     aggregate_paths_gpu, select_disparities_gpu, SgmMatcherGpu, GPU_SGM_MAX_DISPARITIES,
 };
 mod sgm_filters;
+use sgm_filters::MapOnDevice;
 pub use sgm_filters::{fill_from_background_gpu, filter_disparities_gpu};
+mod invalidate;
 
 /// [`crate::depth::tgv::box_filtered_costs`] on the GPU (`shaders/cost_window.wgsl`): the
 /// costs of `volume` summed over `window` × `window` and each pixel's count, read back (the GPU
@@ -232,34 +235,35 @@ pub fn costs_at_disparities_gpu(
 /// [`TgvMatcher::estimate_with_stages`] on the GPU: the census, the cost volume, SGM (its
 /// aggregation, selection and filters) and the fill of the initial disparity in one submit
 /// ([`SgmMatcherGpu`]'s kernels), the refinement ([`refine_gpu`]) over the volume where it was
-/// made, then each pixel's disparity and its cost gathered there for the invalidation, read
-/// back with SGM's result in the pair's one wait. Only the two images go up; the initial
-/// problem (without TGV-tensor's tensors, made on the device) and the invalidation run on the
-/// CPU. Beyond [`GPU_SGM_MAX_DISPARITIES`], SGM runs on the CPU over the volume read back.
+/// made, then the invalidation there; only the two images go up, and the stages come back in
+/// the pair's one wait. The initial problem (without TGV-tensor's tensors, made on the device)
+/// is set up on the CPU. Beyond [`GPU_SGM_MAX_DISPARITIES`], SGM runs on the CPU over the volume
+/// read back, and so does the invalidation.
 pub fn estimate_tgv_gpu(
     ctx: &GpuContext,
     matcher: &TgvMatcher,
     left: &GreyImage,
     right: &GreyImage,
 ) -> Result<TgvStages> {
-    estimate_kept(ctx, matcher, &mut Kept::default(), left, right)
+    estimate_kept(ctx, matcher, &mut Kept::default(), (left, right), true)
 }
 
-/// [`estimate_tgv_gpu`] with the census, cost, SGM and gathering buffers and bind groups kept
-/// in `kept` between pairs.
+/// [`estimate_tgv_gpu`] with the buffers and bind groups kept in `kept` between pairs. With
+/// `stages` false only the result comes back (8 bytes per pixel): the stages' `sgm` and
+/// `dense_px` are then empty.
 fn estimate_kept(
     ctx: &GpuContext,
     matcher: &TgvMatcher,
     kept: &mut Kept,
-    left: &GreyImage,
-    right: &GreyImage,
+    (left, right): (&GreyImage, &GreyImage),
+    stages: bool,
 ) -> Result<TgvStages> {
     let p = &matcher.params;
     p.validate()?;
     let census = (&p.sgm.census, p.sgm.min_disparity_px, p.sgm.num_disparities);
     if p.sgm.num_disparities > GPU_SGM_MAX_DISPARITIES {
         // More disparities than the device's aggregation holds: SGM on the CPU over the volume
-        // read back.
+        // read back, and the invalidation after it.
         let sgm = SgmMatcher::new(p.sgm)?;
         let (volume, on_device) = cost_volume_on_device(ctx, left, right, census)?;
         let init = sgm.estimate_from_volume(left, &volume)?;
@@ -300,16 +304,53 @@ fn estimate_kept(
     let left_on_device = (left, Some(&on_device.left));
     let taken = std::mem::take(kept);
     let mut gpu = refine_on_device(ctx, taken, matcher, left_on_device, volume, Init::OnDevice)?;
-    // SGM's result comes back with the gathered disparities and costs, in the same wait.
-    let mut init = sgm_filters::empty_map(&sgm);
-    let gathered = gpu.disparities_and_costs(volume, &mut sgm_filters::targets(&sgm, &mut init));
+    let finished = finish_on_device(&mut gpu, matcher, volume, &sgm, stages);
     *kept = gpu.into_kept();
-    let (dense, costs) = gathered?;
-    let result = matcher.invalidate_with(&dense, &init, &costs, shape);
+    finished
+}
+
+/// The invalidation of `gpu`'s disparity against SGM's map `sgm`, on the device, and what
+/// comes back in one wait: the result, and with `stages` SGM's map and the dense disparity too
+/// (else those stages are empty).
+fn finish_on_device(
+    gpu: &mut TgvProblemGpu,
+    matcher: &TgvMatcher,
+    volume: (VolumeShape, &wgpu::Buffer),
+    sgm: &MapOnDevice,
+    stages: bool,
+) -> Result<TgvStages> {
+    let ctx = gpu.context();
+    let scope = ErrorScopes::push(&ctx.device);
+    let mut encoder = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("tgv_invalidate"),
+        });
+    let result = gpu.record_invalidation(&mut encoder, matcher, volume, sgm)?;
+    let mut map = sgm_filters::empty_map(&result);
+    let mut init = DisparityMap {
+        disparity_px: Image::filled(0, 0, 0.0),
+        confidence: None,
+    };
+    let mut dense_px = Vec::new();
+    if stages {
+        let gathered = gpu.record_disparities_and_costs(&mut encoder, volume)?;
+        let mut back = gathered.target();
+        init = sgm_filters::empty_map(sgm);
+        let mut buffers = sgm_filters::targets(&result, &mut map);
+        buffers.extend(sgm_filters::targets(sgm, &mut init));
+        buffers.push((&gathered.out, bytemuck::cast_slice_mut(&mut back)));
+        ctx.submit_and_read_back(encoder, &mut gpu.kept, &mut buffers)?;
+        dense_px = gathered.decode(&back).0;
+    } else {
+        let mut buffers = sgm_filters::targets(&result, &mut map);
+        ctx.submit_and_read_back(encoder, &mut gpu.kept, &mut buffers)?;
+    }
+    scope.pop("invalidating the variational matcher's disparities")?;
     Ok(TgvStages {
         sgm: init,
-        dense_px: dense,
-        result,
+        dense_px,
+        result: map,
     })
 }
 
@@ -351,7 +392,7 @@ impl DisparityEstimator for TgvMatcherGpu {
     fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap> {
         let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
         let stages = self.tally.count(&self.ctx, || {
-            estimate_kept(&self.ctx, &self.matcher, &mut kept, left, right)
+            estimate_kept(&self.ctx, &self.matcher, &mut kept, (left, right), false)
         })?;
         Ok(stages.result)
     }

@@ -439,8 +439,9 @@ impl TgvMatcher {
     }
 
     /// [`TgvMatcher::invalidate`] given each pixel's census cost at its disparity
-    /// ([`costs_at_disparities`]; the GPU matcher gathers them where the volume is).
-    pub(crate) fn invalidate_with(
+    /// ([`costs_at_disparities`]): the map made from the dense disparity `dense` and SGM's map
+    /// `init` (the twin of the GPU matcher's `shaders/tgv_invalidate.wgsl`).
+    pub fn invalidate_with(
         &self,
         dense: &[f32],
         init: &DisparityMap,

@@ -431,6 +431,30 @@ pub struct SgmFilterUniforms {
     pub pad: [u32; 3],
 }
 
+/// Uniforms of the GPU variational matcher's invalidation (`shaders/tgv_occluded.wgsl`,
+/// `shaders/tgv_invalidate.wgsl`; WGSL twin: `InvalidateUniforms` in
+/// `shaders/shared/tgv_invalidate_common.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct InvalidateUniforms {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Disparity slices of the cost volume.
+    pub num_disparities: u32,
+    /// Disparity of slice 0, pixels.
+    pub min_disparity_px: f32,
+    /// Hole filling: 0 none, 1 visible, 2 all.
+    pub hole_fill: u32,
+    /// Occlusion tolerance, pixels.
+    pub occlusion_tolerance_px: f32,
+    /// `max_cost_fraction · max_cost` as the CPU computes it.
+    pub max_bits: f32,
+    /// The census's bits: the largest cost.
+    pub max_cost: u32,
+}
+
 /// Every buffer struct the kernels share with the host: its WGSL name and the size of its Rust
 /// twin, bytes. `tests/gpu.rs` checks each against the size naga computes for the WGSL struct
 /// (and that every struct a kernel binds is listed here).
@@ -462,6 +486,10 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     (
         "SgmFilterUniforms",
         std::mem::size_of::<SgmFilterUniforms>(),
+    ),
+    (
+        "InvalidateUniforms",
+        std::mem::size_of::<InvalidateUniforms>(),
     ),
 ];
 

@@ -211,9 +211,31 @@ pub const TGV_COST_AT: ShaderSource = kernel!(
     [
         "shared/dispatch.wgsl",
         "shared/packed_bytes.wgsl",
-        "shared/rounding.wgsl"
+        "shared/rounding.wgsl",
+        "shared/cost_slice.wgsl"
     ],
     [Uniform, Read, Read, ReadWrite]
+);
+
+/// The GPU variational matcher's occlusion flags, per row.
+pub const TGV_OCCLUDED: ShaderSource = kernel!(
+    "tgv_occluded.wgsl",
+    ["shared/dispatch.wgsl", "shared/tgv_invalidate_common.wgsl"],
+    [Uniform, Read, Read, Read, Read, ReadWrite, ReadWrite]
+);
+
+/// The GPU variational matcher's invalidation and confidences.
+pub const TGV_INVALIDATE: ShaderSource = kernel!(
+    "tgv_invalidate.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/packed_bytes.wgsl",
+        "shared/rounding.wgsl",
+        "shared/cost_slice.wgsl",
+        "shared/exact_div.wgsl",
+        "shared/tgv_invalidate_common.wgsl"
+    ],
+    [Uniform, Read, Read, Read, Read, ReadWrite, ReadWrite]
 );
 
 /// SGM's path aggregation along one direction, into the summed costs S.
@@ -361,6 +383,8 @@ pub const ALL: &[ShaderSource] = &[
     COST_WINDOW,
     TGV_TENSORS,
     TGV_COST_AT,
+    TGV_OCCLUDED,
+    TGV_INVALIDATE,
     SGM_PATHS,
     SGM_RIGHT,
     SGM_SELECT,

@@ -177,6 +177,11 @@ impl<'c> TgvProblemGpu<'c> {
         Ok(gpu)
     }
 
+    /// Its GPU.
+    pub(super) fn context(&self) -> &'c GpuContext {
+        self.ctx
+    }
+
     /// Its kept buffers, uniforms and bind groups, for the next problem.
     pub(super) fn into_kept(self) -> Kept {
         self.kept
@@ -356,25 +361,28 @@ impl<'c> TgvProblemGpu<'c> {
 }
 
 impl TgvProblemGpu<'_> {
-    /// Records `shaders/tgv_cost_at.wgsl` over the disparity and the raw costs `raw` (of a
-    /// volume of shape `volume`), and reads back in the same submit each pixel's disparity and
-    /// its cost ([`crate::depth::tgv::costs_at_disparities`]): 5 bytes per pixel, in kept
-    /// buffers; `more` (buffers and where they go) are read back in the same wait.
-    pub(super) fn disparities_and_costs(
-        &mut self,
-        (volume, raw): (VolumeShape, &wgpu::Buffer),
-        more: &mut [(&wgpu::Buffer, &mut [u8])],
-    ) -> Result<(Vec<f32>, Vec<u8>)> {
-        let (ctx, n) = (self.ctx, self.pixels());
+    /// An error unless `volume` has the problem's size.
+    pub(super) fn check_shape(&self, volume: VolumeShape) -> Result<()> {
         if (volume.width as usize, volume.height as usize) != (self.width, self.height) {
             return Err(Error::InvalidArgument(format!(
                 "a {}×{} cost volume for a {}×{} problem",
                 volume.width, volume.height, self.width, self.height
             )));
         }
-        if n == 0 {
-            return Ok((Vec::new(), Vec::new()));
-        }
+        Ok(())
+    }
+
+    /// Records `shaders/tgv_cost_at.wgsl` over the disparity and the raw costs `raw` (of a
+    /// volume of shape `volume`): each pixel's disparity and its cost
+    /// ([`crate::depth::tgv::costs_at_disparities`]), 5 bytes per pixel in a kept buffer,
+    /// returned ([`Gathered::decode`] reads it).
+    pub(super) fn record_disparities_and_costs(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        (volume, raw): (VolumeShape, &wgpu::Buffer),
+    ) -> Result<Gathered> {
+        self.check_shape(volume)?;
+        let (ctx, n) = (self.ctx, self.pixels());
         let kernel = ctx.kernel(&shaders::TGV_COST_AT)?;
         let uniforms = CostAtUniforms {
             width: volume.width,
@@ -382,29 +390,68 @@ impl TgvProblemGpu<'_> {
             num_disparities: volume.num_disparities as u32,
             min_disparity_px: volume.min_disparity_px as f32,
         };
-        let scope = ErrorScopes::push(&ctx.device);
         let bytes = bytemuck::bytes_of(&uniforms);
         let buf_uniforms = self.kept.uniform_with(ctx, "cost_at_uniforms", bytes);
-        let words = n + n.div_ceil(4);
-        let out = self.kept.scratch(ctx, "cost_at_out", words as u64 * 4);
-        let buffers = [&buf_uniforms, raw, &self.primal, &out];
+        let gathered = Gathered {
+            out: self
+                .kept
+                .scratch(ctx, "cost_at_out", (n + n.div_ceil(4)).max(1) as u64 * 4),
+            pixels: n,
+        };
+        let buffers = [&buf_uniforms, raw, &self.primal, &gathered.out];
         let bind = self
             .kept
             .bind_group(ctx, "tgv_cost_at", &kernel.layout, &buffers);
+        if n > 0 {
+            ctx.record_dispatch(encoder, &kernel, &bind, n.div_ceil(4) as u64)?;
+        }
+        Ok(gathered)
+    }
+
+    /// [`TgvProblemGpu::record_disparities_and_costs`], submitted and read back (one wait);
+    /// `more` (buffers and where they go) are read back in the same wait.
+    pub(super) fn disparities_and_costs(
+        &mut self,
+        volume: (VolumeShape, &wgpu::Buffer),
+        more: &mut [(&wgpu::Buffer, &mut [u8])],
+    ) -> Result<(Vec<f32>, Vec<u8>)> {
+        let ctx = self.ctx;
+        let scope = ErrorScopes::push(&ctx.device);
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("tgv_cost_at"),
             });
-        ctx.record_dispatch(&mut encoder, &kernel, &bind, n.div_ceil(4) as u64)?;
-        let mut back = vec![0u32; words];
-        let mut buffers = vec![(&out, bytemuck::cast_slice_mut(&mut back))];
+        let gathered = self.record_disparities_and_costs(&mut encoder, volume)?;
+        let mut back = gathered.target();
+        let mut buffers = vec![(&gathered.out, bytemuck::cast_slice_mut(&mut back))];
         buffers.extend(more.iter_mut().map(|(b, t)| (*b, &mut **t)));
         ctx.submit_and_read_back(encoder, &mut self.kept, &mut buffers)?;
         scope.pop("gathering the disparities' costs")?;
+        Ok(gathered.decode(&back))
+    }
+}
+
+/// Each pixel's disparity and its cost there, on the device
+/// ([`TgvProblemGpu::record_disparities_and_costs`]): the disparities' bits, then the costs, 4
+/// per word.
+pub(super) struct Gathered {
+    pub out: wgpu::Buffer,
+    pixels: usize,
+}
+
+impl Gathered {
+    /// Where to read it back.
+    pub fn target(&self) -> Vec<u32> {
+        vec![0u32; self.pixels + self.pixels.div_ceil(4)]
+    }
+
+    /// The disparities and the costs, from what was read back into [`Gathered::target`].
+    pub fn decode(&self, back: &[u32]) -> (Vec<f32>, Vec<u8>) {
+        let n = self.pixels;
         let dense = back[..n].iter().map(|&b| f32::from_bits(b)).collect();
         let mut costs = bytemuck::cast_slice::<u32, u8>(&back[n..]).to_vec();
         costs.truncate(n);
-        Ok((dense, costs))
+        (dense, costs)
     }
 }

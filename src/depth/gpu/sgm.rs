@@ -15,7 +15,7 @@
 //! Every buffer and bind group is kept between pairs (`crate::gpu::kept`): after the first pair
 //! of a size, a pair creates none.
 
-use super::sgm_filters::{read_sgm, record_filters, SgmOnDevice};
+use super::sgm_filters::{read_sgm, record_filters, MapOnDevice};
 use super::{cost_volume_on_device, record_cost_volume, OnDevice};
 use crate::depth::sgm::{check_volume, CostVolume, SgmMatcher, SgmParams, SgmPaths, SubpixelFit};
 use crate::depth::{DisparityEstimator, DisparityMap};
@@ -119,7 +119,7 @@ fn record_selection(
     (sums, volume): (&wgpu::Buffer, &wgpu::Buffer),
     (width, height): (u32, u32),
     params: &SgmParams,
-) -> Result<SgmOnDevice> {
+) -> Result<MapOnDevice> {
     let radius = params.subpixel_cost_window / 2;
     // The window's sums of u8 costs stay below 2^24, exact in f32 as the CPU converts them.
     if radius > 127 {
@@ -173,7 +173,7 @@ fn record_selection(
         ],
     );
     ctx.record_dispatch(encoder, &select, &bind, n)?;
-    Ok(SgmOnDevice {
+    Ok(MapOnDevice {
         disparity,
         confidence,
         width,
@@ -232,7 +232,7 @@ pub(super) fn sgm_on_device(
     params: &SgmParams,
     kept: &mut Kept,
     on_device: &OnDevice,
-) -> Result<SgmOnDevice> {
+) -> Result<MapOnDevice> {
     params.validate()?;
     let size = (on_device.shape.width, on_device.shape.height);
     let volume = (&on_device.volume, &on_device.left);

@@ -21,17 +21,18 @@ use crate::gpu::layout::SgmFilterUniforms;
 use crate::gpu::{shaders, ErrorScopes, GpuContext};
 use crate::{Error, Result};
 
-/// SGM's result on the device: per pixel, the disparity's bits (the CPU's NaN where invalid)
-/// and the confidence (f32, 0 where invalid), in two buffers of one word per pixel.
+/// A disparity map on the device (SGM's, or the variational matcher's result): per pixel, the
+/// disparity's bits (the CPU's NaN where invalid) and the confidence (f32, 0 where invalid), in
+/// two buffers of one word per pixel.
 #[derive(Debug, Clone)]
-pub(super) struct SgmOnDevice {
+pub(super) struct MapOnDevice {
     pub disparity: wgpu::Buffer,
     pub confidence: wgpu::Buffer,
     pub width: u32,
     pub height: u32,
 }
 
-impl SgmOnDevice {
+impl MapOnDevice {
     fn pixels(&self) -> u64 {
         self.width as u64 * self.height as u64
     }
@@ -56,9 +57,9 @@ pub(super) fn record_filters(
     ctx: &GpuContext,
     encoder: &mut wgpu::CommandEncoder,
     kept: &mut Kept,
-    sgm: SgmOnDevice,
+    sgm: MapOnDevice,
     params: &SgmParams,
-) -> Result<SgmOnDevice> {
+) -> Result<MapOnDevice> {
     let n = sgm.pixels();
     if n == 0 || (!params.median_filter && params.speckle_max_size_px == 0) {
         return Ok(sgm);
@@ -114,7 +115,7 @@ pub(super) fn record_fill(
     ctx: &GpuContext,
     encoder: &mut wgpu::CommandEncoder,
     kept: &mut Kept,
-    sgm: &SgmOnDevice,
+    sgm: &MapOnDevice,
     fallback_px: f32,
     target: &wgpu::Buffer,
 ) -> Result<()> {
@@ -135,7 +136,7 @@ pub(super) fn record_fill(
 }
 
 /// A map of `sgm`'s size for its result to be read into ([`targets`]).
-pub(super) fn empty_map(sgm: &SgmOnDevice) -> DisparityMap {
+pub(super) fn empty_map(sgm: &MapOnDevice) -> DisparityMap {
     DisparityMap {
         disparity_px: Image::filled(sgm.width, sgm.height, 0.0f32),
         confidence: Some(Image::filled(sgm.width, sgm.height, 0.0f32)),
@@ -145,7 +146,7 @@ pub(super) fn empty_map(sgm: &SgmOnDevice) -> DisparityMap {
 /// `sgm`'s buffers paired with `map`'s images (from [`empty_map`]), for
 /// [`GpuContext::submit_and_read_back`].
 pub(super) fn targets<'a>(
-    sgm: &'a SgmOnDevice,
+    sgm: &'a MapOnDevice,
     map: &'a mut DisparityMap,
 ) -> Vec<(&'a wgpu::Buffer, &'a mut [u8])> {
     let confidence = map.confidence.as_mut().expect("made with a confidence");
@@ -166,16 +167,16 @@ pub(super) fn read_sgm(
     ctx: &GpuContext,
     encoder: wgpu::CommandEncoder,
     kept: &mut Kept,
-    sgm: &SgmOnDevice,
+    sgm: &MapOnDevice,
 ) -> Result<DisparityMap> {
     let mut map = empty_map(sgm);
     ctx.submit_and_read_back(encoder, kept, &mut targets(sgm, &mut map))?;
     Ok(map)
 }
 
-/// Uploads a disparity map (`disparity`, `confidence`; of equal sizes) as [`SgmOnDevice`].
-fn upload(ctx: &GpuContext, disparity: &Image<f32>, confidence: &Image<f32>) -> SgmOnDevice {
-    SgmOnDevice {
+/// Uploads a disparity map (`disparity`, `confidence`; of equal sizes) as [`MapOnDevice`].
+fn upload(ctx: &GpuContext, disparity: &Image<f32>, confidence: &Image<f32>) -> MapOnDevice {
+    MapOnDevice {
         disparity: ctx.storage("sgm_disparity", bytemuck::cast_slice(&disparity.data)),
         confidence: ctx.storage("sgm_confidence", bytemuck::cast_slice(&confidence.data)),
         width: disparity.width,
