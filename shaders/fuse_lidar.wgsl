@@ -4,7 +4,7 @@
 // CPU twin: `walk_block_ray` in src/fusion/lidar_gpu.rs (f32, block-local; the walk is in
 // shared/lidar_walk.wgsl), itself close to the f64 reference `integrate_lidar_plan` in
 // src/fusion/lidar.rs.
-// Buffer layouts: keep in sync with `LidarUniforms`, `GpuLidarRay` and `GpuVoxel` in
+// Buffer layouts: keep in sync with `LidarUniforms`, `GpuLidarPair`, `GpuRayDir` and `GpuVoxel` in
 // src/gpu/layout.rs. One invocation per listed block applies the block's rays in scan order, in
 // passes of at most `max_rays` rays dispatched one after the other, so the result is
 // deterministic. `voxels` holds the listed blocks (512 voxels each) in the order the host
@@ -13,13 +13,15 @@
 // Shared files and bindings: src/gpu/shaders.rs.
 
 @group(0) @binding(0) var<uniform> params: LidarUniforms;
-// Rays of listed block b: rays[ray_offsets[b] .. ray_offsets[b + 1]], in scan order.
+// Pairs of listed block b: pairs[ray_offsets[b] .. ray_offsets[b + 1]], in scan order.
 @group(0) @binding(1) var<storage, read> ray_offsets: array<u32>;
-@group(0) @binding(2) var<storage, read> rays: array<LidarRay>;
+@group(0) @binding(2) var<storage, read> pairs: array<LidarPair>;
 // The voxels the kernel updates in place.
 @group(0) @binding(3) var<storage, read_write> voxels: array<GpuVoxel>;
 // [0]: voxel updates applied.
 @group(0) @binding(4) var<storage, read_write> counters: array<atomic<u32>>;
+// Every ray's direction and grey level, indexed by its pairs.
+@group(0) @binding(5) var<storage, read> ray_dirs: array<LidarRayDir>;
 
 fn voxel_base(b: u32) -> u32 {
     return b * 512u;

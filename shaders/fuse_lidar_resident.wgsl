@@ -8,9 +8,9 @@
 // Shared files and bindings: src/gpu/shaders.rs.
 
 @group(0) @binding(0) var<uniform> params: LidarUniforms;
-// Rays of listed block b: rays[ray_offsets[b] .. ray_offsets[b + 1]], in scan order.
+// Pairs of listed block b: pairs[ray_offsets[b] .. ray_offsets[b + 1]], in scan order.
 @group(0) @binding(1) var<storage, read> ray_offsets: array<u32>;
-@group(0) @binding(2) var<storage, read> rays: array<LidarRay>;
+@group(0) @binding(2) var<storage, read> pairs: array<LidarPair>;
 // The pool: every resident block's voxels.
 @group(0) @binding(3) var<storage, read_write> voxels: array<GpuVoxel>;
 // [0]: voxel updates applied; [1]: listed blocks the table could not resolve.
@@ -18,6 +18,8 @@
 @group(0) @binding(5) var<storage, read> slots: array<u32>;
 // Per listed block: 1 when any of its voxels was updated (the host clears it).
 @group(0) @binding(6) var<storage, read_write> block_updated: array<u32>;
+// Every ray's direction and grey level, indexed by its pairs.
+@group(0) @binding(7) var<storage, read> ray_dirs: array<LidarRayDir>;
 
 fn voxel_base(b: u32) -> u32 {
     return slots[b] * 512u;

@@ -1,9 +1,10 @@
 // Shared by fuse_lidar.wgsl (blocks uploaded per call) and fuse_lidar_resident.wgsl (blocks
 // resident in the GPU pool): the uniforms, the (block, ray) pair and the walk of one ray through
 // one listed block (CPU twin: `walk_block_ray` in src/fusion/lidar_gpu.rs). Each kernel declares
-// `ray_offsets` and `rays` (bindings 1 and 2), `voxels` (binding 3) and `voxel_base(b)`, the
-// index of listed block b's first voxel there.
-// Keep in sync with `LidarUniforms`, `GpuLidarRay` and `GpuVoxel` in src/gpu/layout.rs.
+// `ray_offsets` and `pairs` (bindings 1 and 2), `voxels` (binding 3), `ray_dirs` and
+// `voxel_base(b)`, the index of listed block b's first voxel there.
+// Keep in sync with `LidarUniforms`, `GpuLidarPair`, `GpuRayDir` and `GpuVoxel` in
+// src/gpu/layout.rs.
 
 struct LidarUniforms {
     // Blocks in this batch.
@@ -19,23 +20,27 @@ struct LidarUniforms {
     _pad2: u32,
 }
 
-// One (block, ray) pair in block-local voxel coordinates (`GpuLidarRay`).
-struct LidarRay {
+// One (block, ray) pair's own values in block-local voxel coordinates (`GpuLidarPair`).
+struct LidarPair {
     start_x: f32,
     start_y: f32,
     start_z: f32,
-    dir_x: f32,
-    dir_y: f32,
-    dir_z: f32,
     // Signed distance to the return at the start point, metres.
     sdf_start_m: f32,
     // Length of the walk, voxels (negative: nothing to walk).
     len_vox: f32,
-    // Block-local cell the walk starts in, and the most cells it visits (decided in f64).
-    start_cell_x: i32,
-    start_cell_y: i32,
-    start_cell_z: i32,
-    steps: u32,
+    // Bytes 0–2: the block-local cell the walk starts in (i8 each); byte 3: the most cells it
+    // visits (both decided in f64).
+    cells_steps: u32,
+    // Index of the ray's LidarRayDir.
+    ray: u32,
+}
+
+// What a ray's pairs share (`GpuRayDir`): its unit direction and grey level.
+struct LidarRayDir {
+    dir_x: f32,
+    dir_y: f32,
+    dir_z: f32,
     gray: u32,
 }
 
@@ -55,17 +60,20 @@ fn axis_setup(d: f32, c: i32, s: f32) -> vec3<f32> {
     return vec3<f32>(0.0, NEVER, NEVER);
 }
 
-// Walks `ray` through listed block `b` (Amanatides–Woo, the order of operations of
+// Walks the ray of `pair` through listed block `b` (Amanatides–Woo, the order of operations of
 // `walk_block_ray`) and fuses every voxel of the block it visits whose sdf ≥ −μ. Returns the
 // number of updates.
-fn apply_ray(b: u32, ray: LidarRay) -> u32 {
-    let len = ray.len_vox;
+fn apply_ray(b: u32, pair: LidarPair) -> u32 {
+    let len = pair.len_vox;
     if (len < 0.0) {
         return 0u;
     }
-    let s = vec3<f32>(ray.start_x, ray.start_y, ray.start_z);
+    let ray = ray_dirs[pair.ray];
+    let s = vec3<f32>(pair.start_x, pair.start_y, pair.start_z);
     let d = vec3<f32>(ray.dir_x, ray.dir_y, ray.dir_z);
-    var cell = vec3<i32>(ray.start_cell_x, ray.start_cell_y, ray.start_cell_z);
+    // The packed i8 cells, sign-extended.
+    let packed = bitcast<i32>(pair.cells_steps);
+    var cell = vec3<i32>((packed << 24u) >> 24u, (packed << 16u) >> 24u, (packed << 8u) >> 24u);
     // Per axis (no loop: llvmpipe caps the loop iterations of an invocation).
     let ax = axis_setup(d.x, cell.x, s.x);
     let ay = axis_setup(d.y, cell.y, s.y);
@@ -73,14 +81,14 @@ fn apply_ray(b: u32, ray: LidarRay) -> u32 {
     let step = vec3<i32>(i32(ax.x), i32(ay.x), i32(az.x));
     var t_max = vec3<f32>(ax.y, ay.y, az.y);
     let t_delta = vec3<f32>(ax.z, ay.z, az.z);
-    var remaining = ray.steps;
+    var remaining = pair.cells_steps >> 24u;
     let rgb = ray.gray * 0x010101u;
     var n = 0u;
     while (remaining > 0u) {
         if (all(cell >= vec3<i32>(0)) && all(cell < vec3<i32>(8))) {
             let c = vec3<f32>(cell) + 0.5 - s;
             let tc = c.x * d.x + c.y * d.y + c.z * d.z;
-            let sdf = ray.sdf_start_m - tc * params.voxel_size_m;
+            let sdf = pair.sdf_start_m - tc * params.voxel_size_m;
             if (sdf >= -params.truncation_m) {
                 let t = min(sdf, params.truncation_m) / params.truncation_m;
                 let gv = voxel_base(b) + u32(cell.x) + 8u * (u32(cell.y) + 8u * u32(cell.z));
@@ -118,7 +126,7 @@ fn apply_pass(b: u32) -> u32 {
     let first = ray_offsets[b] + params.first_ray;
     let end = min(ray_offsets[b + 1u], first + params.max_rays);
     for (var k = first; k < end; k = k + 1u) {
-        n = n + apply_ray(b, rays[k]);
+        n = n + apply_ray(b, pairs[k]);
     }
     return n;
 }

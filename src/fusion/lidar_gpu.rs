@@ -14,7 +14,9 @@
 //!
 //! WGSL has no f64, and a world-frame f32 walk would lose centimetres kilometres from the
 //! origin. So each (block, ray) pair is prepared on the CPU in f64 as a [`GpuLidarRay`] in the
-//! block's own voxel coordinates ([`block_local_ray`]): the walk starts one voxel before the ray
+//! block's own voxel coordinates ([`block_local_ray`]; it goes up as a 28-byte
+//! [`GpuLidarPair`], its ray's direction and grey level once per ray as a [`GpuRayDir`]): the
+//! walk starts one voxel before the ray
 //! enters the block (or at the band's start) and ends one voxel after it leaves (or at the band's
 //! end), and the signed distance is carried from the start point. The kernel then walks in f32
 //! with values below ~10 voxels. [`walk_block_ray`] is its CPU twin (same f32 operations in the
@@ -28,7 +30,9 @@
 //! states the tolerance.
 
 use crate::fusion::{band_m, FusionStats, LidarPlan};
-use crate::gpu::layout::{apply_updated, pack_block_into, GpuLidarRay, GpuVoxel, LidarUniforms};
+use crate::gpu::layout::{
+    apply_updated, pack_block_into, GpuLidarPair, GpuLidarRay, GpuRayDir, GpuVoxel, LidarUniforms,
+};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext, Kernel};
 use crate::grid::{
@@ -50,8 +54,10 @@ pub(super) const LOOP_BUDGET: u32 = 60_000;
 
 /// Bytes of one block of [`GpuVoxel`]s.
 const BLOCK_BYTES: u64 = (VOXELS_PER_BLOCK * std::mem::size_of::<GpuVoxel>()) as u64;
-/// Bytes of one [`GpuLidarRay`] (keep the 52 in the messages in sync).
-pub(super) const RAY_BYTES: u64 = std::mem::size_of::<GpuLidarRay>() as u64;
+/// Bytes of one [`GpuLidarPair`] (keep the 28 in the messages in sync).
+pub(super) const PAIR_BYTES: u64 = std::mem::size_of::<GpuLidarPair>() as u64;
+/// Bytes of one [`GpuRayDir`].
+const RAY_DIR_BYTES: usize = std::mem::size_of::<GpuRayDir>();
 
 /// The walk of the ray from `origin_m` along the unit `dir` with return at `range_m` through
 /// `block`, in the block's voxel coordinates (computed in f64, stored in f32): it covers the
@@ -171,46 +177,104 @@ pub fn walk_block_ray(
     n
 }
 
-/// The pairs of `range` (one block's, in scan order) as [`GpuLidarRay`]s.
-fn block_local_rays(grid: &GridParams, plan: &LidarPlan, range: Range<usize>) -> Vec<GpuLidarRay> {
+/// The pairs of `range` (one block's, in scan order) as [`GpuLidarRay`]s, with their rays'
+/// indices.
+fn block_local_rays(
+    grid: &GridParams,
+    plan: &LidarPlan,
+    range: Range<usize>,
+) -> Vec<(GpuLidarRay, u32)> {
     let origin = plan.origin_m();
     let rays = plan.rays();
     plan.pairs()[range]
         .iter()
         .map(|&(block, k)| {
             let r = &rays[k as usize];
-            block_local_ray(grid, origin, r.dir, r.range_m, r.gray, block)
+            let ray = block_local_ray(grid, origin, r.dir, r.range_m, r.gray, block);
+            (ray, k)
         })
         .collect()
 }
 
-/// The rays of the listed blocks `order` (indices into `groups`, `total` rays in all) in that
-/// order, as [`GpuLidarRay`]s written straight into a new upload's mapping, a block per task;
-/// returns it and the rays a pass may apply per block (`LOOP_BUDGET / (longest walk + 1)`).
+/// The (block, ray) pairs of the listed blocks `order` (indices into `groups`, `total` pairs in
+/// all) in that order, as [`GpuLidarPair`]s written straight into a new upload's mapping, a
+/// block per task, and the rays they refer to as [`GpuRayDir`]s (16 bytes each: every ray of
+/// `plan` when they fit one binding, else those of these blocks, numbered afresh); returns both
+/// buffers and the rays a pass may apply per block (`LOOP_BUDGET / (longest walk + 1)`).
 pub(super) fn upload_rays(
     ctx: &GpuContext,
     grid: &GridParams,
     (plan, groups): (&LidarPlan, &[(BlockIndex, Range<usize>)]),
     order: &[usize],
     total: u32,
-) -> Result<(wgpu::Buffer, u32)> {
+) -> Result<(wgpu::Buffer, wgpu::Buffer, u32)> {
     let count = |b: usize| groups[b].1.len();
+    let rays = plan.rays();
+    // The rays uploaded, and each plan ray's number among them when they are not all.
+    let (uploaded, renumbered): (Vec<u32>, Option<Vec<u32>>) =
+        if ((rays.len() * RAY_DIR_BYTES) as u64) <= ctx.max_binding_bytes() {
+            ((0..rays.len() as u32).collect(), None)
+        } else {
+            let mut number = vec![u32::MAX; rays.len()];
+            let mut uploaded = Vec::new();
+            for &b in order {
+                for &(_, k) in &plan.pairs()[groups[b].1.clone()] {
+                    if number[k as usize] == u32::MAX {
+                        number[k as usize] = uploaded.len() as u32;
+                        uploaded.push(k);
+                    }
+                }
+            }
+            (uploaded, Some(number))
+        };
+    // At most one ray per pair: 16 bytes where its pair has 28.
+    ctx.check_binding(
+        "LiDAR ray directions (16 bytes per ray)",
+        (uploaded.len() * RAY_DIR_BYTES) as u64,
+    )?;
     let mut longest_walk = 0u32;
-    let buf_rays = ctx.storage_filled("lidar_rays", total as u64 * RAY_BYTES, |out| {
-        longest_walk = ray_slots(out, order.iter().map(|&b| count(b)))
+    let mut unpacked = 0usize;
+    let buf_pairs = ctx.storage_filled("lidar_pairs", total as u64 * PAIR_BYTES, |out| {
+        (longest_walk, unpacked) = pair_slots(out, order.iter().map(|&b| count(b)))
             .into_par_iter()
             .zip(order.par_iter())
             .map(|(slots, &b)| {
+                let (mut longest, mut unpacked) = (0u32, 0usize);
                 let rays = block_local_rays(grid, plan, groups[b].1.clone());
-                for (slot, ray) in slots.into_iter().zip(&rays) {
-                    slot.write(bytemuck::cast(*ray));
+                for (slot, (ray, k)) in slots.into_iter().zip(&rays) {
+                    longest = longest.max(ray.steps);
+                    let index = renumbered.as_ref().map_or(*k, |n| n[*k as usize]);
+                    match GpuLidarPair::pack(ray, index) {
+                        Some(pair) => slot.write(bytemuck::cast(pair)),
+                        None => unpacked += 1,
+                    }
                 }
-                rays.iter().map(|r| r.steps).max().unwrap_or(0)
+                (longest, unpacked)
             })
-            .max()
-            .unwrap_or(0);
+            .reduce(|| (0, 0), |a, b| (a.0.max(b.0), a.1 + b.1));
     })?;
-    Ok((buf_rays, (LOOP_BUDGET / (longest_walk + 1)).max(1)))
+    if unpacked > 0 {
+        return Err(Error::Gpu(format!(
+            "{unpacked} LiDAR (block, ray) walks have a start cell or step count that does not \
+             fit their packed word"
+        )));
+    }
+    let pieces = uploaded.len().max(1);
+    let buf_dirs = ctx.storage_by_piece::<RAY_DIR_BYTES>("lidar_ray_dirs", pieces, |i, dst| {
+        let dir = uploaded.get(i).map_or(GpuRayDir::default(), |&k| {
+            let r = &rays[k as usize];
+            GpuRayDir {
+                dir: r.dir.map(|d| d as f32),
+                gray: r.gray as u32,
+            }
+        });
+        *dst = bytemuck::cast(dir);
+    })?;
+    Ok((
+        buf_pairs,
+        buf_dirs,
+        (LOOP_BUDGET / (longest_walk + 1)).max(1),
+    ))
 }
 
 /// Records the passes of the LiDAR `kernel` over blocks listed by decreasing ray count (`counts`,
@@ -265,14 +329,14 @@ pub(super) fn dispatch_order(
     (order, offsets)
 }
 
-/// `out` cut into its [`GpuLidarRay`]-sized pieces, grouped by `counts` (their sum at most the
+/// `out` cut into its [`GpuLidarPair`]-sized pieces, grouped by `counts` (their sum at most the
 /// pieces there are).
 #[allow(clippy::type_complexity)]
-fn ray_slots<'a>(
+fn pair_slots<'a>(
     out: wgpu::WriteOnly<'a, [u8]>,
     counts: impl Iterator<Item = usize>,
-) -> Vec<Vec<wgpu::WriteOnly<'a, [u8; RAY_BYTES as usize]>>> {
-    let (slots, _) = out.into_chunks::<{ RAY_BYTES as usize }>();
+) -> Vec<Vec<wgpu::WriteOnly<'a, [u8; PAIR_BYTES as usize]>>> {
+    let (slots, _) = out.into_chunks::<{ PAIR_BYTES as usize }>();
     let mut slots = slots.into_iter();
     counts.map(|n| slots.by_ref().take(n).collect()).collect()
 }
@@ -280,8 +344,8 @@ fn ray_slots<'a>(
 /// Fuses the LiDAR scan planned in `plan` into `layer` on the GPU, like
 /// [`crate::fusion::integrate_lidar_plan`] (same blocks listed, same counters): returns the
 /// touched blocks (sorted) and work counters. Blocks go in batches that fit one storage binding
-/// (4 KiB of voxels per block, 52 bytes per (block, ray) pair); a single block whose voxels or
-/// rays exceed a binding is an [`Error::GpuCapacity`]. On error the layer holds the blocks as
+/// (4 KiB of voxels per block, 28 bytes per (block, ray) pair; 16 bytes per ray besides); a
+/// single block whose voxels or rays exceed a binding is an [`Error::GpuCapacity`]. On error the layer holds the blocks as
 /// before (nothing is written before every batch was read back).
 pub fn integrate_lidar_gpu(
     ctx: &GpuContext,
@@ -308,7 +372,7 @@ fn batches(ctx: &GpuContext, groups: &[(BlockIndex, Range<usize>)]) -> Result<Ve
         while end < groups.len() {
             let blocks = (end - start + 1) as u64;
             let r = groups[end].1.len() as u64;
-            if blocks * BLOCK_BYTES > cap || (rays + r) * RAY_BYTES > cap || (blocks + 1) * 4 > cap
+            if blocks * BLOCK_BYTES > cap || (rays + r) * PAIR_BYTES > cap || (blocks + 1) * 4 > cap
             {
                 break;
             }
@@ -318,7 +382,7 @@ fn batches(ctx: &GpuContext, groups: &[(BlockIndex, Range<usize>)]) -> Result<Ve
         if end == start {
             let r = groups[start].1.len() as u64;
             ctx.check_binding("voxels of one block (4 KiB)", BLOCK_BYTES)?;
-            ctx.check_binding("rays of one block (52 bytes per ray)", r * RAY_BYTES)?;
+            ctx.check_binding("rays of one block (28 bytes per ray)", r * PAIR_BYTES)?;
             ctx.check_binding("ray offsets of one block", 8)?;
             return Err(Error::Gpu("batching LiDAR blocks: no progress".into()));
         }
@@ -352,7 +416,8 @@ fn fuse_blocks(
         let voxel_count = (batch.len() * VOXELS_PER_BLOCK) as u64;
         // The rays and voxels are written straight into the uploads' mappings, a block per
         // task, in dispatch order.
-        let (buf_rays, rays_per_pass) = upload_rays(ctx, grid, (plan, groups), &order, total)?;
+        let (buf_pairs, buf_dirs, rays_per_pass) =
+            upload_rays(ctx, grid, (plan, groups), &order, total)?;
         let buf_voxels = ctx.storage_by_piece::<{ BLOCK_BYTES as usize }>(
             "lidar_voxels",
             order.len(),
@@ -375,9 +440,10 @@ fn fuse_blocks(
             let buffers = [
                 uniforms,
                 &buf_offsets,
-                &buf_rays,
+                &buf_pairs,
                 &buf_voxels,
                 &buf_counters,
+                &buf_dirs,
             ];
             ctx.bind_group("fuse_lidar", &kernel.layout, &buffers)
         };
@@ -460,6 +526,13 @@ mod tests {
             });
             for (b, cells) in want {
                 let ray = block_local_ray(&grid, origin, dir, range, 0, b);
+                // What goes to the device gives the same ray back.
+                let shared = GpuRayDir {
+                    dir: ray.dir,
+                    gray: ray.gray,
+                };
+                let pair = GpuLidarPair::pack(&ray, 7).expect("packs");
+                assert_eq!(pair.unpack(&shared), ray);
                 let mut got = Vec::new();
                 walk_block_ray(&ray, grid.truncation_m, grid.voxel_size_m, |i, t| {
                     got.push((i, t))

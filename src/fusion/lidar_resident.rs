@@ -4,14 +4,15 @@
 //! scan's blocks where they live on the device, so a scan no longer sends its blocks up and
 //! reads them back (4 KiB each, both ways): the blocks already resident stay, those in RAM go up
 //! once (as for a depth frame), new ones are made empty on the device, and what comes back is
-//! the counters and one flag per block. The (block, ray) pairs still go up, 52 bytes each.
+//! the counters and one flag per block. What goes up besides: each ray once (16 bytes) and each
+//! (block, ray) pair's own values (28 bytes).
 //!
 //! The result equals the per-call kernel's bit for bit (the same f32 operations on the same
 //! values, in the same order per block), so it keeps its relation to the CPU's walk
 //! (`tests/gpu/lidar.rs`).
 
 use super::depth_gpu::submit_resident_frame;
-use super::lidar_gpu::{dispatch_order, record_passes, upload_rays, RAY_BYTES};
+use super::lidar_gpu::{dispatch_order, record_passes, upload_rays, PAIR_BYTES};
 use super::{integrate_lidar_gpu, FusionStats, LidarPlan};
 use crate::gpu::layout::LookupUniforms;
 use crate::gpu::resident::ResidentMap;
@@ -46,7 +47,7 @@ pub fn integrate_lidar_resident(
         };
         return Ok((Vec::new(), stats));
     }
-    let pair_bytes = plan.pair_count() as u64 * RAY_BYTES;
+    let pair_bytes = plan.pair_count() as u64 * PAIR_BYTES;
     if blocks.len() > map.max_blocks() as usize || pair_bytes > map.context().max_binding_bytes() {
         map.note_oversize();
         tracing::warn!(
@@ -88,7 +89,8 @@ fn run_resident(
     let (order, offsets) = dispatch_order(groups, 0..n);
     let total = *offsets.last().expect("one offset at least");
     ctx.check_binding("block keys (16 bytes per block)", n as u64 * 16)?;
-    let (buf_rays, rays_per_pass) = upload_rays(ctx, &grid, (plan, groups), &order, total)?;
+    let (buf_pairs, buf_dirs, rays_per_pass) =
+        upload_rays(ctx, &grid, (plan, groups), &order, total)?;
     let keys: Vec<[i32; 4]> = order
         .iter()
         .map(|&b| {
@@ -132,11 +134,12 @@ fn run_resident(
         let buffers = [
             uniforms,
             &buf_offsets,
-            &buf_rays,
+            &buf_pairs,
             pool,
             &buf_counters,
             &buf_slots,
             &buf_updated,
+            &buf_dirs,
         ];
         ctx.bind_group("fuse_lidar_resident", &fuse.layout, &buffers)
     };

@@ -78,10 +78,12 @@ pub struct LidarUniforms {
     pub pad: [u32; 3],
 }
 
-/// One (block, ray) pair of LiDAR fusion in the block's own frame (WGSL twin: `LidarRay` in
-/// `shaders/fuse_lidar.wgsl`): block-local voxel coordinates (voxel `(x, y, z)` of the block
-/// covers `[x, x + 1) × [y, y + 1) × [z, z + 1)`), so f32 keeps its precision at any distance
-/// from the world origin. Built in f64 on the CPU by `src/gpu/lidar.rs`.
+/// One (block, ray) pair of LiDAR fusion in the block's own frame: block-local voxel
+/// coordinates (voxel `(x, y, z)` of the block covers `[x, x + 1) × [y, y + 1) × [z, z + 1)`),
+/// so f32 keeps its precision at any distance from the world origin. Built in f64 on the CPU by
+/// [`crate::fusion::block_local_ray`] and walked by [`crate::fusion::walk_block_ray`]; it goes
+/// to the device as a [`GpuLidarPair`] (its own values) and the ray's [`GpuRayDir`] (shared by
+/// the ray's pairs), which `shaders/shared/lidar_walk.wgsl` puts back together.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct GpuLidarRay {
@@ -102,6 +104,68 @@ pub struct GpuLidarRay {
     pub steps: u32,
     /// Grey level of the return (0–255).
     pub gray: u32,
+}
+
+/// A LiDAR ray's direction and grey level, once per ray (16 bytes; WGSL twin: `LidarRayDir` in
+/// `shaders/shared/lidar_walk.wgsl`): the part of a [`GpuLidarRay`] its pairs share.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuRayDir {
+    /// Unit direction (world axes), as [`GpuLidarRay::dir`].
+    pub dir: [f32; 3],
+    /// Grey level of the return (0–255).
+    pub gray: u32,
+}
+
+/// A (block, ray) pair's own part of a [`GpuLidarRay`] (28 bytes; WGSL twin: `LidarPair` in
+/// `shaders/shared/lidar_walk.wgsl`): the start, the signed distance there and the walk's
+/// length, the start cell and step count packed in one word (three i8 and a u8), and the index
+/// of the ray's [`GpuRayDir`]. Lossless: [`GpuLidarPair::unpack`] gives the ray back.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct GpuLidarPair {
+    /// As [`GpuLidarRay::start_vox`].
+    pub start_vox: [f32; 3],
+    /// As [`GpuLidarRay::sdf_start_m`].
+    pub sdf_start_m: f32,
+    /// As [`GpuLidarRay::len_vox`].
+    pub len_vox: f32,
+    /// Bytes 0–2: the start cell's x, y, z (i8); byte 3: the step count (u8).
+    pub cells_steps: u32,
+    /// Index of the ray's [`GpuRayDir`].
+    pub ray: u32,
+}
+
+impl GpuLidarPair {
+    /// `ray`'s own values, with `ray_index` its direction's index; `None` when its start cell
+    /// or step count does not fit the packed word (a walk within one voxel of its block has
+    /// cells in −2..=9 and at most 49 steps, so this does not happen for
+    /// [`crate::fusion::block_local_ray`]'s pairs).
+    pub fn pack(ray: &GpuLidarRay, ray_index: u32) -> Option<Self> {
+        let cell = |a: usize| i8::try_from(ray.start_cell[a]).ok().map(|c| c as u8 as u32);
+        let steps = u8::try_from(ray.steps).ok()? as u32;
+        Some(GpuLidarPair {
+            start_vox: ray.start_vox,
+            sdf_start_m: ray.sdf_start_m,
+            len_vox: ray.len_vox,
+            cells_steps: cell(0)? | cell(1)? << 8 | cell(2)? << 16 | steps << 24,
+            ray: ray_index,
+        })
+    }
+
+    /// The [`GpuLidarRay`] this pair and its ray's `dir` make.
+    pub fn unpack(&self, dir: &GpuRayDir) -> GpuLidarRay {
+        let cell = |a: u32| (self.cells_steps >> (8 * a)) as u8 as i8 as i32;
+        GpuLidarRay {
+            start_vox: self.start_vox,
+            dir: dir.dir,
+            sdf_start_m: self.sdf_start_m,
+            len_vox: self.len_vox,
+            start_cell: [cell(0), cell(1), cell(2)],
+            steps: self.cells_steps >> 24,
+            gray: dir.gray,
+        }
+    }
 }
 
 /// Uniforms of `shaders/block_lookup.wgsl` (WGSL twin: `LookupUniforms` there).
@@ -466,7 +530,8 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("SlotListUniforms", std::mem::size_of::<SlotListUniforms>()),
     ("SlotFillUniforms", std::mem::size_of::<SlotFillUniforms>()),
     ("LidarUniforms", std::mem::size_of::<LidarUniforms>()),
-    ("LidarRay", std::mem::size_of::<GpuLidarRay>()),
+    ("LidarPair", std::mem::size_of::<GpuLidarPair>()),
+    ("LidarRayDir", std::mem::size_of::<GpuRayDir>()),
     ("TgvUniforms", std::mem::size_of::<TgvUniforms>()),
     (
         "PointwiseUniforms",

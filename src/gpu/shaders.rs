@@ -132,7 +132,7 @@ pub const FUSE_LIDAR: ShaderSource = kernel!(
         "shared/voxel_fuse.wgsl",
         "shared/lidar_walk.wgsl"
     ],
-    [Uniform, Read, Read, ReadWrite, ReadWrite]
+    [Uniform, Read, Read, ReadWrite, ReadWrite, Read]
 );
 
 /// LiDAR fusion (ray-wise, inside the truncation band) into the blocks resident in the pool.
@@ -145,7 +145,7 @@ pub const FUSE_LIDAR_RESIDENT: ShaderSource = kernel!(
         "shared/lidar_walk.wgsl",
         "shared/block_hash.wgsl"
     ],
-    [Uniform, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite]
+    [Uniform, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite, Read]
 );
 
 /// TGV stereo dual step (`p` with the tensor, `q`).

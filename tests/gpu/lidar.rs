@@ -561,14 +561,16 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
     assert!(s1.grows >= 1 && s1.blocks_spilled == 0 && s1.oversize_frames == 0);
     assert_eq!(touched, per_call_touched, "touched blocks per scan");
     assert_layers_identical("resident vs per call", &per_call, &grown);
-    // The second round's scans find their blocks resident: up go the (block, ray) pairs (52
-    // bytes each) and small inputs, down the counters and a flag per block; no block either way.
+    // The second round's scans find their blocks resident: up go each ray once (16 bytes), each
+    // (block, ray) pair's own values (28 bytes; before, whole 52-byte pairs) and small inputs,
+    // down the counters and a flag per block; no block either way.
     for (k, t) in traffic.iter().enumerate().skip(3) {
         let plan = LidarPlan::new(&grid, &scans[k], &PARAMS);
         let (pairs, blocks) = (plan.pair_count() as u64, plan.blocks().len() as u64);
-        eprintln!("scan {k}: {pairs} pairs, {blocks} blocks: {t:?}");
+        let rays = plan.ray_count() as u64;
+        eprintln!("scan {k}: {rays} rays, {pairs} pairs, {blocks} blocks: {t:?}");
         assert!(
-            t.upload_bytes <= 52 * pairs + 20 * blocks + (64 << 10),
+            t.upload_bytes <= 16 * rays + 28 * pairs + 20 * blocks + (64 << 10),
             "{t:?}"
         );
         assert!(t.readback_bytes <= 4 * blocks + (4 << 10), "{t:?}");
