@@ -30,6 +30,7 @@
 //! states the tolerance.
 
 use crate::fusion::{band_m, FusionStats, LidarPlan};
+use crate::gpu::kept::Kept;
 use crate::gpu::layout::{
     apply_updated, pack_block_into, GpuLidarPair, GpuLidarRay, GpuRayDir, GpuVoxel, LidarUniforms,
 };
@@ -199,10 +200,11 @@ fn block_local_rays(
 /// The (block, ray) pairs of the listed blocks `order` (indices into `groups`, `total` pairs in
 /// all) in that order, as [`GpuLidarPair`]s written straight into a new upload's mapping, a
 /// block per task, and the rays they refer to as [`GpuRayDir`]s (16 bytes each: every ray of
-/// `plan` when they fit one binding, else those of these blocks, numbered afresh); returns both
-/// buffers and the rays a pass may apply per block (`LOOP_BUDGET / (longest walk + 1)`).
+/// `plan` when they fit one binding, else those of these blocks, numbered afresh; in `kept`'s
+/// buffer when given, else a new one); returns both buffers and the rays a pass may apply per
+/// block (`LOOP_BUDGET / (longest walk + 1)`).
 pub(super) fn upload_rays(
-    ctx: &GpuContext,
+    (ctx, kept): (&GpuContext, Option<&mut Kept>),
     grid: &GridParams,
     (plan, groups): (&LidarPlan, &[(BlockIndex, Range<usize>)]),
     order: &[usize],
@@ -259,17 +261,25 @@ pub(super) fn upload_rays(
              fit their packed word"
         )));
     }
-    let pieces = uploaded.len().max(1);
-    let buf_dirs = ctx.storage_by_piece::<RAY_DIR_BYTES>("lidar_ray_dirs", pieces, |i, dst| {
-        let dir = uploaded.get(i).map_or(GpuRayDir::default(), |&k| {
-            let r = &rays[k as usize];
-            GpuRayDir {
-                dir: r.dir.map(|d| d as f32),
-                gray: r.gray as u32,
-            }
-        });
-        *dst = bytemuck::cast(dir);
-    })?;
+    let dir = |k: u32| {
+        let r = &rays[k as usize];
+        GpuRayDir {
+            dir: r.dir.map(|d| d as f32),
+            gray: r.gray as u32,
+        }
+    };
+    let buf_dirs = match kept {
+        Some(kept) => {
+            let dirs: Vec<GpuRayDir> = uploaded.par_iter().map(|&k| dir(k)).collect();
+            kept.storage_with(ctx, "lidar_ray_dirs", bytemuck::cast_slice(&dirs))
+        }
+        None => {
+            let pieces = uploaded.len().max(1);
+            ctx.storage_by_piece::<RAY_DIR_BYTES>("lidar_ray_dirs", pieces, |i, dst| {
+                *dst = bytemuck::cast(uploaded.get(i).map_or(GpuRayDir::default(), |&k| dir(k)));
+            })?
+        }
+    };
     Ok((
         buf_pairs,
         buf_dirs,
@@ -417,7 +427,7 @@ fn fuse_blocks(
         // The rays and voxels are written straight into the uploads' mappings, a block per
         // task, in dispatch order.
         let (buf_pairs, buf_dirs, rays_per_pass) =
-            upload_rays(ctx, grid, (plan, groups), &order, total)?;
+            upload_rays((ctx, None), grid, (plan, groups), &order, total)?;
         let buf_voxels = ctx.storage_by_piece::<{ BLOCK_BYTES as usize }>(
             "lidar_voxels",
             order.len(),

@@ -89,8 +89,13 @@ fn run_resident(
     let (order, offsets) = dispatch_order(groups, 0..n);
     let total = *offsets.last().expect("one offset at least");
     ctx.check_binding("block keys (16 bytes per block)", n as u64 * 16)?;
-    let (buf_pairs, buf_dirs, rays_per_pass) =
-        upload_rays(ctx, &grid, (plan, groups), &order, total)?;
+    let (buf_pairs, buf_dirs, rays_per_pass) = upload_rays(
+        (ctx, Some(&mut *kept)),
+        &grid,
+        (plan, groups),
+        &order,
+        total,
+    )?;
     let keys: Vec<[i32; 4]> = order
         .iter()
         .map(|&b| {
