@@ -27,7 +27,8 @@
 //! initial disparity is filled there from SGM's (`shaders/tgv_fill_*.wgsl`), and at the end the
 //! map is invalidated there (`invalidate.rs`: occlusions, the census cost at each pixel's
 //! disparity, SGM's agreement and confidence), so a pair sends its two images up and reads its
-//! map back (8 bytes per pixel), in one wait; neither the volume nor any stage's state comes
+//! map back (8 bytes per pixel), in one submit and one wait (the rounds' uniforms copied on
+//! the device from a table written once); neither the volume nor any stage's state comes
 //! back. What stays on the CPU: the initial problem's setup. Every array must fit one storage
 //! binding (the largest is the window sums, 2 bytes per pixel and disparity: 119 MB for
 //! 1241×376×128, under llvmpipe's 128 MiB); a larger input is an
@@ -106,8 +107,8 @@ pub fn pointwise_search_gpu(
         &mut encoder,
         (&buf_u, 1),
         &buf_a,
-        lambda,
-        theta,
+        (lambda, theta),
+        None,
     )?;
     ctx.submit(encoder);
     scope.pop("running the point-wise search")?;
@@ -128,7 +129,9 @@ pub fn diffusion_tensors_gpu(
     let tensors = Tensors::Device(&buf_image, gamma, beta);
     let setup = (Regularizer::TgvTensor, 1.0, 1.0);
     let size = (Some(&u0[..]), w, h);
-    let gpu = TgvProblemGpu::fresh_in(ctx, Kept::default(), size, setup, tensors)?;
+    let mut encoder = new_encoder(ctx, "tgv_tensors");
+    let gpu = TgvProblemGpu::fresh_in((ctx, &mut encoder), Kept::default(), size, setup, tensors)?;
+    ctx.submit(encoder);
     ctx.read_back_as(&gpu.tensors, w * h)
 }
 
@@ -148,7 +151,17 @@ pub fn refine_gpu(
     let raw = data_cost::upload_costs(ctx, volume, matcher.params.cost_window)?;
     let on_device = (volume.shape(), &raw);
     let init = Init::Map(init);
-    refine_on_device(ctx, Kept::default(), matcher, (left, None), on_device, init)?.u()
+    let encoder = new_encoder(ctx, "tgv_refine");
+    let kept = (Kept::default(), encoder);
+    let (gpu, encoder) = refine_on_device(ctx, kept, matcher, (left, None), on_device, init)?;
+    ctx.submit(encoder);
+    gpu.u()
+}
+
+/// A command encoder labelled `label`.
+fn new_encoder(ctx: &GpuContext, label: &str) -> wgpu::CommandEncoder {
+    ctx.device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
 }
 
 /// Where [`refine_on_device`] finds SGM's disparity.
@@ -162,16 +175,17 @@ enum Init<'a> {
 
 /// [`refine_gpu`] over the raw costs `raw` already on the device (of a volume of shape
 /// `volume`), from SGM's disparity `init`, with TGV-tensor's tensors made there from
-/// `left_on_device` (the left image's buffer) when given, in the buffers of `kept`; returns the
-/// problem, still on the device.
+/// `left_on_device` (the left image's buffer) when given, in the buffers of `kept`, recorded
+/// after what `encoder` holds; returns the problem, still on the device, and the encoder, not
+/// submitted (long runs submit part of it, [`TgvProblemGpu::record_rounds`]).
 fn refine_on_device<'c>(
     ctx: &'c GpuContext,
-    kept: Kept,
+    (kept, mut encoder): (Kept, wgpu::CommandEncoder),
     matcher: &TgvMatcher,
     (left, left_on_device): (&GreyImage, Option<&wgpu::Buffer>),
     (volume, raw): (VolumeShape, &wgpu::Buffer),
     init: Init,
-) -> Result<TgvProblemGpu<'c>> {
+) -> Result<(TgvProblemGpu<'c>, wgpu::CommandEncoder)> {
     let p = &matcher.params;
     p.validate()?;
     let (w, h) = (volume.width as usize, volume.height as usize);
@@ -190,30 +204,15 @@ fn refine_on_device<'c>(
         _ => Tensors::Identity,
     };
     let setup = (p.regularizer, p.alpha1, p.alpha2);
-    let mut gpu = TgvProblemGpu::fresh_in(ctx, kept, (u0.as_deref(), w, h), setup, tensors)?;
-    let data = DataCostGpu::on_device(ctx, &mut gpu.kept, volume, raw, p.cost_window)?;
-    for k in 0..p.outer_iterations {
-        let theta = p.theta(k);
-        let scope = ErrorScopes::push(&ctx.device);
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("pointwise"),
-            });
-        // u is the first of the primal's three floats per pixel; a is the problem's target.
-        data.record_search(
-            (ctx, &mut gpu.kept),
-            &mut encoder,
-            (&gpu.primal, 3),
-            &gpu.target,
-            p.lambda,
-            theta,
-        )?;
-        ctx.submit(encoder);
-        scope.pop("running the point-wise search")?;
-        gpu.run(theta, p.inner_iterations)?;
-    }
-    Ok(gpu)
+    let size = (u0.as_deref(), w, h);
+    let mut gpu = TgvProblemGpu::fresh_in((ctx, &mut encoder), kept, size, setup, tensors)?;
+    let scope = ErrorScopes::push(&ctx.device);
+    let window = p.cost_window;
+    let data = DataCostGpu::on_device(ctx, &mut gpu.kept, &mut encoder, volume, raw, window)?;
+    let thetas: Vec<f32> = (0..p.outer_iterations).map(|k| p.theta(k)).collect();
+    let encoder = gpu.record_rounds(encoder, &data, p.lambda, &thetas, p.inner_iterations)?;
+    scope.pop("recording the variational matcher's rounds")?;
+    Ok((gpu, encoder))
 }
 
 /// [`crate::depth::tgv::costs_at_disparities`] on the GPU (`shaders/tgv_cost_at.wgsl`): the
@@ -269,8 +268,8 @@ fn estimate_kept(
         let init = sgm.estimate_from_volume(left, &volume)?;
         let volume = (on_device.shape, &on_device.volume);
         let left_on_device = (left, Some(&on_device.left));
-        let taken = std::mem::take(kept);
-        let mut gpu = refine_on_device(
+        let taken = (std::mem::take(kept), new_encoder(ctx, "tgv_refine"));
+        let (mut gpu, encoder) = refine_on_device(
             ctx,
             taken,
             matcher,
@@ -278,6 +277,7 @@ fn estimate_kept(
             volume,
             Init::Map(&init),
         )?;
+        ctx.submit(encoder);
         let gathered = gpu.disparities_and_costs(volume, &mut []);
         *kept = gpu.into_kept();
         let (dense, costs) = gathered?;
@@ -298,22 +298,24 @@ fn estimate_kept(
     let target = TgvProblemGpu::target_in(ctx, kept, shape.width as usize * shape.height as usize);
     let fallback = shape.min_disparity_px as f32;
     sgm_filters::record_fill(ctx, &mut encoder, kept, &sgm, fallback, &target)?;
-    ctx.submit(encoder);
     scope.pop("recording the census, cost and SGM kernels")?;
+    // The whole pair in one submit: census, costs, SGM, the fill, the fresh problem, the
+    // window sums, the rounds and the invalidation, with the read-back copy.
     let volume = (shape, &on_device.volume);
     let left_on_device = (left, Some(&on_device.left));
-    let taken = std::mem::take(kept);
-    let mut gpu = refine_on_device(ctx, taken, matcher, left_on_device, volume, Init::OnDevice)?;
-    let finished = finish_on_device(&mut gpu, matcher, volume, &sgm, stages);
+    let taken = (std::mem::take(kept), encoder);
+    let (mut gpu, encoder) =
+        refine_on_device(ctx, taken, matcher, left_on_device, volume, Init::OnDevice)?;
+    let finished = finish_on_device((&mut gpu, encoder), matcher, volume, &sgm, stages);
     *kept = gpu.into_kept();
     finished
 }
 
-/// The invalidation of `gpu`'s disparity against SGM's map `sgm`, on the device, and what
-/// comes back in one wait: the result, and with `stages` SGM's map and the dense disparity too
+/// The invalidation of `gpu`'s disparity against SGM's map `sgm`, on the device, recorded after
+/// what `encoder` holds and submitted with it, and what comes back in one wait: the result, and with `stages` SGM's map and the dense disparity too
 /// (else those stages are empty).
 fn finish_on_device(
-    gpu: &mut TgvProblemGpu,
+    (gpu, mut encoder): (&mut TgvProblemGpu, wgpu::CommandEncoder),
     matcher: &TgvMatcher,
     volume: (VolumeShape, &wgpu::Buffer),
     sgm: &MapOnDevice,
@@ -321,11 +323,6 @@ fn finish_on_device(
 ) -> Result<TgvStages> {
     let ctx = gpu.context();
     let scope = ErrorScopes::push(&ctx.device);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("tgv_invalidate"),
-        });
     let result = gpu.record_invalidation(&mut encoder, matcher, volume, sgm)?;
     let mut map = sgm_filters::empty_map(&result);
     let mut init = DisparityMap {

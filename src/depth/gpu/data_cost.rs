@@ -25,7 +25,15 @@ impl DataCostGpu {
     /// uploaded once ([`DataCostGpu::on_device`]).
     pub(super) fn new(ctx: &GpuContext, volume: &CostVolume, window: u32) -> Result<Self> {
         let raw = upload_costs(ctx, volume, window)?;
-        Self::on_device(ctx, &mut Kept::default(), volume.shape(), &raw, window)
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("cost_window"),
+            });
+        let kept = &mut Kept::default();
+        let data = Self::on_device(ctx, kept, &mut encoder, volume.shape(), &raw, window)?;
+        ctx.submit(encoder);
+        Ok(data)
     }
 
     /// Fails with [`Error::GpuCapacity`] when the costs of `volume` over `window` do not fit
@@ -51,10 +59,12 @@ impl DataCostGpu {
     /// The data term of the cost volume of shape `volume` on the device (`raw`:
     /// [`super::record_cost_volume`]'s buffer, u8 costs 4 per word) averaged over `window` ×
     /// `window` (raw when 1). The window sums are taken on the device
-    /// (`shaders/cost_window.wgsl`, equal to the CPU's `box_filter_into`), so no cost goes up.
+    /// (`shaders/cost_window.wgsl`, equal to the CPU's `box_filter_into`, recorded into
+    /// `encoder`), so no cost goes up.
     pub(super) fn on_device(
         ctx: &GpuContext,
         kept: &mut Kept,
+        encoder: &mut wgpu::CommandEncoder,
         volume: VolumeShape,
         raw: &wgpu::Buffer,
         window: u32,
@@ -86,13 +96,7 @@ impl DataCostGpu {
                 &kernel.layout,
                 &[&buf_uniforms, raw, &sums, &counts],
             );
-            let mut encoder = ctx
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("cost_window"),
-                });
-            ctx.record_dispatch(&mut encoder, &kernel, &bind, words)?;
-            ctx.submit(encoder);
+            ctx.record_dispatch(encoder, &kernel, &bind, words)?;
             (sums, counts)
         } else {
             let ones = vec![1u32; n as usize];
@@ -122,20 +126,14 @@ impl DataCostGpu {
         Ok((sums, counts.iter().map(|&c| c as u16).collect()))
     }
 
-    /// Records one point-wise search reading `u` (stride `u_stride` floats) and writing `a`,
-    /// with uniforms and a bind group kept in `kept` (the uniforms are written through the
-    /// queue: one search per submit).
-    pub(super) fn record_search(
+    /// The point-wise search's uniforms for `u` of stride `u_stride` floats, λ and θ.
+    pub(super) fn search_uniforms(
         &self,
-        (ctx, kept): (&GpuContext, &mut Kept),
-        encoder: &mut wgpu::CommandEncoder,
-        (u, u_stride): (&wgpu::Buffer, u32),
-        a: &wgpu::Buffer,
+        u_stride: u32,
         lambda: f32,
         theta: f32,
-    ) -> Result<()> {
-        let kernel = ctx.kernel(&shaders::TGV_POINTWISE)?;
-        let uniforms = PointwiseUniforms {
+    ) -> PointwiseUniforms {
+        PointwiseUniforms {
             width: self.width,
             height: self.height,
             num_disparities: self.num_disparities,
@@ -147,9 +145,30 @@ impl DataCostGpu {
             reach: (2.0 * theta * lambda * self.max_cost as f32).sqrt(),
             min_disparity_px: self.min_disparity_px,
             pad: [0; 3],
-        };
+        }
+    }
+
+    /// Records one point-wise search reading `u` (stride `u_stride` floats) and writing `a`,
+    /// with uniforms and a bind group kept in `kept`. The uniforms are written through the
+    /// queue (one search per submit), or, with `table` (a buffer and an offset holding
+    /// [`DataCostGpu::search_uniforms`]'s bytes), copied from there in `encoder` before the
+    /// dispatch, so that searches with different θ share a submit.
+    pub(super) fn record_search(
+        &self,
+        (ctx, kept): (&GpuContext, &mut Kept),
+        encoder: &mut wgpu::CommandEncoder,
+        (u, u_stride): (&wgpu::Buffer, u32),
+        a: &wgpu::Buffer,
+        (lambda, theta): (f32, f32),
+        table: Option<(&wgpu::Buffer, u64)>,
+    ) -> Result<()> {
+        let kernel = ctx.kernel(&shaders::TGV_POINTWISE)?;
+        let uniforms = self.search_uniforms(u_stride, lambda, theta);
         let bytes = bytemuck::bytes_of(&uniforms);
         let buf_uniforms = kept.uniform_with(ctx, "pointwise_uniforms", bytes);
+        if let Some((table, at)) = table {
+            encoder.copy_buffer_to_buffer(table, at, &buf_uniforms, 0, bytes.len() as u64);
+        }
         let bind = kept.bind_group(
             ctx,
             "tgv_pointwise",

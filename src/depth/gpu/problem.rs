@@ -5,10 +5,11 @@
 //! (`shaders/tgv_tensors.wgsl`) and the disparities with their costs gathered at the end
 //! (`shaders/tgv_cost_at.wgsl`).
 
+use super::data_cost::DataCostGpu;
 use crate::depth::sgm::VolumeShape;
 use crate::depth::tgv::{steps_for, Regularizer, Tensor, TgvProblem};
 use crate::gpu::kept::Kept;
-use crate::gpu::layout::{CostAtUniforms, TensorUniforms, TgvUniforms};
+use crate::gpu::layout::{CostAtUniforms, PointwiseUniforms, TensorUniforms, TgvUniforms};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext, Kernel};
 use crate::{Error, Result};
@@ -58,13 +59,15 @@ impl<'c> TgvProblemGpu<'c> {
         let tensors = Tensors::Host(problem.tensors());
         let setup = (problem.regularizer, problem.alpha1, problem.alpha2);
         if problem.is_fresh() {
-            return Self::fresh_in(
-                ctx,
-                Kept::default(),
-                (Some(problem.u_slice()), w, h),
-                setup,
-                tensors,
-            );
+            let mut encoder = ctx
+                .device
+                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                    label: Some("tgv_state"),
+                });
+            let u0 = (Some(problem.u_slice()), w, h);
+            let gpu = Self::fresh_in((ctx, &mut encoder), Kept::default(), u0, setup, tensors)?;
+            ctx.submit(encoder);
+            return Ok(gpu);
         }
         let mut gpu = Self::allocate(ctx, Kept::default(), (w, h), setup)?;
         let scope = ErrorScopes::push(&ctx.device);
@@ -129,9 +132,10 @@ impl<'c> TgvProblemGpu<'c> {
     /// equal to it, the dual zero) made on the device from `u0` (`shaders/tgv_init.wgsl`), in
     /// `kept`'s buffers, with `tensors`. `u0`: uploaded (4 bytes per pixel, not the 40-byte
     /// state), or `None` when work submitted before wrote it into
-    /// [`TgvProblemGpu::target_in`]'s buffer (SGM's, filled on the device).
+    /// [`TgvProblemGpu::target_in`]'s buffer (SGM's, filled on the device). Recorded into
+    /// `encoder` (its uniforms have a buffer of their own, so the rounds may share the submit).
     pub(super) fn fresh_in(
-        ctx: &'c GpuContext,
+        (ctx, encoder): (&'c GpuContext, &mut wgpu::CommandEncoder),
         kept: Kept,
         (u0, width, height): (Option<&[f32]>, usize, usize),
         setup: (Regularizer, f32, f32),
@@ -152,15 +156,11 @@ impl<'c> TgvProblemGpu<'c> {
             gpu.kept
                 .storage_with(ctx, "tgv_target", bytemuck::cast_slice(u0));
         }
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("tgv_state"),
-            });
         let identity = matches!(tensors, Tensors::Identity);
-        let (kernel, bind) = gpu.prepare_init(&shaders::TGV_INIT, 1.0, identity)?;
+        let init = (&shaders::TGV_INIT, "tgv_init_uniforms");
+        let (kernel, bind, _) = gpu.prepare_init(init, 1.0, identity)?;
         if n > 0 {
-            ctx.record_dispatch(&mut encoder, &kernel, &bind, n)?;
+            ctx.record_dispatch(encoder, &kernel, &bind, n)?;
         }
         match tensors {
             Tensors::Identity => {}
@@ -169,10 +169,9 @@ impl<'c> TgvProblemGpu<'c> {
                     .storage_with(ctx, "tgv_tensors", bytemuck::cast_slice(t));
             }
             Tensors::Device(image, gamma, beta) => {
-                gpu.record_tensors(&mut encoder, image, (gamma, beta))?;
+                gpu.record_tensors(encoder, image, (gamma, beta))?;
             }
         }
-        ctx.submit(encoder);
         scope.pop("making the TGV problem")?;
         Ok(gpu)
     }
@@ -231,27 +230,19 @@ impl<'c> TgvProblemGpu<'c> {
         Ok(())
     }
 
-    /// `kernel` (of the iterations' layout, `shared/tgv_common.wgsl`) and its kept bind group,
-    /// the kept uniforms written for the coupling weight `1/(2θ)`.
+    /// `kernel` (of the iterations' layout, `shared/tgv_common.wgsl`), its kept bind group and
+    /// its kept uniform buffer, the uniforms written for the coupling weight `1/(2θ)`.
     fn prepare(
         &mut self,
         kernel: &'static shaders::ShaderSource,
         theta: f32,
-    ) -> Result<(std::sync::Arc<Kernel>, wgpu::BindGroup)> {
-        self.prepare_init(kernel, theta, false)
+    ) -> Result<(std::sync::Arc<Kernel>, wgpu::BindGroup, wgpu::Buffer)> {
+        self.prepare_init((kernel, "tgv_uniforms"), theta, false)
     }
 
-    /// [`TgvProblemGpu::prepare`], with `tgv_init.wgsl` writing identity tensors when
-    /// `identity_tensors`.
-    fn prepare_init(
-        &mut self,
-        kernel: &'static shaders::ShaderSource,
-        theta: f32,
-        identity_tensors: bool,
-    ) -> Result<(std::sync::Arc<Kernel>, wgpu::BindGroup)> {
-        let ctx = self.ctx;
-        let compiled = ctx.kernel(kernel)?;
-        let uniforms = TgvUniforms {
+    /// The iterations' uniforms for θ (`identity_tensors`: `tgv_init.wgsl` writes identities).
+    fn uniforms(&self, theta: f32, identity_tensors: bool) -> TgvUniforms {
+        TgvUniforms {
             width: self.width as u32,
             height: self.height as u32,
             tv: (self.regularizer == Regularizer::Tv) as u32,
@@ -263,9 +254,22 @@ impl<'c> TgvProblemGpu<'c> {
             // The CPU's `coupling = tau / theta`, in f32.
             coupling: self.tau / theta,
             pad1: [0; 3],
-        };
+        }
+    }
+
+    /// [`TgvProblemGpu::prepare`] with the uniforms in the kept buffer `uniforms_name`, and
+    /// `tgv_init.wgsl` writing identity tensors when `identity_tensors`.
+    fn prepare_init(
+        &mut self,
+        (kernel, uniforms_name): (&'static shaders::ShaderSource, &'static str),
+        theta: f32,
+        identity_tensors: bool,
+    ) -> Result<(std::sync::Arc<Kernel>, wgpu::BindGroup, wgpu::Buffer)> {
+        let ctx = self.ctx;
+        let compiled = ctx.kernel(kernel)?;
+        let uniforms = self.uniforms(theta, identity_tensors);
         let bytes = bytemuck::bytes_of(&uniforms);
-        let buf_uniforms = self.kept.uniform_with(ctx, "tgv_uniforms", bytes);
+        let buf_uniforms = self.kept.uniform_with(ctx, uniforms_name, bytes);
         let buffers = [
             &buf_uniforms,
             &self.tensors,
@@ -279,7 +283,75 @@ impl<'c> TgvProblemGpu<'c> {
         let bind = self
             .kept
             .bind_group(ctx, kernel.file, &compiled.layout, &buffers);
-        Ok((compiled, bind))
+        Ok((compiled, bind, buf_uniforms))
+    }
+
+    /// Records the rounds of [`crate::depth::tgv::TgvMatcher::refine`] after what `encoder`
+    /// holds: for each θ of `thetas`, the point-wise search over `data` (the coupling target
+    /// from u, with λ `lambda`), then `iterations` primal–dual iterations. The rounds' uniforms
+    /// are written once, as a table, and each round's are copied from it into the bound uniform
+    /// buffers before its dispatches, so that the rounds share a submit with each other and
+    /// with what comes before and after. Past [`ITERATIONS_PER_SUBMIT`] iterations, what is
+    /// recorded is submitted at a round's end. Returns the encoder, not submitted.
+    pub(super) fn record_rounds(
+        &mut self,
+        mut encoder: wgpu::CommandEncoder,
+        data: &DataCostGpu,
+        lambda: f32,
+        thetas: &[f32],
+        iterations: u32,
+    ) -> Result<wgpu::CommandEncoder> {
+        let ctx = self.ctx;
+        for &theta in thetas {
+            self.check_theta(theta)?;
+        }
+        let n = self.pixels() as u64;
+        if thetas.is_empty() || n == 0 {
+            return Ok(encoder);
+        }
+        // Per round: the search's uniforms (u is the first of the primal's three floats per
+        // pixel), then the iterations'.
+        let search_bytes = std::mem::size_of::<PointwiseUniforms>() as u64;
+        let step_bytes = std::mem::size_of::<TgvUniforms>() as u64;
+        let mut table = Vec::with_capacity(thetas.len() * (search_bytes + step_bytes) as usize);
+        for &theta in thetas {
+            table.extend_from_slice(bytemuck::bytes_of(&data.search_uniforms(3, lambda, theta)));
+            table.extend_from_slice(bytemuck::bytes_of(&self.uniforms(theta, false)));
+        }
+        let table = self.kept.storage_with(ctx, "tgv_round_uniforms", &table);
+        let (dual_kernel, bind_dual, step_uniforms) =
+            self.prepare(&shaders::TGV_DUAL, thetas[0])?;
+        let (primal_kernel, bind_primal, _) = self.prepare(&shaders::TGV_PRIMAL, thetas[0])?;
+        let mut recorded = 0;
+        for (k, &theta) in thetas.iter().enumerate() {
+            let at = k as u64 * (search_bytes + step_bytes);
+            data.record_search(
+                (ctx, &mut self.kept),
+                &mut encoder,
+                (&self.primal, 3),
+                &self.target,
+                (lambda, theta),
+                Some((&table, at)),
+            )?;
+            encoder.copy_buffer_to_buffer(&table, at + search_bytes, &step_uniforms, 0, step_bytes);
+            for _ in 0..iterations {
+                // One pass per step: a pass boundary orders the dual writes before the primal
+                // reads (and the primal writes before the next dual step).
+                ctx.record_dispatch(&mut encoder, &dual_kernel, &bind_dual, n)?;
+                ctx.record_dispatch(&mut encoder, &primal_kernel, &bind_primal, n)?;
+            }
+            recorded += iterations;
+            if recorded >= ITERATIONS_PER_SUBMIT && k + 1 < thetas.len() {
+                ctx.submit(encoder);
+                encoder = ctx
+                    .device
+                    .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                        label: Some("tgv_rounds"),
+                    });
+                recorded = 0;
+            }
+        }
+        Ok(encoder)
     }
 
     /// `iterations` iterations toward the target already in `self.target`.
@@ -287,8 +359,8 @@ impl<'c> TgvProblemGpu<'c> {
         let ctx = self.ctx;
         let n = self.pixels() as u64;
         let scope = ErrorScopes::push(&ctx.device);
-        let (dual_kernel, bind_dual) = self.prepare(&shaders::TGV_DUAL, theta)?;
-        let (primal_kernel, bind_primal) = self.prepare(&shaders::TGV_PRIMAL, theta)?;
+        let (dual_kernel, bind_dual, _) = self.prepare(&shaders::TGV_DUAL, theta)?;
+        let (primal_kernel, bind_primal, _) = self.prepare(&shaders::TGV_PRIMAL, theta)?;
         let mut left = iterations;
         while left > 0 {
             let batch = left.min(ITERATIONS_PER_SUBMIT);
