@@ -200,11 +200,11 @@ fn block_local_rays(
 /// The (block, ray) pairs of the listed blocks `order` (indices into `groups`, `total` pairs in
 /// all) in that order, as [`GpuLidarPair`]s written straight into a new upload's mapping, a
 /// block per task, and the rays they refer to as [`GpuRayDir`]s (16 bytes each: every ray of
-/// `plan` when they fit one binding, else those of these blocks, numbered afresh; in `kept`'s
-/// buffer when given, else a new one); returns both buffers and the rays a pass may apply per
+/// `plan` when they fit one binding, else those of these blocks, numbered afresh); in `kept`'s
+/// buffers when given, else new ones. Returns both buffers and the rays a pass may apply per
 /// block (`LOOP_BUDGET / (longest walk + 1)`).
 pub(super) fn upload_rays(
-    (ctx, kept): (&GpuContext, Option<&mut Kept>),
+    (ctx, mut kept): (&GpuContext, Option<&mut Kept>),
     grid: &GridParams,
     (plan, groups): (&LidarPlan, &[(BlockIndex, Range<usize>)]),
     order: &[usize],
@@ -236,7 +236,7 @@ pub(super) fn upload_rays(
     )?;
     let mut longest_walk = 0u32;
     let mut unpacked = 0usize;
-    let buf_pairs = ctx.storage_filled("lidar_pairs", total as u64 * PAIR_BYTES, |out| {
+    let fill = |out: wgpu::WriteOnly<'_, [u8]>| {
         (longest_walk, unpacked) = pair_slots(out, order.iter().map(|&b| count(b)))
             .into_par_iter()
             .zip(order.par_iter())
@@ -254,7 +254,12 @@ pub(super) fn upload_rays(
                 (longest, unpacked)
             })
             .reduce(|| (0, 0), |a, b| (a.0.max(b.0), a.1 + b.1));
-    })?;
+    };
+    let pair_bytes = total as u64 * PAIR_BYTES;
+    let buf_pairs = match &mut kept {
+        Some(kept) => kept.storage_filled(ctx, "lidar_pairs", pair_bytes, fill)?,
+        None => ctx.storage_filled("lidar_pairs", pair_bytes, fill)?,
+    };
     if unpacked > 0 {
         return Err(Error::Gpu(format!(
             "{unpacked} LiDAR (block, ray) walks have a start cell or step count that does not \
@@ -289,33 +294,48 @@ pub(super) fn upload_rays(
 
 /// Records the passes of the LiDAR `kernel` over blocks listed by decreasing ray count (`counts`,
 /// the dispatch order's): each pass applies at most `rays_per_pass` rays of every block that
-/// still has rays (a prefix of the list), with its own uniforms, bound by `bind(uniforms)`.
-/// Passes run in order (wgpu orders dispatches that write the same buffer), so each block's rays
-/// are applied in scan order.
+/// still has rays (a prefix of the list). The kernel is bound (as `name`, in `kept`) to a kept
+/// uniform buffer and `buffers` (bindings 1 on); the passes' uniforms are written once as a
+/// table, and each pass's are copied from it into the uniform buffer on the device before its
+/// dispatch, so the passes share one bind group and one submit. Passes run in order (wgpu orders
+/// dispatches that write the same buffer), so each block's rays are applied in scan order.
 pub(super) fn record_passes(
-    (ctx, encoder): (&GpuContext, &mut wgpu::CommandEncoder),
-    (kernel, bind): (&Kernel, impl Fn(&wgpu::Buffer) -> wgpu::BindGroup),
+    (ctx, encoder, kept): (&GpuContext, &mut wgpu::CommandEncoder, &mut Kept),
+    (kernel, name, buffers): (&Kernel, &'static str, &[&wgpu::Buffer]),
     grid: &GridParams,
     (counts, rays_per_pass): (&[u32], u32),
 ) -> Result<()> {
+    let mut passes = Vec::new();
     let mut first_ray = 0u32;
     loop {
         let active = counts.partition_point(|&c| c > first_ray);
         if active == 0 {
-            return Ok(());
+            break;
         }
-        let uniforms = LidarUniforms {
+        passes.push(LidarUniforms {
             block_count: active as u32,
             truncation_m: grid.truncation_m,
             voxel_size_m: grid.voxel_size_m,
             first_ray,
             max_rays: rays_per_pass,
             pad: [0; 3],
-        };
-        let buf_uniforms = ctx.uniform("lidar_uniforms", bytemuck::bytes_of(&uniforms));
-        ctx.record_dispatch(encoder, kernel, &bind(&buf_uniforms), active as u64)?;
+        });
         first_ray += rays_per_pass;
     }
+    let Some(first) = passes.first() else {
+        return Ok(());
+    };
+    let table = kept.storage_with(ctx, "lidar_pass_uniforms", bytemuck::cast_slice(&passes));
+    let uniforms = kept.uniform_with(ctx, "lidar_uniforms", bytemuck::bytes_of(first));
+    let mut bound = vec![&uniforms];
+    bound.extend_from_slice(buffers);
+    let bind = kept.bind_group(ctx, name, &kernel.layout, &bound);
+    let entry = std::mem::size_of::<LidarUniforms>() as u64;
+    for (k, pass) in passes.iter().enumerate() {
+        encoder.copy_buffer_to_buffer(&table, k as u64 * entry, &uniforms, 0, entry);
+        ctx.record_dispatch(encoder, kernel, &bind, pass.block_count as u64)?;
+    }
+    Ok(())
 }
 
 /// The listed blocks (indices into `groups`) by decreasing ray count, and each one's first ray
@@ -417,6 +437,8 @@ fn fuse_blocks(
     let batches = batches(ctx, groups)?;
     let kernel = ctx.kernel(&shaders::FUSE_LIDAR)?;
     let mut updates = 0usize;
+    // The passes' uniforms and bind group, for every batch (each its own submit).
+    let mut kept = Kept::default();
     // Per batch: the blocks in dispatch order and their voxels as read back.
     let mut results: Vec<(Vec<usize>, Vec<GpuVoxel>)> = Vec::with_capacity(batches.len());
     for batch in &batches {
@@ -446,19 +468,16 @@ fn fuse_blocks(
                 label: Some("fuse_lidar"),
             });
         let counts: Vec<u32> = order.iter().map(|&b| count(b) as u32).collect();
-        let bind = |uniforms: &wgpu::Buffer| {
-            let buffers = [
-                uniforms,
-                &buf_offsets,
-                &buf_pairs,
-                &buf_voxels,
-                &buf_counters,
-                &buf_dirs,
-            ];
-            ctx.bind_group("fuse_lidar", &kernel.layout, &buffers)
-        };
+        let buffers = [
+            &buf_offsets,
+            &buf_pairs,
+            &buf_voxels,
+            &buf_counters,
+            &buf_dirs,
+        ];
         let passes = (&counts[..], rays_per_pass);
-        record_passes((ctx, &mut encoder), (&kernel, bind), grid, passes)?;
+        let bound = (&*kernel, "fuse_lidar", &buffers[..]);
+        record_passes((ctx, &mut encoder, &mut kept), bound, grid, passes)?;
         ctx.submit(encoder);
         scope.pop("running the LiDAR fusion kernel")?;
         let (voxels, counted) =

@@ -135,21 +135,18 @@ fn run_resident(
     encoder.clear_buffer(&buf_updated, 0, Some(n as u64 * 4));
     ctx.record_dispatch(&mut encoder, &lookup, &bind_lookup, n as u64)?;
     let counts: Vec<u32> = order.iter().map(|&b| groups[b].1.len() as u32).collect();
-    let bind = |uniforms: &wgpu::Buffer| {
-        let buffers = [
-            uniforms,
-            &buf_offsets,
-            &buf_pairs,
-            pool,
-            &buf_counters,
-            &buf_slots,
-            &buf_updated,
-            &buf_dirs,
-        ];
-        ctx.bind_group("fuse_lidar_resident", &fuse.layout, &buffers)
-    };
+    let buffers = [
+        &buf_offsets,
+        &buf_pairs,
+        pool,
+        &buf_counters,
+        &buf_slots,
+        &buf_updated,
+        &buf_dirs,
+    ];
     let passes = (&counts[..], rays_per_pass);
-    record_passes((ctx, &mut encoder), (&fuse, bind), &grid, passes)?;
+    let bound = (&*fuse, "fuse_lidar_resident", &buffers[..]);
+    record_passes((ctx, &mut encoder, &mut *kept), bound, &grid, passes)?;
     let inputs_s = t.elapsed().as_secs_f64();
     let buffers = (&buf_counters, &buf_updated);
     let (flags, updates) = submit_resident_frame((ctx, kept), encoder, buffers, n)?;

@@ -384,6 +384,27 @@ impl GpuContext {
         self.queue.write_buffer(buffer, offset, data);
     }
 
+    /// Writes `bytes` bytes at the start of `buffer` through the queue, `fill` writing them
+    /// straight into the queue's staging memory (no copy on the host; counted as an upload; it
+    /// reaches the device with the next submit). `bytes` is rounded up to the copy alignment,
+    /// and `fill` is given exactly `bytes` of it.
+    pub(crate) fn write_filled(
+        &self,
+        buffer: &wgpu::Buffer,
+        bytes: u64,
+        fill: impl FnOnce(wgpu::WriteOnly<'_, [u8]>),
+    ) -> Result<()> {
+        let size = bytes.max(4).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+        let nonzero = wgpu::BufferSize::new(size).expect("at least 4 bytes");
+        let mut view = self
+            .queue
+            .write_buffer_with(buffer, 0, nonzero)
+            .ok_or_else(|| Error::Gpu(format!("{size} bytes do not fit the buffer written")))?;
+        fill(view.slice(..bytes as usize));
+        bump(&self.traffic.upload_bytes, size);
+        Ok(())
+    }
+
     /// Submits one command buffer (counted). While kernel timing is on and the buffer has
     /// timed passes, their timestamps are resolved at its end and read back after it (a wait
     /// that [`GpuTraffic`] does not count: timing changes what it measures).

@@ -64,6 +64,20 @@ impl Kept {
         b
     }
 
+    /// The kept storage buffer `name` with `bytes` bytes at its start written by `fill` straight
+    /// into the queue's staging memory ([`GpuContext::write_filled`]).
+    pub(crate) fn storage_filled(
+        &mut self,
+        ctx: &GpuContext,
+        name: &'static str,
+        bytes: u64,
+        fill: impl FnOnce(wgpu::WriteOnly<'_, [u8]>),
+    ) -> crate::Result<wgpu::Buffer> {
+        let b = self.buffer(ctx, name, bytes.max(4), STORAGE);
+        ctx.write_filled(&b, bytes, fill)?;
+        Ok(b)
+    }
+
     /// The kept uniform buffer `name` holding `data`.
     pub(crate) fn uniform_with(
         &mut self,

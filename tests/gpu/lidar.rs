@@ -563,7 +563,7 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
     assert_layers_identical("resident vs per call", &per_call, &grown);
     // The second round's scans find their blocks resident: up go each ray once (16 bytes), each
     // (block, ray) pair's own values (28 bytes; before, whole 52-byte pairs) and small inputs,
-    // down the counters and a flag per block; no block either way.
+    // down the counters and a flag per block; no block either way, and nothing is created.
     for (k, t) in traffic.iter().enumerate().skip(3) {
         let plan = LidarPlan::new(&grid, &scans[k], &PARAMS);
         let (pairs, blocks) = (plan.pair_count() as u64, plan.blocks().len() as u64);
@@ -575,6 +575,10 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
         );
         assert!(t.readback_bytes <= 4 * blocks + (4 << 10), "{t:?}");
         assert_eq!(t.waits, 1, "{t:?}");
+        // Every buffer and bind group is kept: the pairs written straight into the queue's
+        // staging memory, the passes' uniforms copied from a table on the device (before: a
+        // buffer of pairs and one of uniforms per pass, with a bind group each).
+        assert_eq!((t.buffers_created, t.bind_groups_created), (0, 0), "{t:?}");
     }
     // A pool between the largest scan and the whole map: blocks spill to RAM and come back.
     let largest = touched.iter().map(|t| t.len()).max().unwrap_or(0) as u64;
