@@ -17,9 +17,6 @@
 @group(0) @binding(4) var<storage, read_write> disparity: array<u32>;
 @group(0) @binding(5) var<storage, read_write> confidence: array<f32>;
 
-// Rust's f32::NAN.
-const NAN_BITS: u32 = 0x7fc00000u;
-
 fn raw_at(e: u32) -> u32 {
     return packed_byte(volume[e >> 2u], e);
 }

@@ -8,9 +8,6 @@
 // CPU's f32 division rounds it (shared/exact_div.wgsl), so the map is the CPU's bit for bit
 // given the same u. One invocation per pixel. Shared files and bindings: src/gpu/shaders.rs.
 
-// Rust's f32::NAN.
-const NAN_BITS: u32 = 0x7fc00000u;
-
 @compute @workgroup_size(64)
 fn main(
     @builtin(workgroup_id) wg: vec3<u32>,
@@ -26,15 +23,14 @@ fn main(
     disparity[i] = NAN_BITS;
     confidence[i] = 0.0;
     let d = primal[3u * i];
-    let finite = (bitcast<u32>(d) & 0x7f800000u) != 0x7f800000u;
-    if (!finite || (params.hole_fill != 2u && f32(i % w) - d < -0.5)) {
+    if (!is_finite_bits(bitcast<u32>(d)) || (params.hole_fill != 2u && f32(i % w) - d < -0.5)) {
         return;
     }
     let k = slice_of(d, params.min_disparity_px, params.num_disparities);
     let j = i * params.num_disparities + k;
     let c = packed_byte(volume[j >> 2u], j);
     let s = sgm_disparity[i];
-    let sgm_valid = (s & 0x7f800000u) != 0x7f800000u;
+    let sgm_valid = is_finite_bits(s);
     let agrees = sgm_valid && abs(bitcast<f32>(s) - d) <= 1.0;
     let visible = params.hole_fill == 1u && !occluded && f32(c) <= params.max_bits;
     if (!(sgm_valid || visible || params.hole_fill == 2u)) {

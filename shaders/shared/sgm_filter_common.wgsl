@@ -1,7 +1,7 @@
 // Shared by SGM's post-filters on the device (sgm_median.wgsl, sgm_speckle_*.wgsl) and the
-// fill of TGV's initial disparity (tgv_fill_*.wgsl): their uniforms and the disparity's bits.
-// Disparities are handled as bits: NaN (invalid) is never turned into a float, and a valid
-// value comes out with the bits it came in with or as the CPU's f32 operations make it.
+// fill of TGV's initial disparity (tgv_fill_*.wgsl): their uniforms. Disparities are handled as
+// bits (shared/float_bits.wgsl): a valid value comes out with the bits it came in with or as
+// the CPU's f32 operations make it.
 // Keep SgmFilterUniforms in sync with src/gpu/layout.rs.
 
 struct SgmFilterUniforms {
@@ -16,15 +16,4 @@ struct SgmFilterUniforms {
     _pad0: u32,
     _pad1: u32,
     _pad2: u32,
-}
-
-// Rust's f32::NAN.
-const NAN_BITS: u32 = 0x7fc00000u;
-
-fn is_nan_bits(b: u32) -> bool {
-    return (b & 0x7fffffffu) > 0x7f800000u;
-}
-
-fn is_finite_bits(b: u32) -> bool {
-    return (b & 0x7f800000u) != 0x7f800000u;
 }

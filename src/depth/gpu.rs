@@ -96,11 +96,7 @@ pub fn pointwise_search_gpu(
     let scope = ErrorScopes::push(&ctx.device);
     let buf_u = ctx.storage("pointwise_u", bytemuck::cast_slice(u));
     let buf_a = ctx.storage("pointwise_a", &vec![0u8; u.len() * 4]);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("pointwise"),
-        });
+    let mut encoder = ctx.encoder("pointwise");
     let kept = &mut Kept::default();
     data.record_search(
         (ctx, kept),
@@ -129,7 +125,7 @@ pub fn diffusion_tensors_gpu(
     let tensors = Tensors::Device(&buf_image, gamma, beta);
     let setup = (Regularizer::TgvTensor, 1.0, 1.0);
     let size = (Some(&u0[..]), w, h);
-    let mut encoder = new_encoder(ctx, "tgv_tensors");
+    let mut encoder = ctx.encoder("tgv_tensors");
     let gpu = TgvProblemGpu::fresh_in((ctx, &mut encoder), Kept::default(), size, setup, tensors)?;
     ctx.submit(encoder);
     ctx.read_back_as(&gpu.tensors, w * h)
@@ -151,17 +147,11 @@ pub fn refine_gpu(
     let raw = data_cost::upload_costs(ctx, volume, matcher.params.cost_window)?;
     let on_device = (volume.shape(), &raw);
     let init = Init::Map(init);
-    let encoder = new_encoder(ctx, "tgv_refine");
+    let encoder = ctx.encoder("tgv_refine");
     let kept = (Kept::default(), encoder);
     let (gpu, encoder) = refine_on_device(ctx, kept, matcher, (left, None), on_device, init)?;
     ctx.submit(encoder);
     gpu.u()
-}
-
-/// A command encoder labelled `label`.
-fn new_encoder(ctx: &GpuContext, label: &str) -> wgpu::CommandEncoder {
-    ctx.device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
 }
 
 /// Where [`refine_on_device`] finds SGM's disparity.
@@ -268,7 +258,7 @@ fn estimate_kept(
         let init = sgm.estimate_from_volume(left, &volume)?;
         let volume = (on_device.shape, &on_device.volume);
         let left_on_device = (left, Some(&on_device.left));
-        let taken = (std::mem::take(kept), new_encoder(ctx, "tgv_refine"));
+        let taken = (std::mem::take(kept), ctx.encoder("tgv_refine"));
         let (mut gpu, encoder) = refine_on_device(
             ctx,
             taken,
@@ -289,9 +279,7 @@ fn estimate_kept(
         });
     }
     let scope = ErrorScopes::push(&ctx.device);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sgm") });
+    let mut encoder = ctx.encoder("sgm");
     let on_device = record_cost_volume(ctx, &mut encoder, kept, (left, right), census)?;
     let sgm = sgm::sgm_on_device(ctx, &mut encoder, &p.sgm, kept, &on_device)?;
     let shape = on_device.shape;

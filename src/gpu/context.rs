@@ -384,6 +384,12 @@ impl GpuContext {
         self.queue.write_buffer(buffer, offset, data);
     }
 
+    /// A command encoder labelled `label`.
+    pub(crate) fn encoder(&self, label: &str) -> wgpu::CommandEncoder {
+        self.device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
+    }
+
     /// Writes `bytes` bytes at the start of `buffer` through the queue, `fill` writing them
     /// straight into the queue's staging memory (no copy on the host; counted as an upload; it
     /// reaches the device with the next submit). `bytes` is rounded up to the copy alignment,

@@ -233,6 +233,7 @@ pub const TGV_INVALIDATE: ShaderSource = kernel!(
         "shared/rounding.wgsl",
         "shared/cost_slice.wgsl",
         "shared/exact_div.wgsl",
+        "shared/float_bits.wgsl",
         "shared/tgv_invalidate_common.wgsl"
     ],
     [Uniform, Read, Read, Read, Read, ReadWrite, ReadWrite]
@@ -259,6 +260,7 @@ pub const SGM_SELECT: ShaderSource = kernel!(
         "shared/dispatch.wgsl",
         "shared/packed_bytes.wgsl",
         "shared/exact_div.wgsl",
+        "shared/float_bits.wgsl",
         "shared/sgm_select_common.wgsl"
     ],
     [Uniform, Read, Read, Read, ReadWrite, ReadWrite]
@@ -267,7 +269,11 @@ pub const SGM_SELECT: ShaderSource = kernel!(
 /// SGM's 3×3 median over valid neighbours.
 pub const SGM_MEDIAN: ShaderSource = kernel!(
     "sgm_median.wgsl",
-    ["shared/dispatch.wgsl", "shared/sgm_filter_common.wgsl"],
+    [
+        "shared/dispatch.wgsl",
+        "shared/float_bits.wgsl",
+        "shared/sgm_filter_common.wgsl"
+    ],
     [Uniform, Read, ReadWrite]
 );
 
@@ -278,6 +284,7 @@ macro_rules! speckle_pass {
             $file,
             [
                 "shared/dispatch.wgsl",
+                "shared/float_bits.wgsl",
                 "shared/sgm_filter_common.wgsl",
                 "shared/speckle_common.wgsl"
             ],
@@ -301,14 +308,22 @@ pub const SGM_SPECKLE_CLEAR: ShaderSource = speckle_pass!("sgm_speckle_clear.wgs
 /// TGV's initial disparity from SGM's, pass 1: holes filled along rows.
 pub const TGV_FILL_ROWS: ShaderSource = kernel!(
     "tgv_fill_rows.wgsl",
-    ["shared/dispatch.wgsl", "shared/sgm_filter_common.wgsl"],
+    [
+        "shared/dispatch.wgsl",
+        "shared/float_bits.wgsl",
+        "shared/sgm_filter_common.wgsl"
+    ],
     [Uniform, Read, ReadWrite]
 );
 
 /// TGV's initial disparity from SGM's, pass 2: along columns, then the fallback.
 pub const TGV_FILL_COLUMNS: ShaderSource = kernel!(
     "tgv_fill_columns.wgsl",
-    ["shared/dispatch.wgsl", "shared/sgm_filter_common.wgsl"],
+    [
+        "shared/dispatch.wgsl",
+        "shared/float_bits.wgsl",
+        "shared/sgm_filter_common.wgsl"
+    ],
     [Uniform, Read, ReadWrite]
 );
 

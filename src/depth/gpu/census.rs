@@ -134,11 +134,7 @@ pub fn census_transform_gpu(
         });
     }
     let scope = ErrorScopes::push(&ctx.device);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("census"),
-        });
+    let mut encoder = ctx.encoder("census");
     let mut kept = Kept::default();
     let names = (&mut kept, &CENSUS_NAMES[0]);
     let (sig, _) = record_census(ctx, &mut encoder, names, image, params, words)?;
@@ -189,11 +185,7 @@ pub(super) fn cost_volume_on_device(
     args: (&CensusParams, i32, usize),
 ) -> Result<(CostVolume, OnDevice)> {
     let scope = ErrorScopes::push(&ctx.device);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("census_cost"),
-        });
+    let mut encoder = ctx.encoder("census_cost");
     let on_device =
         record_cost_volume(ctx, &mut encoder, &mut Kept::default(), (left, right), args)?;
     ctx.submit(encoder);

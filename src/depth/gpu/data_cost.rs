@@ -25,11 +25,7 @@ impl DataCostGpu {
     /// uploaded once ([`DataCostGpu::on_device`]).
     pub(super) fn new(ctx: &GpuContext, volume: &CostVolume, window: u32) -> Result<Self> {
         let raw = upload_costs(ctx, volume, window)?;
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("cost_window"),
-            });
+        let mut encoder = ctx.encoder("cost_window");
         let kept = &mut Kept::default();
         let data = Self::on_device(ctx, kept, &mut encoder, volume.shape(), &raw, window)?;
         ctx.submit(encoder);

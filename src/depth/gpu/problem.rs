@@ -59,11 +59,7 @@ impl<'c> TgvProblemGpu<'c> {
         let tensors = Tensors::Host(problem.tensors());
         let setup = (problem.regularizer, problem.alpha1, problem.alpha2);
         if problem.is_fresh() {
-            let mut encoder = ctx
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                    label: Some("tgv_state"),
-                });
+            let mut encoder = ctx.encoder("tgv_state");
             let u0 = (Some(problem.u_slice()), w, h);
             let gpu = Self::fresh_in((ctx, &mut encoder), Kept::default(), u0, setup, tensors)?;
             ctx.submit(encoder);
@@ -343,11 +339,7 @@ impl<'c> TgvProblemGpu<'c> {
             recorded += iterations;
             if recorded >= ITERATIONS_PER_SUBMIT && k + 1 < thetas.len() {
                 ctx.submit(encoder);
-                encoder = ctx
-                    .device
-                    .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                        label: Some("tgv_rounds"),
-                    });
+                encoder = ctx.encoder("tgv_rounds");
                 recorded = 0;
             }
         }
@@ -365,9 +357,7 @@ impl<'c> TgvProblemGpu<'c> {
         while left > 0 {
             let batch = left.min(ITERATIONS_PER_SUBMIT);
             left -= batch;
-            let mut encoder = ctx
-                .device
-                .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("tgv") });
+            let mut encoder = ctx.encoder("tgv");
             for _ in 0..batch {
                 // One pass per step: a pass boundary orders the dual writes before the primal
                 // reads (and the primal writes before the next dual step).
@@ -489,11 +479,7 @@ impl TgvProblemGpu<'_> {
     ) -> Result<(Vec<f32>, Vec<u8>)> {
         let ctx = self.ctx;
         let scope = ErrorScopes::push(&ctx.device);
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("tgv_cost_at"),
-            });
+        let mut encoder = ctx.encoder("tgv_cost_at");
         let gathered = self.record_disparities_and_costs(&mut encoder, volume)?;
         let mut back = gathered.target();
         let mut buffers = vec![(&gathered.out, bytemuck::cast_slice_mut(&mut back))];

@@ -204,11 +204,7 @@ pub fn aggregate_paths_gpu(
     let scope = ErrorScopes::push(&ctx.device);
     let buf_volume = ctx.storage("sgm_volume", &volume.cost);
     let buf_image = ctx.storage("sgm_image", &image.data);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("sgm_paths"),
-        });
+    let mut encoder = ctx.encoder("sgm_paths");
     let sums = record_aggregation(
         ctx,
         &mut encoder,
@@ -278,11 +274,7 @@ pub fn select_disparities_gpu(
     let scope = ErrorScopes::push(&ctx.device);
     let buf_sums = ctx.storage("sgm_sums", bytemuck::cast_slice(sums));
     let buf_volume = ctx.storage("sgm_volume", &volume.cost);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("sgm_select"),
-        });
+    let mut encoder = ctx.encoder("sgm_select");
     let mut kept = Kept::default();
     let pair = (&buf_sums, &buf_volume);
     let selection = record_selection(ctx, &mut encoder, &mut kept, pair, (w, h), params)?;
@@ -347,10 +339,7 @@ impl SgmMatcherGpu {
             return self.matcher.estimate_from_volume(left, &volume);
         }
         let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
-        let mut encoder = self
-            .ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("sgm") });
+        let mut encoder = self.ctx.encoder("sgm");
         let scope = ErrorScopes::push(&self.ctx.device);
         let on_device =
             record_cost_volume(&self.ctx, &mut encoder, &mut kept, (left, right), census)?;

@@ -210,11 +210,7 @@ pub fn filter_disparities_gpu(
     check_sizes(disparity, confidence)?;
     let scope = ErrorScopes::push(&ctx.device);
     let sgm = upload(ctx, disparity, confidence);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("sgm_filters"),
-        });
+    let mut encoder = ctx.encoder("sgm_filters");
     let mut kept = Kept::default();
     let out = record_filters(ctx, &mut encoder, &mut kept, sgm, params)?;
     let map = read_sgm(ctx, encoder, &mut kept, &out)?;
@@ -238,11 +234,7 @@ pub fn fill_from_background_gpu(
     let sgm = upload(ctx, disparity, &zeros);
     let mut kept = Kept::default();
     let target = kept.scratch(ctx, "tgv_target", n as u64 * 4);
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("tgv_fill"),
-        });
+    let mut encoder = ctx.encoder("tgv_fill");
     record_fill(ctx, &mut encoder, &mut kept, &sgm, fallback_px, &target)?;
     let mut out = vec![0.0f32; n];
     let mut buffers = [(&target, bytemuck::cast_slice_mut(&mut out))];
