@@ -300,8 +300,8 @@ fn estimate_kept(
 }
 
 /// The invalidation of `gpu`'s disparity against SGM's map `sgm`, on the device, recorded after
-/// what `encoder` holds and submitted with it, and what comes back in one wait: the result, and with `stages` SGM's map and the dense disparity too
-/// (else those stages are empty).
+/// what `encoder` holds and submitted with it, and what comes back in one wait: the result, and
+/// with `stages` SGM's map and the dense disparity too (else those stages are empty).
 fn finish_on_device(
     (gpu, mut encoder): (&mut TgvProblemGpu, wgpu::CommandEncoder),
     matcher: &TgvMatcher,

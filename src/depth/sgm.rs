@@ -12,7 +12,7 @@
 //!    − min_k L_r(p−r, k)`, summed into `S(p, d)` (`u16`). P2 may adapt to the intensity step
 //!    along the path, `P2' = max(P1 + 1, P2·s / (s + |I(p) − I(p−r)|))` (after the paper's
 //!    `P2/|ΔI|`). The directions run as two passes on two threads, forward (top to bottom) and
-//!    backward, which meet row by row; `S` is never stored whole ([`crate::depth::aggregate`]).
+//!    backward, which meet row by row; `S` is never stored whole (`src/depth/aggregate.rs`).
 //! 3. Winner-take-all with a uniqueness ratio, sub-pixel refinement (parabola, eq. 12 area, or
 //!    equiangular fit), left–right consistency with a right disparity map taken from the same
 //!    `S` (`D_r(x_r) = argmin_d S(x_r + d, d)`), streamed with the aggregation; then an optional
@@ -404,7 +404,7 @@ fn cost_row(
 
 /// Sums the path costs `S(p, d)` over the configured directions (`u16`, layout as the cost
 /// volume). `image` is the left image (for the adaptive P2). The matcher never stores `S`
-/// whole ([`crate::depth::aggregate`] streams it into the selection); this keeps it, for
+/// whole (`src/depth/aggregate.rs` streams it into the selection); this keeps it, for
 /// inspection and benchmarks.
 pub fn aggregate_paths(
     volume: &CostVolume,

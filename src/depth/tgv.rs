@@ -438,7 +438,7 @@ impl TgvMatcher {
         self.invalidate_with(dense, init, &costs, volume.shape())
     }
 
-    /// [`TgvMatcher::invalidate`] given each pixel's census cost at its disparity
+    /// The invalidation (module docs) given each pixel's census cost at its disparity
     /// ([`costs_at_disparities`]): the map made from the dense disparity `dense` and SGM's map
     /// `init` (the twin of the GPU matcher's `shaders/tgv_invalidate.wgsl`).
     pub fn invalidate_with(

@@ -23,10 +23,10 @@
 //! same order) and the CPU's own LiDAR walk ([`crate::fusion::integrate_lidar_plan`]); on
 //! lavapipe the GPU equals it bit for bit (`tests/gpu/lidar.rs`).
 //!
-//! Against the f64 reference ([`crate::fusion::integrate_lidar_reference`]) the f32 walk differs only where f64 and f32 round differently: a
-//! ray passing within ~1e-6 voxel of a voxel edge or corner (the walk may step through the other
-//! neighbour), a band end or a start point that close to a voxel face, and the last
-//! quantisation step of the TSDF (sdf differs by ~1e-7 m). `tests/gpu/lidar.rs` measures it and
+//! Against the f64 reference ([`crate::fusion::integrate_lidar_reference`]) the f32 walk
+//! differs only where f64 and f32 round differently: a ray passing within ~1e-6 voxel of a
+//! voxel edge or corner (the walk may step through the other neighbour), a band end or a start
+//! point that close to a voxel face, and the last quantisation step of the TSDF (sdf differs by ~1e-7 m). `tests/gpu/lidar.rs` measures it and
 //! states the tolerance.
 
 use crate::fusion::{band_m, FusionStats, LidarPlan};
@@ -375,8 +375,8 @@ fn pair_slots<'a>(
 /// [`crate::fusion::integrate_lidar_plan`] (same blocks listed, same counters): returns the
 /// touched blocks (sorted) and work counters. Blocks go in batches that fit one storage binding
 /// (4 KiB of voxels per block, 28 bytes per (block, ray) pair; 16 bytes per ray besides); a
-/// single block whose voxels or rays exceed a binding is an [`Error::GpuCapacity`]. On error the layer holds the blocks as
-/// before (nothing is written before every batch was read back).
+/// single block whose voxels or rays exceed a binding is an [`Error::GpuCapacity`]. On error
+/// the layer holds the blocks as before (nothing is written before every batch was read back).
 pub fn integrate_lidar_gpu(
     ctx: &GpuContext,
     layer: &mut Layer,

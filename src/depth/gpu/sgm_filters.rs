@@ -198,9 +198,9 @@ fn check_sizes(disparity: &Image<f32>, confidence: &Image<f32>) -> Result<()> {
     Ok(())
 }
 
-/// SGM's filters ([`record_filters`]) over an uploaded map, read back: the twin of the CPU
-/// matcher's median, speckle filter and confidence rule, for tests. The confidence must be 0
-/// where the disparity is NaN (as the selection leaves it).
+/// SGM's filters (`shaders/sgm_median.wgsl`, `sgm_speckle_*.wgsl`) over an uploaded map, read
+/// back: the twin of the CPU matcher's median, speckle filter and confidence rule, for tests.
+/// The confidence must be 0 where the disparity is NaN (as the selection leaves it).
 pub fn filter_disparities_gpu(
     ctx: &GpuContext,
     disparity: &Image<f32>,
@@ -218,8 +218,8 @@ pub fn filter_disparities_gpu(
     Ok(map)
 }
 
-/// [`crate::depth::tgv::fill_from_background`] on the GPU ([`record_fill`]) over an uploaded
-/// disparity, read back; for tests.
+/// [`crate::depth::tgv::fill_from_background`] on the GPU (`shaders/tgv_fill_*.wgsl`) over an
+/// uploaded disparity, read back; for tests.
 pub fn fill_from_background_gpu(
     ctx: &GpuContext,
     disparity: &Image<f32>,

@@ -163,7 +163,7 @@ impl<'a> DataCost<'a> {
 /// The point-wise search of [`TgvMatcher::refine`] on its own: for each pixel, the disparity `a`
 /// (pixels) minimising `λ·C(x, a) + (u(x) − a)²/(2θ)` over the census costs of `volume`
 /// averaged over `cost_window` × `cost_window` (raw when 1), with the parabola fit. `u` has one
-/// disparity per pixel (pixels). The CPU twin of [`crate::gpu::pointwise_search_gpu`].
+/// disparity per pixel (pixels). The CPU twin of [`crate::depth::pointwise_search_gpu`].
 pub fn decoupling_search(
     volume: &CostVolume,
     cost_window: u32,
