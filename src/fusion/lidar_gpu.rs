@@ -26,8 +26,8 @@
 //! Against the f64 reference ([`crate::fusion::integrate_lidar_reference`]) the f32 walk
 //! differs only where f64 and f32 round differently: a ray passing within ~1e-6 voxel of a
 //! voxel edge or corner (the walk may step through the other neighbour), a band end or a start
-//! point that close to a voxel face, and the last quantisation step of the TSDF (sdf differs by ~1e-7 m). `tests/gpu/lidar.rs` measures it and
-//! states the tolerance.
+//! point that close to a voxel face, and the last quantisation step of the TSDF (sdf differs by
+//! ~1e-7 m). `tests/gpu/lidar.rs` measures it and states the tolerance.
 
 use crate::fusion::{band_m, FusionStats, LidarPlan};
 use crate::gpu::kept::Kept;
