@@ -198,8 +198,8 @@ fn block_local_rays(
 }
 
 /// The (block, ray) pairs of the listed blocks `order` (indices into `groups`, `total` pairs in
-/// all) in that order, as [`GpuLidarPair`]s written straight into a new upload's mapping, a
-/// block per task, and the rays they refer to as [`GpuRayDir`]s (16 bytes each: every ray of
+/// all) in that order, as [`GpuLidarPair`]s written straight into the memory that goes up, a
+/// block per task ([`filled`]), and the rays they refer to as [`GpuRayDir`]s (16 bytes each: every ray of
 /// `plan` when they fit one binding, else those of these blocks, numbered afresh); in `kept`'s
 /// buffers when given, else new ones. Returns both buffers and the rays a pass may apply per
 /// block (`LOOP_BUDGET / (longest walk + 1)`).
@@ -256,10 +256,7 @@ pub(super) fn upload_rays(
             .reduce(|| (0, 0), |a, b| (a.0.max(b.0), a.1 + b.1));
     };
     let pair_bytes = total as u64 * PAIR_BYTES;
-    let buf_pairs = match &mut kept {
-        Some(kept) => kept.storage_filled(ctx, "lidar_pairs", pair_bytes, fill)?,
-        None => ctx.storage_filled("lidar_pairs", pair_bytes, fill)?,
-    };
+    let buf_pairs = filled((ctx, &mut kept), "lidar_pairs", pair_bytes, fill)?;
     if unpacked > 0 {
         return Err(Error::Gpu(format!(
             "{unpacked} LiDAR (block, ray) walks have a start cell or step count that does not \
@@ -273,18 +270,15 @@ pub(super) fn upload_rays(
             gray: r.gray as u32,
         }
     };
-    let buf_dirs = match kept {
-        Some(kept) => {
-            let dirs: Vec<GpuRayDir> = uploaded.par_iter().map(|&k| dir(k)).collect();
-            kept.storage_with(ctx, "lidar_ray_dirs", bytemuck::cast_slice(&dirs))
-        }
-        None => {
-            let pieces = uploaded.len().max(1);
-            ctx.storage_by_piece::<RAY_DIR_BYTES>("lidar_ray_dirs", pieces, |i, dst| {
-                *dst = bytemuck::cast(uploaded.get(i).map_or(GpuRayDir::default(), |&k| dir(k)));
-            })?
-        }
+    let fill = |out: wgpu::WriteOnly<'_, [u8]>| {
+        let (slots, _) = out.into_chunks::<RAY_DIR_BYTES>();
+        let slots: Vec<_> = slots.into_iter().collect();
+        (slots.into_par_iter())
+            .zip(uploaded.par_iter())
+            .for_each(|(slot, &k)| slot.write(bytemuck::cast(dir(k))));
     };
+    let dir_bytes = (uploaded.len() * RAY_DIR_BYTES) as u64;
+    let buf_dirs = filled((ctx, &mut kept), "lidar_ray_dirs", dir_bytes, fill)?;
     Ok((
         buf_pairs,
         buf_dirs,
@@ -322,17 +316,15 @@ pub(super) fn record_passes(
         });
         first_ray += rays_per_pass;
     }
-    let Some(first) = passes.first() else {
+    if passes.is_empty() {
         return Ok(());
-    };
-    let table = kept.storage_with(ctx, "lidar_pass_uniforms", bytemuck::cast_slice(&passes));
-    let uniforms = kept.uniform_with(ctx, "lidar_uniforms", bytemuck::bytes_of(first));
-    let mut bound = vec![&uniforms];
+    }
+    let table = kept.uniform_table(ctx, ("lidar_pass_uniforms", "lidar_uniforms"), &passes);
+    let mut bound = vec![table.uniforms()];
     bound.extend_from_slice(buffers);
     let bind = kept.bind_group(ctx, name, &kernel.layout, &bound);
-    let entry = std::mem::size_of::<LidarUniforms>() as u64;
     for (k, pass) in passes.iter().enumerate() {
-        encoder.copy_buffer_to_buffer(&table, k as u64 * entry, &uniforms, 0, entry);
+        table.select(encoder, k);
         ctx.record_dispatch(encoder, kernel, &bind, pass.block_count as u64)?;
     }
     Ok(())
@@ -357,6 +349,21 @@ pub(super) fn dispatch_order(
     }
     offsets.push(total);
     (order, offsets)
+}
+
+/// A storage buffer `name` with `bytes` bytes written by `fill` straight into the memory that
+/// goes up: `kept`'s buffer when given (through the queue's staging memory), else a new one
+/// (mapped at creation).
+fn filled(
+    (ctx, kept): (&GpuContext, &mut Option<&mut Kept>),
+    name: &'static str,
+    bytes: u64,
+    fill: impl FnOnce(wgpu::WriteOnly<'_, [u8]>),
+) -> Result<wgpu::Buffer> {
+    match kept {
+        Some(kept) => kept.storage_filled(ctx, name, bytes, fill),
+        None => ctx.storage_filled(name, bytes, fill),
+    }
 }
 
 /// `out` cut into its [`GpuLidarPair`]-sized pieces, grouped by `counts` (their sum at most the

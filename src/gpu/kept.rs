@@ -129,6 +129,49 @@ impl Kept {
     }
 }
 
+/// Uniforms that change between the dispatches of one submit: their variants written once as a
+/// table (a kept storage buffer), and variant `k` copied on the device into the bound uniform
+/// buffer before the dispatches that read it ([`UniformTable::select`]). A queue write would
+/// not do: every queue write lands before the submit, so the last one would serve every
+/// dispatch.
+pub(crate) struct UniformTable {
+    table: wgpu::Buffer,
+    uniforms: wgpu::Buffer,
+    entry_bytes: u64,
+}
+
+impl Kept {
+    /// The kept uniform buffer `uniforms_name` (holding `variants[0]`) with the kept table
+    /// `table_name` of `variants` (at least one).
+    pub(crate) fn uniform_table<T: bytemuck::Pod>(
+        &mut self,
+        ctx: &GpuContext,
+        (table_name, uniforms_name): (&'static str, &'static str),
+        variants: &[T],
+    ) -> UniformTable {
+        let table = self.storage_with(ctx, table_name, bytemuck::cast_slice(variants));
+        let uniforms = self.uniform_with(ctx, uniforms_name, bytemuck::bytes_of(&variants[0]));
+        UniformTable {
+            table,
+            uniforms,
+            entry_bytes: std::mem::size_of::<T>() as u64,
+        }
+    }
+}
+
+impl UniformTable {
+    /// The uniform buffer the kernels bind.
+    pub(crate) fn uniforms(&self) -> &wgpu::Buffer {
+        &self.uniforms
+    }
+
+    /// Records the copy of variant `k` into the uniform buffer.
+    pub(crate) fn select(&self, encoder: &mut wgpu::CommandEncoder, k: usize) {
+        let at = k as u64 * self.entry_bytes;
+        encoder.copy_buffer_to_buffer(&self.table, at, &self.uniforms, 0, self.entry_bytes);
+    }
+}
+
 const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
     .union(wgpu::BufferUsages::COPY_SRC)
     .union(wgpu::BufferUsages::COPY_DST);

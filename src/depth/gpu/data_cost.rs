@@ -2,11 +2,14 @@
 //! window there (`shaders/cost_window.wgsl`), and the point-wise search over them.
 
 use crate::depth::sgm::{CostVolume, VolumeShape};
-use crate::gpu::kept::Kept;
+use crate::gpu::kept::{Kept, UniformTable};
 use crate::gpu::layout::{PointwiseUniforms, WindowUniforms};
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
 use crate::{Error, Result};
+
+/// The kept uniform buffer of the point-wise search.
+pub(super) const SEARCH_UNIFORMS: &str = "pointwise_uniforms";
 
 /// The data term on the GPU: packed costs (raw `u8` or window sums `u16`) and per-pixel divisors.
 pub(super) struct DataCostGpu {
@@ -146,8 +149,9 @@ impl DataCostGpu {
 
     /// Records one point-wise search reading `u` (stride `u_stride` floats) and writing `a`,
     /// with uniforms and a bind group kept in `kept`. The uniforms are written through the
-    /// queue (one search per submit), or, with `table` (a buffer and an offset holding
-    /// [`DataCostGpu::search_uniforms`]'s bytes), copied from there in `encoder` before the
+    /// queue (one search per submit), or, with `table` (a table of
+    /// [`DataCostGpu::search_uniforms`] made in `kept` with the uniform buffer
+    /// `"pointwise_uniforms"`, and the variant to use), copied from it on the device before the
     /// dispatch, so that searches with different θ share a submit.
     pub(super) fn record_search(
         &self,
@@ -156,15 +160,19 @@ impl DataCostGpu {
         (u, u_stride): (&wgpu::Buffer, u32),
         a: &wgpu::Buffer,
         (lambda, theta): (f32, f32),
-        table: Option<(&wgpu::Buffer, u64)>,
+        table: Option<(&UniformTable, usize)>,
     ) -> Result<()> {
         let kernel = ctx.kernel(&shaders::TGV_POINTWISE)?;
-        let uniforms = self.search_uniforms(u_stride, lambda, theta);
-        let bytes = bytemuck::bytes_of(&uniforms);
-        let buf_uniforms = kept.uniform_with(ctx, "pointwise_uniforms", bytes);
-        if let Some((table, at)) = table {
-            encoder.copy_buffer_to_buffer(table, at, &buf_uniforms, 0, bytes.len() as u64);
-        }
+        let buf_uniforms = match table {
+            Some((table, k)) => {
+                table.select(encoder, k);
+                table.uniforms().clone()
+            }
+            None => {
+                let uniforms = self.search_uniforms(u_stride, lambda, theta);
+                kept.uniform_with(ctx, SEARCH_UNIFORMS, bytemuck::bytes_of(&uniforms))
+            }
+        };
         let bind = kept.bind_group(
             ctx,
             "tgv_pointwise",

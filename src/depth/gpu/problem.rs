@@ -5,7 +5,7 @@
 //! (`shaders/tgv_tensors.wgsl`) and the disparities with their costs gathered at the end
 //! (`shaders/tgv_cost_at.wgsl`).
 
-use super::data_cost::DataCostGpu;
+use super::data_cost::{DataCostGpu, SEARCH_UNIFORMS};
 use crate::depth::sgm::VolumeShape;
 use crate::depth::tgv::{steps_for, Regularizer, Tensor, TgvProblem};
 use crate::gpu::kept::Kept;
@@ -13,6 +13,9 @@ use crate::gpu::layout::{CostAtUniforms, PointwiseUniforms, TensorUniforms, TgvU
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext, Kernel};
 use crate::{Error, Result};
+
+/// The kept uniform buffer of the primal–dual iterations.
+const STEP_UNIFORMS: &str = "tgv_uniforms";
 
 /// Primal–dual iterations recorded per command buffer (bounds the size of one submission).
 const ITERATIONS_PER_SUBMIT: u32 = 64;
@@ -154,7 +157,7 @@ impl<'c> TgvProblemGpu<'c> {
         }
         let identity = matches!(tensors, Tensors::Identity);
         let init = (&shaders::TGV_INIT, "tgv_init_uniforms");
-        let (kernel, bind, _) = gpu.prepare_init(init, 1.0, identity)?;
+        let (kernel, bind) = gpu.prepare_init(init, 1.0, identity)?;
         if n > 0 {
             ctx.record_dispatch(encoder, &kernel, &bind, n)?;
         }
@@ -226,14 +229,14 @@ impl<'c> TgvProblemGpu<'c> {
         Ok(())
     }
 
-    /// `kernel` (of the iterations' layout, `shared/tgv_common.wgsl`), its kept bind group and
-    /// its kept uniform buffer, the uniforms written for the coupling weight `1/(2θ)`.
+    /// `kernel` (of the iterations' layout, `shared/tgv_common.wgsl`) and its kept bind group,
+    /// the kept uniforms ([`STEP_UNIFORMS`]) written for the coupling weight `1/(2θ)`.
     fn prepare(
         &mut self,
         kernel: &'static shaders::ShaderSource,
         theta: f32,
-    ) -> Result<(std::sync::Arc<Kernel>, wgpu::BindGroup, wgpu::Buffer)> {
-        self.prepare_init((kernel, "tgv_uniforms"), theta, false)
+    ) -> Result<(std::sync::Arc<Kernel>, wgpu::BindGroup)> {
+        self.prepare_init((kernel, STEP_UNIFORMS), theta, false)
     }
 
     /// The iterations' uniforms for θ (`identity_tensors`: `tgv_init.wgsl` writes identities).
@@ -260,7 +263,7 @@ impl<'c> TgvProblemGpu<'c> {
         (kernel, uniforms_name): (&'static shaders::ShaderSource, &'static str),
         theta: f32,
         identity_tensors: bool,
-    ) -> Result<(std::sync::Arc<Kernel>, wgpu::BindGroup, wgpu::Buffer)> {
+    ) -> Result<(std::sync::Arc<Kernel>, wgpu::BindGroup)> {
         let ctx = self.ctx;
         let compiled = ctx.kernel(kernel)?;
         let uniforms = self.uniforms(theta, identity_tensors);
@@ -279,7 +282,7 @@ impl<'c> TgvProblemGpu<'c> {
         let bind = self
             .kept
             .bind_group(ctx, kernel.file, &compiled.layout, &buffers);
-        Ok((compiled, bind, buf_uniforms))
+        Ok((compiled, bind))
     }
 
     /// Records the rounds of [`crate::depth::tgv::TgvMatcher::refine`] after what `encoder`
@@ -306,30 +309,29 @@ impl<'c> TgvProblemGpu<'c> {
             return Ok(encoder);
         }
         // Per round: the search's uniforms (u is the first of the primal's three floats per
-        // pixel), then the iterations'.
-        let search_bytes = std::mem::size_of::<PointwiseUniforms>() as u64;
-        let step_bytes = std::mem::size_of::<TgvUniforms>() as u64;
-        let mut table = Vec::with_capacity(thetas.len() * (search_bytes + step_bytes) as usize);
-        for &theta in thetas {
-            table.extend_from_slice(bytemuck::bytes_of(&data.search_uniforms(3, lambda, theta)));
-            table.extend_from_slice(bytemuck::bytes_of(&self.uniforms(theta, false)));
-        }
-        let table = self.kept.storage_with(ctx, "tgv_round_uniforms", &table);
-        let (dual_kernel, bind_dual, step_uniforms) =
-            self.prepare(&shaders::TGV_DUAL, thetas[0])?;
-        let (primal_kernel, bind_primal, _) = self.prepare(&shaders::TGV_PRIMAL, thetas[0])?;
+        // pixel) and the iterations'.
+        let searches: Vec<PointwiseUniforms> = (thetas.iter())
+            .map(|&theta| data.search_uniforms(3, lambda, theta))
+            .collect();
+        let steps: Vec<TgvUniforms> = thetas.iter().map(|&t| self.uniforms(t, false)).collect();
+        let names = ("tgv_search_table", SEARCH_UNIFORMS);
+        let search_table = self.kept.uniform_table(ctx, names, &searches);
+        let step_table = self
+            .kept
+            .uniform_table(ctx, ("tgv_step_table", STEP_UNIFORMS), &steps);
+        let (dual_kernel, bind_dual) = self.prepare(&shaders::TGV_DUAL, thetas[0])?;
+        let (primal_kernel, bind_primal) = self.prepare(&shaders::TGV_PRIMAL, thetas[0])?;
         let mut recorded = 0;
         for (k, &theta) in thetas.iter().enumerate() {
-            let at = k as u64 * (search_bytes + step_bytes);
             data.record_search(
                 (ctx, &mut self.kept),
                 &mut encoder,
                 (&self.primal, 3),
                 &self.target,
                 (lambda, theta),
-                Some((&table, at)),
+                Some((&search_table, k)),
             )?;
-            encoder.copy_buffer_to_buffer(&table, at + search_bytes, &step_uniforms, 0, step_bytes);
+            step_table.select(&mut encoder, k);
             for _ in 0..iterations {
                 // One pass per step: a pass boundary orders the dual writes before the primal
                 // reads (and the primal writes before the next dual step).
@@ -351,8 +353,8 @@ impl<'c> TgvProblemGpu<'c> {
         let ctx = self.ctx;
         let n = self.pixels() as u64;
         let scope = ErrorScopes::push(&ctx.device);
-        let (dual_kernel, bind_dual, _) = self.prepare(&shaders::TGV_DUAL, theta)?;
-        let (primal_kernel, bind_primal, _) = self.prepare(&shaders::TGV_PRIMAL, theta)?;
+        let (dual_kernel, bind_dual) = self.prepare(&shaders::TGV_DUAL, theta)?;
+        let (primal_kernel, bind_primal) = self.prepare(&shaders::TGV_PRIMAL, theta)?;
         let mut left = iterations;
         while left > 0 {
             let batch = left.min(ITERATIONS_PER_SUBMIT);
