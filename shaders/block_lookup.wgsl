@@ -27,20 +27,5 @@ fn main(
     if (k >= params.key_count) {
         return;
     }
-    let key = keys[k].xyz;
-    let want = bitcast<vec3<u32>>(key);
-    var pos = block_hash(key) & params.mask;
-    var found = SLOT_EMPTY;
-    for (var probe = 0u; probe <= params.mask; probe = probe + 1u) {
-        let e = table[pos];
-        if (e.w == SLOT_EMPTY) {
-            break;
-        }
-        if (e.w != SLOT_TOMBSTONE && all(e.xyz == want)) {
-            found = e.w;
-            break;
-        }
-        pos = (pos + 1u) & params.mask;
-    }
-    slots[k] = found;
+    slots[k] = table_find(keys[k].xyz, params.mask);
 }

@@ -29,7 +29,9 @@ use crate::gpu::{
 };
 use crate::grid::{BlockIndex, Layer, TouchedBlocks};
 use crate::mesh::{extract_mesh, extract_mesh_gpu, Field, Mesh};
-use crate::regularize::{solve_gpu, CpuSolver, TvParams, TvProblem, TvSolver};
+use crate::regularize::{
+    regularize_resident, solve_gpu, CpuSolver, RegularizeStats, TvParams, TvProblem, TvSolver,
+};
 use crate::store::UpperTier;
 use crate::{Error, Result};
 use std::sync::Arc;
@@ -147,7 +149,15 @@ impl GpuStages {
             ]);
         }
         if self.tv {
-            out.extend([&shaders::TV_DUAL, &shaders::TV_PRIMAL]);
+            out.extend([
+                &shaders::TV_DUAL,
+                &shaders::TV_PRIMAL,
+                &shaders::TV_RESIDENT_SLOTS,
+                &shaders::TV_RESIDENT_LIST,
+                &shaders::TV_RESIDENT_LINKS,
+                &shaders::TV_RESIDENT_GATHER,
+                &shaders::TV_RESIDENT_ENCODE,
+            ]);
         }
         if self.stereo {
             out.extend([
@@ -607,6 +617,29 @@ impl TvSolver for Backend {
     fn max_voxels(&self) -> Option<usize> {
         self.gpu_if(self.stages.tv)
             .map(|ctx| (ctx.max_binding_bytes() / 12) as usize)
+    }
+
+    /// Where fusion left the blocks on the GPU (`regularize_resident`), when TV runs there and
+    /// they fit; counted in [`Backend::tv_devices`] as one GPU solve.
+    fn solve_in_place(
+        &mut self,
+        layer: &mut Layer,
+        params: &TvParams,
+    ) -> Result<Option<(TouchedBlocks, RegularizeStats)>> {
+        let (Some(ctx), Some(map)) = (self.gpu_if(self.stages.tv).cloned(), &mut self.resident)
+        else {
+            return Ok(None);
+        };
+        let t = &mut self.traffic;
+        let done = counted(Some(&ctx), &mut t.tv, &mut t.tv_solves, || {
+            regularize_resident(map, layer, params)
+        })?;
+        if done.is_some() {
+            self.tv.gpu += 1;
+        } else {
+            self.traffic.tv_solves -= 1;
+        }
+        Ok(done)
     }
 }
 

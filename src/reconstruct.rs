@@ -356,8 +356,11 @@ impl Reconstructor {
         let before = self.backend.tv_devices();
         let t = Instant::now();
         let tv = self.config.tv;
-        // The solver reads and writes blocks in RAM: the GPU keeps no copies meanwhile.
-        self.backend.flush_all(self.store.layer_mut())?;
+        // A store that pages during the solve must find no copies on the GPU; an in-memory map
+        // keeps them there, to be regularized where they are (`TvSolver::solve_in_place`).
+        if !self.store.holds_whole_map() {
+            self.backend.flush_all(self.store.layer_mut())?;
+        }
         let summary = self.store.regularize(&tv, &mut self.backend, progress)?;
         let seconds = t.elapsed().as_secs_f64();
         self.timings.regularize_s += seconds;

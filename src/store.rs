@@ -158,6 +158,14 @@ pub trait BlockStore {
     /// The resident blocks, mutably (fusion updates them).
     fn layer_mut(&mut self) -> &mut Layer;
 
+    /// Whether every block of the map stays in [`BlockStore::layer`] for the store's life (an
+    /// in-memory map): a tier above RAM may then keep its copies through a regularization, and
+    /// regularize them where they are ([`TvSolver::solve_in_place`]). A store that pages blocks
+    /// during a regularization says false, and the tier is emptied first.
+    fn holds_whole_map(&self) -> bool {
+        false
+    }
+
     /// Frames already committed to the store when it was opened (where a run resumes).
     fn frames_committed(&self) -> u64;
 
@@ -183,8 +191,9 @@ pub trait BlockStore {
     fn commit(&mut self, frames_fused: u64, tier: &mut dyn UpperTier) -> Result<()>;
 
     /// Regularizes the whole map with `solver` (`progress(done, total)` after each region;
-    /// returning false stops early, what was done is kept). No tier above RAM may hold blocks
-    /// (the caller writes them back first).
+    /// returning false stops early, what was done is kept). A tier above RAM holds no blocks
+    /// the layer lacks, and none with changes not in the layer (the caller syncs it first, and
+    /// empties it unless [`BlockStore::holds_whole_map`]).
     fn regularize(
         &mut self,
         params: &TvParams,
@@ -258,6 +267,24 @@ impl TvSolver for Chunked<'_> {
     fn max_voxels(&self) -> Option<usize> {
         self.inner.max_voxels()
     }
+
+    /// One solve where the blocks are, reported at its end.
+    fn solve_in_place(
+        &mut self,
+        layer: &mut Layer,
+        params: &TvParams,
+    ) -> Result<
+        Option<(
+            crate::grid::TouchedBlocks,
+            crate::regularize::RegularizeStats,
+        )>,
+    > {
+        let done = self.inner.solve_in_place(layer, params)?;
+        if done.is_some() {
+            (self.progress)(params.iterations as usize, params.iterations as usize);
+        }
+        Ok(done)
+    }
 }
 
 /// RAM the in-memory path needs per allocated block for the whole run: the block with a
@@ -316,6 +343,10 @@ impl BlockStore for MemoryStore {
         &mut self.layer
     }
 
+    fn holds_whole_map(&self) -> bool {
+        true
+    }
+
     fn frames_committed(&self) -> u64 {
         0
     }
@@ -363,7 +394,7 @@ impl BlockStore for MemoryStore {
             blocks: blocks.len(),
             omega_voxels: stats.omega_voxels as u64,
             iterations: stats.iterations,
-            energy: Some((stats.energy_before, stats.energy_after)),
+            energy: stats.energy,
             regions: 1,
             solved_blocks: blocks.len(),
             ..Default::default()

@@ -26,6 +26,21 @@ pub struct TvUniforms {
     pub pad: [u32; 3],
 }
 
+/// Uniforms of the kernels of TV over the resident blocks, `shaders/tv_resident_*.wgsl` (WGSL
+/// twin: `TvResidentUniforms` in `shaders/shared/tv_resident_common.wgsl`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct TvResidentUniforms {
+    /// Hash-table entries − 1 (the capacity is a power of two).
+    pub table_mask: u32,
+    /// Blocks of the problem (the table's live entries).
+    pub block_count: u32,
+    /// `block_count` × 512.
+    pub voxel_count: u32,
+    /// Slots of the pool.
+    pub slot_count: u32,
+}
+
 /// Uniforms of `shaders/fuse_depth.wgsl` (WGSL twin: `FuseUniforms` there).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -524,6 +539,10 @@ pub struct InvalidateUniforms {
 /// (and that every struct a kernel binds is listed here).
 pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("TvUniforms", std::mem::size_of::<TvUniforms>()),
+    (
+        "TvResidentUniforms",
+        std::mem::size_of::<TvResidentUniforms>(),
+    ),
     ("FuseUniforms", std::mem::size_of::<FuseUniforms>()),
     ("GpuVoxel", std::mem::size_of::<GpuVoxel>()),
     ("LookupUniforms", std::mem::size_of::<LookupUniforms>()),

@@ -69,6 +69,62 @@ pub const TV_PRIMAL: ShaderSource = kernel!(
     [Uniform, Read, Read, Read, Read, ReadWrite, ReadWrite, ReadWrite]
 );
 
+/// TV over the resident blocks: the hash table's live entries placed at their slots.
+pub const TV_RESIDENT_SLOTS: ShaderSource = kernel!(
+    "tv_resident_slots.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/block_hash.wgsl",
+        "shared/tv_resident_common.wgsl"
+    ],
+    [Uniform, Read, ReadWrite]
+);
+
+/// TV over the resident blocks: the occupied slots numbered as the problem's blocks.
+pub const TV_RESIDENT_LIST: ShaderSource = kernel!(
+    "tv_resident_list.wgsl",
+    [
+        "shared/workgroup_scan.wgsl",
+        "shared/tv_resident_common.wgsl"
+    ],
+    [Uniform, Read, ReadWrite, ReadWrite, ReadWrite]
+);
+
+/// TV over the resident blocks: the neighbour table, through the GPU hash table.
+pub const TV_RESIDENT_LINKS: ShaderSource = kernel!(
+    "tv_resident_links.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/block_hash.wgsl",
+        "shared/table_probe.wgsl",
+        "shared/tv_resident_common.wgsl"
+    ],
+    [Uniform, Read, Read, Read, ReadWrite]
+);
+
+/// TV over the resident blocks: f, w and the Ω and link masks from the pool's voxels.
+pub const TV_RESIDENT_GATHER: ShaderSource = kernel!(
+    "tv_resident_gather.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/exact_div.wgsl",
+        "shared/tv_resident_common.wgsl"
+    ],
+    [Uniform, Read, Read, Read, ReadWrite, ReadWrite, ReadWrite, ReadWrite]
+);
+
+/// TV over the resident blocks: the result encoded as the blocks store it (2 bytes per voxel).
+pub const TV_RESIDENT_ENCODE: ShaderSource = kernel!(
+    "tv_resident_encode.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/rounding.wgsl",
+        "shared/float_bits.wgsl",
+        "shared/tv_resident_common.wgsl"
+    ],
+    [Uniform, Read, Read, Read, Read, ReadWrite]
+);
+
 /// Depth-map fusion over uploaded blocks.
 pub const FUSE_DEPTH: ShaderSource = kernel!(
     "fuse_depth.wgsl",
@@ -97,7 +153,11 @@ pub const FUSE_DEPTH_RESIDENT: ShaderSource = kernel!(
 /// Block keys to pool slots through the GPU hash table.
 pub const BLOCK_LOOKUP: ShaderSource = kernel!(
     "block_lookup.wgsl",
-    ["shared/dispatch.wgsl", "shared/block_hash.wgsl"],
+    [
+        "shared/dispatch.wgsl",
+        "shared/block_hash.wgsl",
+        "shared/table_probe.wgsl"
+    ],
     [Uniform, Read, Read, ReadWrite]
 );
 
@@ -379,6 +439,11 @@ pub const ALL: &[ShaderSource] = &[
     // TV regularization.
     TV_DUAL,
     TV_PRIMAL,
+    TV_RESIDENT_SLOTS,
+    TV_RESIDENT_LIST,
+    TV_RESIDENT_LINKS,
+    TV_RESIDENT_GATHER,
+    TV_RESIDENT_ENCODE,
     // Fusion.
     FUSE_DEPTH,
     FUSE_DEPTH_RESIDENT,

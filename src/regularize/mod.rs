@@ -555,10 +555,9 @@ pub struct RegularizeStats {
     pub omega_voxels: usize,
     /// Iterations run.
     pub iterations: u32,
-    /// Energy before and after.
-    pub energy_before: f64,
-    /// Energy after the last iteration.
-    pub energy_after: f64,
+    /// Energy before and after the iterations, when computed (a solve where the blocks are, on
+    /// a GPU tier, does not gather the problem on the host to compute it).
+    pub energy: Option<(f64, f64)>,
 }
 
 /// Regularizes every block of `layer` in one global solve and stores `u` in each block's
@@ -603,8 +602,7 @@ pub fn regularize_layer_with(
         blocks: blocks.len(),
         omega_voxels: problem.omega_count(),
         iterations: params.iterations,
-        energy_before,
-        energy_after,
+        energy: Some((energy_before, energy_after)),
     };
     Ok((blocks, stats))
 }
@@ -627,6 +625,18 @@ pub trait TvSolver {
     /// state between host and device (a GPU): callers that report progress then call it once.
     fn prefers_whole_solves(&self) -> bool {
         false
+    }
+
+    /// Regularizes the whole of `layer` where its blocks already are, when this solver holds
+    /// them (a GPU tier: `src/regularize/resident.rs`), storing `u` as
+    /// [`regularize_layer_with`] does. `Ok(None)` when it does not hold them: the caller then
+    /// gathers the problem on the host.
+    fn solve_in_place(
+        &mut self,
+        _layer: &mut Layer,
+        _params: &TvParams,
+    ) -> crate::Result<Option<(TouchedBlocks, RegularizeStats)>> {
+        Ok(None)
     }
 }
 
@@ -653,11 +663,14 @@ pub fn regularize_layer_by(
     params: &TvParams,
     solver: &mut dyn TvSolver,
 ) -> crate::Result<(TouchedBlocks, RegularizeStats)> {
+    params.validate()?;
+    if let Some(done) = solver.solve_in_place(layer, params)? {
+        return Ok(done);
+    }
     let voxels = layer.block_count() * VOXELS_PER_BLOCK;
     if solver.max_voxels().is_none_or(|max| voxels <= max) {
         return regularize_layer_with(layer, params, |problem| solver.solve(problem, params));
     }
-    params.validate()?;
     let blocks = layer.indices_sorted();
     let mut problem = TvProblem::gather(layer, &blocks);
     let energy_before = problem.energy(params.lambda);
@@ -682,17 +695,18 @@ pub fn regularize_layer_by(
         blocks: blocks.len(),
         omega_voxels: problem.omega_count(),
         iterations: params.iterations,
-        energy_before,
-        energy_after: problem.energy(params.lambda),
+        energy: Some((energy_before, problem.energy(params.lambda))),
     };
     Ok((blocks, stats))
 }
 
 mod gpu;
 mod regions;
+mod resident;
 mod sweep;
 #[cfg(test)]
 mod tests;
 
 pub use gpu::{regularize_layer_gpu, regularize_regions_gpu, solve_gpu, GpuSolver};
 pub use regions::{regularize_regions, regularize_regions_with, RegionPlan, RegionStats};
+pub use resident::regularize_resident;

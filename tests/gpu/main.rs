@@ -14,3 +14,4 @@ mod sgm;
 mod shaders;
 mod stereo;
 mod traffic;
+mod tv_resident;
