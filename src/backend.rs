@@ -28,7 +28,7 @@ use crate::gpu::{
     DeviceChoice, GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats, StageTally,
 };
 use crate::grid::{BlockIndex, Layer, TouchedBlocks};
-use crate::mesh::{extract_mesh, extract_mesh_gpu, Field, Mesh};
+use crate::mesh::{extract_mesh, extract_mesh_gpu_from, Field, Mesh, SampleSource};
 use crate::regularize::{
     regularize_resident, solve_gpu, CpuSolver, RegularizeStats, TvParams, TvProblem, TvSolver,
 };
@@ -186,6 +186,7 @@ impl GpuStages {
         }
         if self.mesh {
             out.extend([
+                &shaders::MC_SAMPLES,
                 &shaders::MC_COUNT,
                 &shaders::MC_EMIT,
                 &shaders::MC_FIRST,
@@ -577,9 +578,15 @@ impl UpperTier for Backend {
         let Some(ctx) = self.gpu_if(self.stages.mesh).cloned() else {
             return Ok(extract_mesh(layer, field, None));
         };
+        // Where fusion left the blocks on the GPU (synced with the layer by the store before it
+        // meshes), their samples are made there.
+        let source = self
+            .resident
+            .as_ref()
+            .map_or(SampleSource::Layer, SampleSource::Resident);
         let t = &mut self.traffic;
         counted(Some(&ctx), &mut t.mesh, &mut t.meshes, || {
-            extract_mesh_gpu(&ctx, layer, field, None).map(|(mesh, _)| mesh)
+            extract_mesh_gpu_from(&ctx, layer, field, None, source).map(|(mesh, _)| mesh)
         })
     }
 }

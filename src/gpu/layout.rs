@@ -420,6 +420,18 @@ pub struct WindowUniforms {
     pub pad: [u32; 3],
 }
 
+/// Uniforms of `shaders/mc_samples.wgsl` (WGSL twin: `McSampleUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct McSampleUniforms {
+    /// Upload places.
+    pub places: u32,
+    /// 1: the regularized field's values, uploaded; 0: the pool's raw TSDF.
+    pub regularized: u32,
+    /// Padding to 16 bytes.
+    pub pad: [u32; 2],
+}
+
 /// Uniforms of the marching-cubes kernels (WGSL twin: `McUniforms` in
 /// `shaders/shared/mc_uniforms.wgsl`).
 #[repr(C)]
@@ -559,6 +571,7 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("CensusUniforms", std::mem::size_of::<CensusUniforms>()),
     ("CostUniforms", std::mem::size_of::<CostUniforms>()),
     ("McUniforms", std::mem::size_of::<McUniforms>()),
+    ("McSampleUniforms", std::mem::size_of::<McSampleUniforms>()),
     ("WindowUniforms", std::mem::size_of::<WindowUniforms>()),
     ("TensorUniforms", std::mem::size_of::<TensorUniforms>()),
     ("CostAtUniforms", std::mem::size_of::<CostAtUniforms>()),

@@ -387,6 +387,13 @@ pub const TGV_FILL_COLUMNS: ShaderSource = kernel!(
     [Uniform, Read, ReadWrite]
 );
 
+/// Marching cubes, pass 0 over resident blocks: the samples made from the GPU pool.
+pub const MC_SAMPLES: ShaderSource = kernel!(
+    "mc_samples.wgsl",
+    ["shared/dispatch.wgsl", "shared/exact_div.wgsl"],
+    [Uniform, Read, Read, Read, ReadWrite]
+);
+
 /// Marching cubes, pass 1: triangles per meshed block.
 pub const MC_COUNT: ShaderSource = kernel!(
     "mc_count.wgsl",
@@ -476,6 +483,7 @@ pub const ALL: &[ShaderSource] = &[
     TGV_FILL_ROWS,
     TGV_FILL_COLUMNS,
     // Marching cubes.
+    MC_SAMPLES,
     MC_COUNT,
     MC_EMIT,
     MC_FIRST,

@@ -23,6 +23,7 @@
 //! its blocks', looking up only the vertices two blocks can share (those on an edge whose lower
 //! corner lies on a block's low face).
 
+use super::gpu_samples::{device_samples, SampleSource};
 use super::marching_cubes::{EdgeKey, Field};
 use super::tables::triangle_table;
 use super::Mesh;
@@ -60,6 +61,19 @@ pub fn extract_mesh_gpu(
     field: Field,
     blocks: Option<&[BlockIndex]>,
 ) -> Result<(Mesh, Vec<EdgeKey>)> {
+    extract_mesh_gpu_from(ctx, layer, field, blocks, SampleSource::Layer)
+}
+
+/// [`extract_mesh_gpu`] with the samples taken from `source`: where the blocks are resident on
+/// the GPU, made there from the pool (`gpu_samples.rs`) instead of packed and uploaded. The
+/// same mesh either way.
+pub fn extract_mesh_gpu_from(
+    ctx: &GpuContext,
+    layer: &Layer,
+    field: Field,
+    blocks: Option<&[BlockIndex]>,
+    source: SampleSource,
+) -> Result<(Mesh, Vec<EdgeKey>)> {
     let mut list: Vec<BlockIndex> = match blocks {
         Some(b) => {
             let mut v = b.to_vec();
@@ -81,7 +95,7 @@ pub fn extract_mesh_gpu(
         let end = start + upload.meshed;
         merge.more_to_come |= end < list.len();
         let batch = timed(&mut phases.upload_s, || {
-            Batch::upload(ctx, layer, field, &upload, &table, stride)
+            Batch::upload(ctx, (layer, source), field, &upload, (&table, stride))
         })?;
         let counts = timed(&mut phases.count_s, || batch.count(ctx))?;
         let parts = plan_parts(&counts, cap);
@@ -227,6 +241,33 @@ fn table_entries(corners: u64) -> u64 {
     (corners + 1).next_power_of_two()
 }
 
+/// The samples of `places` packed on the host from `layer` straight into the upload's mapping,
+/// a block per task: 8 bytes per voxel, the field's value, then the colour with [`VALID_BIT`].
+fn host_samples(
+    ctx: &GpuContext,
+    layer: &Layer,
+    field: Field,
+    places: &[BlockIndex],
+) -> Result<wgpu::Buffer> {
+    ctx.check_binding("marching-cubes samples", places.len() as u64 * SAMPLE_BYTES)?;
+    ctx.storage_by_piece::<{ SAMPLE_BYTES as usize }>("mc_samples", places.len(), |k, dst| {
+        let block = layer
+            .get(&places[k])
+            .expect("an uploaded block is allocated");
+        // Two little-endian words per voxel (the piece has no word alignment).
+        for (i, w) in dst.chunks_exact_mut(8).enumerate() {
+            let value = match field {
+                Field::Raw => decode_tsdf(block.tsdf[i]),
+                Field::Regularized => block.regularized_or_raw(i),
+            };
+            let valid = block.omega(i) && block.weight(i) > 0;
+            let color = pack_rgb(block.color[i]) | if valid { VALID_BIT } else { 0 };
+            w[..4].copy_from_slice(&value.to_bits().to_le_bytes());
+            w[4..].copy_from_slice(&color.to_le_bytes());
+        }
+    })
+}
+
 /// A batch's blocks on the device.
 struct Batch {
     uniforms: McUniforms,
@@ -240,36 +281,18 @@ struct Batch {
 impl Batch {
     fn upload(
         ctx: &GpuContext,
-        layer: &Layer,
+        (layer, source): (&Layer, SampleSource),
         field: Field,
         upload: &Upload,
-        table: &[u32],
-        stride: u32,
+        (table, stride): (&[u32], u32),
     ) -> Result<Batch> {
         let grid = layer.params();
-        let bytes = upload.places.len() as u64 * SAMPLE_BYTES;
-        ctx.check_binding("marching-cubes samples", bytes)?;
-        // Packed straight into the upload's mapping, a block per task.
-        let samples = ctx.storage_by_piece::<{ SAMPLE_BYTES as usize }>(
-            "mc_samples",
-            upload.places.len(),
-            |k, dst| {
-                let block = layer
-                    .get(&upload.places[k])
-                    .expect("an uploaded block is allocated");
-                // Two little-endian words per voxel (the piece has no word alignment).
-                for (i, w) in dst.chunks_exact_mut(8).enumerate() {
-                    let value = match field {
-                        Field::Raw => decode_tsdf(block.tsdf[i]),
-                        Field::Regularized => block.regularized_or_raw(i),
-                    };
-                    let valid = block.omega(i) && block.weight(i) > 0;
-                    let color = pack_rgb(block.color[i]) | if valid { VALID_BIT } else { 0 };
-                    w[..4].copy_from_slice(&value.to_bits().to_le_bytes());
-                    w[4..].copy_from_slice(&color.to_le_bytes());
-                }
-            },
-        )?;
+        let samples = match source.slots(&upload.places) {
+            Some((pool, slots)) => {
+                device_samples(ctx, layer, field, &upload.places, (pool, &slots))?
+            }
+            None => host_samples(ctx, layer, field, &upload.places)?,
+        };
         let centres: Vec<[f32; 24]> = upload
             .places
             .par_iter()

@@ -1,8 +1,11 @@
-//! TV over the blocks resident on the GPU (`denser::regularize::regularize_resident`, issue 34
-//! item 4): the problem made on the device from the pool and the hash table equals the one the
-//! host gathers, so the result equals the gathered GPU solve's bit for bit (the same kernels on
-//! the same arrays) and the CPU's within the GPU's tolerance (`compare.rs`: 4 steps of i16);
-//! only new blocks go up, and the stored result, 2 bytes per voxel, comes down in one submit.
+//! TV and meshing over the blocks resident on the GPU (issue 34 items 4 and 5).
+//!
+//! TV (`denser::regularize::regularize_resident`): the problem made on the device from the pool
+//! and the hash table equals the one the host gathers, so the result equals the gathered GPU
+//! solve's bit for bit (the same kernels on the same arrays) and the CPU's within the GPU's
+//! tolerance (`compare.rs`: 4 steps of i16); only new blocks go up, and the stored result,
+//! 2 bytes per voxel, comes down in one submit. Marching cubes (`SampleSource::Resident`): the
+//! samples made from the pool equal the host's packing, so the mesh is the same.
 
 use crate::common::{fuse_depth_resident, gpu, orbit, reconstructor_over, vga, Rng, SphereScene};
 use crate::compare::worst_u_step;
@@ -10,6 +13,7 @@ use denser::backend::Backend;
 use denser::fusion::DepthFusionParams;
 use denser::gpu::{ResidentMap, ResidentOptions};
 use denser::grid::{BlockIndex, GridParams, Layer, VOXELS_PER_BLOCK};
+use denser::mesh::{extract_mesh_gpu, extract_mesh_gpu_from, Field, SampleSource};
 use denser::regularize::{regularize_layer, regularize_layer_gpu, regularize_resident, TvParams};
 use std::sync::Arc;
 
@@ -173,4 +177,53 @@ fn a_gpu_run_regularizes_its_resident_blocks_in_place() {
     let worst = worst_u_step(lg, lc, &blocks);
     eprintln!("{} blocks: worst |Δu| {worst} steps", blocks.len());
     assert!(worst <= 4, "{worst} steps");
+}
+
+#[test]
+fn marching_cubes_from_the_resident_pool_equals_the_uploaded_samples() {
+    // The mesher's samples made on the device from the pool (`SampleSource::Resident`) are the
+    // host's packing bit for bit, so the meshes are the same values; only slots (and, for the
+    // regularized field, its 2-byte values) go up. A batch with a block not resident falls
+    // back to the host's packing.
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let grid = GridParams {
+        voxel_size_m: 0.05,
+        truncation_m: 0.4,
+    };
+    let (mut map, mut layer) = fused_resident(&ctx, grid);
+    map.sync(&mut layer).expect("sync");
+    regularize_resident(&mut map, &mut layer, &TvParams::paper(0.05))
+        .expect("TV")
+        .expect("fits");
+    let blocks = layer.block_count() as u64;
+    for (field, most_per_block) in [(Field::Raw, 256u64), (Field::Regularized, 1024 + 256)] {
+        let before = ctx.traffic();
+        let host = extract_mesh_gpu(&ctx, &layer, field, None).expect("host samples");
+        let packed = ctx.traffic().since(before);
+        let before = ctx.traffic();
+        let source = SampleSource::Resident(&map);
+        let device = extract_mesh_gpu_from(&ctx, &layer, field, None, source).expect("pool");
+        let t = ctx.traffic().since(before);
+        eprintln!(
+            "{field:?}, {blocks} blocks, {} triangles: up {} B packed, {} B from the pool",
+            host.0.triangles.len(),
+            packed.upload_bytes,
+            t.upload_bytes
+        );
+        assert!(!host.0.triangles.is_empty());
+        assert_eq!(device, host, "{field:?}");
+        assert!(packed.upload_bytes >= 4096 * blocks, "{packed:?}");
+        assert!(
+            t.upload_bytes <= most_per_block * blocks + (64 << 10),
+            "{t:?}"
+        );
+    }
+    // One block back in RAM only: its batch's samples are packed on the host, the same mesh.
+    let first = layer.indices_sorted()[0];
+    map.flush_blocks(&mut layer, &[first]).expect("flush");
+    let host = extract_mesh_gpu(&ctx, &layer, Field::Raw, None).expect("host samples");
+    let mixed = extract_mesh_gpu_from(&ctx, &layer, Field::Raw, None, SampleSource::Resident(&map))
+        .expect("mixed");
+    assert_eq!(mixed, host);
 }

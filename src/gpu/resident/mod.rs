@@ -178,6 +178,11 @@ impl ResidentMap {
         self.table.host.lookup(b)
     }
 
+    /// The pool's device buffer: 512 [`GpuVoxel`]s per slot.
+    pub(crate) fn pool_buffer(&self) -> &wgpu::Buffer {
+        self.pool.device_buffer()
+    }
+
     /// Resident blocks, sorted.
     pub fn resident_blocks(&self) -> Vec<BlockIndex> {
         let mut v: Vec<BlockIndex> = self.pool.occupied().map(|(_, k, _)| k).collect();
