@@ -5,6 +5,9 @@
 //!
 //! - `tv_10_iterations/{cpu,gpu}`: 10 Chambolle–Pock iterations over every block of the fused
 //!   map at 5 cm (GPU: upload, 20 dispatches, readback of u, ū, p).
+//! - `tv_10_iterations/gpu_resident`: the same solve over the blocks resident on the GPU
+//!   (`regularize_resident`: the problem made on the device from the pool, 10 iterations, the
+//!   stored result, 2 bytes per voxel, read back into the layer).
 //! - `fuse_depth_640x480/{cpu,gpu}`: re-fusing frame 0 into the warm 5 cm map (GPU: pack, upload,
 //!   one dispatch, readback, unpack; block listing on the CPU in both).
 //! - `fuse_depth_640x480/gpu_resident`: the same with the blocks resident on the GPU
@@ -12,6 +15,8 @@
 //!   lookup + fusion dispatch, readback of one flag per block; no voxel traffic).
 //! - `marching_cubes/{cpu,gpu}`: the raw field of the fused 5 cm map meshed whole (GPU: the
 //!   samples packed and uploaded, five passes, the mesh read back and joined; the same mesh).
+//! - `marching_cubes/gpu_resident`: the same with the blocks resident on the GPU (the samples
+//!   made there from the pool: `SampleSource::Resident`).
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -24,9 +29,11 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use denser::fusion::{integrate_depth, DepthFusionParams};
 use denser::gpu::{ResidentMap, ResidentOptions};
 use denser::grid::{GridParams, Layer};
-use denser::mesh::{extract_mesh_gpu, extract_mesh_keyed, Field};
-use denser::regularize::solve_gpu;
+use denser::mesh::SampleSource;
+use denser::mesh::{extract_mesh_gpu, extract_mesh_gpu_from, extract_mesh_keyed, Field};
+use denser::regularize::{regularize_resident, solve_gpu};
 use denser::regularize::{TvParams, TvProblem};
+use std::sync::Arc;
 
 fn scene_layer() -> (Layer, Vec<denser::frame::DepthFrame>) {
     let scene = SphereScene::standard();
@@ -66,16 +73,39 @@ fn tv(c: &mut Criterion) {
             criterion::BatchSize::LargeInput,
         )
     });
-    if let Some(ctx) = &ctx {
+    if let Some(ctx) = ctx {
         g.bench_function("gpu", |b| {
             b.iter_batched(
                 || problem.clone(),
-                |mut p| solve_gpu(ctx, &mut p, &params).expect("GPU solve"),
+                |mut p| solve_gpu(&ctx, &mut p, &params).expect("GPU solve"),
                 criterion::BatchSize::LargeInput,
             )
         });
+        let (mut map, mut layer) = resident(Arc::new(ctx), &layer);
+        g.bench_function("gpu_resident", |b| {
+            b.iter(|| {
+                regularize_resident(&mut map, &mut layer, &params)
+                    .expect("GPU solve")
+                    .expect("the map fits the pool")
+            })
+        });
     }
     g.finish();
+}
+
+/// A copy of `layer` with every block resident on the GPU (brought up by a first TV solve of
+/// one iteration).
+fn resident(ctx: Arc<denser::gpu::GpuContext>, layer: &Layer) -> (ResidentMap, Layer) {
+    let mut map = ResidentMap::new(ctx, layer.params(), ResidentOptions::default()).expect("pool");
+    let mut layer = layer.clone();
+    let one = TvParams {
+        iterations: 1,
+        ..TvParams::paper(0.1)
+    };
+    regularize_resident(&mut map, &mut layer, &one)
+        .expect("GPU solve")
+        .expect("the map fits the pool");
+    (map, layer)
 }
 
 fn fusion(c: &mut Criterion) {
@@ -92,7 +122,7 @@ fn fusion(c: &mut Criterion) {
         g.bench_function("gpu", |b| {
             b.iter(|| fuse_depth_gpu(&ctx, &mut layer, &frames[0], &params).expect("GPU"))
         });
-        let ctx = std::sync::Arc::new(ctx);
+        let ctx = Arc::new(ctx);
         let mut map =
             ResidentMap::new(ctx, layer.params(), ResidentOptions::default()).expect("pool");
         fuse_depth_resident(&mut map, &mut layer, &frames[0], &params).expect("warm");
@@ -116,6 +146,14 @@ fn marching_cubes(c: &mut Criterion) {
     if let Some(ctx) = ctx {
         g.bench_function("gpu", |b| {
             b.iter(|| extract_mesh_gpu(&ctx, &layer, Field::Raw, None).expect("GPU"))
+        });
+        let ctx = Arc::new(ctx);
+        let (map, layer) = resident(ctx.clone(), &layer);
+        g.bench_function("gpu_resident", |b| {
+            b.iter(|| {
+                let source = SampleSource::Resident(&map);
+                extract_mesh_gpu_from(&ctx, &layer, Field::Raw, None, source).expect("GPU")
+            })
         });
     }
     g.finish();
