@@ -17,6 +17,12 @@ use denser::mesh::{extract_mesh_gpu, extract_mesh_gpu_from, Field, SampleSource}
 use denser::regularize::{regularize_layer, regularize_layer_gpu, regularize_resident, TvParams};
 use std::sync::Arc;
 
+/// The grid of every test here: 5 cm voxels.
+const GRID: GridParams = GridParams {
+    voxel_size_m: 0.05,
+    truncation_m: 0.4,
+};
+
 /// The sphere scene fused into a resident map that starts small (so it grows) over `layer`.
 fn fused_resident(ctx: &Arc<denser::gpu::GpuContext>, grid: GridParams) -> (ResidentMap, Layer) {
     let options = ResidentOptions {
@@ -39,10 +45,7 @@ fn fused_resident(ctx: &Arc<denser::gpu::GpuContext>, grid: GridParams) -> (Resi
 fn tv_over_the_resident_blocks_equals_the_gathered_solve() {
     let Some(ctx) = gpu() else { return };
     let ctx = Arc::new(ctx);
-    let grid = GridParams {
-        voxel_size_m: 0.05,
-        truncation_m: 0.4,
-    };
+    let grid = GRID;
     let params = TvParams::paper(0.05);
     for flushed_share in [0usize, 3] {
         let (mut map, mut layer) = fused_resident(&ctx, grid);
@@ -116,10 +119,7 @@ fn tv_over_the_resident_blocks_equals_the_gathered_solve() {
 fn tv_over_the_resident_blocks_declines_what_it_cannot_hold() {
     let Some(ctx) = gpu() else { return };
     let ctx = Arc::new(ctx);
-    let grid = GridParams {
-        voxel_size_m: 0.05,
-        truncation_m: 0.4,
-    };
+    let grid = GRID;
     let params = TvParams::paper(0.05);
     let (map, mut layer) = fused_resident(&ctx, grid);
     let max_blocks = layer.block_count() as u64 - 1;
@@ -145,10 +145,7 @@ fn a_gpu_run_regularizes_its_resident_blocks_in_place() {
     // (one GPU solve, no gathered problem), equal to the CPU run within the tolerance.
     let Some(ctx) = gpu() else { return };
     let ctx = Arc::new(ctx);
-    let grid = GridParams {
-        voxel_size_m: 0.05,
-        truncation_m: 0.4,
-    };
+    let grid = GRID;
     let mut config = denser::reconstruct::ReconstructionConfig::paper(0.05);
     config.grid = grid;
     let mut on_gpu = reconstructor_over(
@@ -187,10 +184,7 @@ fn marching_cubes_from_the_resident_pool_equals_the_uploaded_samples() {
     // back to the host's packing.
     let Some(ctx) = gpu() else { return };
     let ctx = Arc::new(ctx);
-    let grid = GridParams {
-        voxel_size_m: 0.05,
-        truncation_m: 0.4,
-    };
+    let grid = GRID;
     let (mut map, mut layer) = fused_resident(&ctx, grid);
     map.sync(&mut layer).expect("sync");
     regularize_resident(&mut map, &mut layer, &TvParams::paper(0.05))
