@@ -12,7 +12,7 @@
 
 use crate::gpu::layout::TvUniforms;
 use crate::gpu::shaders;
-use crate::gpu::{ErrorScopes, GpuContext};
+use crate::gpu::{ErrorScopes, GpuContext, Kernel};
 use crate::grid::{Layer, TouchedBlocks};
 use crate::regularize::{
     regularize_regions_with, RegionPlan, RegionStats, RegularizeStats, TvParams, TvProblem,
@@ -80,16 +80,17 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
             ctx.storage("tv_p", bytemuck::cast_slice(p)),
         )
     };
-    let buffers = [
-        &buf_uniforms,
-        &buf_neighbors,
-        &buf_mask,
-        &buf_f,
-        &buf_w,
-        &buf_u,
-        &buf_ubar,
-        &buf_p,
-    ];
+    let buffers = TvBuffers {
+        uniforms: &buf_uniforms,
+        neighbors: &buf_neighbors,
+        mask: &buf_mask,
+        f: &buf_f,
+        w: &buf_w,
+        u: &buf_u,
+        ubar: &buf_ubar,
+        p: &buf_p,
+    }
+    .bindings();
     // The two kernels declare the same bindings (shared/tv_common.wgsl); each pipeline has its
     // own layout object: one bind group per kernel.
     let bind_dual = ctx.bind_group("tv_dual", &dual.layout, &buffers);
@@ -98,11 +99,8 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
     while left > 0 {
         let batch = left.min(ITERATIONS_PER_SUBMIT);
         left -= batch;
-        for _ in 0..batch {
-            // One pass per step: a pass boundary orders the dual writes before the primal reads.
-            ctx.record_dispatch(&mut encoder, &dual, &bind_dual, n64)?;
-            ctx.record_dispatch(&mut encoder, &primal, &bind_primal, n64)?;
-        }
+        let steps = [(&*dual, &bind_dual), (&*primal, &bind_primal)];
+        record_iterations(ctx, &mut encoder, steps, n64, batch)?;
         ctx.submit(encoder);
         encoder = ctx
             .device
@@ -122,6 +120,44 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
         // The iterates on the host are stale from here: released, so nothing can read them.
         problem.release_iterates();
         ctx.read_back_into(&mut [(&buf_u, bytemuck::cast_slice_mut(&mut problem.u))])?;
+    }
+    Ok(())
+}
+
+/// The buffers `tv_dual.wgsl` and `tv_primal.wgsl` bind (`shared/tv_common.wgsl`).
+pub(super) struct TvBuffers<'a> {
+    pub uniforms: &'a wgpu::Buffer,
+    pub neighbors: &'a wgpu::Buffer,
+    pub mask: &'a wgpu::Buffer,
+    pub f: &'a wgpu::Buffer,
+    pub w: &'a wgpu::Buffer,
+    pub u: &'a wgpu::Buffer,
+    pub ubar: &'a wgpu::Buffer,
+    pub p: &'a wgpu::Buffer,
+}
+
+impl<'a> TvBuffers<'a> {
+    /// In binding order.
+    pub(super) fn bindings(&self) -> [&'a wgpu::Buffer; 8] {
+        let b = self;
+        [b.uniforms, b.neighbors, b.mask, b.f, b.w, b.u, b.ubar, b.p]
+    }
+}
+
+/// Records `iterations` primal–dual iterations over `voxels` into `encoder`: the dual step,
+/// then the primal step, each its own pass (a pass boundary orders the dual writes before the
+/// primal reads). `steps`: the two kernels with their bind groups.
+pub(super) fn record_iterations(
+    ctx: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    steps: [(&Kernel, &wgpu::BindGroup); 2],
+    voxels: u64,
+    iterations: u32,
+) -> Result<()> {
+    let [(dual, bind_dual), (primal, bind_primal)] = steps;
+    for _ in 0..iterations {
+        ctx.record_dispatch(encoder, dual, bind_dual, voxels)?;
+        ctx.record_dispatch(encoder, primal, bind_primal, voxels)?;
     }
     Ok(())
 }

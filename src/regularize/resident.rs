@@ -23,6 +23,7 @@
 //!
 //! [`TvProblem::scatter`]: super::TvProblem::scatter
 
+use super::gpu::{record_iterations, TvBuffers};
 use super::{RegularizeStats, TvParams};
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{TvResidentUniforms, TvUniforms};
@@ -177,16 +178,17 @@ fn solve_on_device(
             &buf_counters,
         ],
     );
-    let tv_buffers = [
-        &buf_tv,
-        &buf_neighbors,
-        &buf_mask,
-        &buf_f,
-        &buf_w,
-        &buf_u,
-        &buf_ubar,
-        &buf_p,
-    ];
+    let tv_buffers = TvBuffers {
+        uniforms: &buf_tv,
+        neighbors: &buf_neighbors,
+        mask: &buf_mask,
+        f: &buf_f,
+        w: &buf_w,
+        u: &buf_u,
+        ubar: &buf_ubar,
+        p: &buf_p,
+    }
+    .bindings();
     let bind_dual = kept.bind_group(ctx, "tv_resident_dual", &dual.layout, &tv_buffers);
     let bind_primal = kept.bind_group(ctx, "tv_resident_primal", &primal.layout, &tv_buffers);
     let bind_encode = kept.bind_group(
@@ -214,11 +216,8 @@ fn solve_on_device(
     encoder.copy_buffer_to_buffer(&buf_f, 0, &buf_u, 0, voxels * 4);
     encoder.copy_buffer_to_buffer(&buf_f, 0, &buf_ubar, 0, voxels * 4);
     encoder.clear_buffer(&buf_p, 0, Some(voxels * 12));
-    for _ in 0..params.iterations {
-        // One pass per step: a pass boundary orders the dual writes before the primal reads.
-        ctx.record_dispatch(&mut encoder, &dual, &bind_dual, voxels)?;
-        ctx.record_dispatch(&mut encoder, &primal, &bind_primal, voxels)?;
-    }
+    let steps = [(&*dual, &bind_dual), (&*primal, &bind_primal)];
+    record_iterations(ctx, &mut encoder, steps, voxels, params.iterations)?;
     ctx.record_dispatch(&mut encoder, &encode, &bind_encode, voxels / 2)?;
     let mut counters = [0u32; 2];
     let mut listed: Vec<[u32; 4]> = vec![[0; 4]; n as usize];
