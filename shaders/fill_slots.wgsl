@@ -2,7 +2,8 @@
 // holds when it is given to a block the layer does not have yet (`ResidentMap::make_resident`
 // in src/gpu/resident/mod.rs), instead of uploading 4 KiB of empty voxels per block. The host
 // packs the value from `Block::default()` (its CPU twin is `pack_block_into` of an empty block).
-// One invocation per voxel. Keep `SlotFillUniforms` in sync with src/gpu/layout.rs. Shared files
+// It also clears each slot's mark of a block updated by a depth frame (`slot_exists`, read by
+// fuse_depth_resident.wgsl). One invocation per voxel. Keep `SlotFillUniforms` in sync with src/gpu/layout.rs. Shared files
 // and bindings: src/gpu/shaders.rs.
 
 struct SlotFillUniforms {
@@ -16,6 +17,7 @@ struct SlotFillUniforms {
 @group(0) @binding(0) var<uniform> params: SlotFillUniforms;
 @group(0) @binding(1) var<storage, read> slots: array<u32>;
 @group(0) @binding(2) var<storage, read_write> voxels: array<GpuVoxel>;
+@group(0) @binding(3) var<storage, read_write> slot_exists: array<u32>;
 
 @compute @workgroup_size(64)
 fn main(
@@ -27,5 +29,9 @@ fn main(
     if (g >= params.slot_count * 512u) {
         return;
     }
-    voxels[slots[g / 512u] * 512u + g % 512u] = GpuVoxel(params.fill_tsdf_weight, params.fill_color);
+    let slot = slots[g / 512u];
+    voxels[slot * 512u + g % 512u] = GpuVoxel(params.fill_tsdf_weight, params.fill_color);
+    if (g % 512u == 0u) {
+        slot_exists[slot] = 0u;
+    }
 }

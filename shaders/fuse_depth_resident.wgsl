@@ -8,6 +8,11 @@
 @group(0) @binding(6) var<storage, read> slots: array<u32>;
 // Per listed block: 1 when any of its voxels was updated.
 @group(0) @binding(7) var<storage, read_write> block_updated: array<atomic<u32>>;
+// Per pool slot: 1 once a depth frame updated its block (cleared by fill_slots.wgsl when the
+// slot is given to a new block). A listed block whose base has w != 0 (listed only because a
+// frame still in flight may have created it, src/gpu/resident/late.rs) is fused only if so:
+// the CPU lists such a block only once it exists.
+@group(0) @binding(8) var<storage, read_write> slot_exists: array<atomic<u32>>;
 
 @compute @workgroup_size(64)
 fn main(
@@ -28,7 +33,11 @@ fn main(
         }
         return;
     }
+    if (block_base[b].w != 0.0 && atomicLoad(&slot_exists[slot]) == 0u) {
+        return;
+    }
     if (fuse_voxel(b, i, slot * 512u + i)) {
         atomicOr(&block_updated[b], 1u);
+        atomicOr(&slot_exists[slot], 1u);
     }
 }

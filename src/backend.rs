@@ -297,6 +297,8 @@ pub struct Backend {
     stages: GpuStages,
     resident: Option<ResidentMap>,
     resident_options: ResidentOptions,
+    /// Whether depth frames may return before their results arrive (a map held whole in RAM).
+    frames_in_flight: bool,
     tv: TvDevices,
     traffic: StageTraffic,
     /// The traffic of the stereo matchers made by [`Backend::stereo_matcher`].
@@ -336,6 +338,7 @@ impl Backend {
             resident: None,
             stages: GpuStages::ALL,
             resident_options: ResidentOptions::default(),
+            frames_in_flight: false,
             tv: TvDevices::default(),
             traffic: StageTraffic::default(),
             stereo_tally: StageTally::default(),
@@ -464,7 +467,7 @@ impl Backend {
         let Some(ctx) = self.gpu.clone().filter(|_| self.stages.fusion) else {
             return Ok(integrate_depth_plan(layer, frame, params, plan));
         };
-        let options = self.resident_options;
+        let options = (self.resident_options, self.frames_in_flight);
         let resident = Self::resident_map(&mut self.resident, options, &ctx, layer)?;
         let t = &mut self.traffic;
         counted(Some(&ctx), &mut t.depth, &mut t.depth_frames, || {
@@ -473,17 +476,35 @@ impl Backend {
     }
 
     /// The GPU-resident blocks over `layer` in `resident`, opened on `ctx` with `options` by
-    /// the first frame or scan fused there.
+    /// the first frame or scan fused there (with frames in flight when `in_flight`).
     fn resident_map<'a>(
         resident: &'a mut Option<ResidentMap>,
-        options: ResidentOptions,
+        (options, in_flight): (ResidentOptions, bool),
         ctx: &Arc<GpuContext>,
         layer: &Layer,
     ) -> Result<&'a mut ResidentMap> {
         if resident.is_none() {
-            *resident = Some(ResidentMap::new(ctx.clone(), layer.params(), options)?);
+            let mut map = ResidentMap::new(ctx.clone(), layer.params(), options)?;
+            map.set_frames_in_flight(in_flight);
+            *resident = Some(map);
         }
         Ok(resident.as_mut().expect("just opened"))
+    }
+
+    /// Lets GPU depth frames return before their results arrive, collected by later frames or
+    /// the next sync (`src/gpu/resident/late.rs`): for a map held whole in RAM, whose store
+    /// needs no frame's touched blocks at once. Off by default: each frame waits for its own.
+    pub fn set_frames_in_flight(&mut self, enabled: bool) {
+        self.frames_in_flight = enabled;
+        if let Some(r) = self.resident.as_mut() {
+            r.set_frames_in_flight(enabled);
+        }
+    }
+
+    /// The voxel updates of depth frames collected outside a fusion call (by a sync), since
+    /// the last call: a frame in flight reports its updates when collected.
+    pub fn take_late_voxel_updates(&mut self) -> usize {
+        self.resident.as_mut().map_or(0, |r| r.take_collected().1)
     }
 
     /// Fuses one LiDAR scan planned by `plan` into `layer` (on a GPU, into the blocks resident
@@ -496,7 +517,7 @@ impl Backend {
         let Some(ctx) = self.gpu.clone().filter(|_| self.stages.fusion) else {
             return Ok(integrate_lidar_plan(layer, plan));
         };
-        let options = self.resident_options;
+        let options = (self.resident_options, self.frames_in_flight);
         let resident = Self::resident_map(&mut self.resident, options, &ctx, layer)?;
         let t = &mut self.traffic;
         counted(Some(&ctx), &mut t.lidar, &mut t.lidar_scans, || {

@@ -168,6 +168,9 @@ impl Reconstructor {
             )));
         }
         let frames_total = store.frames_committed();
+        let mut backend = backend;
+        // A store that pages needs each frame's touched blocks when the frame ends.
+        backend.set_frames_in_flight(store.holds_whole_map());
         Ok(Reconstructor {
             config,
             store,
@@ -343,6 +346,8 @@ impl Reconstructor {
         let t = Instant::now();
         self.store.commit(self.frames_total, &mut self.backend)?;
         self.timings.paging_s += t.elapsed().as_secs_f64();
+        // Depth frames still in flight were collected by the commit's sync.
+        self.timings.voxel_updates += self.backend.take_late_voxel_updates();
         Ok(())
     }
 

@@ -1,8 +1,9 @@
 // Projective depth-map TSDF fusion of one voxel (DENSER Sec. III-A), shared by fuse_depth.wgsl
 // (blocks uploaded per call) and fuse_depth_resident.wgsl (blocks resident in the GPU pool).
 // CPU twin: `integrate_depth` in src/fusion/depth.rs with `Block::fuse` in src/grid/block.rs.
-// Buffer layouts: keep in sync with `FuseUniforms`, `GpuVoxel` and `PIXEL_VALID` in
-// src/gpu/layout.rs. Bindings 0–5 are common to both kernels.
+// Buffer layouts: keep in sync with `FuseUniforms` and `GpuVoxel` in src/gpu/layout.rs.
+// Bindings 0–5 are common to both kernels. Needs shared/float_bits.wgsl and
+// shared/packed_bytes.wgsl.
 
 struct FuseUniforms {
     // Camera-frame step of one voxel along world x, y, z (xyz; w unused), metres.
@@ -21,19 +22,19 @@ struct FuseUniforms {
     // Voxels of the listed blocks (blocks × 512).
     voxel_count: u32,
     use_color: u32,
-    _pad0: u32,
-    _pad1: u32,
+    // The usable depth range, metres (`usable` in src/fusion/depth.rs).
+    min_depth_m: f32,
+    max_depth_m: f32,
 }
-
-const PIXEL_VALID: u32 = 0x1000000u;
 
 @group(0) @binding(0) var<uniform> params: FuseUniforms;
 // Camera-frame centre of voxel (0, 0, 0) of each listed block (xyz; w unused), metres.
 @group(0) @binding(1) var<storage, read> block_base: array<vec4<f32>>;
 // Depth (z) per pixel, metres, row-major.
 @group(0) @binding(2) var<storage, read> depth: array<f32>;
-// Colour per pixel (r | g << 8 | b << 16) and PIXEL_VALID when the depth is usable.
-@group(0) @binding(3) var<storage, read> pixel: array<u32>;
+// The colour image as uploaded: 3 bytes (r, g, b) per pixel, row-major, packed four bytes to
+// a word (one unused word when the frame fuses no colour).
+@group(0) @binding(3) var<storage, read> color_bytes: array<u32>;
 // The voxels the kernel updates in place.
 @group(0) @binding(4) var<storage, read_write> voxels: array<GpuVoxel>;
 // [0]: voxel updates applied; [1]: listed blocks missing from the GPU hash table (resident
@@ -61,19 +62,27 @@ fn fuse_voxel(b: u32, i: u32, gv: u32) -> bool {
         return false;
     }
     let pix = u32(vr) * params.width + u32(ur);
-    let px = pixel[pix];
-    if ((px & PIXEL_VALID) == 0u) {
+    let d = depth[pix];
+    // `usable`: finite (tested on the bits) and within the depth range.
+    if (!is_finite_bits(bitcast<u32>(d)) || !(d >= params.min_depth_m && d <= params.max_depth_m)) {
         return false;
     }
-    let sdf = depth[pix] - pc.z;
+    let sdf = d - pc.z;
     if (sdf < -params.mu) {
         return false;
     }
     let t = min(sdf, params.mu) * params.inv_mu;
 
     // Block::fuse: the paper's running average, weight capped, Ω set (shared/voxel_fuse.wgsl).
+    var rgb = 0u;
+    if (params.use_color != 0u) {
+        let j = pix * 3u;
+        rgb = packed_byte(color_bytes[j / 4u], j)
+            | (packed_byte(color_bytes[(j + 1u) / 4u], j + 1u) << 8u)
+            | (packed_byte(color_bytes[(j + 2u) / 4u], j + 2u) << 16u);
+    }
     let v = voxels[gv];
-    let out = fuse_packed(v.tsdf_weight, v.color, t, px, params.use_color != 0u);
+    let out = fuse_packed(v.tsdf_weight, v.color, t, rgb, params.use_color != 0u);
     voxels[gv] = GpuVoxel(out.x, out.y);
     atomicAdd(&counters[0], 1u);
     return true;

@@ -216,26 +216,43 @@ impl DepthPlan {
 
     /// The blocks fusion updates: the band plus the allocated blocks of `layer` in view, sorted.
     pub fn blocks(&self, layer: &Layer) -> TouchedBlocks {
-        // Both lists are sorted: merged in one pass.
-        let visible = visible_blocks_in(layer, &self.frustum);
-        let mut blocks = Vec::with_capacity(self.band.len() + visible.len());
-        let (mut a, mut b) = (self.band.iter().peekable(), visible.iter().peekable());
-        loop {
-            let next = match (a.peek(), b.peek()) {
-                (Some(&&x), Some(&&y)) if x < y => a.next(),
-                (Some(&&x), Some(&&y)) if y < x => b.next(),
-                (Some(_), Some(_)) => {
-                    b.next();
-                    a.next()
-                }
-                (Some(_), None) => a.next(),
-                (None, Some(_)) => b.next(),
-                (None, None) => break,
-            };
-            blocks.extend(next);
-        }
-        blocks
+        merge_sorted(&self.band, &visible_blocks_in(layer, &self.frustum))
     }
+
+    /// [`DepthPlan::blocks`], with the blocks of `unsettled` (sorted) in view listed as if
+    /// `layer` had them: blocks a GPU frame still in flight may have created
+    /// (`src/gpu/resident/late.rs`; its kernel skips those no frame did create).
+    pub fn blocks_with(&self, layer: &Layer, unsettled: &[BlockIndex]) -> TouchedBlocks {
+        let grid = layer.params();
+        let in_view: Vec<BlockIndex> = unsettled
+            .iter()
+            .copied()
+            .filter(|b| self.frustum.meets_block(&grid, *b))
+            .collect();
+        let visible = visible_blocks_in(layer, &self.frustum);
+        merge_sorted(&self.band, &merge_sorted(&visible, &in_view))
+    }
+}
+
+/// The union of two sorted lists without repeats, sorted (one pass).
+fn merge_sorted(a: &[BlockIndex], b: &[BlockIndex]) -> TouchedBlocks {
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    let (mut a, mut b) = (a.iter().peekable(), b.iter().peekable());
+    loop {
+        let next = match (a.peek(), b.peek()) {
+            (Some(&&x), Some(&&y)) if x < y => a.next(),
+            (Some(&&x), Some(&&y)) if y < x => b.next(),
+            (Some(_), Some(_)) => {
+                b.next();
+                a.next()
+            }
+            (Some(_), None) => a.next(),
+            (None, Some(_)) => b.next(),
+            (None, None) => break,
+        };
+        out.extend(next.copied());
+    }
+    out
 }
 
 /// Fuses one depth frame into `layer`: the blocks crossed by this frame's truncation band plus the

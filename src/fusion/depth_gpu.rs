@@ -14,15 +14,12 @@
 //!
 //! [`integrate_depth_plan`]: super::integrate_depth_plan
 
-use super::depth::{usable, DepthFusionParams, DepthPlan};
+use super::depth::{DepthFusionParams, DepthPlan};
 use super::FusionStats;
 use crate::frame::DepthFrame;
 use crate::gpu::kept::Kept;
-use crate::gpu::layout::PIXEL_VALID;
-use crate::gpu::layout::{
-    apply_updated, pack_block_into, pack_rgb, FuseUniforms, GpuVoxel, LookupUniforms,
-};
-use crate::gpu::resident::ResidentMap;
+use crate::gpu::layout::{apply_updated, pack_block_into, FuseUniforms, GpuVoxel, LookupUniforms};
+use crate::gpu::resident::{FrameParts, ResidentMap};
 use crate::gpu::{shaders, ErrorScopes, GpuContext};
 use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::{Error, Result};
@@ -60,11 +57,11 @@ fn fuse_blocks(
     let uniforms = fuse_uniforms(plan, frame, params);
     let pixels = frame.depth_m.data.len() as u64;
     ctx.check_binding("depth image (4 bytes per pixel)", pixels * 4)?;
-    let pixel_words = pixel_words(frame, params);
+
     let kernel = ctx.kernel(&shaders::FUSE_DEPTH)?;
     let scope = ErrorScopes::push(&ctx.device);
     let buf_depth = ctx.storage("fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
-    let buf_pixel = ctx.storage("fuse_pixel", bytemuck::cast_slice(&pixel_words));
+    let buf_color = ctx.storage("fuse_color", color_bytes(frame, params));
     scope.pop("uploading the depth image")?;
     let block_bytes = (VOXELS_PER_BLOCK * std::mem::size_of::<GpuVoxel>()) as u64;
     let per_batch = (ctx.max_binding_bytes() / block_bytes).max(1) as usize;
@@ -96,7 +93,7 @@ fn fuse_blocks(
                 &buf_uniforms,
                 &buf_bases,
                 &buf_depth,
-                &buf_pixel,
+                &buf_color,
                 &buf_voxels,
                 &buf_counters,
             ],
@@ -126,7 +123,12 @@ fn fuse_blocks(
 /// [`super::integrate_depth_plan`]: the plan's blocks are made resident (grown into or spilled
 /// for), resolved to pool slots on the GPU (`block_lookup.wgsl`) and updated in place. A frame
 /// whose blocks exceed the largest pool goes through [`integrate_depth_gpu`] after its resident
-/// blocks are written back (counted, with a warning). Returns the touched blocks (sorted).
+/// blocks are written back (counted, with a warning).
+///
+/// With [`ResidentMap::set_frames_in_flight`], the frame returns once submitted, and what it
+/// touched arrives with a later call (`src/gpu/resident/late.rs`); otherwise it waits for its
+/// own results. Returns the blocks touched by the frames collected during the call (this one,
+/// when it waited) and their work counters.
 pub fn integrate_depth_resident(
     map: &mut ResidentMap,
     layer: &mut Layer,
@@ -139,12 +141,12 @@ pub fn integrate_depth_resident(
             "resident GPU map and layer have different grids".into(),
         ));
     }
+    // What has arrived, and room in the readback ring.
+    map.collect_frames(layer, false)?;
+    map.make_room_in_flight(layer)?;
     let t = std::time::Instant::now();
-    let blocks = plan.blocks(layer);
+    let blocks = plan.blocks_with(layer, &map.unsettled_blocks(layer));
     map.begin_frame(blocks.len(), plan.listing_s + t.elapsed().as_secs_f64());
-    if blocks.is_empty() {
-        return Ok((Vec::new(), FusionStats::default()));
-    }
     if blocks.len() > map.max_blocks() as usize {
         // The frame alone exceeds the largest pool: give its resident blocks back to RAM and
         // fuse it in batches.
@@ -157,13 +159,27 @@ pub fn integrate_depth_resident(
         );
         map.flush_blocks(layer, &blocks)?;
         let ctx = map.context().clone();
-        return integrate_depth_gpu(&ctx, layer, frame, params, plan);
+        let (mut touched, mut stats) = integrate_depth_gpu(&ctx, layer, frame, params, plan)?;
+        let (earlier, updates) = map.take_collected();
+        touched.extend(earlier);
+        stats.voxel_updates += updates;
+        return Ok((touched, stats));
     }
-    map.make_resident(layer, &blocks, plan.camera_m)?;
-    let t = std::time::Instant::now();
-    let (updated, voxel_updates, inputs_s) = run_resident(map, &blocks, frame, params, plan)?;
-    map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
-    let touched = map.finish_frame(layer, &blocks, &updated);
+    if !blocks.is_empty() {
+        // Listed only because a frame in flight may have created them: fused only if one did.
+        let unsettled: Vec<bool> = (blocks.iter())
+            .map(|b| !layer.contains(b) && plan.band.binary_search(b).is_err())
+            .collect();
+        map.note_listed_in_flight(unsettled.iter().filter(|u| **u).count());
+        map.make_resident(layer, &blocks, plan.camera_m)?;
+        let t = std::time::Instant::now();
+        let inputs_s = run_resident(map, layer, (blocks, &unsettled), frame, params, plan)?;
+        map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
+    }
+    if !map.frames_in_flight_enabled() {
+        map.collect_frames(layer, true)?;
+    }
+    let (touched, voxel_updates) = map.take_collected();
     let stats = FusionStats {
         blocks: touched.len(),
         voxel_updates,
@@ -172,24 +188,37 @@ pub fn integrate_depth_resident(
     Ok((touched, stats))
 }
 
-/// Resolves `blocks` (resident) to slots on the GPU and fuses the frame into them. Returns, per
-/// block, whether any voxel was updated, the number of voxel updates, and the seconds spent
+/// Resolves `blocks` (resident) to slots on the GPU, fuses the frame into them and submits,
+/// with the copy of its counters and flags into the readback ring; returns the seconds spent
 /// preparing and writing the inputs.
 ///
-/// Per frame: the keys and block bases (16 bytes per block each), the depth image and the
-/// pixel words (4 bytes per pixel each) and the uniforms are written into buffers the map
+/// Per frame: the keys and block bases (16 bytes per block each), the depth image (4 bytes
+/// per pixel), the colour image (3 bytes per pixel, when fused) and the uniforms are written into buffers the map
 /// keeps; the lookup, the fusion and the copy of the counters and flags (4 bytes per block)
-/// into a kept staging buffer are one submit, followed by one wait. No buffer or bind group is
-/// created once the kept ones have grown to the frames' size.
+/// into a staging buffer of the ring are one submit, and nothing waits for it. No buffer or
+/// bind group is created once the kept ones have grown to the frames' size.
+///
+/// A block marked `unsettled` (neither the band nor the layer has it: listed because a frame
+/// in flight may have created it) carries `w = 1` in its base: the kernel fuses it only if a
+/// frame did.
 fn run_resident(
     map: &mut ResidentMap,
-    blocks: &[BlockIndex],
+    layer: &Layer,
+    (blocks, unsettled): (Vec<BlockIndex>, &[bool]),
     frame: &DepthFrame,
     params: &DepthFusionParams,
     plan: &DepthPlan,
-) -> Result<(Vec<bool>, usize, f64)> {
+) -> Result<f64> {
     let t = std::time::Instant::now();
-    let (ctx, grid, pool, (table, mask), kept) = map.frame_parts();
+    let FrameParts {
+        ctx,
+        grid,
+        pool,
+        exists,
+        table: (table, mask),
+        kept,
+        ring,
+    } = map.frame_parts();
     let n = blocks.len() as u64;
     let voxel_count = n * VOXELS_PER_BLOCK as u64;
     if voxel_count > u32::MAX as u64 {
@@ -209,12 +238,13 @@ fn run_resident(
     )?;
     ctx.check_binding("block bases (16 bytes per block)", n * 16)?;
     ctx.check_binding("block keys (16 bytes per block)", n * 16)?;
-    let bases: Vec<[f32; 4]> = blocks
-        .par_iter()
-        .map(|b| base_words(&grid, plan, *b))
+    let bases: Vec<[f32; 4]> = (blocks.par_iter().zip(unsettled))
+        .map(|(b, &u)| {
+            let [x, y, z, _] = base_words(&grid, plan, *b);
+            [x, y, z, u as u32 as f32]
+        })
         .collect();
     let keys: Vec<[i32; 4]> = blocks.iter().map(|k| [k.0[0], k.0[1], k.0[2], 0]).collect();
-    let pixels = pixel_words(frame, params);
     let lookup = ctx.kernel(&shaders::BLOCK_LOOKUP)?;
     let fuse = ctx.kernel(&shaders::FUSE_DEPTH_RESIDENT)?;
     let lookup_uniforms = LookupUniforms {
@@ -231,7 +261,7 @@ fn run_resident(
     let buf_uniforms = kept.uniform_with(ctx, "fuse_uniforms", bytemuck::bytes_of(&uniforms));
     let buf_bases = kept.storage_with(ctx, "fuse_block_base", bytemuck::cast_slice(&bases));
     let buf_depth = kept.storage_with(ctx, "fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
-    let buf_pixel = kept.storage_with(ctx, "fuse_pixel", bytemuck::cast_slice(&pixels));
+    let buf_color = kept.storage_with(ctx, "fuse_color", color_bytes(frame, params));
     let buf_counters = kept.scratch(ctx, "fuse_counters", 16);
     let buf_updated = kept.scratch(ctx, "block_updated", n * 4);
     let bind_lookup = kept.bind_group(
@@ -248,28 +278,26 @@ fn run_resident(
             &buf_uniforms,
             &buf_bases,
             &buf_depth,
-            &buf_pixel,
+            &buf_color,
             pool,
             &buf_counters,
             &buf_slots,
             &buf_updated,
+            exists,
         ],
     );
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("fuse_depth_resident"),
-        });
+    let mut encoder = ctx.encoder("fuse_depth_resident");
     // Counters and flags start at zero on the device, not uploaded.
     encoder.clear_buffer(&buf_counters, 0, Some(16));
     encoder.clear_buffer(&buf_updated, 0, Some((n * 4).next_multiple_of(4)));
     ctx.record_dispatch(&mut encoder, &lookup, &bind_lookup, n)?;
     ctx.record_dispatch(&mut encoder, &fuse, &bind_fuse, voxel_count)?;
     let inputs_s = t.elapsed().as_secs_f64();
-    let buffers = (&buf_counters, &buf_updated);
-    let (flags, updates) = submit_resident_frame((ctx, kept), encoder, buffers, n as usize)?;
+    let results = [(&buf_counters, 8), (&buf_updated, n as usize * 4)];
+    let readback = ring.submit(ctx, encoder, &results);
     scope.pop("running the resident fusion kernel")?;
-    Ok((flags, updates, inputs_s))
+    map.frame_submitted(layer, blocks, readback);
+    Ok(inputs_s)
 }
 
 /// Submits a resident frame's `encoder` (its lookup and fusion, which count voxel updates in
@@ -320,28 +348,19 @@ fn fuse_uniforms(plan: &DepthPlan, frame: &DepthFrame, params: &DepthFusionParam
         inv_mu: 1.0 / g.truncation_m,
         voxel_count: 0,
         use_color: (params.use_color && frame.color.is_some()) as u32,
-        pad: [0; 2],
+        min_depth_m: params.min_depth_m,
+        max_depth_m: params.max_depth_m,
     }
 }
 
-/// One word per pixel: its colour (`r | g << 8 | b << 16`, 0 without colour) and
-/// [`PIXEL_VALID`] when its depth is usable.
-fn pixel_words(frame: &DepthFrame, params: &DepthFusionParams) -> Vec<u32> {
-    let color = if params.use_color {
-        frame.color.as_ref()
-    } else {
-        None
-    };
-    frame
-        .depth_m
-        .data
-        .par_iter()
-        .enumerate()
-        .map(|(i, &d)| {
-            let rgb = color.map_or(0, |c| pack_rgb(c.data[i]));
-            rgb | if usable(d, params) { PIXEL_VALID } else { 0 }
-        })
-        .collect()
+/// The colour image as the kernels read it (3 bytes per pixel, as stored), or one unused word
+/// when the frame fuses no colour. Which depths are usable the kernels decide themselves
+/// (`shaders/shared/fuse_common.wgsl`, the twin of `usable` in `depth.rs`).
+fn color_bytes<'a>(frame: &'a DepthFrame, params: &DepthFusionParams) -> &'a [u8] {
+    match frame.color.as_ref().filter(|_| params.use_color) {
+        Some(c) => bytemuck::cast_slice(&c.data),
+        None => &[0; 4],
+    }
 }
 
 /// [`crate::fusion::DepthGeometry::block_base`] as the kernels read it (`vec4`, w = 0).

@@ -15,7 +15,7 @@ use super::depth_gpu::submit_resident_frame;
 use super::lidar_gpu::{dispatch_order, record_passes, upload_rays, PAIR_BYTES};
 use super::{integrate_lidar_gpu, FusionStats, LidarPlan};
 use crate::gpu::layout::LookupUniforms;
-use crate::gpu::resident::ResidentMap;
+use crate::gpu::resident::{FrameParts, ResidentMap};
 use crate::gpu::{shaders, ErrorScopes};
 use crate::grid::{BlockIndex, Layer, TouchedBlocks};
 use crate::{Error, Result};
@@ -37,6 +37,8 @@ pub fn integrate_lidar_resident(
             "resident GPU map and layer have different grids".into(),
         ));
     }
+    // A scan lists no blocks in view: the layer must know every block depth frames created.
+    map.collect_frames(layer, true)?;
     let groups = plan.groups();
     let blocks: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
     map.begin_frame(blocks.len(), 0.0);
@@ -84,7 +86,14 @@ fn run_resident(
     groups: &[(BlockIndex, Range<usize>)],
 ) -> Result<(Vec<bool>, usize, f64)> {
     let t = std::time::Instant::now();
-    let (ctx, grid, pool, (table, mask), kept) = map.frame_parts();
+    let FrameParts {
+        ctx,
+        grid,
+        pool,
+        table: (table, mask),
+        kept,
+        ..
+    } = map.frame_parts();
     let n = groups.len();
     let (order, offsets) = dispatch_order(groups, 0..n);
     let total = *offsets.last().expect("one offset at least");

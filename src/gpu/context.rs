@@ -461,6 +461,30 @@ impl GpuContext {
             .map_err(|e| Error::Gpu(format!("waiting for the GPU: {e}")))
     }
 
+    /// Blocks until the device has finished everything submitted, without counting a wait:
+    /// for a test or bench that measures what a frame costs once the device has kept up with
+    /// the frames before it (a real GPU does, well within a frame's time).
+    pub fn wait_idle_uncounted(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| Error::Gpu(format!("waiting for the GPU: {e}")))
+    }
+
+    /// Lets the device report finished work (mapped readbacks) without waiting for any: not a
+    /// wait, and not counted as one.
+    pub(crate) fn poll_finished(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::Poll)
+            .map(|_| ())
+            .map_err(|e| Error::Gpu(format!("polling the GPU: {e}")))
+    }
+
+    /// Counts `bytes` read back from the device (a readback outside this file).
+    pub(crate) fn count_readback(&self, bytes: u64) {
+        bump(&self.traffic.readback_bytes, bytes);
+    }
+
     /// What this context has cost since it was opened (see [`GpuTraffic`]).
     pub fn traffic(&self) -> GpuTraffic {
         self.traffic.snapshot()

@@ -71,8 +71,10 @@ pub struct FuseUniforms {
     pub voxel_count: u32,
     /// 1 to fuse colour, 0 to keep it.
     pub use_color: u32,
-    /// Padding to a multiple of 16 bytes.
-    pub pad: [u32; 2],
+    /// Nearest usable depth, metres ([`crate::fusion::DepthFusionParams`]).
+    pub min_depth_m: f32,
+    /// Farthest usable depth, metres.
+    pub max_depth_m: f32,
 }
 
 /// Uniforms of `shaders/fuse_lidar.wgsl` (WGSL twin: `LidarUniforms` there).
@@ -330,8 +332,6 @@ pub struct GpuVoxel {
 
 /// Set in [`GpuVoxel::tsdf_weight`] by the kernel when it updated the voxel.
 pub const UPDATED_BIT: u32 = 1 << 24;
-/// Set in a pixel word when its depth is usable (finite, within the depth range).
-pub const PIXEL_VALID: u32 = 1 << 24;
 
 impl GpuVoxel {
     /// Packs a block's voxel fields.

@@ -21,6 +21,7 @@ mod context;
 pub(crate) mod kept;
 mod kernels;
 pub mod layout;
+pub(crate) mod readback;
 pub mod resident;
 pub mod shaders;
 pub mod timing;

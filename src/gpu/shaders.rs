@@ -131,6 +131,8 @@ pub const FUSE_DEPTH: ShaderSource = kernel!(
     [
         "shared/dispatch.wgsl",
         "shared/rounding.wgsl",
+        "shared/float_bits.wgsl",
+        "shared/packed_bytes.wgsl",
         "shared/voxel_fuse.wgsl",
         "shared/fuse_common.wgsl"
     ],
@@ -143,11 +145,13 @@ pub const FUSE_DEPTH_RESIDENT: ShaderSource = kernel!(
     [
         "shared/dispatch.wgsl",
         "shared/rounding.wgsl",
+        "shared/float_bits.wgsl",
+        "shared/packed_bytes.wgsl",
         "shared/voxel_fuse.wgsl",
         "shared/fuse_common.wgsl",
         "shared/block_hash.wgsl"
     ],
-    [Uniform, Read, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite]
+    [Uniform, Read, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite, ReadWrite]
 );
 
 /// Block keys to pool slots through the GPU hash table.
@@ -169,7 +173,7 @@ pub const FILL_SLOTS: ShaderSource = kernel!(
         "shared/rounding.wgsl",
         "shared/voxel_fuse.wgsl"
     ],
-    [Uniform, Read, ReadWrite]
+    [Uniform, Read, ReadWrite, ReadWrite]
 );
 
 /// Clears the updated marks of listed pool slots after a write-back.

@@ -27,6 +27,7 @@ use super::gpu::{record_iterations, TvBuffers};
 use super::{RegularizeStats, TvParams};
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{TvResidentUniforms, TvUniforms};
+use crate::gpu::resident::FrameParts;
 use crate::gpu::{shaders, ErrorScopes, ResidentMap};
 use crate::grid::{BlockIndex, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::{Error, Result};
@@ -56,12 +57,13 @@ pub fn regularize_resident(
         && n <= map.max_blocks() as u64
         && voxels * 12 <= map.context().max_binding_bytes()
         && voxels <= u32::MAX as u64;
+    // A clean pool: a later write-back stores raw values (and the regularized ones following
+    // them, `Block::store_fused`) only where a later frame updates a voxel. Syncing also
+    // collects the depth frames in flight, so the layer knows every resident block.
+    map.sync(layer)?;
     if !fits || !map.resident_blocks().iter().all(|b| layer.contains(b)) {
         return Ok(None);
     }
-    // A clean pool: a later write-back stores raw values (and the regularized ones following
-    // them, `Block::store_fused`) only where a later frame updates a voxel.
-    map.sync(layer)?;
     map.make_resident(layer, &blocks, [0.0; 3])?;
     let (listed, stored, omega_voxels) = solve_on_device(map, n as u32, params)?;
     for (entry, values) in listed.iter().zip(stored.chunks_exact(VOXELS_PER_BLOCK)) {
@@ -91,7 +93,12 @@ fn solve_on_device(
     params: &TvParams,
 ) -> Result<(Vec<[u32; 4]>, Vec<i16>, usize)> {
     let capacity = map.stats().capacity_blocks as u64;
-    let (ctx, _, pool, (table, table_mask), _) = map.frame_parts();
+    let FrameParts {
+        ctx,
+        pool,
+        table: (table, table_mask),
+        ..
+    } = map.frame_parts();
     // The problem's buffers live for this solve only: a run solves once, at its end, and the
     // device memory (32 bytes per voxel) goes back to the pool and the meshes after it.
     let kept = &mut Kept::default();

@@ -8,6 +8,7 @@ mod depth_support;
 
 mod agreement;
 mod compare;
+mod in_flight;
 mod lidar;
 mod mesh;
 mod sgm;

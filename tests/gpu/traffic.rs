@@ -98,10 +98,13 @@ fn a_resident_depth_frame_after_warm_up_creates_no_buffer_and_uploads_no_new_blo
     // Two laps of an orbit: the second lap revisits the first one's blocks.
     let frames = orbit_frames(6, 0.01);
     for f in &frames[..3] {
+        ctx.wait_idle_uncounted().expect("idle");
         rec.fuse_depth(f).expect("warm-up");
     }
     let (mut checked, mut created_somewhere) = (0, false);
     for f in frames.iter().chain(&frames).skip(3) {
+        // The device keeps up (a real GPU does): the frame before has arrived.
+        ctx.wait_idle_uncounted().expect("idle");
         let before_stats = rec.resident_stats().expect("resident");
         let before = ctx.traffic();
         rec.fuse_depth(f).expect("fuse");
@@ -121,27 +124,31 @@ fn a_resident_depth_frame_after_warm_up_creates_no_buffer_and_uploads_no_new_blo
         }
         checked += 1;
         created_somewhere |= created_blocks > 0;
-        // New blocks are written empty on the device: one more submit and dispatch, no wait.
+        // New blocks are written empty on the device: one more submit and dispatch. No wait:
+        // the frame's flags come back with a later frame (`src/gpu/resident/late.rs`).
         let fills = (created_blocks > 0) as u64;
         assert_eq!(t.buffers_created, 0, "{t:?}");
         assert_eq!(t.bind_groups_created, 0, "{t:?}");
         assert_eq!(t.submits, 1 + fills, "{t:?}");
-        assert_eq!(t.waits, 1, "{t:?}");
+        assert_eq!(t.waits, 0, "{t:?}");
         assert_eq!(t.dispatches, 2 + fills, "{t:?}");
-        // Up: depth and pixel words (4 bytes per pixel each), keys and bases (16 bytes per
-        // listed block each), the blocks coming back from RAM, a slot number per new block,
+        // Up: the depth and colour images (4 and 3 bytes per pixel), keys and bases (16 bytes
+        // per listed block each), the blocks coming back from RAM, a slot number per new block,
         // table entries and uniforms.
-        let up_bound = 8 * pixels
-            + 32 * listed
-            + SLOT_BYTES * uploaded_blocks
-            + 4 * created_blocks
-            + (64 << 10);
+        assert!(f.color.is_some());
+        let images = 7 * pixels;
+        let up_bound =
+            images + 32 * listed + SLOT_BYTES * uploaded_blocks + 4 * created_blocks + (64 << 10);
         assert!(
             t.upload_bytes <= up_bound,
             "{} > {up_bound}",
             t.upload_bytes
         );
-        // Down: the counters and one flag per listed block; no block.
+        // The bound, where no block comes back from RAM: the images plus 64 KiB.
+        if uploaded_blocks == 0 {
+            assert!(t.upload_bytes <= images + (64 << 10), "{t:?}");
+        }
+        // Down: the frame before's counters and one flag per block it listed; no block.
         assert!(t.readback_bytes <= 4 * listed + 16, "{t:?}");
     }
     assert!(checked >= 6, "{checked} steady frames");
@@ -165,16 +172,19 @@ fn a_sync_reads_dirty_blocks_back_and_uploads_nothing() {
     let before = ctx.traffic();
     rec.sync().expect("sync");
     let t = ctx.traffic().since(before);
-    let dirty = rec.resident_stats().expect("resident").resident_blocks as u64;
+    let stats = rec.resident_stats().expect("resident");
+    let dirty = stats.resident_blocks as u64;
     eprintln!("sync of ≤ {dirty} blocks: {t:?}");
-    // The blocks come down once; their marks are cleared on the device (a slot list and
-    // uniforms go up, not the blocks).
+    // The frames still in flight (at most the ring's three) are collected first: their flags
+    // and counters, and one wait. Then the blocks come down once; their marks are cleared on
+    // the device (a slot list and uniforms go up, not the blocks).
+    let flags = 3 * (4 * stats.largest_frame_blocks as u64 + 8);
     assert!(
-        t.readback_bytes > 0 && t.readback_bytes <= dirty * SLOT_BYTES,
+        t.readback_bytes > 0 && t.readback_bytes <= dirty * SLOT_BYTES + flags,
         "{t:?}"
     );
     assert!(t.upload_bytes <= 4 * dirty + 256, "{t:?}");
-    assert_eq!(t.waits, 1, "{t:?}");
+    assert!(t.waits == 1 || t.waits == 2, "{t:?}");
 }
 
 #[test]

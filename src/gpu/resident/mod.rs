@@ -27,6 +27,7 @@
 //! After an error the device copy may be partly updated: drop the map without syncing; the layer
 //! holds the state of the last successful sync.
 
+mod late;
 mod policy;
 mod pool;
 mod table;
@@ -37,6 +38,7 @@ pub use table::{block_hash, lookup_table_on_gpu, mix32, BlockTable, SLOT_EMPTY, 
 use super::context::GpuContext;
 use super::kept::Kept;
 use super::layout::{apply_updated, pack_block_into, GpuVoxel};
+use super::readback::ReadbackRing;
 use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::{Error, Result};
 use pool::BlockPool;
@@ -89,6 +91,10 @@ pub struct ResidentStats {
     pub oversize_frames: u64,
     /// Most blocks one frame listed (its working set on the GPU).
     pub largest_frame_blocks: usize,
+    /// Depth frames submitted while earlier ones were still in flight (`late.rs`).
+    pub frames_overlapped: u64,
+    /// Blocks depth frames listed only because a frame in flight may have created them.
+    pub blocks_listed_in_flight: u64,
     /// Seconds listing each frame's blocks on the CPU (band and visible blocks).
     pub list_s: f64,
     /// Seconds making blocks resident (growing, spilling, uploading blocks and table entries).
@@ -114,6 +120,26 @@ pub struct ResidentMap {
     stats: ResidentStats,
     /// The frame kernels' buffers and bind groups, kept between frames.
     kept: Kept,
+    /// The staging buffers depth frames read their flags back through.
+    ring: ReadbackRing,
+    /// Depth frames whose flags have not been collected ([`late`]).
+    late: late::InFlight,
+}
+
+/// What a frame's kernels need at once ([`ResidentMap::frame_parts`]).
+pub(crate) struct FrameParts<'a> {
+    pub ctx: &'a GpuContext,
+    pub grid: GridParams,
+    /// The pool's voxels, 512 per slot.
+    pub pool: &'a wgpu::Buffer,
+    /// The pool's per-slot marks of blocks a depth frame updated ([`late`]).
+    pub exists: &'a wgpu::Buffer,
+    /// The device's hash table and its mask.
+    pub table: (&'a wgpu::Buffer, u32),
+    /// The frames' kept buffers and bind groups.
+    pub kept: &'a mut Kept,
+    /// The staging buffers of late readbacks.
+    pub ring: &'a mut ReadbackRing,
 }
 
 impl std::fmt::Debug for ResidentMap {
@@ -142,6 +168,8 @@ impl ResidentMap {
             table,
             frame: 0,
             kept: Kept::default(),
+            ring: ReadbackRing::default(),
+            late: late::InFlight::default(),
             stats: ResidentStats {
                 capacity_blocks: capacity,
                 max_blocks,
@@ -202,24 +230,17 @@ impl ResidentMap {
         table::run_lookup(&self.ctx, self.table.buffer(), self.table.host.mask(), keys)
     }
 
-    /// What a frame's kernels need at once: the context, the grid, the pool and table buffers
-    /// with the table's mask, and the buffers and bind groups the frames keep.
-    pub(crate) fn frame_parts(
-        &mut self,
-    ) -> (
-        &GpuContext,
-        GridParams,
-        &wgpu::Buffer,
-        (&wgpu::Buffer, u32),
-        &mut Kept,
-    ) {
-        (
-            &self.ctx,
-            self.grid,
-            self.pool.device_buffer(),
-            (self.table.buffer(), self.table.host.mask()),
-            &mut self.kept,
-        )
+    /// What a frame's kernels need at once.
+    pub(crate) fn frame_parts(&mut self) -> FrameParts<'_> {
+        FrameParts {
+            ctx: &self.ctx,
+            grid: self.grid,
+            pool: self.pool.device_buffer(),
+            exists: self.pool.exists_buffer_of(),
+            table: (self.table.buffer(), self.table.host.mask()),
+            kept: &mut self.kept,
+            ring: &mut self.ring,
+        }
     }
 
     /// Counts a frame of `blocks` blocks (before any other work on it).
@@ -228,6 +249,12 @@ impl ResidentMap {
         self.stats.frames += 1;
         self.stats.list_s += listing_s;
         self.stats.largest_frame_blocks = self.stats.largest_frame_blocks.max(blocks);
+    }
+
+    /// Counts `blocks` listed only because a frame in flight may have created them.
+    pub(crate) fn note_listed_in_flight(&mut self, blocks: usize) {
+        self.stats.blocks_listed_in_flight += blocks as u64;
+        self.stats.frames_overlapped += (self.frames_in_flight() > 0) as u64;
     }
 
     /// Counts a frame too large for the pool (its caller fuses it another way).
@@ -257,6 +284,13 @@ impl ResidentMap {
             .copied()
             .filter(|b| self.table.host.lookup(*b).is_none())
             .collect();
+        if self.pool.free_count() < missing.len() && self.frames_in_flight() > 0 {
+            // Growing or spilling needs the host to know every block: collect the frames in
+            // flight, then look again (a block they listed and no frame updated is released
+            // and comes back empty, which is what it held).
+            self.collect_frames(layer, true)?;
+            return self.make_resident(layer, blocks, camera_m);
+        }
         if self.pool.free_count() < missing.len() {
             let in_frame: HashSet<BlockIndex> = blocks.iter().copied().collect();
             self.make_room(layer, missing.len(), &in_frame, camera_m)?;
@@ -405,6 +439,7 @@ impl ResidentMap {
     /// blocks copied. Call before any CPU stage reads the layer (meshing, regularization,
     /// checkpoints).
     pub fn sync(&mut self, layer: &mut Layer) -> Result<usize> {
+        self.collect_frames(layer, true)?;
         let slots = self.pool.dirty_slots();
         self.write_back(layer, &slots, false)
     }
@@ -412,6 +447,7 @@ impl ResidentMap {
     /// Copies the resident blocks among `blocks` back to the layer (when dirty) and releases
     /// them: before the pager evicts their chunk, or before a CPU stage updates them.
     pub fn flush_blocks(&mut self, layer: &mut Layer, blocks: &[BlockIndex]) -> Result<usize> {
+        self.collect_frames(layer, true)?;
         let slots: Vec<u32> = blocks
             .iter()
             .filter_map(|b| self.table.host.lookup(*b))
@@ -421,6 +457,7 @@ impl ResidentMap {
 
     /// Copies everything back and releases every slot.
     pub fn flush_all(&mut self, layer: &mut Layer) -> Result<usize> {
+        self.collect_frames(layer, true)?;
         let slots: Vec<u32> = self.pool.occupied().map(|(s, _, _)| s).collect();
         self.write_back(layer, &slots, true)
     }

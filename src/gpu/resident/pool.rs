@@ -17,6 +17,9 @@ pub const SLOT_BYTES: u64 = (VOXELS_PER_BLOCK * std::mem::size_of::<GpuVoxel>())
 /// Slots on the device and the host's record of them.
 pub(crate) struct BlockPool {
     buffer: wgpu::Buffer,
+    /// Per slot: 1 once a depth frame updated its block since the slot was given to it
+    /// (`resident/late.rs`), 4 bytes each.
+    exists: wgpu::Buffer,
     capacity: u32,
     slot_key: Vec<Option<BlockIndex>>,
     free: Vec<u32>,
@@ -31,6 +34,7 @@ impl BlockPool {
     pub(crate) fn new(ctx: &GpuContext, capacity: u32) -> Result<Self> {
         Ok(BlockPool {
             buffer: Self::buffer(ctx, capacity)?,
+            exists: Self::exists_buffer(ctx, capacity),
             capacity,
             slot_key: vec![None; capacity as usize],
             free: (0..capacity).rev().collect(),
@@ -56,6 +60,23 @@ impl BlockPool {
     /// The device buffer (all slots).
     pub(crate) fn device_buffer(&self) -> &wgpu::Buffer {
         &self.buffer
+    }
+
+    /// The per-slot marks of blocks a depth frame updated (see the field).
+    pub(crate) fn exists_buffer_of(&self) -> &wgpu::Buffer {
+        &self.exists
+    }
+
+    /// A zeroed mark per slot.
+    fn exists_buffer(ctx: &GpuContext, capacity: u32) -> wgpu::Buffer {
+        ctx.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("slot_exists"),
+            size: capacity as u64 * 4,
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
     }
 
     /// Slots in the pool.
@@ -133,6 +154,7 @@ impl BlockPool {
         }
         let scope = ErrorScopes::push(&ctx.device);
         let buffer = Self::buffer(ctx, capacity)?;
+        let exists = Self::exists_buffer(ctx, capacity);
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -145,9 +167,11 @@ impl BlockPool {
             0,
             self.capacity as u64 * SLOT_BYTES,
         );
+        encoder.copy_buffer_to_buffer(&self.exists, 0, &exists, 0, self.capacity as u64 * 4);
         ctx.submit(encoder);
         scope.pop("growing the GPU block pool")?;
         self.buffer = buffer;
+        self.exists = exists;
         let old = self.capacity;
         self.capacity = capacity;
         self.slot_key.resize(capacity as usize, None);
@@ -225,6 +249,7 @@ impl BlockPool {
             u,
             slots,
             "writing empty blocks on the GPU",
+            true,
         )
     }
 
@@ -243,6 +268,7 @@ impl BlockPool {
             u,
             slots,
             "clearing updated marks on the GPU",
+            false,
         )
     }
 
@@ -256,6 +282,7 @@ impl BlockPool {
         uniforms: &[u8],
         slots: &[u32],
         doing: &str,
+        with_exists: bool,
     ) -> Result<()> {
         if slots.is_empty() {
             return Ok(());
@@ -267,12 +294,13 @@ impl BlockPool {
         let buf_slots = self
             .kept
             .storage_with(ctx, "slot_list", bytemuck::cast_slice(slots));
-        let bind = self.kept.bind_group(
-            ctx,
-            name,
-            &k.layout,
-            &[&buf_uniforms, &buf_slots, &self.buffer],
-        );
+        let (pool, exists) = (&self.buffer, &self.exists);
+        let buffers: &[&wgpu::Buffer] = if with_exists {
+            &[&buf_uniforms, &buf_slots, pool, exists]
+        } else {
+            &[&buf_uniforms, &buf_slots, pool]
+        };
+        let bind = self.kept.bind_group(ctx, name, &k.layout, buffers);
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) });

@@ -1,0 +1,136 @@
+//! Readbacks that arrive later: a frame copies its small results (counters, flags) into one of
+//! a ring of kept staging buffers at the end of its own submit and asks for it to be mapped,
+//! then goes on without waiting. A later frame (or anything that needs the results) collects
+//! it: [`LateReadback::is_ready`] after [`GpuContext::poll_finished`] says whether the device
+//! got there, and [`LateReadback::collect`] copies it out, waiting (one counted wait) only if
+//! it did not.
+
+use super::context::GpuContext;
+use super::kept::Kept;
+use crate::{Error, Result};
+use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::Arc;
+
+/// Staging buffers in the ring: frames in flight before the oldest must be collected.
+pub(crate) const RING_LEN: usize = 3;
+
+/// Smallest staging buffer of the ring, bytes: the flags of 16 k blocks, so that the ring's
+/// buffers are made in the first frames and not again as frames list more blocks.
+const MIN_RING_BYTES: u64 = 64 << 10;
+
+const RING_NAMES: [&str; RING_LEN] = ["late_readback_0", "late_readback_1", "late_readback_2"];
+
+/// Not yet mapped, mapped, or the mapping failed.
+const WAITING: u8 = 0;
+const MAPPED: u8 = 1;
+const FAILED: u8 = 2;
+
+/// The ring's staging buffers, kept between frames (grown, counted, when a frame needs more).
+#[derive(Debug, Default)]
+pub(crate) struct ReadbackRing {
+    kept: Kept,
+    next: usize,
+}
+
+/// Results on their way back from the device (see the module documentation).
+#[derive(Debug)]
+pub(crate) struct LateReadback {
+    staging: wgpu::Buffer,
+    /// Per result: its offset in `staging` and its length, bytes.
+    parts: Vec<(u64, usize)>,
+    mapped_bytes: u64,
+    state: Arc<AtomicU8>,
+    /// Set once the results were copied out and the buffer unmapped.
+    collected: bool,
+}
+
+impl ReadbackRing {
+    /// Appends to `encoder` copies of the first `lens[k]` bytes of `buffers[k]` into the next
+    /// staging buffer of the ring, submits it and asks for the staging buffer to be mapped.
+    /// The caller collects at most [`RING_LEN`] of these at once (a staging buffer is reused
+    /// by the call `RING_LEN` later).
+    pub(crate) fn submit(
+        &mut self,
+        ctx: &GpuContext,
+        mut encoder: wgpu::CommandEncoder,
+        buffers: &[(&wgpu::Buffer, usize)],
+    ) -> LateReadback {
+        let align = wgpu::MAP_ALIGNMENT.max(wgpu::COPY_BUFFER_ALIGNMENT);
+        let mut parts = Vec::with_capacity(buffers.len());
+        let mut end = 0u64;
+        for (_, len) in buffers {
+            parts.push((end, *len));
+            end += (*len as u64).next_multiple_of(align);
+        }
+        let mapped_bytes = end.max(align);
+        let usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
+        let name = RING_NAMES[self.next];
+        self.next = (self.next + 1) % RING_LEN;
+        let staging = (self.kept).buffer(ctx, name, mapped_bytes.max(MIN_RING_BYTES), usage);
+        for ((buf, len), (at, _)) in buffers.iter().zip(&parts) {
+            let bytes = (*len as u64).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+            if bytes > 0 {
+                encoder.copy_buffer_to_buffer(buf, 0, &staging, *at, bytes);
+            }
+        }
+        ctx.submit(encoder);
+        let state = Arc::new(AtomicU8::new(WAITING));
+        let signal = state.clone();
+        staging
+            .slice(..mapped_bytes)
+            .map_async(wgpu::MapMode::Read, move |r| {
+                signal.store(if r.is_ok() { MAPPED } else { FAILED }, Ordering::Release);
+            });
+        LateReadback {
+            staging,
+            parts,
+            mapped_bytes,
+            state,
+            collected: false,
+        }
+    }
+}
+
+impl LateReadback {
+    /// Whether the results have arrived (as of the last poll of the device).
+    pub(crate) fn is_ready(&self) -> bool {
+        self.state.load(Ordering::Acquire) != WAITING
+    }
+
+    /// Copies result `k` into `targets[k]` (each as long as the result), waiting for the device
+    /// first (one counted wait) when the results have not arrived.
+    pub(crate) fn collect(mut self, ctx: &GpuContext, targets: &mut [&mut [u8]]) -> Result<()> {
+        if !self.is_ready() {
+            ctx.wait()?;
+        }
+        if self.state.load(Ordering::Acquire) != MAPPED {
+            return Err(Error::Gpu(
+                "mapping a frame's readback buffer failed".into(),
+            ));
+        }
+        {
+            let slice = self.staging.slice(..self.mapped_bytes);
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| Error::Gpu(format!("reading a mapped buffer: {e}")))?;
+            for (target, &(at, len)) in targets.iter_mut().zip(&self.parts) {
+                let at = at as usize;
+                target.copy_from_slice(&view[at..at + len]);
+                ctx.count_readback(len as u64);
+            }
+        }
+        self.staging.unmap();
+        self.collected = true;
+        Ok(())
+    }
+}
+
+impl Drop for LateReadback {
+    /// A readback dropped uncollected (an error on the way) unmaps its buffer, cancelling a
+    /// pending mapping, so that the ring can use the buffer again.
+    fn drop(&mut self) {
+        if !self.collected {
+            self.staging.unmap();
+        }
+    }
+}

@@ -1,0 +1,184 @@
+//! Frames in flight: a depth frame's flags (which listed blocks it updated) and counters come
+//! back through a ring of staging buffers ([`crate::gpu::readback`]) and are collected by a
+//! later frame, so that a frame neither waits for its own kernels nor for the readback.
+//!
+//! **What the host does not know yet.** Until a frame is collected, the layer has not learnt
+//! the blocks it created, and blocks it listed but did not update are not released. A frame
+//! listed meanwhile must still see every block the CPU would (the band, and the allocated
+//! blocks in view): the blocks listed by frames in flight that the layer lacks
+//! ([`ResidentMap::unsettled_blocks`]) are listed too when in view, and the kernel skips those
+//! outside the frame's band that no frame updated (a per-slot mark on the device, set by the
+//! fusion kernel and cleared when a slot is given to a new block). So a frame's result does
+//! not depend on when its predecessors were collected.
+//!
+//! **Collecting** processes frames in order ([`ResidentMap::collect_frames`]): updated blocks
+//! become dirty and the layer learns those it lacks; a block no frame updated is released once
+//! no frame in flight lists it. Everything that reads or pages the map (syncs, flushes, spills,
+//! LiDAR scans, the TV solve) collects every frame first, waiting where it must (counted).
+
+use super::ResidentMap;
+use crate::gpu::readback::{LateReadback, RING_LEN};
+use crate::grid::{Block, BlockIndex, Layer, TouchedBlocks};
+use crate::{Error, Result};
+use std::collections::{HashMap, VecDeque};
+
+/// A frame whose results are on their way back.
+#[derive(Debug)]
+pub(super) struct FrameInFlight {
+    frame: u64,
+    blocks: Vec<BlockIndex>,
+    /// Per listed block: whether the layer lacked it when the frame was submitted (it then
+    /// counts in [`InFlight::unsettled`] until the frame is collected).
+    lacked: Vec<bool>,
+    readback: LateReadback,
+}
+
+/// The frames in flight and what the host does not know yet because of them.
+#[derive(Debug, Default)]
+pub(super) struct InFlight {
+    frames: VecDeque<FrameInFlight>,
+    /// Blocks the layer lacked when a frame in flight listed them, with how many such frames.
+    unsettled: HashMap<BlockIndex, u32>,
+    /// Whether frames may stay in flight after their call returns.
+    pub(super) enabled: bool,
+    /// What collected frames touched and their voxel updates, until taken.
+    touched: TouchedBlocks,
+    voxel_updates: usize,
+}
+
+impl ResidentMap {
+    /// Lets depth frames return before their results arrive (collected by later frames; see
+    /// the module documentation), or not: then each frame waits for its own.
+    pub fn set_frames_in_flight(&mut self, enabled: bool) {
+        self.late.enabled = enabled;
+    }
+
+    /// Whether depth frames may return before their results arrive.
+    pub fn frames_in_flight_enabled(&self) -> bool {
+        self.late.enabled
+    }
+
+    /// Depth frames whose results have not been collected.
+    pub fn frames_in_flight(&self) -> usize {
+        self.late.frames.len()
+    }
+
+    /// Blocks the layer lacks that frames in flight listed (they may have created them),
+    /// sorted.
+    pub(crate) fn unsettled_blocks(&self, layer: &Layer) -> Vec<BlockIndex> {
+        let mut v: Vec<BlockIndex> = (self.late.unsettled.keys())
+            .filter(|b| !layer.contains(b))
+            .copied()
+            .collect();
+        v.sort_unstable();
+        v
+    }
+
+    /// Records a submitted frame of `blocks` whose flags and counters come back in `readback`.
+    pub(crate) fn frame_submitted(
+        &mut self,
+        layer: &Layer,
+        blocks: Vec<BlockIndex>,
+        readback: LateReadback,
+    ) {
+        let lacked: Vec<bool> = blocks.iter().map(|b| !layer.contains(b)).collect();
+        for (b, _) in blocks.iter().zip(&lacked).filter(|(_, l)| **l) {
+            *self.late.unsettled.entry(*b).or_default() += 1;
+        }
+        self.late.frames.push_back(FrameInFlight {
+            frame: self.frame,
+            blocks,
+            lacked,
+            readback,
+        });
+    }
+
+    /// Collects frames in flight, oldest first: those whose results have arrived or, with
+    /// `wait`, all of them (waiting once, counted, for the first that has not arrived).
+    pub fn collect_frames(&mut self, layer: &mut Layer, wait: bool) -> Result<()> {
+        if self.late.frames.is_empty() {
+            return Ok(());
+        }
+        self.ctx.poll_finished()?;
+        while let Some(f) = self.late.frames.front() {
+            if !wait && !f.readback.is_ready() {
+                break;
+            }
+            let f = self.late.frames.pop_front().expect("a frame");
+            self.collect(layer, f)?;
+        }
+        Ok(())
+    }
+
+    /// Collects frames until fewer than the ring holds are in flight (room for one more).
+    pub(crate) fn make_room_in_flight(&mut self, layer: &mut Layer) -> Result<()> {
+        while self.late.frames.len() >= RING_LEN {
+            let f = self.late.frames.pop_front().expect("a frame");
+            self.collect(layer, f)?;
+        }
+        Ok(())
+    }
+
+    /// What the frames collected since the last call touched (in collection order) and their
+    /// voxel updates.
+    pub fn take_collected(&mut self) -> (TouchedBlocks, usize) {
+        let touched = std::mem::take(&mut self.late.touched);
+        (touched, std::mem::take(&mut self.late.voxel_updates))
+    }
+
+    fn collect(&mut self, layer: &mut Layer, f: FrameInFlight) -> Result<()> {
+        let n = f.blocks.len();
+        let mut counts = [0u32; 2];
+        let mut flags: Vec<u32> = bytemuck::zeroed_vec(n);
+        f.readback.collect(
+            &self.ctx,
+            &mut [
+                bytemuck::cast_slice_mut(&mut counts),
+                bytemuck::cast_slice_mut(&mut flags),
+            ],
+        )?;
+        if counts[1] != 0 {
+            return Err(Error::Gpu(format!(
+                "the GPU hash table could not resolve {} of {n} resident blocks",
+                counts[1]
+            )));
+        }
+        for ((b, &up), &lacked) in f.blocks.iter().zip(&flags).zip(&f.lacked) {
+            let later = lacked && self.unlist(*b);
+            let slot = self.table.host.lookup(*b).expect("resident");
+            let in_layer = layer.contains(b);
+            if up != 0 {
+                self.pool.mark_dirty(slot);
+                if !in_layer {
+                    layer.insert(*b, Block::new_boxed());
+                }
+            } else if !in_layer {
+                if !later {
+                    self.release(slot);
+                }
+                continue;
+            }
+            self.late.touched.push(*b);
+            self.pool.touch(slot, f.frame);
+        }
+        self.late.voxel_updates += counts[0] as usize;
+        self.stats.peak_resident_blocks =
+            self.stats.peak_resident_blocks.max(self.table.host.len());
+        Ok(())
+    }
+
+    /// Takes one listing of `b` by a frame in flight off its count; returns whether a later
+    /// frame in flight lists it too.
+    fn unlist(&mut self, b: BlockIndex) -> bool {
+        match self.late.unsettled.get_mut(&b) {
+            Some(c) if *c > 1 => {
+                *c -= 1;
+                true
+            }
+            _ => {
+                self.late.unsettled.remove(&b);
+                false
+            }
+        }
+    }
+}

@@ -1,0 +1,95 @@
+//! Depth frames in flight (`src/gpu/resident/late.rs`): a frame that returns before its results
+//! arrive leaves the map exactly as a frame that waits for them, whenever its predecessors are
+//! collected, through grows and spills, and a LiDAR scan or a sync in between.
+
+use crate::common::{fuse_depth_resident, gpu};
+use crate::compare::orbit_frames;
+use denser::frame::DepthFrame;
+use denser::fusion::DepthFusionParams;
+use denser::gpu::resident::SLOT_BYTES;
+use denser::gpu::{GpuContext, ResidentMap, ResidentOptions, ResidentStats};
+use denser::grid::{GridParams, Layer};
+use std::sync::Arc;
+
+const GRID: GridParams = GridParams {
+    voxel_size_m: 0.05,
+    truncation_m: 0.4,
+};
+
+/// Fuses `frames` into a fresh map with `options`, frames in flight or not; `idle_every` > 0
+/// lets the device finish (uncounted) before every `idle_every`-th frame. Syncs at the end.
+fn fuse(
+    ctx: &Arc<GpuContext>,
+    frames: &[DepthFrame],
+    options: ResidentOptions,
+    (in_flight, idle_every): (bool, usize),
+) -> (Layer, ResidentStats, usize) {
+    let mut layer = Layer::new(GRID);
+    let mut map = ResidentMap::new(ctx.clone(), GRID, options).expect("pool");
+    map.set_frames_in_flight(in_flight);
+    let params = DepthFusionParams::default();
+    let mut updates = 0;
+    for (k, f) in frames.iter().enumerate() {
+        if idle_every > 0 && k % idle_every == 0 {
+            ctx.wait_idle_uncounted().expect("idle");
+        }
+        let (_, stats) = fuse_depth_resident(&mut map, &mut layer, f, &params).expect("fuse");
+        updates += stats.voxel_updates;
+        assert!(map.frames_in_flight() <= 3, "the ring holds three frames");
+    }
+    map.sync(&mut layer).expect("sync");
+    assert_eq!(map.frames_in_flight(), 0);
+    updates += map.take_collected().1; // the frames the sync collected
+    (layer, map.stats(), updates)
+}
+
+/// Whether two layers hold the same blocks, bit for bit.
+fn same_layers(a: &Layer, b: &Layer) -> bool {
+    a.indices_sorted() == b.indices_sorted()
+        && a.indices_sorted().iter().all(|i| a.get(i) == b.get(i))
+}
+
+#[test]
+fn frames_in_flight_leave_the_map_of_frames_that_wait() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let frames = orbit_frames(12, 0.01);
+    let roomy = ResidentOptions {
+        initial_blocks: 8192,
+        max_bytes: 1 << 30,
+    };
+    let (waited, s0, updates0) = fuse(&ctx, &frames, roomy, (false, 0));
+    eprintln!("each frame waits: {s0:?}");
+    assert_eq!(s0.frames_overlapped, 0);
+    // Frames submitted back to back: a frame lists blocks its predecessors, still in flight,
+    // may have created (the kernel fuses those only where one did).
+    let (flying, s1, updates1) = fuse(&ctx, &frames, roomy, (true, 0));
+    eprintln!("in flight: {s1:?}");
+    assert!(
+        same_layers(&waited, &flying),
+        "frames in flight changed the map"
+    );
+    assert!(s1.frames_overlapped > 0, "{s1:?}");
+    assert!(s1.blocks_listed_in_flight > 0, "{s1:?}");
+    // Released blocks: the map holds as many as the waiting run's.
+    assert_eq!(s1.resident_blocks, s0.resident_blocks);
+    // Every frame's updates were counted once, by a later frame or the sync.
+    assert!(updates0 > 0);
+    assert_eq!(updates1, updates0);
+    // The device finishing some frames before the next one arrives: the same map again.
+    let (idle, s2, _) = fuse(&ctx, &frames, roomy, (true, 2));
+    eprintln!("idle every second frame: {s2:?}");
+    assert!(same_layers(&waited, &idle));
+    // A pool that grows from 64 slots and then spills: growing or spilling collects first.
+    let tight = ResidentOptions {
+        initial_blocks: 64,
+        max_bytes: (s0.largest_frame_blocks as u64 + 64) * SLOT_BYTES,
+    };
+    let (spilled, s3, _) = fuse(&ctx, &frames, tight, (true, 0));
+    eprintln!("in flight, tight pool: {s3:?}");
+    assert!(s3.grows > 0 && s3.blocks_spilled > 0, "{s3:?}");
+    assert!(
+        same_layers(&waited, &spilled),
+        "spilling in flight changed the map"
+    );
+}
