@@ -13,6 +13,10 @@
 //! - `fuse_depth_640x480/gpu_resident`: the same with the blocks resident on the GPU
 //!   (`ResidentMap`, warmed by one call: block listing on the CPU, depth image upload, hash
 //!   lookup + fusion dispatch, readback of one flag per block; no voxel traffic).
+//! - `fuse_depth_640x480/gpu_in_flight`: the same with frames in flight
+//!   (`ResidentMap::set_frames_in_flight`): a frame returns once submitted and its flags are
+//!   collected by a later one, so the figure is the steady-state time per frame of frames
+//!   submitted back to back (the readback ring holds three; a fourth waits for the first).
 //! - `marching_cubes/{cpu,gpu}`: the raw field of the fused 5 cm map meshed whole (GPU: the
 //!   samples packed and uploaded, five passes, the mesh read back and joined; the same mesh).
 //! - `marching_cubes/gpu_resident`: the same with the blocks resident on the GPU (the samples
@@ -127,6 +131,10 @@ fn fusion(c: &mut Criterion) {
             ResidentMap::new(ctx, layer.params(), ResidentOptions::default()).expect("pool");
         fuse_depth_resident(&mut map, &mut layer, &frames[0], &params).expect("warm");
         g.bench_function("gpu_resident", |b| {
+            b.iter(|| fuse_depth_resident(&mut map, &mut layer, &frames[0], &params).expect("GPU"))
+        });
+        map.set_frames_in_flight(true);
+        g.bench_function("gpu_in_flight", |b| {
             b.iter(|| fuse_depth_resident(&mut map, &mut layer, &frames[0], &params).expect("GPU"))
         });
         map.sync(&mut layer).expect("sync");

@@ -171,9 +171,12 @@ pub fn integrate_depth_resident(
             .map(|b| !layer.contains(b) && plan.band.binary_search(b).is_err())
             .collect();
         map.note_listed_in_flight(unsettled.iter().filter(|u| **u).count());
-        map.make_resident(layer, &blocks, plan.camera_m)?;
+        // One submit: the empty blocks' fill, the lookup and the fusion.
+        let mut encoder = map.context().encoder("fuse_depth_resident");
+        map.make_resident(layer, &blocks, plan.camera_m, Some(&mut encoder))?;
         let t = std::time::Instant::now();
-        let inputs_s = run_resident(map, layer, (blocks, &unsettled), frame, params, plan)?;
+        let frame_parts = (blocks, &unsettled[..], encoder);
+        let inputs_s = run_resident(map, layer, frame_parts, frame, params, plan)?;
         map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
     }
     if !map.frames_in_flight_enabled() {
@@ -188,14 +191,16 @@ pub fn integrate_depth_resident(
     Ok((touched, stats))
 }
 
-/// Resolves `blocks` (resident) to slots on the GPU, fuses the frame into them and submits,
-/// with the copy of its counters and flags into the readback ring; returns the seconds spent
-/// preparing and writing the inputs.
+/// Resolves `blocks` (resident) to slots on the GPU, fuses the frame into them and submits
+/// `encoder` (holding the fill of the frame's new blocks) with them and the copy of the
+/// counters and flags into the readback ring; returns the seconds spent preparing and writing
+/// the inputs.
 ///
 /// Per frame: the keys and block bases (16 bytes per block each), the depth image (4 bytes
 /// per pixel), the colour image (3 bytes per pixel, when fused) and the uniforms are written into buffers the map
-/// keeps; the lookup, the fusion and the copy of the counters and flags (4 bytes per block)
-/// into a staging buffer of the ring are one submit, and nothing waits for it. No buffer or
+/// keeps; the fill of new blocks, the lookup, the fusion and the copy of the counters and flags
+/// (4 bytes per block) into a staging buffer of the ring are one submit, and nothing waits for
+/// it. No buffer or
 /// bind group is created once the kept ones have grown to the frames' size.
 ///
 /// A block marked `unsettled` (neither the band nor the layer has it: listed because a frame
@@ -204,7 +209,7 @@ pub fn integrate_depth_resident(
 fn run_resident(
     map: &mut ResidentMap,
     layer: &Layer,
-    (blocks, unsettled): (Vec<BlockIndex>, &[bool]),
+    (blocks, unsettled, mut encoder): (Vec<BlockIndex>, &[bool], wgpu::CommandEncoder),
     frame: &DepthFrame,
     params: &DepthFusionParams,
     plan: &DepthPlan,
@@ -286,7 +291,6 @@ fn run_resident(
             exists,
         ],
     );
-    let mut encoder = ctx.encoder("fuse_depth_resident");
     // Counters and flags start at zero on the device, not uploaded.
     encoder.clear_buffer(&buf_counters, 0, Some(16));
     encoder.clear_buffer(&buf_updated, 0, Some((n * 4).next_multiple_of(4)));

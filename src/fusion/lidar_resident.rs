@@ -63,7 +63,7 @@ pub fn integrate_lidar_resident(
         let ctx = map.context().clone();
         return integrate_lidar_gpu(&ctx, layer, plan);
     }
-    map.make_resident(layer, &blocks, plan.origin_m())?;
+    map.make_resident(layer, &blocks, plan.origin_m(), None)?;
     let t = std::time::Instant::now();
     let (updated, voxel_updates, inputs_s) = run_resident(map, plan, &groups)?;
     map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);

@@ -64,7 +64,7 @@ pub fn regularize_resident(
     if !fits || !map.resident_blocks().iter().all(|b| layer.contains(b)) {
         return Ok(None);
     }
-    map.make_resident(layer, &blocks, [0.0; 3])?;
+    map.make_resident(layer, &blocks, [0.0; 3], None)?;
     let (listed, stored, omega_voxels) = solve_on_device(map, n as u32, params)?;
     for (entry, values) in listed.iter().zip(stored.chunks_exact(VOXELS_PER_BLOCK)) {
         let key = BlockIndex([entry[0] as i32, entry[1] as i32, entry[2] as i32]);

@@ -271,12 +271,15 @@ impl ResidentMap {
 
     /// Makes every block of `blocks` (sorted; at most [`ResidentMap::max_blocks`]) resident:
     /// grows or spills ([`policy`]) to free the slots it needs, uploads the missing blocks (the
-    /// layer's copy, or empty) and the changed table entries.
+    /// layer's copy, or empty) and the changed table entries. The empty blocks are written on
+    /// the device by a dispatch recorded into `encoder` (a frame's, to be submitted with its
+    /// kernels) or, without one, submitted alone.
     pub(crate) fn make_resident(
         &mut self,
         layer: &mut Layer,
         blocks: &[BlockIndex],
         camera_m: [f64; 3],
+        encoder: Option<&mut wgpu::CommandEncoder>,
     ) -> Result<()> {
         let t = std::time::Instant::now();
         let missing: Vec<BlockIndex> = blocks
@@ -289,13 +292,13 @@ impl ResidentMap {
             // flight, then look again (a block they listed and no frame updated is released
             // and comes back empty, which is what it held).
             self.collect_frames(layer, true)?;
-            return self.make_resident(layer, blocks, camera_m);
+            return self.make_resident(layer, blocks, camera_m, encoder);
         }
         if self.pool.free_count() < missing.len() {
             let in_frame: HashSet<BlockIndex> = blocks.iter().copied().collect();
             self.make_room(layer, missing.len(), &in_frame, camera_m)?;
         }
-        self.upload_blocks(layer, &missing)?;
+        self.upload_blocks(layer, &missing, encoder)?;
         self.table.upload(&self.ctx);
         self.stats.residency_s += t.elapsed().as_secs_f64();
         Ok(())
@@ -376,7 +379,12 @@ impl ResidentMap {
 
     /// Uploads `blocks` (absent from the pool, with room made) into free slots: the layer's
     /// copy, or an empty block.
-    fn upload_blocks(&mut self, layer: &Layer, blocks: &[BlockIndex]) -> Result<()> {
+    fn upload_blocks(
+        &mut self,
+        layer: &Layer,
+        blocks: &[BlockIndex],
+        encoder: Option<&mut wgpu::CommandEncoder>,
+    ) -> Result<()> {
         if blocks.is_empty() {
             return Ok(());
         }
@@ -398,7 +406,7 @@ impl ResidentMap {
         let mut empty = Vec::with_capacity(VOXELS_PER_BLOCK);
         pack_block_into(&Block::default(), &mut empty);
         debug_assert!(empty.iter().all(|v| *v == empty[0]));
-        self.pool.fill(&self.ctx, &fresh, empty[0])?;
+        self.pool.fill(&self.ctx, &fresh, empty[0], encoder)?;
         self.stats.blocks_uploaded += slots.len() as u64;
         self.stats.blocks_created += fresh.len() as u64;
         Ok(())

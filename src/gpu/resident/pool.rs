@@ -233,9 +233,16 @@ impl BlockPool {
 
     /// Writes `fill` into every voxel of `slots` on the device (`shaders/fill_slots.wgsl`): the
     /// empty block of slots given to blocks the layer does not have, 4 bytes up per slot
-    /// instead of the block. Reaches the device with this submit, before any later submit or
-    /// queue write; nothing waits for it.
-    pub(crate) fn fill(&mut self, ctx: &GpuContext, slots: &[u32], fill: GpuVoxel) -> Result<()> {
+    /// instead of the block; also clears their marks of blocks a depth frame updated. Recorded
+    /// into `encoder` (a frame's, submitted with it) or, without one, submitted alone; nothing
+    /// waits for it.
+    pub(crate) fn fill(
+        &mut self,
+        ctx: &GpuContext,
+        slots: &[u32],
+        fill: GpuVoxel,
+        encoder: Option<&mut wgpu::CommandEncoder>,
+    ) -> Result<()> {
         let uniforms = SlotFillUniforms {
             slot_count: slots.len() as u32,
             pad: 0,
@@ -249,7 +256,7 @@ impl BlockPool {
             u,
             slots,
             "writing empty blocks on the GPU",
-            true,
+            Some(encoder),
         )
     }
 
@@ -268,7 +275,7 @@ impl BlockPool {
             u,
             slots,
             "clearing updated marks on the GPU",
-            false,
+            None,
         )
     }
 
@@ -282,7 +289,7 @@ impl BlockPool {
         uniforms: &[u8],
         slots: &[u32],
         doing: &str,
-        with_exists: bool,
+        fill_into: Option<Option<&mut wgpu::CommandEncoder>>,
     ) -> Result<()> {
         if slots.is_empty() {
             return Ok(());
@@ -291,22 +298,27 @@ impl BlockPool {
         let scope = ErrorScopes::push(&ctx.device);
         let name = k.name;
         let buf_uniforms = self.kept.uniform_with(ctx, name, uniforms);
-        let buf_slots = self
-            .kept
-            .storage_with(ctx, "slot_list", bytemuck::cast_slice(slots));
+        // Each kernel its own slot list: a fill recorded into a frame's encoder is not submitted
+        // yet when a clear writes its list.
+        let fill = fill_into.is_some();
+        let list = if fill { "fill_slot_list" } else { "slot_list" };
+        let buf_slots = (self.kept).storage_with(ctx, list, bytemuck::cast_slice(slots));
         let (pool, exists) = (&self.buffer, &self.exists);
-        let buffers: &[&wgpu::Buffer] = if with_exists {
+        let buffers: &[&wgpu::Buffer] = if fill {
             &[&buf_uniforms, &buf_slots, pool, exists]
         } else {
             &[&buf_uniforms, &buf_slots, pool]
         };
         let bind = self.kept.bind_group(ctx, name, &k.layout, buffers);
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(name) });
         let invocations = slots.len() as u64 * VOXELS_PER_BLOCK as u64;
-        ctx.record_dispatch(&mut encoder, &k, &bind, invocations)?;
-        ctx.submit(encoder);
+        match fill_into.flatten() {
+            Some(encoder) => ctx.record_dispatch(encoder, &k, &bind, invocations)?,
+            None => {
+                let mut encoder = ctx.encoder(name);
+                ctx.record_dispatch(&mut encoder, &k, &bind, invocations)?;
+                ctx.submit(encoder);
+            }
+        }
         scope.pop(doing)
     }
 }
