@@ -20,6 +20,9 @@
 @group(0) @binding(6) var<storage, read_write> block_updated: array<u32>;
 // Every ray's direction and grey level, indexed by its pairs.
 @group(0) @binding(7) var<storage, read> ray_dirs: array<LidarRayDir>;
+// Per pool slot: 1 once a frame or scan updated its block (read by fuse_depth_resident.wgsl,
+// cleared by fill_slots.wgsl). One invocation per slot writes it here.
+@group(0) @binding(8) var<storage, read_write> slot_exists: array<u32>;
 
 fn voxel_base(b: u32) -> u32 {
     return slots[b] * 512u;
@@ -45,5 +48,6 @@ fn main(
     if (n > 0u) {
         atomicAdd(&counters[0], n);
         block_updated[b] = 1u;
+        slot_exists[slots[b]] = 1u;
     }
 }

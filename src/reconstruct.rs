@@ -275,7 +275,22 @@ impl Reconstructor {
         self.sync()
     }
 
-    /// Fuses a depth frame; returns the blocks it touched.
+    /// Lets GPU depth frames and LiDAR scans return before the device has run them (on by
+    /// default where the map is held whole in RAM; never for a paged map): a frame's touched
+    /// blocks then come back with a later call, and the layer learns its blocks at the latest
+    /// with [`Reconstructor::sync`]. Off, each call waits for its own frame and returns what
+    /// it touched.
+    pub fn set_frames_in_flight(&mut self, enabled: bool) -> crate::Result<()> {
+        if !enabled {
+            self.sync()?;
+        }
+        self.backend
+            .set_frames_in_flight(enabled && self.store.holds_whole_map());
+        Ok(())
+    }
+
+    /// Fuses a depth frame; returns the blocks it touched (with frames in flight on a GPU, see
+    /// [`Reconstructor::set_frames_in_flight`], those of the frames whose results arrived).
     pub fn fuse_depth(&mut self, frame: &DepthFrame) -> crate::Result<TouchedBlocks> {
         let t = Instant::now();
         let plan = DepthPlan::new(&self.config.grid, frame, &self.config.depth_fusion);
@@ -295,7 +310,7 @@ impl Reconstructor {
         Ok(touched)
     }
 
-    /// Fuses a LiDAR scan; returns the blocks it touched.
+    /// Fuses a LiDAR scan; returns the blocks it touched (as [`Reconstructor::fuse_depth`]).
     pub fn fuse_lidar(&mut self, scan: &LidarScan) -> crate::Result<TouchedBlocks> {
         let t = Instant::now();
         let plan = LidarPlan::new(&self.config.grid, scan, &self.config.lidar_fusion);

@@ -17,7 +17,6 @@
 use super::depth::{DepthFusionParams, DepthPlan};
 use super::FusionStats;
 use crate::frame::DepthFrame;
-use crate::gpu::kept::Kept;
 use crate::gpu::layout::{apply_updated, pack_block_into, FuseUniforms, GpuVoxel, LookupUniforms};
 use crate::gpu::resident::{FrameParts, ResidentMap};
 use crate::gpu::{shaders, ErrorScopes, GpuContext};
@@ -302,35 +301,6 @@ fn run_resident(
     scope.pop("running the resident fusion kernel")?;
     map.frame_submitted(layer, blocks, readback);
     Ok(inputs_s)
-}
-
-/// Submits a resident frame's `encoder` (its lookup and fusion, which count voxel updates in
-/// `counters[0]` and listed blocks the table could not resolve in `counters[1]`, and set
-/// `updated[k]` for each of the `n` listed blocks they change) and reads both back in the same
-/// submit and one wait. Returns the flags and the voxel updates; an unresolved block is an error.
-pub(super) fn submit_resident_frame(
-    (ctx, kept): (&GpuContext, &mut Kept),
-    encoder: wgpu::CommandEncoder,
-    (counters, updated): (&wgpu::Buffer, &wgpu::Buffer),
-    n: usize,
-) -> Result<(Vec<bool>, usize)> {
-    let mut counts = [0u32; 2];
-    let mut flags: Vec<u32> = bytemuck::zeroed_vec(n);
-    ctx.submit_and_read_back(
-        encoder,
-        kept,
-        &mut [
-            (counters, bytemuck::cast_slice_mut(&mut counts)),
-            (updated, bytemuck::cast_slice_mut(&mut flags)),
-        ],
-    )?;
-    if counts[1] != 0 {
-        return Err(Error::Gpu(format!(
-            "the GPU hash table could not resolve {} of {n} resident blocks",
-            counts[1]
-        )));
-    }
-    Ok((flags.iter().map(|&f| f != 0).collect(), counts[0] as usize))
 }
 
 /// The frame's fusion uniforms (with `voxel_count` 0: set per dispatch), from the plan's

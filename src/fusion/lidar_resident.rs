@@ -11,7 +11,6 @@
 //! values, in the same order per block), so it keeps its relation to the CPU's walk
 //! (`tests/gpu/lidar.rs`).
 
-use super::depth_gpu::submit_resident_frame;
 use super::lidar_gpu::{dispatch_order, record_passes, upload_rays, PAIR_BYTES};
 use super::{integrate_lidar_gpu, FusionStats, LidarPlan};
 use crate::gpu::layout::LookupUniforms;
@@ -26,7 +25,11 @@ use std::ops::Range;
 /// into or spilled for), resolved to pool slots on the GPU (`block_lookup.wgsl`) and updated
 /// in place. A scan whose blocks exceed the largest pool, or whose (block, ray) pairs exceed
 /// one storage binding, goes through [`integrate_lidar_gpu`] after its resident blocks are
-/// written back (counted, with a warning). Returns the touched blocks (sorted).
+/// written back (counted, with a warning).
+///
+/// With [`ResidentMap::set_frames_in_flight`], the scan returns once submitted, as a depth
+/// frame does (`src/gpu/resident/late.rs`). Returns the blocks touched by the scans and frames
+/// collected during the call (each one's sorted) and their work counters.
 pub fn integrate_lidar_resident(
     map: &mut ResidentMap,
     layer: &mut Layer,
@@ -37,18 +40,12 @@ pub fn integrate_lidar_resident(
             "resident GPU map and layer have different grids".into(),
         ));
     }
-    // A scan lists no blocks in view: the layer must know every block depth frames created.
-    map.collect_frames(layer, true)?;
+    // What has arrived, and room in the readback ring. A scan's blocks are its rays' alone.
+    map.collect_frames(layer, false)?;
+    map.make_room_in_flight(layer)?;
     let groups = plan.groups();
     let blocks: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
     map.begin_frame(blocks.len(), 0.0);
-    if blocks.is_empty() {
-        let stats = FusionStats {
-            measurements: plan.ray_count(),
-            ..FusionStats::default()
-        };
-        return Ok((Vec::new(), stats));
-    }
     let pair_bytes = plan.pair_count() as u64 * PAIR_BYTES;
     if blocks.len() > map.max_blocks() as usize || pair_bytes > map.context().max_binding_bytes() {
         map.note_oversize();
@@ -61,13 +58,24 @@ pub fn integrate_lidar_resident(
         );
         map.flush_blocks(layer, &blocks)?;
         let ctx = map.context().clone();
-        return integrate_lidar_gpu(&ctx, layer, plan);
+        let (mut touched, mut stats) = integrate_lidar_gpu(&ctx, layer, plan)?;
+        let (earlier, updates) = map.take_collected();
+        touched.extend(earlier);
+        stats.voxel_updates += updates;
+        return Ok((touched, stats));
     }
-    map.make_resident(layer, &blocks, plan.origin_m(), None)?;
-    let t = std::time::Instant::now();
-    let (updated, voxel_updates, inputs_s) = run_resident(map, plan, &groups)?;
-    map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
-    let touched = map.finish_frame(layer, &blocks, &updated);
+    if !blocks.is_empty() {
+        // One submit: the empty blocks' fill, the lookup and the passes.
+        let mut encoder = map.context().encoder("fuse_lidar_resident");
+        map.make_resident(layer, &blocks, plan.origin_m(), Some(&mut encoder))?;
+        let t = std::time::Instant::now();
+        let inputs_s = run_resident(map, layer, plan, &groups, encoder)?;
+        map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
+    }
+    if !map.frames_in_flight_enabled() {
+        map.collect_frames(layer, true)?;
+    }
+    let (touched, voxel_updates) = map.take_collected();
     let stats = FusionStats {
         blocks: touched.len(),
         voxel_updates,
@@ -77,22 +85,26 @@ pub fn integrate_lidar_resident(
 }
 
 /// Resolves the plan's blocks (resident, `groups` in block order) to pool slots and applies
-/// their rays there, in one submit and one wait. Returns, per block in `groups` order, whether
-/// any voxel was updated, the number of voxel updates, and the seconds spent preparing and
-/// writing the inputs.
+/// their rays there, submitting `encoder` (holding the fill of the scan's new blocks) with
+/// them and the copy of the counters and flags into the readback ring, collected as a depth
+/// frame's are (`src/gpu/resident/late.rs`). Returns the seconds spent preparing and writing
+/// the inputs.
 fn run_resident(
     map: &mut ResidentMap,
+    layer: &Layer,
     plan: &LidarPlan,
     groups: &[(BlockIndex, Range<usize>)],
-) -> Result<(Vec<bool>, usize, f64)> {
+    mut encoder: wgpu::CommandEncoder,
+) -> Result<f64> {
     let t = std::time::Instant::now();
     let FrameParts {
         ctx,
         grid,
         pool,
+        exists,
         table: (table, mask),
         kept,
-        ..
+        ring,
     } = map.frame_parts();
     let n = groups.len();
     let (order, offsets) = dispatch_order(groups, 0..n);
@@ -134,11 +146,6 @@ fn run_resident(
         &lookup.layout,
         &[&buf_lookup, table, &buf_keys, &buf_slots],
     );
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("fuse_lidar_resident"),
-        });
     // Counters and flags start at zero on the device, not uploaded.
     encoder.clear_buffer(&buf_counters, 0, Some(16));
     encoder.clear_buffer(&buf_updated, 0, Some(n as u64 * 4));
@@ -152,18 +159,17 @@ fn run_resident(
         &buf_slots,
         &buf_updated,
         &buf_dirs,
+        exists,
     ];
     let passes = (&counts[..], rays_per_pass);
     let bound = (&*fuse, "fuse_lidar_resident", &buffers[..]);
     record_passes((ctx, &mut encoder, &mut *kept), bound, &grid, passes)?;
     let inputs_s = t.elapsed().as_secs_f64();
-    let buffers = (&buf_counters, &buf_updated);
-    let (flags, updates) = submit_resident_frame((ctx, kept), encoder, buffers, n)?;
+    let results = [(&buf_counters, 8), (&buf_updated, n * 4)];
+    let readback = ring.submit(ctx, encoder, &results);
     scope.pop("running the resident LiDAR fusion kernel")?;
-    // The flags come in dispatch order; the caller lists blocks in `groups` order.
-    let mut updated = vec![false; n];
-    for (k, &b) in order.iter().enumerate() {
-        updated[b] = flags[k];
-    }
-    Ok((updated, updates, inputs_s))
+    // The flags come in dispatch order.
+    let blocks = order.iter().map(|&b| groups[b].0).collect();
+    map.frame_submitted(layer, blocks, readback);
+    Ok(inputs_s)
 }

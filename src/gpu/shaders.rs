@@ -209,7 +209,7 @@ pub const FUSE_LIDAR_RESIDENT: ShaderSource = kernel!(
         "shared/lidar_walk.wgsl",
         "shared/block_hash.wgsl"
     ],
-    [Uniform, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite, Read]
+    [Uniform, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite, Read, ReadWrite]
 );
 
 /// TGV stereo dual step (`p` with the tensor, `q`).

@@ -667,6 +667,9 @@ fn reconstructor_keeps_depth_and_lidar_blocks_on_the_gpu() {
         Backend::gpu(ctx.clone(), ResidentOptions::default()),
     )
     .expect("config");
+    // Each call returns what its own frame touched.
+    rec.set_frames_in_flight(false)
+        .expect("no frames in flight");
     let mut cpu = Layer::new(grid);
     for f in &frames {
         rec.fuse_depth(f).expect("fuse");

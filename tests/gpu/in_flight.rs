@@ -2,10 +2,10 @@
 //! arrive leaves the map exactly as a frame that waits for them, whenever its predecessors are
 //! collected, through grows and spills, and a LiDAR scan or a sync in between.
 
-use crate::common::{fuse_depth_resident, gpu};
+use crate::common::{fuse_depth_resident, gpu, Rng, SphereScene};
 use crate::compare::orbit_frames;
-use denser::frame::DepthFrame;
-use denser::fusion::DepthFusionParams;
+use denser::frame::{DepthFrame, LidarScan};
+use denser::fusion::{integrate_lidar_resident, DepthFusionParams, LidarFusionParams, LidarPlan};
 use denser::gpu::resident::SLOT_BYTES;
 use denser::gpu::{GpuContext, ResidentMap, ResidentOptions, ResidentStats};
 use denser::grid::{GridParams, Layer};
@@ -92,4 +92,52 @@ fn frames_in_flight_leave_the_map_of_frames_that_wait() {
         same_layers(&waited, &spilled),
         "spilling in flight changed the map"
     );
+}
+
+#[test]
+fn lidar_scans_in_flight_between_depth_frames_leave_the_same_map() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let frames = orbit_frames(6, 0.01);
+    let scene = SphereScene::standard();
+    let mut rng = Rng(7);
+    let scans: Vec<LidarScan> = [[0.0, -0.5, -4.5], [3.0, -0.5, -3.0], [-3.5, -0.5, 1.0]]
+        .iter()
+        .map(|o| scene.lidar(*o, 32, 720, 0.0, &mut rng))
+        .collect();
+    let run = |in_flight: bool| {
+        let mut layer = Layer::new(GRID);
+        let options = ResidentOptions::default();
+        let mut map = ResidentMap::new(ctx.clone(), GRID, options).expect("pool");
+        map.set_frames_in_flight(in_flight);
+        let (depth, lidar) = (DepthFusionParams::default(), LidarFusionParams::default());
+        let mut touched = Vec::new();
+        // Frame, scan, frame, frame, scan, …: a scan's new blocks are listed by the frames
+        // after it while it is in flight.
+        for (k, f) in frames.iter().enumerate() {
+            let (t, _) = fuse_depth_resident(&mut map, &mut layer, f, &depth).expect("frame");
+            touched.extend(t);
+            if k % 2 == 0 {
+                let plan = LidarPlan::new(&GRID, &scans[k / 2], &lidar);
+                let (t, _) = integrate_lidar_resident(&mut map, &mut layer, &plan).expect("scan");
+                touched.extend(t);
+            }
+        }
+        map.sync(&mut layer).expect("sync");
+        touched.extend(map.take_collected().0);
+        touched.sort_unstable();
+        touched.dedup();
+        (layer, map.stats(), touched)
+    };
+    let (waited, s0, touched0) = run(false);
+    let (flying, s1, touched1) = run(true);
+    eprintln!("each waits: {s0:?}\nin flight: {s1:?}");
+    assert!(s1.frames_overlapped > 0, "{s1:?}");
+    assert!(
+        same_layers(&waited, &flying),
+        "scans in flight changed the map"
+    );
+    // What the calls and the sync reported touched is the same set.
+    assert_eq!(touched0, touched1);
+    assert_eq!(touched0, waited.indices_sorted());
 }

@@ -478,6 +478,10 @@ fn reconstructor_fuses_lidar_on_the_gpu_when_one_is_set() {
         Backend::gpu(Arc::new(ctx), ResidentOptions::default()),
     )
     .expect("config");
+    // Each call returns what its own scan touched.
+    on_gpu
+        .set_frames_in_flight(false)
+        .expect("no scans in flight");
     let mut on_cpu = Reconstructor::new(config).expect("config");
     for scan in &scans {
         let a = on_gpu.fuse_lidar(scan).expect("GPU");

@@ -1,6 +1,8 @@
-//! Frames in flight: a depth frame's flags (which listed blocks it updated) and counters come
-//! back through a ring of staging buffers ([`crate::gpu::readback`]) and are collected by a
-//! later frame, so that a frame neither waits for its own kernels nor for the readback.
+//! Frames in flight: a depth frame's or a LiDAR scan's flags (which listed blocks it updated)
+//! and counters come back through a ring of staging buffers ([`crate::gpu::readback`]) and
+//! are collected by a later frame, so that a frame neither waits for its own kernels nor for
+//! the readback. (A scan lists only its rays' blocks, which do not depend on the layer; what
+//! follows is about the depth frames listed after it.)
 //!
 //! **What the host does not know yet.** Until a frame is collected, the layer has not learnt
 //! the blocks it created, and blocks it listed but did not update are not released. A frame
@@ -14,7 +16,7 @@
 //! **Collecting** processes frames in order ([`ResidentMap::collect_frames`]): updated blocks
 //! become dirty and the layer learns those it lacks; a block no frame updated is released once
 //! no frame in flight lists it. Everything that reads or pages the map (syncs, flushes, spills,
-//! LiDAR scans, the TV solve) collects every frame first, waiting where it must (counted).
+//! the TV solve) collects every frame first, waiting where it must (counted).
 
 use super::ResidentMap;
 use crate::gpu::readback::{LateReadback, RING_LEN};
@@ -119,8 +121,8 @@ impl ResidentMap {
         Ok(())
     }
 
-    /// What the frames collected since the last call touched (in collection order) and their
-    /// voxel updates.
+    /// What the frames collected since the last call touched (frame after frame, each one's
+    /// sorted) and their voxel updates.
     pub fn take_collected(&mut self) -> (TouchedBlocks, usize) {
         let touched = std::mem::take(&mut self.late.touched);
         (touched, std::mem::take(&mut self.late.voxel_updates))
@@ -143,6 +145,7 @@ impl ResidentMap {
                 counts[1]
             )));
         }
+        let start = self.late.touched.len();
         for ((b, &up), &lacked) in f.blocks.iter().zip(&flags).zip(&f.lacked) {
             let later = lacked && self.unlist(*b);
             let slot = self.table.host.lookup(*b).expect("resident");
@@ -161,6 +164,8 @@ impl ResidentMap {
             self.late.touched.push(*b);
             self.pool.touch(slot, f.frame);
         }
+        // A scan lists its blocks in dispatch order: each frame's touched blocks sorted.
+        self.late.touched[start..].sort_unstable();
         self.late.voxel_updates += counts[0] as usize;
         self.stats.peak_resident_blocks =
             self.stats.peak_resident_blocks.max(self.table.host.len());

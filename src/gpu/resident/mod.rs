@@ -6,11 +6,13 @@
 //! - [`pool`]: the slots on the device and the copies between RAM and the pool.
 //! - [`policy`]: growing, and which blocks spill when the pool is full (the same eviction order
 //!   as the RAM pager's, [`crate::grid::eviction_order`]).
+//! - `late`: depth frames in flight, whose flags a later frame collects
+//!   ([`ResidentMap::set_frames_in_flight`], [`ResidentMap::collect_frames`]).
 //! - [`ResidentMap`] (here) ties them together: it makes a frame's blocks resident
-//!   ([`ResidentMap::make_resident`]), records what a kernel changed
-//!   ([`ResidentMap::finish_frame`]), and writes blocks back to the RAM [`Layer`]
-//!   ([`ResidentMap::sync`], [`ResidentMap::flush_blocks`]). The fusion dispatch into the pool
-//!   lives beside the CPU's fusion (`src/fusion/depth_gpu.rs`).
+//!   ([`ResidentMap::make_resident`]), learns what a kernel changed (`late`: a frame's flags,
+//!   collected when they arrive), and writes blocks back to the RAM [`Layer`] ([`ResidentMap::sync`], [`ResidentMap::flush_blocks`], both collecting
+//!   the frames in flight first). The fusion dispatch into the pool lives beside the CPU's
+//!   fusion (`src/fusion/depth_gpu.rs`).
 //!
 //! **Write-back.** The GPU copy of a resident block is authoritative; the RAM layer holds a
 //! shadow (possibly stale, an empty block for blocks created on the GPU) so that it still knows
@@ -39,7 +41,7 @@ use super::context::GpuContext;
 use super::kept::Kept;
 use super::layout::{apply_updated, pack_block_into, GpuVoxel};
 use super::readback::ReadbackRing;
-use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
+use crate::grid::{Block, BlockIndex, GridParams, Layer, VOXELS_PER_BLOCK};
 use crate::{Error, Result};
 use pool::BlockPool;
 use std::collections::HashSet;
@@ -302,37 +304,6 @@ impl ResidentMap {
         self.table.upload(&self.ctx);
         self.stats.residency_s += t.elapsed().as_secs_f64();
         Ok(())
-    }
-
-    /// Records what a kernel did to `blocks` (`updated[k]`: whether block `k` changed): updated
-    /// blocks become dirty and the layer learns the blocks created on the GPU; blocks the frame
-    /// did not update and the layer never had are released. Returns the touched blocks (those
-    /// now in the layer), in `blocks` order.
-    pub(crate) fn finish_frame(
-        &mut self,
-        layer: &mut Layer,
-        blocks: &[BlockIndex],
-        updated: &[bool],
-    ) -> TouchedBlocks {
-        let mut touched = Vec::with_capacity(blocks.len());
-        for (b, &up) in blocks.iter().zip(updated) {
-            let slot = self.table.host.lookup(*b).expect("resident");
-            let in_layer = layer.contains(b);
-            if up {
-                self.pool.mark_dirty(slot);
-                if !in_layer {
-                    layer.insert(*b, Block::new_boxed());
-                }
-            } else if !in_layer {
-                self.release(slot);
-                continue;
-            }
-            touched.push(*b);
-            self.pool.touch(slot, self.frame);
-        }
-        self.stats.peak_resident_blocks =
-            self.stats.peak_resident_blocks.max(self.table.host.len());
-        touched
     }
 
     /// Frees `need` slots: grows the pool, then spills blocks outside `in_frame` to RAM.
