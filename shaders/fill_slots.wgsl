@@ -2,9 +2,9 @@
 // holds when it is given to a block the layer does not have yet (`ResidentMap::make_resident`
 // in src/gpu/resident/mod.rs), instead of uploading 4 KiB of empty voxels per block. The host
 // packs the value from `Block::default()` (its CPU twin is `pack_block_into` of an empty block).
-// It also clears each slot's mark of a block updated by a depth frame (`slot_exists`, read by
-// fuse_depth_resident.wgsl). One invocation per voxel. Keep `SlotFillUniforms` in sync with src/gpu/layout.rs. Shared files
-// and bindings: src/gpu/shaders.rs.
+// It also clears each slot's mark of a block updated by a frame or scan (`slot_exists`, read
+// by fuse_depth_resident.wgsl). One invocation per voxel. Keep `SlotFillUniforms` in sync with
+// src/gpu/layout.rs. Shared files and bindings: src/gpu/shaders.rs.
 
 struct SlotFillUniforms {
     slot_count: u32,

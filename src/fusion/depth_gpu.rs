@@ -196,11 +196,11 @@ pub fn integrate_depth_resident(
 /// the inputs.
 ///
 /// Per frame: the keys and block bases (16 bytes per block each), the depth image (4 bytes
-/// per pixel), the colour image (3 bytes per pixel, when fused) and the uniforms are written into buffers the map
-/// keeps; the fill of new blocks, the lookup, the fusion and the copy of the counters and flags
-/// (4 bytes per block) into a staging buffer of the ring are one submit, and nothing waits for
-/// it. No buffer or
-/// bind group is created once the kept ones have grown to the frames' size.
+/// per pixel), the colour image (3 bytes per pixel, when fused) and the uniforms are written
+/// into buffers the map keeps; the fill of new blocks, the lookup, the fusion and the copy of
+/// the counters and flags (4 bytes per block) into a staging buffer of the ring are one
+/// submit, and nothing waits for it. No buffer or bind group is created once the kept ones
+/// have grown to the frames' size.
 ///
 /// A block marked `unsettled` (neither the band nor the layer has it: listed because a frame
 /// in flight may have created it) carries `w = 1` in its base: the kernel fuses it only if a

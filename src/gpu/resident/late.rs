@@ -49,18 +49,18 @@ pub(super) struct InFlight {
 }
 
 impl ResidentMap {
-    /// Lets depth frames return before their results arrive (collected by later frames; see
-    /// the module documentation), or not: then each frame waits for its own.
+    /// Lets depth frames and LiDAR scans return before their results arrive (collected by
+    /// later frames; see the module documentation), or not: then each waits for its own.
     pub fn set_frames_in_flight(&mut self, enabled: bool) {
         self.late.enabled = enabled;
     }
 
-    /// Whether depth frames may return before their results arrive.
+    /// Whether depth frames and LiDAR scans may return before their results arrive.
     pub fn frames_in_flight_enabled(&self) -> bool {
         self.late.enabled
     }
 
-    /// Depth frames whose results have not been collected.
+    /// Frames and scans whose results have not been collected.
     pub fn frames_in_flight(&self) -> usize {
         self.late.frames.len()
     }

@@ -6,13 +6,14 @@
 //! - [`pool`]: the slots on the device and the copies between RAM and the pool.
 //! - [`policy`]: growing, and which blocks spill when the pool is full (the same eviction order
 //!   as the RAM pager's, [`crate::grid::eviction_order`]).
-//! - `late`: depth frames in flight, whose flags a later frame collects
+//! - `late`: depth frames and LiDAR scans in flight, whose flags a later frame collects
 //!   ([`ResidentMap::set_frames_in_flight`], [`ResidentMap::collect_frames`]).
 //! - [`ResidentMap`] (here) ties them together: it makes a frame's blocks resident
 //!   ([`ResidentMap::make_resident`]), learns what a kernel changed (`late`: a frame's flags,
-//!   collected when they arrive), and writes blocks back to the RAM [`Layer`] ([`ResidentMap::sync`], [`ResidentMap::flush_blocks`], both collecting
-//!   the frames in flight first). The fusion dispatch into the pool lives beside the CPU's
-//!   fusion (`src/fusion/depth_gpu.rs`).
+//!   collected when they arrive), and writes blocks back to the RAM [`Layer`]
+//!   ([`ResidentMap::sync`], [`ResidentMap::flush_blocks`], both collecting the frames in
+//!   flight first). The fusion dispatches into the pool live beside the CPU's fusion
+//!   (`src/fusion/depth_gpu.rs`, `lidar_resident.rs`).
 //!
 //! **Write-back.** The GPU copy of a resident block is authoritative; the RAM layer holds a
 //! shadow (possibly stale, an empty block for blocks created on the GPU) so that it still knows
@@ -93,7 +94,7 @@ pub struct ResidentStats {
     pub oversize_frames: u64,
     /// Most blocks one frame listed (its working set on the GPU).
     pub largest_frame_blocks: usize,
-    /// Depth frames submitted while earlier ones were still in flight (`late.rs`).
+    /// Depth frames submitted while earlier frames or scans were still in flight (`late.rs`).
     pub frames_overlapped: u64,
     /// Blocks depth frames listed only because a frame in flight may have created them.
     pub blocks_listed_in_flight: u64,
@@ -122,9 +123,9 @@ pub struct ResidentMap {
     stats: ResidentStats,
     /// The frame kernels' buffers and bind groups, kept between frames.
     kept: Kept,
-    /// The staging buffers depth frames read their flags back through.
+    /// The staging buffers frames and scans read their flags back through.
     ring: ReadbackRing,
-    /// Depth frames whose flags have not been collected ([`late`]).
+    /// Frames and scans whose flags have not been collected ([`late`]).
     late: late::InFlight,
 }
 
@@ -134,7 +135,7 @@ pub(crate) struct FrameParts<'a> {
     pub grid: GridParams,
     /// The pool's voxels, 512 per slot.
     pub pool: &'a wgpu::Buffer,
-    /// The pool's per-slot marks of blocks a depth frame updated ([`late`]).
+    /// The pool's per-slot marks of blocks a frame or scan updated ([`late`]).
     pub exists: &'a wgpu::Buffer,
     /// The device's hash table and its mask.
     pub table: (&'a wgpu::Buffer, u32),

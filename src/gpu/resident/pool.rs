@@ -17,8 +17,8 @@ pub const SLOT_BYTES: u64 = (VOXELS_PER_BLOCK * std::mem::size_of::<GpuVoxel>())
 /// Slots on the device and the host's record of them.
 pub(crate) struct BlockPool {
     buffer: wgpu::Buffer,
-    /// Per slot: 1 once a depth frame updated its block since the slot was given to it
-    /// (`resident/late.rs`), 4 bytes each.
+    /// Per slot: 1 once a depth frame or LiDAR scan updated its block since the slot was given
+    /// to it (`resident/late.rs`), 4 bytes each.
     exists: wgpu::Buffer,
     capacity: u32,
     slot_key: Vec<Option<BlockIndex>>,
@@ -62,7 +62,7 @@ impl BlockPool {
         &self.buffer
     }
 
-    /// The per-slot marks of blocks a depth frame updated (see the field).
+    /// The per-slot marks of blocks a frame or scan updated (see the field).
     pub(crate) fn exists_buffer_of(&self) -> &wgpu::Buffer {
         &self.exists
     }
