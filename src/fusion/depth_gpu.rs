@@ -56,7 +56,6 @@ fn fuse_blocks(
     let uniforms = fuse_uniforms(plan, frame, params);
     let pixels = frame.depth_m.data.len() as u64;
     ctx.check_binding("depth image (4 bytes per pixel)", pixels * 4)?;
-
     let kernel = ctx.kernel(&shaders::FUSE_DEPTH)?;
     let scope = ErrorScopes::push(&ctx.device);
     let buf_depth = ctx.storage("fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
