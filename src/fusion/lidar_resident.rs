@@ -66,6 +66,7 @@ pub fn integrate_lidar_resident(
     }
     if !blocks.is_empty() {
         // One submit: the empty blocks' fill, the lookup and the passes.
+        map.note_listed_in_flight(0); // a scan lists its rays' blocks alone
         let mut encoder = map.context().encoder("fuse_lidar_resident");
         map.make_resident(layer, &blocks, plan.origin_m(), Some(&mut encoder))?;
         let t = std::time::Instant::now();

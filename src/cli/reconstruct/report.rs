@@ -144,7 +144,7 @@ impl fmt::Display for Report {
         if let Some(g) = &self.gpu {
             writeln!(
                 f,
-                "GPU tier: pool {} blocks (max {}), peak {} resident, {} uploaded, {} created on the GPU, {} read back, {} spilled to RAM, {} grows, {} oversize frames",
+                "GPU tier: pool {} blocks (max {}), peak {} resident, {} uploaded, {} created on the GPU, {} read back, {} spilled to RAM, {} grows, {} oversize frames, {} frames submitted while others were in flight ({} blocks listed for frames in flight)",
                 g.capacity_blocks,
                 g.max_blocks,
                 g.peak_resident_blocks,
@@ -153,7 +153,9 @@ impl fmt::Display for Report {
                 g.blocks_downloaded,
                 g.blocks_spilled,
                 g.grows,
-                g.oversize_frames
+                g.oversize_frames,
+                g.frames_overlapped,
+                g.blocks_listed_in_flight
             )?;
             let per = |s: f64| 1e3 * s / g.frames.max(1) as f64;
             writeln!(

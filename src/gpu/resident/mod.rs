@@ -94,7 +94,8 @@ pub struct ResidentStats {
     pub oversize_frames: u64,
     /// Most blocks one frame listed (its working set on the GPU).
     pub largest_frame_blocks: usize,
-    /// Depth frames submitted while earlier frames or scans were still in flight (`late.rs`).
+    /// Depth frames and LiDAR scans submitted while earlier ones were still in flight
+    /// (`late.rs`).
     pub frames_overlapped: u64,
     /// Blocks depth frames listed only because a frame in flight may have created them.
     pub blocks_listed_in_flight: u64,
@@ -254,7 +255,8 @@ impl ResidentMap {
         self.stats.largest_frame_blocks = self.stats.largest_frame_blocks.max(blocks);
     }
 
-    /// Counts `blocks` listed only because a frame in flight may have created them.
+    /// Counts a frame or scan about to be submitted, with `blocks` listed only because a frame
+    /// in flight may have created them.
     pub(crate) fn note_listed_in_flight(&mut self, blocks: usize) {
         self.stats.blocks_listed_in_flight += blocks as u64;
         self.stats.frames_overlapped += (self.frames_in_flight() > 0) as u64;
