@@ -139,9 +139,7 @@ pub fn integrate_depth_resident(
             "resident GPU map and layer have different grids".into(),
         ));
     }
-    // What has arrived, and room in the readback ring.
-    map.collect_frames(layer, false)?;
-    map.make_room_in_flight(layer)?;
+    map.begin_in_flight(layer)?;
     let t = std::time::Instant::now();
     let blocks = plan.blocks_with(layer, &map.unsettled_blocks(layer));
     map.begin_frame(blocks.len(), plan.listing_s + t.elapsed().as_secs_f64());
@@ -177,10 +175,7 @@ pub fn integrate_depth_resident(
         let inputs_s = run_resident(map, layer, frame_parts, frame, params, plan)?;
         map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
     }
-    if !map.frames_in_flight_enabled() {
-        map.collect_frames(layer, true)?;
-    }
-    let (touched, voxel_updates) = map.take_collected();
+    let (touched, voxel_updates) = map.end_in_flight(layer)?;
     let stats = FusionStats {
         blocks: touched.len(),
         voxel_updates,

@@ -40,9 +40,8 @@ pub fn integrate_lidar_resident(
             "resident GPU map and layer have different grids".into(),
         ));
     }
-    // What has arrived, and room in the readback ring. A scan's blocks are its rays' alone.
-    map.collect_frames(layer, false)?;
-    map.make_room_in_flight(layer)?;
+    // A scan's blocks are its rays' alone: they do not depend on what has arrived.
+    map.begin_in_flight(layer)?;
     let groups = plan.groups();
     let blocks: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
     map.begin_frame(blocks.len(), 0.0);
@@ -73,10 +72,7 @@ pub fn integrate_lidar_resident(
         let inputs_s = run_resident(map, layer, plan, &groups, encoder)?;
         map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
     }
-    if !map.frames_in_flight_enabled() {
-        map.collect_frames(layer, true)?;
-    }
-    let (touched, voxel_updates) = map.take_collected();
+    let (touched, voxel_updates) = map.end_in_flight(layer)?;
     let stats = FusionStats {
         blocks: touched.len(),
         voxel_updates,

@@ -112,8 +112,25 @@ impl ResidentMap {
         Ok(())
     }
 
+    /// Before a frame or scan is listed: collects what has arrived and makes room for it in
+    /// the readback ring.
+    pub(crate) fn begin_in_flight(&mut self, layer: &mut Layer) -> Result<()> {
+        self.collect_frames(layer, false)?;
+        self.make_room_in_flight(layer)
+    }
+
+    /// After a frame or scan was submitted: collects it (waiting) unless frames may stay in
+    /// flight; returns what the frames collected since the last call touched and their voxel
+    /// updates ([`ResidentMap::take_collected`]).
+    pub(crate) fn end_in_flight(&mut self, layer: &mut Layer) -> Result<(TouchedBlocks, usize)> {
+        if !self.late.enabled {
+            self.collect_frames(layer, true)?;
+        }
+        Ok(self.take_collected())
+    }
+
     /// Collects frames until fewer than the ring holds are in flight (room for one more).
-    pub(crate) fn make_room_in_flight(&mut self, layer: &mut Layer) -> Result<()> {
+    fn make_room_in_flight(&mut self, layer: &mut Layer) -> Result<()> {
         while self.late.frames.len() >= RING_LEN {
             let f = self.late.frames.pop_front().expect("a frame");
             self.collect(layer, f)?;
