@@ -1,7 +1,8 @@
 // Projective depth-map TSDF fusion into the blocks resident in the GPU pool (DENSER Sec. III-A).
 // CPU twin: `integrate_depth` in src/fusion/depth.rs with `Block::fuse` (the same per-voxel
 // update as fuse_depth.wgsl, shared in shared/fuse_common.wgsl). `voxels` is the whole pool
-// (512 voxels per slot); `slots[b]` is listed block b's slot, resolved by block_lookup.wgsl.
+// (512 voxels per slot); `slots[b]` and `block_base[b]` are listed block b's slot and base,
+// resolved by frame_keys.wgsl.
 // Keep in sync with `FuseUniforms`/`GpuVoxel` in src/gpu/layout.rs and src/gpu/resident.rs.
 // Shared files and bindings: src/gpu/shaders.rs.
 

@@ -142,6 +142,7 @@ impl GpuStages {
             out.extend([
                 &shaders::FUSE_DEPTH_RESIDENT,
                 &shaders::BLOCK_LOOKUP,
+                &shaders::FRAME_KEYS,
                 &shaders::CLEAR_UPDATED,
                 &shaders::FILL_SLOTS,
                 &shaders::FUSE_LIDAR,

@@ -165,10 +165,15 @@ impl DepthGeometry {
 
     /// Camera-frame centre of voxel (0, 0, 0) of `block`, metres (computed in f64, then f32).
     pub fn block_base(&self, grid: &GridParams, block: BlockIndex) -> Vector3<f32> {
+        self.block_base_f64(grid, block).cast()
+    }
+
+    /// [`DepthGeometry::block_base`] before its rounding to f32.
+    pub fn block_base_f64(&self, grid: &GridParams, block: BlockIndex) -> Vector3<f64> {
         let vs = self.voxel_size_m;
         let o = grid.block_origin(block);
         let centre0 = Point3::new(o[0] + 0.5 * vs, o[1] + 0.5 * vs, o[2] + 0.5 * vs);
-        (self.camera_from_world * centre0).coords.cast()
+        (self.camera_from_world * centre0).coords
     }
 }
 

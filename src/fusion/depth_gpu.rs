@@ -3,7 +3,10 @@
 //! (blocks resident in the GPU pool, [`ResidentMap`]). Both fuse from the CPU's own
 //! [`DepthPlan`] (the same blocks, the same f32 geometry) and apply the per-voxel update of
 //! `shaders/shared/fuse_common.wgsl`, the twin of [`integrate_depth_plan`]'s loop with
-//! `Block::fuse`, one invocation per voxel.
+//! `Block::fuse`, one invocation per voxel. The per-call kernel reads the blocks' bases as the
+//! CPU computes them; the resident one gets each block as a 4-byte offset from the frame's
+//! origin block and computes its base on the device (`frame_keys.wgsl`, [`FrameKeys`]: exact
+//! integer arithmetic that gives the CPU's base but for rare rounding ties).
 //!
 //! The kernels repeat the CPU's f32 arithmetic in the same order, with exact twins of its
 //! rounding (`shaders/shared/rounding.wgsl`). Remaining differences come from WGSL's FMA
@@ -15,14 +18,14 @@
 //! [`integrate_depth_plan`]: super::integrate_depth_plan
 
 use super::depth::{DepthFusionParams, DepthPlan};
+use super::depth_keys::FrameKeys;
 use super::FusionStats;
 use crate::frame::DepthFrame;
-use crate::gpu::layout::{apply_updated, pack_block_into, FuseUniforms, GpuVoxel, LookupUniforms};
-use crate::gpu::resident::{FrameParts, ResidentMap};
+use crate::gpu::layout::{apply_updated, pack_block_into, FuseUniforms, GpuVoxel};
+use crate::gpu::resident::{BlockTable, FrameParts, ResidentMap, SLOT_TOMBSTONE};
 use crate::gpu::{shaders, ErrorScopes, GpuContext};
 use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::{Error, Result};
-use rayon::prelude::*;
 
 /// Fuses one depth frame into `layer` on the GPU with blocks uploaded per call, like
 /// [`super::integrate_depth_plan`]: the plan's band plus the allocated blocks in view. Returns
@@ -119,9 +122,9 @@ fn fuse_blocks(
 
 /// Fuses one depth frame into the blocks resident in `map` (the GPU tier over `layer`), like
 /// [`super::integrate_depth_plan`]: the plan's blocks are made resident (grown into or spilled
-/// for), resolved to pool slots on the GPU (`block_lookup.wgsl`) and updated in place. A frame
-/// whose blocks exceed the largest pool goes through [`integrate_depth_gpu`] after its resident
-/// blocks are written back (counted, with a warning).
+/// for), resolved to pool slots and bases on the GPU (`frame_keys.wgsl`) and updated in place.
+/// A frame whose blocks exceed the largest pool goes through [`integrate_depth_gpu`] after its
+/// resident blocks are written back (counted, with a warning).
 ///
 /// With [`ResidentMap::set_frames_in_flight`], the frame returns once submitted, and what it
 /// touched arrives with a later call (`src/gpu/resident/late.rs`); otherwise it waits for its
@@ -162,16 +165,18 @@ pub fn integrate_depth_resident(
         return Ok((touched, stats));
     }
     if !blocks.is_empty() {
-        // Listed only because a frame in flight may have created them: fused only if one did.
-        let unsettled: Vec<bool> = (blocks.iter())
-            .map(|b| !layer.contains(b) && plan.band.binary_search(b).is_err())
-            .collect();
-        map.note_listed_in_flight(unsettled.iter().filter(|u| **u).count());
-        // One submit: the empty blocks' fill, the lookup and the fusion.
+        // Listed only because a frame in flight may have created them (neither the band nor
+        // the layer has them): listed last, fused only if one did.
+        let (mut listed, unsettled): (Vec<BlockIndex>, Vec<BlockIndex>) = (blocks.into_iter())
+            .partition(|b| layer.contains(b) || plan.band.binary_search(b).is_ok());
+        let first_unsettled = listed.len();
+        map.note_listed_in_flight(unsettled.len());
+        listed.extend(unsettled);
+        // One submit: the empty blocks' fill, the keys' slots and bases, and the fusion.
         let mut encoder = map.context().encoder("fuse_depth_resident");
-        map.make_resident(layer, &blocks, plan.camera_m, Some(&mut encoder))?;
+        map.make_resident(layer, &listed, plan.camera_m, Some(&mut encoder))?;
         let t = std::time::Instant::now();
-        let frame_parts = (blocks, &unsettled[..], encoder);
+        let frame_parts = (listed, first_unsettled, encoder);
         let inputs_s = run_resident(map, layer, frame_parts, frame, params, plan)?;
         map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
     }
@@ -189,20 +194,21 @@ pub fn integrate_depth_resident(
 /// counters and flags into the readback ring; returns the seconds spent preparing and writing
 /// the inputs.
 ///
-/// Per frame: the keys and block bases (16 bytes per block each), the depth image (4 bytes
-/// per pixel), the colour image (3 bytes per pixel, when fused) and the uniforms are written
-/// into buffers the map keeps; the fill of new blocks, the lookup, the fusion and the copy of
-/// the counters and flags (4 bytes per block) into a staging buffer of the ring are one
-/// submit, and nothing waits for it. No buffer or bind group is created once the kept ones
-/// have grown to the frames' size.
+/// Per frame: the blocks' packed offsets from the frame's origin block (4 bytes per block,
+/// [`FrameKeys`]; 12 where a block lies beyond the packed range), the depth image (4 bytes per
+/// pixel), the colour image (3 bytes per pixel, when fused) and the uniforms are written into
+/// buffers the map keeps; the fill of new blocks, the keys' slots and bases
+/// (`frame_keys.wgsl`), the fusion and the copy of the counters and flags (4 bytes per block)
+/// into a staging buffer of the ring are one submit, and nothing waits for it. No buffer or
+/// bind group is created once the kept ones have grown to the frames' size.
 ///
-/// A block marked `unsettled` (neither the band nor the layer has it: listed because a frame
-/// in flight may have created it) carries `w = 1` in its base: the kernel fuses it only if a
-/// frame did.
+/// The blocks from `first_unsettled` on (neither the band nor the layer has them: listed
+/// because a frame in flight may have created them) carry `w = 1` in their bases: the kernel
+/// fuses them only if a frame did.
 fn run_resident(
     map: &mut ResidentMap,
     layer: &Layer,
-    (blocks, unsettled, mut encoder): (Vec<BlockIndex>, &[bool], wgpu::CommandEncoder),
+    (blocks, first_unsettled, mut encoder): (Vec<BlockIndex>, usize, wgpu::CommandEncoder),
     frame: &DepthFrame,
     params: &DepthFusionParams,
     plan: &DepthPlan,
@@ -235,38 +241,27 @@ fn run_resident(
         frame.depth_m.data.len() as u64 * 4,
     )?;
     ctx.check_binding("block bases (16 bytes per block)", n * 16)?;
-    ctx.check_binding("block keys (16 bytes per block)", n * 16)?;
-    let bases: Vec<[f32; 4]> = (blocks.par_iter().zip(unsettled))
-        .map(|(b, &u)| {
-            let [x, y, z, _] = base_words(&grid, plan, *b);
-            [x, y, z, u as u32 as f32]
-        })
-        .collect();
-    let keys: Vec<[i32; 4]> = blocks.iter().map(|k| [k.0[0], k.0[1], k.0[2], 0]).collect();
-    let lookup = ctx.kernel(&shaders::BLOCK_LOOKUP)?;
+    let keys = FrameKeys::new(&grid, &plan.geometry, &blocks, first_unsettled)?;
+    let key_uniforms = keys.uniforms(mask);
+    let frame_keys = ctx.kernel(&shaders::FRAME_KEYS)?;
     let fuse = ctx.kernel(&shaders::FUSE_DEPTH_RESIDENT)?;
-    let lookup_uniforms = LookupUniforms {
-        key_count: n as u32,
-        mask,
-        pad: [0; 2],
-    };
     let scope = ErrorScopes::push(&ctx.device);
-    let buf_lookup =
-        kept.uniform_with(ctx, "lookup_uniforms", bytemuck::bytes_of(&lookup_uniforms));
-    let buf_keys = kept.storage_with(ctx, "lookup_keys", bytemuck::cast_slice(&keys));
-    // Every listed key's slot is written by the lookup.
+    let buf_key_uniforms =
+        kept.uniform_with(ctx, "frame_key_uniforms", bytemuck::bytes_of(&key_uniforms));
+    let buf_keys = kept.storage_with(ctx, "frame_keys", bytemuck::cast_slice(keys.words()));
+    // Every listed block's slot and base are written by frame_keys.wgsl.
     let buf_slots = kept.scratch(ctx, "lookup_slots", n * 4);
+    let buf_bases = kept.scratch(ctx, "fuse_block_base", n * 16);
     let buf_uniforms = kept.uniform_with(ctx, "fuse_uniforms", bytemuck::bytes_of(&uniforms));
-    let buf_bases = kept.storage_with(ctx, "fuse_block_base", bytemuck::cast_slice(&bases));
     let buf_depth = kept.storage_with(ctx, "fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
     let buf_color = kept.storage_with(ctx, "fuse_color", color_bytes(frame, params));
     let buf_counters = kept.scratch(ctx, "fuse_counters", 16);
     let buf_updated = kept.scratch(ctx, "block_updated", n * 4);
-    let bind_lookup = kept.bind_group(
+    let bind_keys = kept.bind_group(
         ctx,
-        "block_lookup",
-        &lookup.layout,
-        &[&buf_lookup, table, &buf_keys, &buf_slots],
+        "frame_keys",
+        &frame_keys.layout,
+        &[&buf_key_uniforms, table, &buf_keys, &buf_slots, &buf_bases],
     );
     let bind_fuse = kept.bind_group(
         ctx,
@@ -287,7 +282,7 @@ fn run_resident(
     // Counters and flags start at zero on the device, not uploaded.
     encoder.clear_buffer(&buf_counters, 0, Some(16));
     encoder.clear_buffer(&buf_updated, 0, Some((n * 4).next_multiple_of(4)));
-    ctx.record_dispatch(&mut encoder, &lookup, &bind_lookup, n)?;
+    ctx.record_dispatch(&mut encoder, &frame_keys, &bind_keys, n)?;
     ctx.record_dispatch(&mut encoder, &fuse, &bind_fuse, voxel_count)?;
     let inputs_s = t.elapsed().as_secs_f64();
     let results = [(&buf_counters, 8), (&buf_updated, n as usize * 4)];
@@ -295,6 +290,48 @@ fn run_resident(
     scope.pop("running the resident fusion kernel")?;
     map.frame_submitted(layer, blocks, readback);
     Ok(inputs_s)
+}
+
+/// Each listed block's slot (`None` where absent) and base (xyz, w), as `frame_keys.wgsl`
+/// writes them.
+pub type ResolvedKeys = (Vec<Option<u32>>, Vec<[f32; 4]>);
+
+/// Runs `frame_keys.wgsl` over `keys` against a copy of `table` uploaded whole: each block's
+/// slot (`None` where absent) and base (xyz; w = 1 from the first unsettled block on), as the
+/// resident fusion resolves them. For tests of the kernel against its CPU twin
+/// ([`FrameKeys::base`], [`BlockTable::lookup`]).
+pub fn frame_keys_on_gpu(
+    ctx: &GpuContext,
+    keys: &FrameKeys,
+    table: &BlockTable,
+) -> Result<ResolvedKeys> {
+    let uniforms = keys.uniforms(table.mask());
+    let n = uniforms.block_count as usize;
+    if n == 0 {
+        return Ok((Vec::new(), Vec::new()));
+    }
+    let kernel = ctx.kernel(&shaders::FRAME_KEYS)?;
+    let scope = ErrorScopes::push(&ctx.device);
+    let buf_uniforms = ctx.uniform("frame_key_uniforms", bytemuck::bytes_of(&uniforms));
+    let buf_table = ctx.storage("block_table", bytemuck::cast_slice(table.entries()));
+    let buf_keys = ctx.storage("frame_keys", bytemuck::cast_slice(keys.words()));
+    let buf_slots = ctx.storage_zeroed("lookup_slots", n as u64 * 4);
+    let buf_bases = ctx.storage_zeroed("fuse_block_base", n as u64 * 16);
+    let bind = ctx.bind_group(
+        "frame_keys",
+        &kernel.layout,
+        &[&buf_uniforms, &buf_table, &buf_keys, &buf_slots, &buf_bases],
+    );
+    let mut encoder = ctx.encoder("frame_keys");
+    ctx.record_dispatch(&mut encoder, &kernel, &bind, n as u64)?;
+    ctx.submit(encoder);
+    scope.pop("resolving a frame's keys on the GPU")?;
+    let slots: Vec<u32> = ctx.read_back_as(&buf_slots, n)?;
+    let bases: Vec<[f32; 4]> = ctx.read_back_as(&buf_bases, n)?;
+    let slots = (slots.into_iter())
+        .map(|s| (s < SLOT_TOMBSTONE).then_some(s))
+        .collect();
+    Ok((slots, bases))
 }
 
 /// The frame's fusion uniforms (with `voxel_count` 0: set per dispatch), from the plan's

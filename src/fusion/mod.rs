@@ -22,6 +22,7 @@ mod band;
 mod depth;
 mod depth_block;
 mod depth_gpu;
+mod depth_keys;
 mod lidar;
 mod lidar_gpu;
 mod lidar_resident;
@@ -32,7 +33,10 @@ pub use depth::{
     integrate_depth, integrate_depth_plan, visible_blocks, visible_blocks_in, DepthFusionParams,
     DepthGeometry, DepthPlan, ViewFrustum,
 };
-pub use depth_gpu::{integrate_depth_gpu, integrate_depth_resident};
+pub use depth_gpu::{
+    frame_keys_on_gpu, integrate_depth_gpu, integrate_depth_resident, ResolvedKeys,
+};
+pub use depth_keys::{pack_offset, unpack_offset, FrameKeys, OFFSET_BITS};
 pub(crate) use lidar::band_m;
 pub use lidar::{
     integrate_lidar, integrate_lidar_plan, integrate_lidar_reference, lidar_scan_blocks,

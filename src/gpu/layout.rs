@@ -197,6 +197,30 @@ pub struct LookupUniforms {
     pub pad: [u32; 2],
 }
 
+/// Uniforms of `shaders/frame_keys.wgsl` (WGSL twin: `FrameKeyUniforms` there): a depth frame's
+/// listed blocks as offsets from its origin block, and the affine map from an offset to the
+/// block's base in 96-bit fixed point ([`crate::fusion::FrameKeys`] builds it).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct FrameKeyUniforms {
+    /// The origin block's key (xyz); w: words per key (1 packed, 3 wide).
+    pub origin: [i32; 4],
+    /// Per camera axis c, the origin block's base coordinate in units of 2⁻⁶⁴ m, two's
+    /// complement, as three 32-bit words (least significant first; w unused).
+    pub base: [[u32; 4]; 3],
+    /// Per world axis k and camera axis c (`steps[3k + c]`), the camera-frame step of one block
+    /// along k, in the same fixed point.
+    pub steps: [[u32; 4]; 9],
+    /// Listed blocks.
+    pub block_count: u32,
+    /// Hash-table capacity − 1 (the capacity is a power of two).
+    pub mask: u32,
+    /// Blocks from this index on are fused only where a frame created them (base w = 1).
+    pub first_unsettled: u32,
+    /// Padding to a multiple of 16 bytes.
+    pub pad: u32,
+}
+
 /// Uniforms of `shaders/clear_updated.wgsl` (WGSL twin: `SlotListUniforms` there).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
@@ -558,6 +582,7 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("FuseUniforms", std::mem::size_of::<FuseUniforms>()),
     ("GpuVoxel", std::mem::size_of::<GpuVoxel>()),
     ("LookupUniforms", std::mem::size_of::<LookupUniforms>()),
+    ("FrameKeyUniforms", std::mem::size_of::<FrameKeyUniforms>()),
     ("SlotListUniforms", std::mem::size_of::<SlotListUniforms>()),
     ("SlotFillUniforms", std::mem::size_of::<SlotFillUniforms>()),
     ("LidarUniforms", std::mem::size_of::<LidarUniforms>()),

@@ -165,6 +165,17 @@ pub const BLOCK_LOOKUP: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite]
 );
 
+/// A depth frame's listed blocks from their packed offsets: slots and bases.
+pub const FRAME_KEYS: ShaderSource = kernel!(
+    "frame_keys.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/block_hash.wgsl",
+        "shared/table_probe.wgsl"
+    ],
+    [Uniform, Read, Read, ReadWrite, ReadWrite]
+);
+
 /// Writes the empty block into listed pool slots given to new blocks.
 pub const FILL_SLOTS: ShaderSource = kernel!(
     "fill_slots.wgsl",
@@ -462,6 +473,7 @@ pub const ALL: &[ShaderSource] = &[
     FUSE_LIDAR_RESIDENT,
     // The GPU hash table and pool.
     BLOCK_LOOKUP,
+    FRAME_KEYS,
     CLEAR_UPDATED,
     FILL_SLOTS,
     // Stereo.

@@ -17,7 +17,9 @@ const GRID: GridParams = GridParams {
 };
 
 /// Fuses `frames` into a fresh map with `options`, frames in flight or not; `idle_every` > 0
-/// lets the device finish (uncounted) before every `idle_every`-th frame. Syncs at the end.
+/// lets the device finish (uncounted) before every `idle_every`-th frame, and the frames that
+/// arrived be collected early; otherwise they are collected when the ring is full (as with a
+/// slow device, so that frames overlap whatever the device's speed). Syncs at the end.
 fn fuse(
     ctx: &Arc<GpuContext>,
     frames: &[DepthFrame],
@@ -27,6 +29,7 @@ fn fuse(
     let mut layer = Layer::new(GRID);
     let mut map = ResidentMap::new(ctx.clone(), GRID, options).expect("pool");
     map.set_frames_in_flight(in_flight);
+    map.set_collect_lazily(idle_every == 0);
     let params = DepthFusionParams::default();
     let mut updates = 0;
     for (k, f) in frames.iter().enumerate() {
@@ -110,6 +113,7 @@ fn lidar_scans_in_flight_between_depth_frames_leave_the_same_map() {
         let options = ResidentOptions::default();
         let mut map = ResidentMap::new(ctx.clone(), GRID, options).expect("pool");
         map.set_frames_in_flight(in_flight);
+        map.set_collect_lazily(true);
         let (depth, lidar) = (DepthFusionParams::default(), LidarFusionParams::default());
         let mut touched = Vec::new();
         // Frame, scan, frame, frame, scan, …: a scan's new blocks are listed by the frames

@@ -578,7 +578,8 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
             "{t:?}"
         );
         assert!(t.readback_bytes <= 4 * blocks + (4 << 10), "{t:?}");
-        assert_eq!(t.waits, 1, "{t:?}");
+        // At most one wait, for its own results (none where the device finished first).
+        assert!(t.waits <= 1, "{t:?}");
         // Every buffer and bind group is kept: the pairs written straight into the queue's
         // staging memory, the passes' uniforms copied from a table on the device (before: a
         // buffer of pairs and one of uniforms per pass, with a bind group each).

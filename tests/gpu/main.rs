@@ -8,11 +8,13 @@ mod depth_support;
 
 mod agreement;
 mod compare;
+mod frame_keys;
 mod in_flight;
 mod lidar;
 mod mesh;
 mod sgm;
 mod shaders;
 mod stereo;
+mod street;
 mod traffic;
 mod tv_resident;

@@ -43,6 +43,9 @@ pub(super) struct InFlight {
     unsettled: HashMap<BlockIndex, u32>,
     /// Whether frames may stay in flight after their call returns.
     pub(super) enabled: bool,
+    /// Whether a frame or scan first collects the frames whose results have arrived (else
+    /// only what the ring needs room for).
+    pub(super) lazy: bool,
     /// What collected frames touched and their voxel updates, until taken.
     touched: TouchedBlocks,
     voxel_updates: usize,
@@ -53,6 +56,13 @@ impl ResidentMap {
     /// later frames; see the module documentation), or not: then each waits for its own.
     pub fn set_frames_in_flight(&mut self, enabled: bool) {
         self.late.enabled = enabled;
+    }
+
+    /// Collects frames only when the readback ring is full or the map is read, not as soon as
+    /// their results arrive: as with a device slower than the host, whatever its speed (tests
+    /// use it to keep frames in flight on a fast device).
+    pub fn set_collect_lazily(&mut self, lazy: bool) {
+        self.late.lazy = lazy;
     }
 
     /// Whether depth frames and LiDAR scans may return before their results arrive.
@@ -115,7 +125,9 @@ impl ResidentMap {
     /// Before a frame or scan is listed: collects what has arrived and makes room for it in
     /// the readback ring.
     pub(crate) fn begin_in_flight(&mut self, layer: &mut Layer) -> Result<()> {
-        self.collect_frames(layer, false)?;
+        if !self.late.lazy {
+            self.collect_frames(layer, false)?;
+        }
         self.make_room_in_flight(layer)
     }
 

@@ -105,7 +105,7 @@ pub struct ResidentStats {
     pub residency_s: f64,
     /// Seconds in the lookup and fusion dispatches, waiting included, and the flag readback.
     pub kernel_s: f64,
-    /// Of `kernel_s`: preparing the frame's inputs (pixel words, block keys and bases) and
+    /// Of `kernel_s`: preparing the frame's inputs (images, packed block offsets) and
     /// writing them into the kept buffers, before the submit.
     pub inputs_s: f64,
     /// Seconds copying blocks back to RAM (syncs, flushes, spills).
