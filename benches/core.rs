@@ -10,6 +10,7 @@ mod common;
 use common::{orbit, vga, Rng, SphereScene};
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use denser::fusion::{integrate_depth, integrate_lidar, DepthFusionParams, LidarFusionParams};
+use denser::fusion::{visible_blocks_by_scan, visible_blocks_in, ViewFrustum};
 use denser::grid::{BlockIndex, VOXELS_PER_BLOCK};
 use denser::grid::{GridParams, Layer};
 use denser::mesh::{extract_mesh, Field};
@@ -255,12 +256,59 @@ fn tv_drive(c: &mut Criterion) {
     g.finish();
 }
 
+/// The allocated blocks in view of a KITTI-sized frame halfway down a 2 km street held in RAM
+/// (10 cm voxels; a road slab and two facades, 140 blocks per 0.8 m of street): the layer's
+/// every block tested, against the frustum's box of blocks looked up.
+fn visible_blocks(c: &mut Criterion) {
+    let grid = GridParams::paper(0.1);
+    let mut layer = Layer::new(grid);
+    for z in 0..2500 {
+        for x in -12..13 {
+            for y in [2, 3] {
+                layer.get_or_allocate(BlockIndex([x, y, z]));
+            }
+        }
+        for x in [-12, -11, -10, 10, 11, 12] {
+            for y in -12..3 {
+                layer.get_or_allocate(BlockIndex([x, y, z]));
+            }
+        }
+    }
+    let frame = denser::frame::DepthFrame {
+        intrinsics: denser::camera::PinholeIntrinsics {
+            fx: 718.856,
+            fy: 718.856,
+            cx: 607.19,
+            cy: 185.22,
+            width: 1241,
+            height: 376,
+        },
+        world_from_camera: nalgebra::Isometry3::translation(0.0, 0.0, 1000.0),
+        depth_m: denser::frame::Image::filled(1241, 376, 10.0),
+        color: None,
+    };
+    let frustum = ViewFrustum::new(&frame, &DepthFusionParams::default(), 0.8);
+    assert_eq!(
+        visible_blocks_in(&layer, &frustum),
+        visible_blocks_by_scan(&layer, &frustum)
+    );
+    let mut g = c.benchmark_group("visible_blocks_2km_street");
+    g.bench_function(format!("scan_{}_blocks", layer.block_count()), |b| {
+        b.iter(|| visible_blocks_by_scan(&layer, &frustum))
+    });
+    g.bench_function("frustum_box", |b| {
+        b.iter(|| visible_blocks_in(&layer, &frustum))
+    });
+    g.finish();
+}
+
 criterion_group!(
     benches,
     fusion,
     lidar,
     regularize_and_mesh,
     tv_dense,
-    tv_drive
+    tv_drive,
+    visible_blocks
 );
 criterion_main!(benches);

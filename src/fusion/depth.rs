@@ -46,6 +46,8 @@ pub struct ViewFrustum {
     camera_from_world: nalgebra::Isometry3<f64>,
     /// Unit inward normals of the side planes (through the camera centre), camera frame.
     sides: [Vector3<f64>; 4],
+    /// The widened image borders on the plane z = 1: x0, x1, y0, y1.
+    borders: [f64; 4],
     far_m: f64,
 }
 
@@ -69,8 +71,39 @@ impl ViewFrustum {
         ViewFrustum {
             camera_from_world: frame.world_from_camera.inverse(),
             sides,
+            borders: [x0, x1, y0, y1],
             far_m: params.max_depth_m as f64 + truncation_m,
         }
+    }
+
+    /// The box of block indices (first and last, inclusive) holding every block that
+    /// [`ViewFrustum::meets_block`] passes: the world bounding box of the frustum with each
+    /// side moved out by a block's bounding radius (the set of centres that pass), whose cross
+    /// sections are rectangles linear in z, so its eight corners at the two ends bound it.
+    pub fn block_box(&self, grid: &GridParams) -> ([i64; 3], [i64; 3]) {
+        let s = grid.block_size_m();
+        let r = 0.5 * s * 3f64.sqrt();
+        let [x0, x1, y0, y1] = self.borders;
+        // Out-moved sides: x ≥ x0·z − r·|(1, −x0)|, and so on.
+        let grow = |a: f64| r * (1.0 + a * a).sqrt();
+        let world_from_camera = self.camera_from_world.inverse();
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for z in [-r, self.far_m + r] {
+            for x in [x0 * z - grow(x0), x1 * z + grow(x1)] {
+                for y in [y0 * z - grow(y0), y1 * z + grow(y1)] {
+                    let w = world_from_camera * Point3::new(x, y, z);
+                    for k in 0..3 {
+                        lo[k] = lo[k].min(w[k]);
+                        hi[k] = hi[k].max(w[k]);
+                    }
+                }
+            }
+        }
+        // Centres (i + ½)·s within [lo, hi], one block of margin for rounding.
+        (
+            lo.map(|v| (v / s - 0.5).floor() as i64 - 1),
+            hi.map(|v| (v / s - 0.5).ceil() as i64 + 1),
+        )
     }
 
     /// Whether the sphere of `radius_m` around world point `centre` meets every half-space.
@@ -104,13 +137,70 @@ pub fn visible_blocks(
     visible_blocks_in(layer, &frustum)
 }
 
-/// [`visible_blocks`] for a frustum already built.
+/// [`visible_blocks`] for a frustum already built. Where the frustum's box of blocks
+/// ([`ViewFrustum::block_box`]) holds fewer positions than the layer has blocks (a long drive
+/// in RAM), it looks those positions up; otherwise it tests every block of the layer. Both
+/// give the same blocks.
 pub fn visible_blocks_in(layer: &Layer, frustum: &ViewFrustum) -> TouchedBlocks {
+    let (first, last) = frustum.block_box(&layer.params());
+    let positions = (0..3).fold(1u128, |n, k| n * (last[k] - first[k] + 1).max(0) as u128);
+    if positions < layer.block_count() as u128 {
+        visible_blocks_in_box(layer, frustum, (first, last))
+    } else {
+        visible_blocks_by_scan(layer, frustum)
+    }
+}
+
+/// [`visible_blocks_in`], testing every block of the layer (what it does for a layer smaller
+/// than the frustum's box of blocks).
+pub fn visible_blocks_by_scan(layer: &Layer, frustum: &ViewFrustum) -> TouchedBlocks {
     let grid = layer.params();
     let all: Vec<BlockIndex> = layer.iter_unsorted().map(|(i, _)| *i).collect();
     let mut v: Vec<BlockIndex> = all
         .into_par_iter()
         .filter(|i| frustum.meets_block(&grid, *i))
+        .collect();
+    v.par_sort_unstable();
+    v
+}
+
+/// Edge of the tiles of block positions [`visible_blocks_in_box`] tests as a whole, blocks.
+const BOX_TILE: i32 = 4;
+
+/// [`visible_blocks_in`], looking up the positions of the box `(first, last)` (inclusive): tile
+/// by tile of [`BOX_TILE`]³ positions, skipping a tile whose bounding sphere (which holds its
+/// blocks' spheres) misses the frustum, then testing each position against the frustum before
+/// looking it up.
+fn visible_blocks_in_box(
+    layer: &Layer,
+    frustum: &ViewFrustum,
+    (first, last): ([i64; 3], [i64; 3]),
+) -> TouchedBlocks {
+    let grid = layer.params();
+    let s = grid.block_size_m();
+    let clamp = |v: i64| v.clamp(i32::MIN as i64 / 2, i32::MAX as i64 / 2) as i32;
+    let (first, last) = (first.map(clamp), last.map(clamp));
+    let tiles = [0, 1, 2].map(|k| (last[k] - first[k]) / BOX_TILE + 1);
+    let tile_radius_m = 0.5 * BOX_TILE as f64 * s * 3f64.sqrt();
+    let mut v: Vec<BlockIndex> = (0..tiles[0] * tiles[1] * tiles[2])
+        .into_par_iter()
+        .flat_map_iter(|t| {
+            let tile = [
+                t % tiles[0],
+                (t / tiles[0]) % tiles[1],
+                t / (tiles[0] * tiles[1]),
+            ];
+            let lo = [0, 1, 2].map(|k| first[k] + tile[k] * BOX_TILE);
+            let hi = [0, 1, 2].map(|k| (lo[k] + BOX_TILE - 1).min(last[k]));
+            let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k] + 1) as f64 * s);
+            let meets = frustum.meets_sphere(centre, tile_radius_m);
+            let (lo, hi) = if meets { (lo, hi) } else { ([0; 3], [-1; 3]) };
+            (lo[0]..=hi[0]).flat_map(move |x| {
+                (lo[1]..=hi[1])
+                    .flat_map(move |y| (lo[2]..=hi[2]).map(move |z| BlockIndex([x, y, z])))
+            })
+        })
+        .filter(|b| frustum.meets_block(&grid, *b) && layer.contains(b))
         .collect();
     v.par_sort_unstable();
     v
@@ -306,4 +396,65 @@ pub fn integrate_depth_plan(
         measurements: plan.measurements,
     };
     (touched, stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::PinholeIntrinsics;
+    use crate::frame::Image;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    #[test]
+    fn the_frustums_box_holds_every_block_in_view() {
+        // Blocks scattered around cameras in many poses: looking the box's positions up finds
+        // exactly the blocks the scan of the layer finds.
+        let grid = GridParams::paper(0.2);
+        let params = DepthFusionParams {
+            max_depth_m: 12.0,
+            ..Default::default()
+        };
+        let mut rng = 0x1234_5678_9abc_def0u64;
+        let mut next = move || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut layer = Layer::new(grid);
+        for _ in 0..20_000 {
+            let b = [0; 3].map(|_| (next() * 40.0) as i32 - 20);
+            layer.get_or_allocate(BlockIndex(b));
+        }
+        let mut seen = 0;
+        for k in 0..40 {
+            let rot = UnitQuaternion::from_euler_angles(
+                next() * 6.3 - 3.15,
+                next() * 6.3 - 3.15,
+                next() * 6.3 - 3.15,
+            );
+            let t = [0; 3].map(|_| next() * 20.0 - 10.0);
+            let (w, h) = if k % 2 == 0 { (1241, 376) } else { (64, 480) };
+            let frame = DepthFrame {
+                intrinsics: PinholeIntrinsics {
+                    fx: 300.0 + next() * 500.0,
+                    fy: 300.0 + next() * 500.0,
+                    cx: w as f64 * next(),
+                    cy: h as f64 * next(),
+                    width: w,
+                    height: h,
+                },
+                world_from_camera: Isometry3::from_parts(Translation3::new(t[0], t[1], t[2]), rot),
+                depth_m: Image::filled(w, h, 1.0),
+                color: None,
+            };
+            let frustum = ViewFrustum::new(&frame, &params, grid.truncation_m as f64);
+            let by_scan = visible_blocks_by_scan(&layer, &frustum);
+            let boxed = visible_blocks_in_box(&layer, &frustum, frustum.block_box(&grid));
+            assert_eq!(by_scan, boxed, "pose {k}");
+            assert_eq!(visible_blocks_in(&layer, &frustum), by_scan);
+            seen += by_scan.len();
+        }
+        assert!(seen > 3_000, "{seen} blocks in view");
+    }
 }

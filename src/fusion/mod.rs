@@ -30,8 +30,8 @@ pub mod traverse;
 
 pub use band::{depth_frame_blocks, depth_frame_blocks_exact, BAND_TILE_PX};
 pub use depth::{
-    integrate_depth, integrate_depth_plan, visible_blocks, visible_blocks_in, DepthFusionParams,
-    DepthGeometry, DepthPlan, ViewFrustum,
+    integrate_depth, integrate_depth_plan, visible_blocks, visible_blocks_by_scan,
+    visible_blocks_in, DepthFusionParams, DepthGeometry, DepthPlan, ViewFrustum,
 };
 pub use depth_gpu::{
     frame_keys_on_gpu, integrate_depth_gpu, integrate_depth_resident, ResolvedKeys,
