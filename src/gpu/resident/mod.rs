@@ -274,11 +274,11 @@ impl ResidentMap {
         self.stats.inputs_s += inputs_s;
     }
 
-    /// Makes every block of `blocks` (sorted; at most [`ResidentMap::max_blocks`]) resident:
-    /// grows or spills ([`policy`]) to free the slots it needs, uploads the missing blocks (the
-    /// layer's copy, or empty) and the changed table entries. The empty blocks are written on
-    /// the device by a dispatch recorded into `encoder` (a frame's, to be submitted with its
-    /// kernels) or, without one, submitted alone.
+    /// Makes every block of `blocks` (no repeats, in any order; at most
+    /// [`ResidentMap::max_blocks`]) resident: grows or spills ([`policy`]) to free the slots it
+    /// needs, uploads the missing blocks (the layer's copy, or empty) and the changed table
+    /// entries. The empty blocks are written on the device by a dispatch recorded into
+    /// `encoder` (a frame's, to be submitted with its kernels) or, without one, submitted alone.
     pub(crate) fn make_resident(
         &mut self,
         layer: &mut Layer,
