@@ -23,6 +23,7 @@ use crate::fusion::{
     integrate_depth_plan, integrate_depth_resident, integrate_lidar_plan, integrate_lidar_resident,
     DepthFusionParams, DepthPlan, FusionStats, LidarPlan,
 };
+use crate::gpu::kept::Kept;
 use crate::gpu::shaders::{self, ShaderSource};
 use crate::gpu::{
     DeviceChoice, GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats, StageTally,
@@ -30,7 +31,7 @@ use crate::gpu::{
 use crate::grid::{BlockIndex, Layer, TouchedBlocks};
 use crate::mesh::{extract_mesh, extract_mesh_gpu_from, Field, Mesh, SampleSource};
 use crate::regularize::{
-    regularize_resident, solve_gpu, CpuSolver, RegularizeStats, TvParams, TvProblem, TvSolver,
+    regularize_resident, solve_gpu_kept, CpuSolver, RegularizeStats, TvParams, TvProblem, TvSolver,
 };
 use crate::store::UpperTier;
 use crate::{Error, Result};
@@ -304,6 +305,8 @@ pub struct Backend {
     traffic: StageTraffic,
     /// The traffic of the stereo matchers made by [`Backend::stereo_matcher`].
     stereo_tally: StageTally,
+    /// The TV solves' buffers, kept from region to region ([`Backend::release_tv_buffers`]).
+    tv_kept: Kept,
 }
 
 /// The GPU traffic of `work` added to `into` (nothing without a GPU).
@@ -343,6 +346,7 @@ impl Backend {
             tv: TvDevices::default(),
             traffic: StageTraffic::default(),
             stereo_tally: StageTally::default(),
+            tv_kept: Kept::default(),
         }
     }
 
@@ -492,9 +496,9 @@ impl Backend {
         Ok(resident.as_mut().expect("just opened"))
     }
 
-    /// Lets GPU depth frames return before their results arrive, collected by later frames or
-    /// the next sync (`src/gpu/resident/late.rs`): for a map held whole in RAM, whose store
-    /// needs no frame's touched blocks at once. Off by default: each frame waits for its own.
+    /// Lets GPU depth frames return before their results arrive, collected by later frames, the
+    /// next sync or [`UpperTier::settle`] (`src/gpu/resident/late.rs`). Off by default: each
+    /// frame waits for its own.
     pub fn set_frames_in_flight(&mut self, enabled: bool) {
         self.frames_in_flight = enabled;
         if let Some(r) = self.resident.as_mut() {
@@ -524,6 +528,12 @@ impl Backend {
         counted(Some(&ctx), &mut t.lidar, &mut t.lidar_scans, || {
             integrate_lidar_resident(resident, layer, plan)
         })
+    }
+
+    /// Gives back the buffers the TV solves kept from region to region (sized for the largest
+    /// region): after a regularization.
+    pub fn release_tv_buffers(&mut self) {
+        self.tv_kept = Kept::default();
     }
 
     /// Writes every GPU-resident block back and releases them all (the GPU holds nothing
@@ -595,6 +605,11 @@ impl UpperTier for Backend {
         self.write_back(|r| r.sync(layer).map(|_| ()))
     }
 
+    /// Collects the GPU's frames in flight (counted as a write-back: their flags come back).
+    fn settle(&mut self, layer: &mut Layer, keep_newest: bool) -> Result<Vec<BlockIndex>> {
+        self.write_back(|r| r.settle(layer, keep_newest))
+    }
+
     /// On the GPU when meshing is placed there (the CPU mesher's twin), else on the CPU.
     fn mesh(&mut self, layer: &Layer, field: Field) -> Result<Mesh> {
         let Some(ctx) = self.gpu_if(self.stages.mesh).cloned() else {
@@ -620,7 +635,7 @@ impl TvSolver for Backend {
         if let Some(ctx) = self.gpu.as_ref().filter(|_| self.stages.tv) {
             let t = &mut self.traffic;
             let solved = counted(Some(ctx), &mut t.tv, &mut t.tv_solves, || {
-                solve_gpu(ctx, problem, params)
+                solve_gpu_kept(ctx, &mut self.tv_kept, problem, params)
             });
             match solved {
                 Ok(()) => {

@@ -169,8 +169,9 @@ impl Reconstructor {
         }
         let frames_total = store.frames_committed();
         let mut backend = backend;
-        // A store that pages needs each frame's touched blocks when the frame ends.
-        backend.set_frames_in_flight(store.holds_whole_map());
+        // Frames return once submitted; a store that pages settles them before blocks leave
+        // RAM and before its checkpoints (`UpperTier::settle`).
+        backend.set_frames_in_flight(true);
         Ok(Reconstructor {
             config,
             store,
@@ -276,16 +277,15 @@ impl Reconstructor {
     }
 
     /// Lets GPU depth frames and LiDAR scans return before the device has run them (on by
-    /// default where the map is held whole in RAM; never for a paged map): a frame's touched
-    /// blocks then come back with a later call, and the layer learns its blocks at the latest
-    /// with [`Reconstructor::sync`]. Off, each call waits for its own frame and returns what
-    /// it touched.
+    /// default): a frame's touched blocks then come back with a later call, and the layer
+    /// learns its blocks at the latest with [`Reconstructor::sync`] (a paged map's store
+    /// settles the frames before it evicts or checkpoints). Off, each call waits for its own
+    /// frame and returns what it touched.
     pub fn set_frames_in_flight(&mut self, enabled: bool) -> crate::Result<()> {
         if !enabled {
             self.sync()?;
         }
-        self.backend
-            .set_frames_in_flight(enabled && self.store.holds_whole_map());
+        self.backend.set_frames_in_flight(enabled);
         Ok(())
     }
 
@@ -381,7 +381,9 @@ impl Reconstructor {
         if !self.store.holds_whole_map() {
             self.backend.flush_all(self.store.layer_mut())?;
         }
-        let summary = self.store.regularize(&tv, &mut self.backend, progress)?;
+        let summary = self.store.regularize(&tv, &mut self.backend, progress);
+        self.backend.release_tv_buffers();
+        let summary = summary?;
         let seconds = t.elapsed().as_secs_f64();
         self.timings.regularize_s += seconds;
         self.timings.voxel_iterations += summary.omega_voxels * summary.iterations as u64;

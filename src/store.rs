@@ -29,6 +29,15 @@ pub trait UpperTier {
     /// Writes every changed block back into `layer` (blocks stay): the layer is about to be
     /// read whole (a checkpoint, regularization, meshing).
     fn sync(&mut self, layer: &mut Layer) -> Result<()>;
+    /// Collects the frames still in flight on the tier (fusion calls that returned before the
+    /// device ran them), but, with `keep_newest`, the one submitted last, waiting where it must,
+    /// and returns the blocks touched by the frames collected since a fusion call last returned
+    /// its touched blocks (the next call returns them too): a store marks them changed before it
+    /// evicts blocks (keeping the newest frame's blocks, which may stay in flight) or makes a
+    /// checkpoint (all). The layer then holds every block the collected frames created.
+    fn settle(&mut self, _layer: &mut Layer, _keep_newest: bool) -> Result<Vec<BlockIndex>> {
+        Ok(Vec::new())
+    }
     /// Marching cubes over every block of `layer` (synced) on the tier's device: the CPU
     /// mesher unless the tier's device has a twin.
     fn mesh(&mut self, layer: &Layer, field: Field) -> Result<Mesh> {
@@ -161,7 +170,9 @@ pub trait BlockStore {
     /// Whether every block of the map stays in [`BlockStore::layer`] for the store's life (an
     /// in-memory map): a tier above RAM may then keep its copies through a regularization, and
     /// regularize them where they are ([`TvSolver::solve_in_place`]). A store that pages blocks
-    /// during a regularization says false, and the tier is emptied first.
+    /// during a regularization says false, and the tier is emptied first. Either kind lets
+    /// frames stay in flight on the tier: a store that pages settles them
+    /// ([`UpperTier::settle`]) before blocks leave RAM and before a checkpoint.
     fn holds_whole_map(&self) -> bool {
         false
     }
@@ -176,9 +187,10 @@ pub trait BlockStore {
     /// Makes resident the sorted `blocks` (a LiDAR scan's band).
     fn prepare_blocks(&mut self, blocks: &[BlockIndex]) -> Result<()>;
 
-    /// After a frame that updated `touched` (sorted), with the camera at `camera_m`: records
-    /// the changes and may evict blocks to stay within a budget (`tier` writes its copies back
-    /// first).
+    /// After a frame that updated `touched` (sorted; with frames in flight on `tier`, what the
+    /// frames collected since the last call touched), with the camera at `camera_m`: records
+    /// the changes and may evict blocks to stay within a budget (`tier` settled and its copies
+    /// written back first).
     fn finish_frame(
         &mut self,
         touched: &[BlockIndex],

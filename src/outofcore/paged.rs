@@ -236,6 +236,13 @@ impl BlockStore for PagedStore {
         let keep = std::mem::take(&mut self.keep);
         let pager = self.pager()?;
         pager.mark_dirty(touched);
+        if pager.needs_eviction(&keep)? {
+            // Blocks leave RAM: the frames still in flight on the tier land first, so that the
+            // chunks they changed are written and the blocks they created go with their chunk.
+            // This frame's blocks lie in `keep`, which stays: it may stay in flight.
+            let late = tier.settle(pager.layer_mut(), true)?;
+            pager.mark_dirty(&late);
+        }
         pager.evict_to_budget_with(camera_m, &keep, &mut |layer, blocks| {
             tier.release(layer, blocks)
         })
@@ -247,6 +254,8 @@ impl BlockStore for PagedStore {
             return Ok(());
         }
         let pager = self.pager()?;
+        let late = tier.settle(pager.layer_mut(), false)?;
+        pager.mark_dirty(&late);
         tier.sync(pager.layer_mut())?;
         pager.checkpoint(frames_fused)?;
         self.frames_last_commit = frames_fused;
@@ -290,6 +299,8 @@ impl BlockStore for PagedStore {
         tier: &mut dyn UpperTier,
     ) -> Result<SurfaceOutput> {
         if let State::Paging(p) = &mut self.state {
+            let late = tier.settle(p.layer_mut(), false)?;
+            p.mark_dirty(&late);
             tier.sync(p.layer_mut())?;
         }
         let surfaces = self.surfaces;

@@ -320,6 +320,14 @@ impl Pager {
         v
     }
 
+    /// Whether [`Pager::evict_to_budget`] with `keep` would evict a chunk now: the used bytes
+    /// exceed the budget and a chunk outside `keep` is resident.
+    pub fn needs_eviction(&mut self, keep: &HashSet<ChunkIndex>) -> Result<bool> {
+        self.drain_done()?;
+        Ok(self.used_bytes() > self.config.budget_bytes
+            && self.resident.keys().any(|c| !keep.contains(c)))
+    }
+
     /// Evicts chunks, farthest from `camera_world_m` first, until the used bytes fit the budget;
     /// chunks in `keep` (the current frame's working set) stay. Dirty chunks go to the writers;
     /// clean ones are dropped (their file is current).
@@ -331,9 +339,10 @@ impl Pager {
         self.evict_to_budget_with(camera_world_m, keep, &mut |_, _| Ok(()))
     }
 
-    /// [`Pager::evict_to_budget`] calling `before_evict(layer, blocks)` with each chunk's blocks
-    /// just before they leave RAM: the hook of a tier above RAM (the GPU's resident blocks,
-    /// through [`crate::store::UpperTier::release`]) to write its newer copies back first.
+    /// [`Pager::evict_to_budget`] calling `before_evict(layer, blocks)` once, with the blocks of
+    /// every chunk about to leave RAM, just before they leave: the hook of a tier above RAM (the
+    /// GPU's resident blocks, through [`crate::store::UpperTier::release`]) to write its newer
+    /// copies back first, in one readback.
     /// Chunks leave in [`eviction_order`], the order every tier uses.
     pub fn evict_to_budget_with(
         &mut self,
@@ -356,11 +365,27 @@ impl Pager {
                     last_used: 0,
                 })
                 .collect();
+            // The chunks to evict, chosen first so that the tier above writes their blocks
+            // back at once (one readback, not one per chunk): a clean chunk's bytes leave at
+            // once, a dirty one's count until its writer is done (as in `evict`).
+            let mut used = self.used_bytes();
+            let mut chosen: Vec<(ChunkIndex, Vec<BlockIndex>)> = Vec::new();
             for c in eviction_order(candidates, camera_world_m) {
-                if self.used_bytes() <= self.config.budget_bytes {
+                if used <= self.config.budget_bytes {
                     break;
                 }
-                self.evict(c, before_evict)?;
+                let indices = self.blocks_of(c);
+                if !self.resident[&c].dirty || indices.is_empty() {
+                    used -= indices.len() as u64 * BLOCK_RESIDENT_BYTES;
+                }
+                chosen.push((c, indices));
+            }
+            if !chosen.is_empty() {
+                let all: Vec<BlockIndex> = chosen.iter().flat_map(|(_, b)| b).copied().collect();
+                before_evict(&mut self.layer, &all)?;
+            }
+            for (c, indices) in chosen {
+                self.evict(c, &indices)?;
             }
         }
         self.trim.check();
@@ -386,18 +411,10 @@ impl Pager {
         Ok(())
     }
 
-    fn evict(
-        &mut self,
-        c: ChunkIndex,
-        before_evict: &mut dyn FnMut(&mut Layer, &[BlockIndex]) -> Result<()>,
-    ) -> Result<()> {
-        if !self.resident.contains_key(&c) {
-            return Ok(());
-        }
-        let indices = self.blocks_of(c);
-        before_evict(&mut self.layer, &indices)?;
-        let r = self.resident.remove(&c).expect("checked");
-        let blocks = self.layer.take_blocks(&indices);
+    /// Evicts resident chunk `c` of blocks `indices` (the tier above has written them back).
+    fn evict(&mut self, c: ChunkIndex, indices: &[BlockIndex]) -> Result<()> {
+        let r = self.resident.remove(&c).expect("a resident chunk");
+        let blocks = self.layer.take_blocks(indices);
         self.stats.chunks_evicted += 1;
         if !r.dirty || blocks.is_empty() {
             return Ok(());

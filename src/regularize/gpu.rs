@@ -10,6 +10,7 @@
 //! 128 MiB); a larger problem is an [`crate::Error::GpuCapacity`], never truncated — solve it
 //! in regions with [`regularize_regions_gpu`] and an exact halo instead (the same result).
 
+use crate::gpu::kept::Kept;
 use crate::gpu::layout::TvUniforms;
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext, Kernel};
@@ -34,6 +35,19 @@ const ITERATIONS_PER_SUBMIT: u32 = 64;
 /// then `ū` is copied from `f` on the device and `p` starts as zeros there). Down: 4 bytes per
 /// voxel, or 20 with the iterates kept.
 pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -> Result<()> {
+    solve_gpu_kept(ctx, &mut Kept::default(), problem, params)
+}
+
+/// [`solve_gpu`] with its buffers, bind groups and readback staging kept in `kept` between
+/// calls (grown to the largest problem, never shrunk): a driver that solves region after region
+/// creates nothing once the first regions have sized them. The last iterations are submitted
+/// with the copy of the result into the staging buffer.
+pub(crate) fn solve_gpu_kept(
+    ctx: &GpuContext,
+    kept: &mut Kept,
+    problem: &mut TvProblem,
+    params: &TvParams,
+) -> Result<()> {
     params.validate()?;
     let n = problem.masks().len();
     if n == 0 || params.iterations == 0 {
@@ -56,28 +70,26 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
     let fresh = problem.iterates_fresh();
     let scope = ErrorScopes::push(&ctx.device);
     let (u, ubar, p) = problem.state();
-    let buf_uniforms = ctx.uniform("tv_uniforms", bytemuck::bytes_of(&uniforms));
+    let buf_uniforms = kept.uniform_with(ctx, "tv_uniforms", bytemuck::bytes_of(&uniforms));
     // The table as it is (six u32 per voxel), not flattened into a copy.
-    let buf_neighbors = ctx.storage(
-        "tv_neighbors",
-        bytemuck::cast_slice(problem.neighbor_table()),
-    );
-    let buf_mask = ctx.storage("tv_mask", bytemuck::cast_slice(&mask));
-    let buf_f = ctx.storage("tv_f", bytemuck::cast_slice(&problem.f));
-    let buf_w = ctx.storage("tv_w", bytemuck::cast_slice(&problem.w));
-    let buf_u = ctx.storage("tv_u", bytemuck::cast_slice(u));
-    let mut encoder = ctx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("tv") });
+    let table = bytemuck::cast_slice(problem.neighbor_table());
+    let buf_neighbors = kept.storage_with(ctx, "tv_neighbors", table);
+    let buf_mask = kept.storage_with(ctx, "tv_mask", bytemuck::cast_slice(&mask));
+    let buf_f = kept.storage_with(ctx, "tv_f", bytemuck::cast_slice(&problem.f));
+    let buf_w = kept.storage_with(ctx, "tv_w", bytemuck::cast_slice(&problem.w));
+    let buf_u = kept.storage_with(ctx, "tv_u", bytemuck::cast_slice(u));
+    let mut encoder = ctx.encoder("tv");
     let (buf_ubar, buf_p) = if fresh {
         // ū = f and p = 0: made where they are used.
-        let ubar = ctx.storage_zeroed("tv_ubar", n64 * 4);
+        let ubar = kept.scratch(ctx, "tv_ubar", n64 * 4);
         encoder.copy_buffer_to_buffer(&buf_f, 0, &ubar, 0, n64 * 4);
-        (ubar, ctx.storage_zeroed("tv_p", n64 * 12))
+        let p = kept.scratch(ctx, "tv_p", n64 * 12);
+        encoder.clear_buffer(&p, 0, Some(n64 * 12));
+        (ubar, p)
     } else {
         (
-            ctx.storage("tv_ubar", bytemuck::cast_slice(ubar)),
-            ctx.storage("tv_p", bytemuck::cast_slice(p)),
+            kept.storage_with(ctx, "tv_ubar", bytemuck::cast_slice(ubar)),
+            kept.storage_with(ctx, "tv_p", bytemuck::cast_slice(p)),
         )
     };
     let buffers = TvBuffers {
@@ -93,35 +105,40 @@ pub fn solve_gpu(ctx: &GpuContext, problem: &mut TvProblem, params: &TvParams) -
     .bindings();
     // The two kernels declare the same bindings (shared/tv_common.wgsl); each pipeline has its
     // own layout object: one bind group per kernel.
-    let bind_dual = ctx.bind_group("tv_dual", &dual.layout, &buffers);
-    let bind_primal = ctx.bind_group("tv_primal", &primal.layout, &buffers);
+    let bind_dual = kept.bind_group(ctx, "tv_dual", &dual.layout, &buffers);
+    let bind_primal = kept.bind_group(ctx, "tv_primal", &primal.layout, &buffers);
     let mut left = params.iterations;
-    while left > 0 {
+    loop {
         let batch = left.min(ITERATIONS_PER_SUBMIT);
         left -= batch;
         let steps = [(&*dual, &bind_dual), (&*primal, &bind_primal)];
         record_iterations(ctx, &mut encoder, steps, n64, batch)?;
+        if left == 0 {
+            break;
+        }
         ctx.submit(encoder);
-        encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("tv") });
+        encoder = ctx.encoder("tv");
     }
-    drop(encoder);
-    scope.pop("running the TV kernels")?;
     // Straight into the problem's arrays (one copy, no intermediate vectors).
-    if problem.keeps_iterates() {
+    let read = if problem.keeps_iterates() {
         let (u, ubar, p) = problem.state_mut();
-        ctx.read_back_into(&mut [
-            (&buf_u, bytemuck::cast_slice_mut(u)),
-            (&buf_ubar, bytemuck::cast_slice_mut(ubar)),
-            (&buf_p, bytemuck::cast_slice_mut(p)),
-        ])?;
+        ctx.submit_and_read_back(
+            encoder,
+            kept,
+            &mut [
+                (&buf_u, bytemuck::cast_slice_mut(u)),
+                (&buf_ubar, bytemuck::cast_slice_mut(ubar)),
+                (&buf_p, bytemuck::cast_slice_mut(p)),
+            ],
+        )
     } else {
         // The iterates on the host are stale from here: released, so nothing can read them.
         problem.release_iterates();
-        ctx.read_back_into(&mut [(&buf_u, bytemuck::cast_slice_mut(&mut problem.u))])?;
-    }
-    Ok(())
+        let u = bytemuck::cast_slice_mut(&mut problem.u);
+        ctx.submit_and_read_back(encoder, kept, &mut [(&buf_u, u)])
+    };
+    scope.pop("running the TV kernels")?;
+    read
 }
 
 /// The buffers `tv_dual.wgsl` and `tv_primal.wgsl` bind (`shared/tv_common.wgsl`).

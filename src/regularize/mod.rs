@@ -615,6 +615,7 @@ mod sweep;
 #[cfg(test)]
 mod tests;
 
+pub(crate) use gpu::solve_gpu_kept;
 pub use gpu::{regularize_layer_gpu, regularize_regions_gpu, solve_gpu, GpuSolver};
 pub use regions::{regularize_regions, regularize_regions_with, RegionPlan, RegionStats};
 pub use resident::regularize_resident;

@@ -467,6 +467,68 @@ fn gpu_tier_paged_fusion_equals_in_memory_gpu_fusion() {
 }
 
 #[test]
+fn paged_gpu_frames_stay_in_flight_and_store_the_map_of_frames_that_wait() {
+    // A paged map lets the GPU's depth frames return once submitted: its store settles them
+    // (`UpperTier::settle`, all but the newest frame) before chunks leave RAM and before each
+    // checkpoint (all). With a device that keeps up, a frame never waits for its own results
+    // (at most for the blocks its evictions read back), and the map on disk is the one of
+    // frames that each wait for theirs.
+    use denser::gpu::ResidentOptions;
+    let Some(ctx) = common::gpu() else { return };
+    let ctx = std::sync::Arc::new(ctx);
+    let frames = views();
+    let dir = tempfile::tempdir().expect("tempdir");
+    let checkpoint_every = 4;
+    let run = |name: &str, in_flight: bool| {
+        let backend = Backend::gpu(ctx.clone(), ResidentOptions::default());
+        let path = dir.path().join(name);
+        let mut rec = paged(&path, PAGED_GPU_BUDGET, checkpoint_every, backend);
+        rec.set_frames_in_flight(in_flight).expect("in flight");
+        let mut per_frame = Vec::new();
+        for f in &frames {
+            // The device keeps up (a real GPU does): the frame before has arrived.
+            ctx.wait_idle_uncounted().expect("idle");
+            let evicted = |r: &Reconstructor| r.summary().paging.expect("paged").chunks_evicted;
+            let (before, evicted_before) = (ctx.traffic(), evicted(&rec));
+            rec.fuse_depth(f).expect("fuse");
+            per_frame.push((ctx.traffic().since(before), evicted(&rec) > evicted_before));
+        }
+        let (store, stats) = finish(rec, &path);
+        (store_layer(&store), per_frame, stats)
+    };
+    let (waited, _, waited_stats) = run("waiting", false);
+    let (late, per_frame, stats) = run("in_flight", true);
+    eprintln!("pager, frames waiting {waited_stats:?}\npager, frames in flight {stats:?}");
+    let (mut evicting, mut evicting_without_wait) = (0, 0);
+    for (k, (t, evicted)) in per_frame.iter().enumerate() {
+        eprintln!("frame {k}: evicted {evicted}, {t:?}");
+        let checkpoint = (k as u64 + 1).is_multiple_of(checkpoint_every);
+        if checkpoint || k < 2 {
+            continue; // a checkpoint waits for every frame and copies the dirty blocks back
+        }
+        // The frame's own submit is never waited for; the one wait left is the readback of
+        // the GPU's copies of blocks whose chunks leave RAM (more than the flags' few KiB).
+        let evicted_blocks_came_back = t.readback_bytes > 64 << 10;
+        assert_eq!(t.submits, 1 + t.waits, "frame {k}: {t:?}");
+        assert!(
+            t.waits <= evicted_blocks_came_back as u64,
+            "frame {k}: {t:?}"
+        );
+        evicting += *evicted as usize;
+        evicting_without_wait += (*evicted && t.waits == 0) as usize;
+    }
+    assert!(
+        evicting >= 3 && evicting_without_wait >= 1,
+        "{evicting} frames evicted"
+    );
+    assert!(stats.chunks_evicted > 20, "{stats:?}");
+    assert_layers_identical(&waited, &late);
+}
+
+/// RAM for the paged GPU runs: some frames evict chunks, others fit.
+const PAGED_GPU_BUDGET: u64 = 1 << 20;
+
+#[test]
 fn regional_regularization_on_the_gpu_equals_the_global_cpu_solve() {
     use denser::outofcore::regional::regularize_map_with;
     use denser::regularize::solve_gpu;

@@ -22,7 +22,7 @@ use super::ResidentMap;
 use crate::gpu::readback::{LateReadback, RING_LEN};
 use crate::grid::{Block, BlockIndex, Layer, TouchedBlocks};
 use crate::{Error, Result};
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 
 /// A frame whose results are on their way back.
 #[derive(Debug)]
@@ -118,6 +118,38 @@ impl ResidentMap {
             }
             let f = self.late.frames.pop_front().expect("a frame");
             self.collect(layer, f)?;
+        }
+        Ok(())
+    }
+
+    /// Collects every frame in flight but, with `keep_newest`, the one submitted last (waiting,
+    /// counted, where one has not arrived), and returns what the frames collected since
+    /// [`ResidentMap::take_collected`] last ran touched (left for it to take: a store pages by
+    /// them, a caller is told by the next fusion call).
+    pub fn settle(&mut self, layer: &mut Layer, keep_newest: bool) -> Result<TouchedBlocks> {
+        if !self.late.frames.is_empty() {
+            self.ctx.poll_finished()?;
+        }
+        while self.late.frames.len() > keep_newest as usize {
+            let f = self.late.frames.pop_front().expect("a frame");
+            self.collect(layer, f)?;
+        }
+        Ok(self.late.touched.clone())
+    }
+
+    /// Collects every frame in flight (waiting where one has not arrived) if one of them lists
+    /// a block of `blocks`: before those blocks are written back and leave the pool. A frame
+    /// that lists none of them neither changes nor reads them.
+    pub(super) fn collect_frames_listing(
+        &mut self,
+        layer: &mut Layer,
+        blocks: &[BlockIndex],
+    ) -> Result<()> {
+        let leaving: HashSet<BlockIndex> = blocks.iter().copied().collect();
+        let listed =
+            (self.late.frames.iter()).any(|f| f.blocks.iter().any(|b| leaving.contains(b)));
+        if listed {
+            self.collect_frames(layer, true)?;
         }
         Ok(())
     }

@@ -427,9 +427,10 @@ impl ResidentMap {
     }
 
     /// Copies the resident blocks among `blocks` back to the layer (when dirty) and releases
-    /// them: before the pager evicts their chunk, or before a CPU stage updates them.
+    /// them: before the pager evicts their chunk, or before a CPU stage updates them. The frames
+    /// in flight are collected first where one lists one of them.
     pub fn flush_blocks(&mut self, layer: &mut Layer, blocks: &[BlockIndex]) -> Result<usize> {
-        self.collect_frames(layer, true)?;
+        self.collect_frames_listing(layer, blocks)?;
         let slots: Vec<u32> = blocks
             .iter()
             .filter_map(|b| self.table.host.lookup(*b))
