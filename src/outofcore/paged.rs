@@ -178,6 +178,14 @@ impl PagedStore {
     }
 }
 
+/// Settles the frames in flight on `tier` ([`UpperTier::settle`], all but the newest with
+/// `keep_newest`) and marks the chunks they touched dirty.
+fn settle(pager: &mut Pager, tier: &mut dyn UpperTier, keep_newest: bool) -> Result<()> {
+    let late = tier.settle(pager.layer_mut(), keep_newest)?;
+    pager.mark_dirty(&late);
+    Ok(())
+}
+
 impl BlockStore for PagedStore {
     fn grid(&self) -> GridParams {
         self.grid
@@ -240,8 +248,7 @@ impl BlockStore for PagedStore {
             // Blocks leave RAM: the frames still in flight on the tier land first, so that the
             // chunks they changed are written and the blocks they created go with their chunk.
             // This frame's blocks lie in `keep`, which stays: it may stay in flight.
-            let late = tier.settle(pager.layer_mut(), true)?;
-            pager.mark_dirty(&late);
+            settle(pager, tier, true)?;
         }
         pager.evict_to_budget_with(camera_m, &keep, &mut |layer, blocks| {
             tier.release(layer, blocks)
@@ -254,8 +261,7 @@ impl BlockStore for PagedStore {
             return Ok(());
         }
         let pager = self.pager()?;
-        let late = tier.settle(pager.layer_mut(), false)?;
-        pager.mark_dirty(&late);
+        settle(pager, tier, false)?;
         tier.sync(pager.layer_mut())?;
         pager.checkpoint(frames_fused)?;
         self.frames_last_commit = frames_fused;
@@ -299,8 +305,7 @@ impl BlockStore for PagedStore {
         tier: &mut dyn UpperTier,
     ) -> Result<SurfaceOutput> {
         if let State::Paging(p) = &mut self.state {
-            let late = tier.settle(p.layer_mut(), false)?;
-            p.mark_dirty(&late);
+            settle(p, tier, false)?;
             tier.sync(p.layer_mut())?;
         }
         let surfaces = self.surfaces;
