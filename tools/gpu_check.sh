@@ -2,8 +2,9 @@
 # The GPU tier on a hardware GPU, two builds side by side on one machine: the GPU tests, then
 # `reconstruct` of a 60 m synthetic drive's ground-truth depth (fusion per frame, the GPU tier's
 # steps, the TV solve, the GPU traffic per stage) and of a 150 m LiDAR drive, with `--device gpu`
-# for both builds and `--device cpu` for the second, in alternating rounds; the meshes of the two
-# builds are compared byte for byte. Before the drives, the second build's `denser bench` on the
+# for both builds and `--device cpu` for the second, in alternating rounds, and the depth drive
+# paged through a 40 MiB budget (`--map`) with `--device gpu` for both builds; the meshes of the
+# two builds are compared byte for byte. Before the drives, the second build's `denser bench` on the
 # 60 m drive's depth with `--device gpu` (each kernel's device time from timestamp queries, and
 # marching cubes) and `--device cpu`, and its TGV-tensor stereo kernels on one pair; after the
 # drives, the second build's stereo on the depth drive's first GPU_CHECK_STEREO_FRAMES frames
@@ -93,6 +94,12 @@ for b in after before; do
     run "lidar-$b-gpu" "$bin" "$work/d150/sequences/00" --depth lidar --device gpu
 done
 run "lidar-after-cpu" "$after" "$work/d150/sequences/00" --depth lidar --device cpu
+# The depth drive paged through a 40 MiB budget (chunks evicted while frames are in flight).
+for b in after before; do
+    bin=$after; [ $b = before ] && bin=$before
+    run "paged-$b-gpu" "$bin" "$work/d60/sequences/00" --depth gt --device gpu \
+        --map "$work/map-$b" --memory-budget 40MiB --skip-regularize
+done
 last=$(( ${GPU_CHECK_STEREO_FRAMES:-20} - 1 ))
 for dev in gpu cpu; do
     run "stereo-after-$dev" "$after" "$work/d60/sequences/00" --depth stereo --last "$last" \
@@ -104,7 +111,7 @@ run "stereo-after-gpu-timed" "$after" "$work/d60/sequences/00" --depth stereo --
     --device gpu --skip-regularize --kernel-times
 
 say "## meshes, before against after (GPU)"
-for pair in depth-%s-gpu-1 lidar-%s-gpu; do
+for pair in depth-%s-gpu-1 lidar-%s-gpu paged-%s-gpu; do
     a=$work/$(printf "$pair" after) b=$work/$(printf "$pair" before)
     for f in "$a"/*.ply; do
         if cmp -s "$f" "$b/$(basename "$f")"; then say "identical: $(basename "$a")/$(basename "$f")"
