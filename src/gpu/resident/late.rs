@@ -130,10 +130,7 @@ impl ResidentMap {
         if !self.late.frames.is_empty() {
             self.ctx.poll_finished()?;
         }
-        while self.late.frames.len() > keep_newest as usize {
-            let f = self.late.frames.pop_front().expect("a frame");
-            self.collect(layer, f)?;
-        }
+        self.collect_oldest_until(layer, keep_newest as usize)?;
         Ok(self.late.touched.clone())
     }
 
@@ -175,7 +172,13 @@ impl ResidentMap {
 
     /// Collects frames until fewer than the ring holds are in flight (room for one more).
     fn make_room_in_flight(&mut self, layer: &mut Layer) -> Result<()> {
-        while self.late.frames.len() >= RING_LEN {
+        self.collect_oldest_until(layer, RING_LEN - 1)
+    }
+
+    /// Collects the oldest frames, waiting where one has not arrived, until at most `left` are
+    /// in flight.
+    fn collect_oldest_until(&mut self, layer: &mut Layer, left: usize) -> Result<()> {
+        while self.late.frames.len() > left {
             let f = self.late.frames.pop_front().expect("a frame");
             self.collect(layer, f)?;
         }
