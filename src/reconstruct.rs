@@ -122,6 +122,8 @@ pub struct Reconstructor {
     timings: StageTimings,
     /// Frames in the map: those committed before this run plus those fused since.
     frames_total: u64,
+    /// `frames_total` at the last [`Reconstructor::sync`].
+    frames_synced: u64,
     checkpoint_every: u64,
     /// Sensor position of every frame fused in this run, world frame, metres.
     trajectory_m: Vec<[f64; 3]>,
@@ -178,6 +180,7 @@ impl Reconstructor {
             backend,
             timings: StageTimings::default(),
             frames_total,
+            frames_synced: frames_total,
             checkpoint_every,
             trajectory_m: Vec::new(),
         })
@@ -296,7 +299,7 @@ impl Reconstructor {
         let plan = DepthPlan::new(&self.config.grid, frame, &self.config.depth_fusion);
         let planned_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
-        self.store.prepare_depth(&plan)?;
+        self.store.prepare_depth(&plan, &mut self.backend)?;
         self.timings.paging_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let (touched, stats) = self.backend.fuse_depth(
@@ -325,7 +328,8 @@ impl Reconstructor {
             );
         }
         let t = Instant::now();
-        self.store.prepare_blocks(&plan.blocks())?;
+        self.store
+            .prepare_blocks(&plan.blocks(), &mut self.backend)?;
         self.timings.paging_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let (touched, stats) = self.backend.fuse_lidar(self.store.layer_mut(), &plan)?;
@@ -360,6 +364,7 @@ impl Reconstructor {
     pub fn sync(&mut self) -> crate::Result<()> {
         let t = Instant::now();
         self.store.commit(self.frames_total, &mut self.backend)?;
+        self.frames_synced = self.frames_total;
         self.timings.paging_s += t.elapsed().as_secs_f64();
         // Depth frames still in flight were collected by the commit's sync.
         self.timings.voxel_updates += self.backend.take_late_voxel_updates();
@@ -428,6 +433,10 @@ impl Reconstructor {
         progress: &mut dyn FnMut(usize, usize) -> bool,
     ) -> crate::Result<Results> {
         std::fs::create_dir_all(out_dir).map_err(|e| crate::Error::io(out_dir, e))?;
+        // Every frame fused so far committed first: a paged map's fusion ends with the raw mesh.
+        if self.frames_synced != self.frames_total {
+            self.sync()?;
+        }
         let mut surfaces =
             vec![self.write_surface(Field::Raw, &out_dir.join("mesh_raw.ply"), None)?];
         let regularize = if regularize {

@@ -26,6 +26,26 @@ use std::path::Path;
 pub trait UpperTier {
     /// Writes `blocks` back into `layer` and forgets them: they are about to leave RAM.
     fn release(&mut self, layer: &mut Layer, blocks: &[BlockIndex]) -> Result<()>;
+    /// As [`UpperTier::release`], but the newer copies may arrive later: returns whether they
+    /// will (else they are in `layer` now). They are then collected by
+    /// [`UpperTier::collect_released`] into `held`, the layer the store moves the leaving
+    /// blocks to meanwhile; to make room for this release, older ones may be collected into
+    /// `held` here. Nothing may read or page in the blocks until their release is collected.
+    fn release_later(
+        &mut self,
+        layer: &mut Layer,
+        _held: &mut Layer,
+        blocks: &[BlockIndex],
+    ) -> Result<bool> {
+        self.release(layer, blocks).map(|()| false)
+    }
+    /// Writes into `held` the copies of the releases begun by [`UpperTier::release_later`]
+    /// that have arrived or, with `wait`, of all of them (waiting where it must); returns how
+    /// many releases were collected since the last call (oldest first), those collected to
+    /// make room included.
+    fn collect_released(&mut self, _held: &mut Layer, _wait: bool) -> Result<usize> {
+        Ok(0)
+    }
     /// Writes every changed block back into `layer` (blocks stay): the layer is about to be
     /// read whole (a checkpoint, regularization, meshing).
     fn sync(&mut self, layer: &mut Layer) -> Result<()>;
@@ -181,11 +201,14 @@ pub trait BlockStore {
     fn frames_committed(&self) -> u64;
 
     /// Makes resident every block a depth frame with `plan` may update: its band and every
-    /// existing block in its view frustum.
-    fn prepare_depth(&mut self, plan: &DepthPlan) -> Result<()>;
+    /// existing block in its view frustum. A store that evicted blocks whose newer copies
+    /// `tier` has not yet sent back ([`UpperTier::release_later`]) collects them first where
+    /// the frame needs their chunks.
+    fn prepare_depth(&mut self, plan: &DepthPlan, tier: &mut dyn UpperTier) -> Result<()>;
 
-    /// Makes resident the sorted `blocks` (a LiDAR scan's band).
-    fn prepare_blocks(&mut self, blocks: &[BlockIndex]) -> Result<()>;
+    /// Makes resident the sorted `blocks` (a LiDAR scan's band), as
+    /// [`BlockStore::prepare_depth`].
+    fn prepare_blocks(&mut self, blocks: &[BlockIndex], tier: &mut dyn UpperTier) -> Result<()>;
 
     /// After a frame that updated `touched` (sorted; with frames in flight on `tier`, what the
     /// frames collected since the last call touched), with the camera at `camera_m`: records
@@ -363,11 +386,11 @@ impl BlockStore for MemoryStore {
         0
     }
 
-    fn prepare_depth(&mut self, _: &DepthPlan) -> Result<()> {
+    fn prepare_depth(&mut self, _: &DepthPlan, _: &mut dyn UpperTier) -> Result<()> {
         Ok(())
     }
 
-    fn prepare_blocks(&mut self, _: &[BlockIndex]) -> Result<()> {
+    fn prepare_blocks(&mut self, _: &[BlockIndex], _: &mut dyn UpperTier) -> Result<()> {
         Ok(())
     }
 

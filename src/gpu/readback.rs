@@ -52,13 +52,58 @@ impl ReadbackRing {
     pub(crate) fn submit(
         &mut self,
         ctx: &GpuContext,
-        mut encoder: wgpu::CommandEncoder,
+        encoder: wgpu::CommandEncoder,
         buffers: &[(&wgpu::Buffer, usize)],
     ) -> LateReadback {
+        let lens: Vec<usize> = buffers.iter().map(|(_, len)| *len).collect();
+        self.submit_copies(ctx, encoder, &lens, |encoder, staging, parts| {
+            for ((buf, len), (at, _)) in buffers.iter().zip(parts) {
+                let bytes = (*len as u64).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+                if bytes > 0 {
+                    encoder.copy_buffer_to_buffer(buf, 0, staging, *at, bytes);
+                }
+            }
+        })
+    }
+
+    /// As [`ReadbackRing::submit`] with one result: the `runs` of `src` (each `(offset,
+    /// bytes)`, multiples of 4) laid end to end.
+    pub(crate) fn submit_runs(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: wgpu::CommandEncoder,
+        src: &wgpu::Buffer,
+        runs: &[(u64, u64)],
+    ) -> LateReadback {
+        let total: u64 = runs.iter().map(|(_, bytes)| bytes).sum();
+        self.submit_copies(
+            ctx,
+            encoder,
+            &[total as usize],
+            |encoder, staging, parts| {
+                let mut at = parts[0].0;
+                for &(offset, bytes) in runs {
+                    encoder.copy_buffer_to_buffer(src, offset, staging, at, bytes);
+                    at += bytes;
+                }
+            },
+        )
+    }
+
+    /// Lays results of `lens` bytes out in the next staging buffer, records `copies` into
+    /// `encoder` (given the staging buffer and each result's offset and length), submits it
+    /// and asks for the staging buffer to be mapped.
+    fn submit_copies(
+        &mut self,
+        ctx: &GpuContext,
+        mut encoder: wgpu::CommandEncoder,
+        lens: &[usize],
+        copies: impl FnOnce(&mut wgpu::CommandEncoder, &wgpu::Buffer, &[(u64, usize)]),
+    ) -> LateReadback {
         let align = wgpu::MAP_ALIGNMENT.max(wgpu::COPY_BUFFER_ALIGNMENT);
-        let mut parts = Vec::with_capacity(buffers.len());
+        let mut parts = Vec::with_capacity(lens.len());
         let mut end = 0u64;
-        for (_, len) in buffers {
+        for len in lens {
             parts.push((end, *len));
             end += (*len as u64).next_multiple_of(align);
         }
@@ -67,12 +112,7 @@ impl ReadbackRing {
         let name = RING_NAMES[self.next];
         self.next = (self.next + 1) % RING_LEN;
         let staging = (self.kept).buffer(ctx, name, mapped_bytes.max(MIN_RING_BYTES), usage);
-        for ((buf, len), (at, _)) in buffers.iter().zip(&parts) {
-            let bytes = (*len as u64).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
-            if bytes > 0 {
-                encoder.copy_buffer_to_buffer(buf, 0, &staging, *at, bytes);
-            }
-        }
+        copies(&mut encoder, &staging, &parts);
         ctx.submit(encoder);
         let state = Arc::new(AtomicU8::new(WAITING));
         let signal = state.clone();

@@ -169,13 +169,25 @@ impl PagedStore {
         }
     }
 
-    fn page_in(&mut self, keep: HashSet<ChunkIndex>) -> Result<()> {
+    fn page_in(&mut self, keep: HashSet<ChunkIndex>, tier: &mut dyn UpperTier) -> Result<()> {
         let mut list: Vec<ChunkIndex> = keep.iter().copied().collect();
         list.sort_unstable();
-        self.pager()?.page_in(&list)?;
+        let pager = self.pager()?;
+        if pager.holds_any(&list) {
+            // A chunk evicted a frame or two ago comes back: its blocks' copies first.
+            complete_releases(pager, tier, true)?;
+        }
+        pager.page_in(&list)?;
         self.keep = keep;
         Ok(())
     }
+}
+
+/// Sends to the writers the evicted chunks whose blocks' copies `tier` sent back (all of them,
+/// waiting where they have not come, with `wait`).
+fn complete_releases(pager: &mut Pager, tier: &mut dyn UpperTier, wait: bool) -> Result<()> {
+    let done = tier.collect_released(pager.held_layer_mut(), wait)?;
+    pager.complete_held(done)
 }
 
 /// Settles the frames in flight on `tier` ([`UpperTier::settle`], all but the newest with
@@ -209,7 +221,7 @@ impl BlockStore for PagedStore {
         self.frames_at_open
     }
 
-    fn prepare_depth(&mut self, plan: &DepthPlan) -> Result<()> {
+    fn prepare_depth(&mut self, plan: &DepthPlan, tier: &mut dyn UpperTier) -> Result<()> {
         let grid = self.grid;
         let pager = self.pager()?;
         let cb = pager.chunk_blocks();
@@ -224,15 +236,15 @@ impl BlockStore for PagedStore {
                 keep.insert(c);
             }
         }
-        self.page_in(keep)
+        self.page_in(keep, tier)
     }
 
-    fn prepare_blocks(&mut self, blocks: &[BlockIndex]) -> Result<()> {
+    fn prepare_blocks(&mut self, blocks: &[BlockIndex], tier: &mut dyn UpperTier) -> Result<()> {
         let cb = self.pager()?.chunk_blocks();
         let keep = group_by_chunk(blocks.iter().copied(), cb)
             .into_keys()
             .collect();
-        self.page_in(keep)
+        self.page_in(keep, tier)
     }
 
     fn finish_frame(
@@ -250,9 +262,12 @@ impl BlockStore for PagedStore {
             // This frame's blocks lie in `keep`, which stays: it may stay in flight.
             settle(pager, tier, true)?;
         }
-        pager.evict_to_budget_with(camera_m, &keep, &mut |layer, blocks| {
-            tier.release(layer, blocks)
-        })
+        // The GPU's copies of the leaving blocks come back a frame or more later: their chunks
+        // wait in the pager's held layer until then.
+        pager.evict_to_budget_with(camera_m, &keep, &mut |layer, held, blocks| {
+            tier.release_later(layer, held, blocks)
+        })?;
+        complete_releases(pager, tier, false)
     }
 
     fn commit(&mut self, frames_fused: u64, tier: &mut dyn UpperTier) -> Result<()> {
@@ -262,6 +277,7 @@ impl BlockStore for PagedStore {
         }
         let pager = self.pager()?;
         settle(pager, tier, false)?;
+        complete_releases(pager, tier, true)?;
         tier.sync(pager.layer_mut())?;
         pager.checkpoint(frames_fused)?;
         self.frames_last_commit = frames_fused;
@@ -306,6 +322,7 @@ impl BlockStore for PagedStore {
     ) -> Result<SurfaceOutput> {
         if let State::Paging(p) = &mut self.state {
             settle(p, tier, false)?;
+            complete_releases(p, tier, true)?;
             tier.sync(p.layer_mut())?;
         }
         let surfaces = self.surfaces;

@@ -21,7 +21,7 @@ use crate::grid::{
 use crate::map::store::{ChunkWriter, MapStore, WrittenChunk};
 use crate::map::{group_by_chunk, ChunkIndex};
 use crossbeam::channel::{bounded, unbounded, Receiver, Sender};
-use std::collections::{HashMap, HashSet};
+use std::collections::{HashMap, HashSet, VecDeque};
 
 /// What to do when the chunks one frame needs do not fit in the budget.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -96,6 +96,18 @@ struct Resident {
     dirty: bool,
 }
 
+/// The hook [`Pager::evict_to_budget_with`] calls with the resident layer, the held layer and
+/// the blocks about to leave RAM; true where their newer copies come later.
+pub type BeforeEvict<'a> = dyn FnMut(&mut Layer, &mut Layer, &[BlockIndex]) -> Result<bool> + 'a;
+
+/// Evicted dirty chunks whose blocks wait for a tier's copies before they go to the writers.
+struct Held {
+    layer: Layer,
+    chunks: HashMap<ChunkIndex, u64>,
+    bytes: u64,
+    releases: VecDeque<Vec<ChunkIndex>>,
+}
+
 /// The paging state around one layer of resident blocks.
 pub struct Pager {
     store: MapStore,
@@ -104,6 +116,10 @@ pub struct Pager {
     resident: HashMap<ChunkIndex, Resident>,
     in_flight: HashMap<ChunkIndex, u64>,
     in_flight_bytes: u64,
+    /// Evicted chunks waiting for the tier above to send its copies of their blocks
+    /// ([`Pager::evict_to_budget_with`]): their blocks, their bytes, and per release begun,
+    /// oldest first, the chunks it holds back.
+    held: Held,
     jobs: Option<Sender<WriteJob>>,
     done: Receiver<WriteDone>,
     workers: Vec<std::thread::JoinHandle<()>>,
@@ -116,7 +132,8 @@ pub struct Pager {
 impl Pager {
     /// A pager over `store` (its committed chunks stay on disk until needed).
     pub fn new(store: MapStore, config: PagerConfig) -> Self {
-        let layer = Layer::new(store.grid());
+        let grid = store.grid();
+        let layer = Layer::new(grid);
         let (jobs_tx, jobs_rx) = bounded::<WriteJob>(config.writer_threads.max(1) * 2);
         let (done_tx, done_rx) = unbounded::<WriteDone>();
         let workers = (0..config.writer_threads.max(1))
@@ -155,6 +172,12 @@ impl Pager {
             resident: HashMap::new(),
             in_flight: HashMap::new(),
             in_flight_bytes: 0,
+            held: Held {
+                layer: Layer::new(grid),
+                chunks: HashMap::new(),
+                bytes: 0,
+                releases: VecDeque::new(),
+            },
             jobs: Some(jobs_tx),
             done: done_rx,
             workers,
@@ -196,22 +219,67 @@ impl Pager {
         self.store.chunk_blocks()
     }
 
-    /// Whether chunk `c` exists anywhere (resident, being written, or on disk).
+    /// Whether chunk `c` exists anywhere (resident, held, being written, or on disk).
     pub fn knows(&self, c: ChunkIndex) -> bool {
-        self.resident.contains_key(&c) || self.in_flight.contains_key(&c) || self.store.contains(c)
+        self.resident.contains_key(&c)
+            || self.held.chunks.contains_key(&c)
+            || self.in_flight.contains_key(&c)
+            || self.store.contains(c)
     }
 
-    /// Every chunk that exists (resident, in flight or on disk), unsorted.
+    /// Every chunk that exists (resident, held, in flight or on disk), unsorted.
     pub fn known_chunks(&self) -> HashSet<ChunkIndex> {
         let mut s: HashSet<ChunkIndex> = self.store.chunk_indices().into_iter().collect();
         s.extend(self.resident.keys().copied());
+        s.extend(self.held.chunks.keys().copied());
         s.extend(self.in_flight.keys().copied());
         s
     }
 
-    /// Bytes of blocks resident or being written.
+    /// Bytes of blocks resident, held for a tier's copies, or being written.
     pub fn used_bytes(&self) -> u64 {
-        self.layer.block_count() as u64 * BLOCK_RESIDENT_BYTES + self.in_flight_bytes
+        self.layer.block_count() as u64 * BLOCK_RESIDENT_BYTES
+            + self.held.bytes
+            + self.in_flight_bytes
+    }
+
+    /// The blocks of evicted chunks that wait for the copies of the tier above (where a tier's
+    /// [`crate::store::UpperTier::collect_released`] writes them).
+    pub fn held_layer_mut(&mut self) -> &mut Layer {
+        &mut self.held.layer
+    }
+
+    /// Whether a chunk among `chunks` waits for the tier's copies of its blocks.
+    pub fn holds_any<'a>(&self, chunks: impl IntoIterator<Item = &'a ChunkIndex>) -> bool {
+        !self.held.chunks.is_empty() && chunks.into_iter().any(|c| self.held.chunks.contains_key(c))
+    }
+
+    /// Releases begun by the tier whose copies have not come: see [`Pager::complete_held`].
+    pub fn held_releases(&self) -> usize {
+        self.held.releases.len()
+    }
+
+    /// Sends to the writers the chunks of the `releases` oldest releases, whose copies the
+    /// tier has written into [`Pager::held_layer_mut`].
+    pub fn complete_held(&mut self, releases: usize) -> Result<()> {
+        for _ in 0..releases {
+            let chunks = self.held.releases.pop_front().ok_or_else(|| {
+                Error::InvalidArgument("a tier completed a release the pager did not begin".into())
+            })?;
+            for c in chunks {
+                let bytes = self.held.chunks.remove(&c).expect("a held chunk");
+                self.held.bytes -= bytes;
+                let cb = self.chunk_blocks();
+                let mut indices: Vec<BlockIndex> = (self.held.layer.iter_unsorted())
+                    .map(|(i, _)| *i)
+                    .filter(|i| c.contains(*i, cb))
+                    .collect();
+                indices.sort_unstable();
+                let blocks = self.held.layer.take_blocks(&indices);
+                self.write_behind(c, blocks)?;
+            }
+        }
+        Ok(())
     }
 
     fn absorb(&mut self, d: WriteDone) {
@@ -264,6 +332,12 @@ impl Pager {
         for &c in chunks {
             if self.resident.contains_key(&c) {
                 continue;
+            }
+            if self.held.chunks.contains_key(&c) {
+                return Err(Error::InvalidArgument(format!(
+                    "chunk {:?} was paged in while it waits for the GPU's copies of its blocks",
+                    c.0
+                )));
             }
             if self.in_flight.contains_key(&c) {
                 self.wait_for(|p| !p.in_flight.contains_key(&c))?;
@@ -336,19 +410,22 @@ impl Pager {
         camera_world_m: [f64; 3],
         keep: &HashSet<ChunkIndex>,
     ) -> Result<()> {
-        self.evict_to_budget_with(camera_world_m, keep, &mut |_, _| Ok(()))
+        self.evict_to_budget_with(camera_world_m, keep, &mut |_, _, _| Ok(false))
     }
 
-    /// [`Pager::evict_to_budget`] calling `before_evict(layer, blocks)` once, with the blocks of
-    /// every chunk about to leave RAM, just before they leave: the hook of a tier above RAM (the
-    /// GPU's resident blocks, through [`crate::store::UpperTier::release`]) to write its newer
-    /// copies back first, in one readback.
+    /// [`Pager::evict_to_budget`] calling `before_evict(layer, held, blocks)` once, with the
+    /// blocks of every chunk about to leave RAM, just before they leave: the hook of a tier
+    /// above RAM (the GPU's resident blocks, through
+    /// [`crate::store::UpperTier::release_later`]) to write its newer copies back, in one
+    /// readback. Where the hook says the copies come later (true), the dirty chunks wait in
+    /// the held layer (counted as used) until [`Pager::complete_held`] sends them to the
+    /// writers, and neither [`Pager::page_in`] nor [`Pager::checkpoint`] accepts them before.
     /// Chunks leave in [`eviction_order`], the order every tier uses.
     pub fn evict_to_budget_with(
         &mut self,
         camera_world_m: [f64; 3],
         keep: &HashSet<ChunkIndex>,
-        before_evict: &mut dyn FnMut(&mut Layer, &[BlockIndex]) -> Result<()>,
+        before_evict: &mut BeforeEvict<'_>,
     ) -> Result<()> {
         self.drain_done()?;
         if self.used_bytes() > self.config.budget_bytes {
@@ -380,12 +457,22 @@ impl Pager {
                 }
                 chosen.push((c, indices));
             }
+            let mut later = false;
             if !chosen.is_empty() {
                 let all: Vec<BlockIndex> = chosen.iter().flat_map(|(_, b)| b).copied().collect();
-                before_evict(&mut self.layer, &all)?;
+                later = before_evict(&mut self.layer, &mut self.held.layer, &all)?;
             }
+            let mut held = Vec::new();
             for (c, indices) in chosen {
-                self.evict(c, &indices)?;
+                if later && self.resident[&c].dirty && !indices.is_empty() {
+                    self.hold(c, &indices);
+                    held.push(c);
+                } else {
+                    self.evict(c, &indices)?;
+                }
+            }
+            if later {
+                self.held.releases.push_back(held);
             }
         }
         self.trim.check();
@@ -419,6 +506,23 @@ impl Pager {
         if !r.dirty || blocks.is_empty() {
             return Ok(());
         }
+        self.write_behind(c, blocks)
+    }
+
+    /// Evicts dirty resident chunk `c` of blocks `indices` into the held layer, where the tier
+    /// above writes its copies ([`Pager::evict_to_budget_with`]).
+    fn hold(&mut self, c: ChunkIndex, indices: &[BlockIndex]) {
+        self.resident.remove(&c).expect("a resident chunk");
+        let blocks = self.layer.take_blocks(indices);
+        self.stats.chunks_evicted += 1;
+        let bytes = blocks.len() as u64 * BLOCK_RESIDENT_BYTES;
+        self.held.layer.put_blocks(blocks);
+        self.held.chunks.insert(c, bytes);
+        self.held.bytes += bytes;
+    }
+
+    /// Hands an evicted chunk's `blocks` to the writers.
+    fn write_behind(&mut self, c: ChunkIndex, blocks: Vec<(BlockIndex, Box<Block>)>) -> Result<()> {
         let bytes = blocks.len() as u64 * BLOCK_RESIDENT_BYTES;
         let seq = self.store.allocate_seq();
         self.in_flight.insert(c, bytes);
@@ -461,6 +565,12 @@ impl Pager {
     /// the layer (no copies), so a checkpoint needs no memory beyond the encoded bytes.
     pub fn checkpoint(&mut self, frames_committed: u64) -> Result<()> {
         use rayon::prelude::*;
+        if !self.held.releases.is_empty() || self.held.layer.block_count() > 0 {
+            return Err(Error::InvalidArgument(format!(
+                "a checkpoint before the GPU's copies of {} evicted blocks came back",
+                self.held.layer.block_count()
+            )));
+        }
         let t = std::time::Instant::now();
         self.wait_for(|p| p.in_flight.is_empty())?;
         let mut dirty: Vec<ChunkIndex> = self

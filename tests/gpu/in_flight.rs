@@ -145,3 +145,53 @@ fn lidar_scans_in_flight_between_depth_frames_leave_the_same_map() {
     assert_eq!(touched0, touched1);
     assert_eq!(touched0, waited.indices_sorted());
 }
+
+#[test]
+fn released_blocks_come_back_later_though_new_blocks_took_their_slots() {
+    // A pager's eviction (`ResidentMap::release_blocks_later`): the blocks leave the pool at
+    // once and their copies come back later, while the next frames fill the freed slots. The
+    // copies collected must be the blocks as they were when released (as a sync then gives).
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let frames = orbit_frames(12, 0.01);
+    let options = ResidentOptions {
+        initial_blocks: 8192,
+        max_bytes: 1 << 30,
+    };
+    let params = DepthFusionParams::default();
+    let (first, next) = frames.split_at(6);
+    let mut reference = Layer::new(GRID);
+    let mut map = ResidentMap::new(ctx.clone(), GRID, options).expect("pool");
+    for f in first {
+        fuse_depth_resident(&mut map, &mut reference, f, &params).expect("fuse");
+    }
+    map.sync(&mut reference).expect("sync");
+    let mut layer = Layer::new(GRID);
+    let mut map = ResidentMap::new(ctx.clone(), GRID, options).expect("pool");
+    for f in first {
+        fuse_depth_resident(&mut map, &mut layer, f, &params).expect("fuse");
+    }
+    let blocks = map.resident_blocks();
+    let slots: std::collections::HashSet<u32> =
+        blocks.iter().filter_map(|b| map.slot_of(*b)).collect();
+    let mut held = Layer::new(GRID);
+    let later = map
+        .release_blocks_later(&mut layer, &mut held, &blocks)
+        .expect("release");
+    assert!(later && map.releases_in_flight() == 1 && map.resident_blocks().is_empty());
+    // The pager moves the leaving blocks out of its layer (their shadows are stale).
+    held.put_blocks(layer.take_blocks(&blocks));
+    for f in next {
+        fuse_depth_resident(&mut map, &mut layer, f, &params).expect("fuse");
+    }
+    let reused = (map.resident_blocks().iter())
+        .filter(|b| map.slot_of(**b).is_some_and(|s| slots.contains(&s)))
+        .count();
+    assert!(reused > 100, "{reused} freed slots taken by new blocks");
+    assert_eq!(map.collect_released(&mut held, true).expect("collect"), 1);
+    assert_eq!(map.releases_in_flight(), 0);
+    assert!(
+        same_layers(&held, &reference),
+        "the copies differ from the blocks released"
+    );
+}

@@ -13,3 +13,4 @@ mod paging;
 mod scaleout;
 mod survives;
 mod sweeps;
+mod write_behind;

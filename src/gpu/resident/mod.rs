@@ -8,6 +8,9 @@
 //!   as the RAM pager's, [`crate::grid::eviction_order`]).
 //! - `late`: depth frames and LiDAR scans in flight, whose flags a later frame collects
 //!   ([`ResidentMap::set_frames_in_flight`], [`ResidentMap::collect_frames`]).
+//! - `behind`: blocks released before their chunks leave RAM, whose copies are collected later
+//!   into the pager's layer of leaving chunks ([`ResidentMap::release_blocks_later`],
+//!   [`ResidentMap::collect_released`]).
 //! - [`ResidentMap`] (here) ties them together: it makes a frame's blocks resident
 //!   ([`ResidentMap::make_resident`]), learns what a kernel changed (`late`: a frame's flags,
 //!   collected when they arrive), and writes blocks back to the RAM [`Layer`]
@@ -30,6 +33,7 @@
 //! After an error the device copy may be partly updated: drop the map without syncing; the layer
 //! holds the state of the last successful sync.
 
+mod behind;
 mod late;
 mod policy;
 mod pool;
@@ -128,6 +132,8 @@ pub struct ResidentMap {
     ring: ReadbackRing,
     /// Frames and scans whose flags have not been collected ([`late`]).
     late: late::InFlight,
+    /// Released blocks whose copies have not been collected (`behind`).
+    behind: behind::Behind,
 }
 
 /// What a frame's kernels need at once ([`ResidentMap::frame_parts`]).
@@ -174,6 +180,7 @@ impl ResidentMap {
             kept: Kept::default(),
             ring: ReadbackRing::default(),
             late: late::InFlight::default(),
+            behind: behind::Behind::default(),
             stats: ResidentStats {
                 capacity_blocks: capacity,
                 max_blocks,

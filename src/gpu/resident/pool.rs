@@ -7,6 +7,7 @@
 use crate::gpu::context::{ErrorScopes, GpuContext};
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{GpuVoxel, SlotFillUniforms, SlotListUniforms};
+use crate::gpu::readback::{LateReadback, ReadbackRing};
 use crate::gpu::shaders;
 use crate::grid::{BlockIndex, VOXELS_PER_BLOCK};
 use crate::Result;
@@ -229,6 +230,24 @@ impl BlockPool {
         )?;
         scope.pop("reading blocks back from the GPU pool")?;
         Ok(out)
+    }
+
+    /// Starts reading `slots` back (512 voxels per slot, in `slots` order): copied from the pool
+    /// into the next staging buffer of `ring` in a submit of their own, collected later
+    /// ([`LateReadback::collect`]). Work submitted after this call (a new block written into
+    /// one of the slots) reaches the device after the copies.
+    pub(crate) fn read_slots_later(
+        &self,
+        ctx: &GpuContext,
+        ring: &mut ReadbackRing,
+        slots: &[u32],
+    ) -> LateReadback {
+        let runs: Vec<(u64, u64)> = runs(slots)
+            .into_iter()
+            .map(|(k, run)| (slots[k] as u64 * SLOT_BYTES, run as u64 * SLOT_BYTES))
+            .collect();
+        let encoder = ctx.encoder("pool_download_later");
+        ring.submit_runs(ctx, encoder, &self.buffer, &runs)
     }
 
     /// Writes `fill` into every voxel of `slots` on the device (`shaders/fill_slots.wgsl`): the
