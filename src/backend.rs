@@ -349,6 +349,18 @@ impl Backend {
         )
     }
 
+    /// [`Backend::write_back`], counted only where `busy` says the tier has work in flight.
+    fn write_back_if<T: Default>(
+        &mut self,
+        busy: impl FnOnce(&ResidentMap) -> bool,
+        work: impl FnOnce(&mut ResidentMap) -> Result<T>,
+    ) -> Result<T> {
+        match &mut self.resident {
+            Some(r) if !busy(r) => work(r),
+            _ => self.write_back(work),
+        }
+    }
+
     /// A matcher for `method` with `fill` hole filling, on the GPU when the backend runs stereo
     /// there (SGM: its cost volume and path aggregation; the variational methods: all but
     /// SGM's selection and the invalidation). `sgm`: the SGM parameters (SGM's, and those of
@@ -404,13 +416,8 @@ impl UpperTier for Backend {
 
     /// Counted as a write-back where releases are in flight.
     fn collect_released(&mut self, held: &mut Layer, wait: bool) -> Result<usize> {
-        match &mut self.resident {
-            Some(r) if r.releases_in_flight() > 0 => {
-                self.write_back(|r| r.collect_released(held, wait))
-            }
-            Some(r) => r.collect_released(held, wait),
-            None => Ok(0),
-        }
+        let busy = |r: &ResidentMap| r.releases_in_flight() > 0;
+        self.write_back_if(busy, |r| r.collect_released(held, wait))
     }
 
     fn sync(&mut self, layer: &mut Layer) -> Result<()> {
@@ -420,13 +427,8 @@ impl UpperTier for Backend {
     /// Collects the GPU's frames in flight (counted as a write-back, where frames are in
     /// flight: their flags come back).
     fn settle(&mut self, layer: &mut Layer, keep_newest: bool) -> Result<Vec<BlockIndex>> {
-        match &mut self.resident {
-            Some(r) if r.frames_in_flight() > 0 => {
-                self.write_back(|r| r.settle(layer, keep_newest))
-            }
-            Some(r) => r.settle(layer, keep_newest),
-            None => Ok(Vec::new()),
-        }
+        let busy = |r: &ResidentMap| r.frames_in_flight() > 0;
+        self.write_back_if(busy, |r| r.settle(layer, keep_newest))
     }
 
     /// On the GPU when meshing is placed there (the CPU mesher's twin), else on the CPU.

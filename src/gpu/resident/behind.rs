@@ -53,11 +53,7 @@ impl ResidentMap {
             .iter()
             .filter_map(|b| self.table.host.lookup(*b))
             .collect();
-        let dirty: Vec<u32> = slots
-            .iter()
-            .copied()
-            .filter(|&s| self.pool.is_dirty(s))
-            .collect();
+        let dirty = self.dirty_among(&slots);
         if !dirty.is_empty() {
             while self.behind.releases.len() >= RING_LEN {
                 self.collect_oldest_release(held)?;

@@ -393,15 +393,18 @@ impl ResidentMap {
         Ok(())
     }
 
+    /// The occupied slots among `slots` whose blocks hold updates not yet copied to RAM.
+    fn dirty_among(&self, slots: &[u32]) -> Vec<u32> {
+        (slots.iter().copied())
+            .filter(|&s| self.pool.key(s).is_some() && self.pool.is_dirty(s))
+            .collect()
+    }
+
     /// Copies the dirty ones of `slots` back into the layer, then either clears their updated
     /// marks on the GPU or, with `release`, gives the slots back. Returns how many were copied.
     fn write_back(&mut self, layer: &mut Layer, slots: &[u32], release: bool) -> Result<usize> {
         let t = std::time::Instant::now();
-        let dirty: Vec<u32> = slots
-            .iter()
-            .copied()
-            .filter(|&s| self.pool.key(s).is_some() && self.pool.is_dirty(s))
-            .collect();
+        let dirty = self.dirty_among(slots);
         if !dirty.is_empty() {
             let voxels = self.pool.read_slots(&self.ctx, &dirty)?;
             for (&slot, vox) in dirty.iter().zip(voxels.chunks_exact(VOXELS_PER_BLOCK)) {
