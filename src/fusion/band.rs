@@ -4,11 +4,17 @@
 
 use super::depth::{usable, DepthFusionParams};
 use super::traverse::traverse_cells;
+use crate::camera::PinholeIntrinsics;
 use crate::frame::DepthFrame;
 use crate::grid::{BlockIndex, GridParams, TouchedBlocks};
-use nalgebra::Vector3;
+use nalgebra::{Isometry3, Vector3};
 use rayon::prelude::*;
 use std::collections::HashSet;
+
+mod slices;
+pub use slices::{
+    band_slices, blocks_of_band_slices, BandSlice, BandSlices, BAND_SLICE_MAX_SIDE_PX,
+};
 
 /// Edge of the image tiles [`depth_frame_blocks`] lists blocks for, pixels.
 pub const BAND_TILE_PX: usize = 8;
@@ -41,32 +47,11 @@ pub(super) fn list_band(
     params: &DepthFusionParams,
     skip_listed: bool,
 ) -> BandListing {
-    let k = &frame.intrinsics;
     let (w, h) = (frame.depth_m.width as usize, frame.depth_m.height as usize);
-    let mu = grid.truncation_m as f64;
-    let rot = frame
-        .world_from_camera
-        .rotation
-        .to_rotation_matrix()
-        .into_inner();
-    let slices = SliceGeometry {
-        columns: [rot.column(0), rot.column(1), rot.column(2)].map(|c| c.into_owned()),
-        origin: frame.world_from_camera.translation.vector,
-        block_m: grid.block_size_m(),
-    };
-    let tiles = TileLister {
-        data: &frame.depth_m.data,
-        width: w,
-        fx: k.fx,
-        fy: k.fy,
-        cx: k.cx,
-        cy: k.cy,
-        mu,
-        params,
-        slices,
-    };
+    let (k, pose) = (&frame.intrinsics, &frame.world_from_camera);
+    let tiles = TileLister::new(grid, k, pose, params).over(&frame.depth_m.data, w);
     let tiles_x = w.div_ceil(BAND_TILE_PX);
-    let (mut keys, usable_pixels, skipped_slices) = (0..h.div_ceil(BAND_TILE_PX))
+    let (keys, usable_pixels, skipped_slices) = (0..h.div_ceil(BAND_TILE_PX))
         .into_par_iter()
         .fold(
             || Listed::new(skip_listed),
@@ -95,14 +80,19 @@ pub(super) fn list_band(
                 (x, nx + ny, sx + sy)
             },
         );
-    // Sort keys are in the blocks' order: one sort of integers.
-    keys.par_sort_unstable();
-    keys.dedup();
     BandListing {
-        blocks: keys.into_iter().map(BlockIndex::from_sort_key).collect(),
+        blocks: sorted_blocks(keys),
         usable_pixels,
         skipped_slices,
     }
+}
+
+/// The blocks of the sort keys `keys` (with repeats, in any order), sorted.
+fn sorted_blocks(mut keys: Vec<u64>) -> TouchedBlocks {
+    // Sort keys are in the blocks' order: one sort of integers.
+    keys.par_sort_unstable();
+    keys.dedup();
+    keys.into_iter().map(BlockIndex::from_sort_key).collect()
 }
 
 /// What [`list_band`] found.
@@ -144,7 +134,42 @@ struct TileRange {
     hi: f32,
 }
 
-impl TileLister<'_> {
+impl<'a> TileLister<'a> {
+    /// The lister of a frame of `grid` taken with the camera `k` from the pose
+    /// `world_from_camera`, with no depths (only slices can be listed; see [`Self::over`]).
+    fn new(
+        grid: &GridParams,
+        k: &PinholeIntrinsics,
+        world_from_camera: &Isometry3<f64>,
+        params: &'a DepthFusionParams,
+    ) -> Self {
+        let rot = world_from_camera.rotation.to_rotation_matrix().into_inner();
+        TileLister {
+            data: &[],
+            width: 0,
+            fx: k.fx,
+            fy: k.fy,
+            cx: k.cx,
+            cy: k.cy,
+            mu: grid.truncation_m as f64,
+            params,
+            slices: SliceGeometry {
+                columns: [rot.column(0), rot.column(1), rot.column(2)].map(|c| c.into_owned()),
+                origin: world_from_camera.translation.vector,
+                block_m: grid.block_size_m(),
+            },
+        }
+    }
+
+    /// This lister over the depths `data`, rows `width` pixels long.
+    fn over(self, data: &'a [f32], width: usize) -> Self {
+        TileLister {
+            data,
+            width,
+            ..self
+        }
+    }
+
     /// The usable depths of `tile`.
     #[inline]
     fn range(&self, tile: Tile) -> TileRange {
@@ -221,13 +246,13 @@ fn tile_range(data: &[f32], width: usize, tile: Tile, params: &DepthFusionParams
 /// depths, split into ranges at gaps of more than 2μ; a tile whose depths (within one range)
 /// spread over more than μ/2 (a surface seen at a grazing angle) is split into quadrants, down
 /// to 2×2 pixels, so that the slice stays close to the union of its pixels' band segments.
-fn tile_blocks(tile: Tile, range: TileRange, l: &TileLister, out: &mut Listed) {
+fn tile_blocks<S: BandSink>(tile: Tile, range: TileRange, l: &TileLister, out: &mut S) {
     if range.count == 0 {
         return;
     }
     let smallest = tile.u[1] - tile.u[0] < 2 && tile.v[1] - tile.v[0] < 2;
     let split_spread = SPLIT_SPREAD * l.mu;
-    let split = |out: &mut Listed| {
+    let split = |out: &mut S| {
         let um = (tile.u[0] + tile.u[1]) / 2;
         let vm = (tile.v[0] + tile.v[1]) / 2;
         for u in [[tile.u[0], um], [um + 1, tile.u[1]]] {
@@ -245,12 +270,12 @@ fn tile_blocks(tile: Tile, range: TileRange, l: &TileLister, out: &mut Listed) {
         if !smallest && hi as f64 - lo as f64 > split_spread {
             split(out);
         } else {
-            l.slices.tile_slice(tile, l, lo as f64, hi as f64, out);
+            out.slice(tile, l, lo as f64, hi as f64);
         }
         return;
     }
     // Ranges of the sorted depths, split at gaps of more than 2μ.
-    let mut depths = std::mem::take(&mut out.depths);
+    let mut depths = std::mem::take(out.depths());
     l.sorted_depths(tile, &mut depths);
     let ranges = || {
         let gaps = depths
@@ -264,14 +289,34 @@ fn tile_blocks(tile: Tile, range: TileRange, l: &TileLister, out: &mut Listed) {
             .map(|(start, end)| (depths[start] as f64, depths[end - 1] as f64))
     };
     if !smallest && ranges().any(|(lo, hi)| hi - lo > split_spread) {
-        out.depths = depths;
+        *out.depths() = depths;
         split(out);
         return;
     }
     for (lo, hi) in ranges() {
-        l.slices.tile_slice(tile, l, lo, hi, out);
+        out.slice(tile, l, lo, hi);
     }
-    out.depths = depths;
+    *out.depths() = depths;
+}
+
+/// Where [`tile_blocks`] puts a tile's slices: [`Listed`] lists their blocks at once;
+/// `slices.rs` keeps the slices themselves.
+trait BandSink {
+    /// A buffer for a tile's sorted depths (kept between tiles).
+    fn depths(&mut self) -> &mut Vec<f32>;
+    /// The band of `tile` whose depths span `[lo, hi]` (metres, each an `f32`).
+    fn slice(&mut self, tile: Tile, l: &TileLister, lo: f64, hi: f64);
+}
+
+impl BandSink for Listed {
+    fn depths(&mut self) -> &mut Vec<f32> {
+        &mut self.depths
+    }
+
+    #[inline]
+    fn slice(&mut self, tile: Tile, l: &TileLister, lo: f64, hi: f64) {
+        l.slices.tile_slice(tile, l, lo, hi, self);
+    }
 }
 
 /// A frame's pose as [`depth_frame_blocks`] uses it.

@@ -19,6 +19,7 @@
 //! Neither integrator carves free space outside the band (blocks are allocated only near surfaces).
 
 mod band;
+mod band_gpu;
 mod depth;
 mod depth_block;
 mod depth_gpu;
@@ -28,7 +29,11 @@ mod lidar_gpu;
 mod lidar_resident;
 pub mod traverse;
 
-pub use band::{depth_frame_blocks, depth_frame_blocks_exact, BAND_TILE_PX};
+pub use band::{
+    band_slices, blocks_of_band_slices, depth_frame_blocks, depth_frame_blocks_exact, BandSlice,
+    BandSlices, BAND_SLICE_MAX_SIDE_PX, BAND_TILE_PX,
+};
+pub use band_gpu::{band_slice_uniforms, band_slices_on_gpu};
 pub use depth::{
     integrate_depth, integrate_depth_plan, visible_blocks, visible_blocks_by_scan,
     visible_blocks_in, DepthFusionParams, DepthGeometry, DepthPlan, ViewFrustum,

@@ -221,6 +221,26 @@ pub struct FrameKeyUniforms {
     pub pad: u32,
 }
 
+/// Uniforms of `shaders/band_slices.wgsl` (WGSL twin: `BandSliceUniforms` there): the image,
+/// the usable depths' bits, and the band's thresholds in 64-bit fixed point (units of 2⁻⁴⁰ m,
+/// least significant word first; `src/fusion/band_gpu.rs` derives them).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct BandSliceUniforms {
+    /// Image width, height (pixels), tiles per row and tiles.
+    pub size: [u32; 4],
+    /// Bits of the least and the greatest usable depth (positive f32).
+    pub usable_bits: [u32; 2],
+    /// Slices the output holds.
+    pub capacity: u32,
+    /// 1 where a difference equal to `gap_mid` rounds to the f32 above 2μ.
+    pub gap_tie_up: u32,
+    /// Midpoint between the largest f32 ≤ 2μ and the next f32.
+    pub gap_mid: [u32; 2],
+    /// ⌊μ/2 · 2⁴⁰⌋.
+    pub spread: [u32; 2],
+}
+
 /// Uniforms of `shaders/clear_updated.wgsl` (WGSL twin: `SlotListUniforms` there).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
@@ -583,6 +603,10 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
     ("GpuVoxel", std::mem::size_of::<GpuVoxel>()),
     ("LookupUniforms", std::mem::size_of::<LookupUniforms>()),
     ("FrameKeyUniforms", std::mem::size_of::<FrameKeyUniforms>()),
+    (
+        "BandSliceUniforms",
+        std::mem::size_of::<BandSliceUniforms>(),
+    ),
     ("SlotListUniforms", std::mem::size_of::<SlotListUniforms>()),
     ("SlotFillUniforms", std::mem::size_of::<SlotFillUniforms>()),
     ("LidarUniforms", std::mem::size_of::<LidarUniforms>()),

@@ -176,6 +176,13 @@ pub const FRAME_KEYS: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite, ReadWrite]
 );
 
+/// A depth frame's band slices, one invocation per 8×8-pixel tile.
+pub const BAND_SLICES: ShaderSource = kernel!(
+    "band_slices.wgsl",
+    ["shared/dispatch.wgsl"],
+    [Uniform, Read, ReadWrite, ReadWrite, ReadWrite]
+);
+
 /// Writes the empty block into listed pool slots given to new blocks.
 pub const FILL_SLOTS: ShaderSource = kernel!(
     "fill_slots.wgsl",
@@ -474,6 +481,7 @@ pub const ALL: &[ShaderSource] = &[
     // The GPU hash table and pool.
     BLOCK_LOOKUP,
     FRAME_KEYS,
+    BAND_SLICES,
     CLEAR_UPDATED,
     FILL_SLOTS,
     // Stereo.

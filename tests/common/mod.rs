@@ -401,3 +401,70 @@ impl Drop for Moto {
         let _ = self.child.wait();
     }
 }
+
+/// A depth frame that exercises every decision of the band's tile lister
+/// (`denser::fusion::band_slices`): a floor seen at grazing angles out to 30 m, a box in front
+/// of a wall (gaps inside tiles), holes, infinities, negative and out-of-range depths, a width
+/// and height that are no multiples of 8 (tiles cut at the borders), and, for each μ of `mus`,
+/// tiles holding just two depths whose f32 difference lies within a few ULPs of 2μ or of μ/2
+/// (the thresholds, where rounding decides).
+pub fn band_test_frame(seed: u64, mus: &[f64]) -> DepthFrame {
+    let (w, h) = (203u32, 157u32);
+    let k = PinholeIntrinsics {
+        fx: 180.0,
+        fy: 180.0,
+        cx: 101.0,
+        cy: 60.0,
+        width: w,
+        height: h,
+    };
+    let mut rng = Rng(seed);
+    let mut data: Vec<f32> = (0..w * h)
+        .map(|p| {
+            let (u, v) = ((p % w) as f32, (p / w) as f32);
+            let r = rng.uniform();
+            match () {
+                _ if r < 0.02 => f32::NAN,
+                _ if r < 0.03 => [f32::INFINITY, -2.0, 0.05, 55.0, -0.0][(r * 1e4) as usize % 5],
+                _ if (60.0..130.0).contains(&u) && (20.0..70.0).contains(&v) => 2.0 + 0.003 * u,
+                // The floor: depth grows without bound towards the horizon (row 60).
+                _ if v > 64.0 => (1.5 * 180.0 / (v - 60.0)).min(30.0),
+                _ => 6.0 + 0.01 * u + 0.1 * (r as f32),
+            }
+        })
+        .collect();
+    // Threshold tiles along the top four rows: two depths, the rest unusable.
+    let thresholds: Vec<f64> = mus.iter().flat_map(|&mu| [2.0 * mu, 0.5 * mu]).collect();
+    let tiles_x = w / 8;
+    for t in 0..tiles_x * 4 {
+        let (u0, v0) = ((t % tiles_x) * 8, (t / tiles_x) * 8);
+        for dv in 0..8 {
+            for du in 0..8 {
+                data[((v0 + dv) * w + u0 + du) as usize] = f32::NAN;
+            }
+        }
+        let gap = thresholds[t as usize % thresholds.len()];
+        // A near depth in [0.25, 0.5) m and a far one 2μ or μ/2 further, give or take up to
+        // three ULPs: across binades, so that the f32 difference rounds (ties included).
+        let lo = (0.25 + 0.25 * rng.uniform()) as f32;
+        let ulps = (rng.next_u64() % 7) as i32 - 3;
+        let hi = f32::from_bits(
+            ((lo as f64 + gap) as f32)
+                .to_bits()
+                .wrapping_add_signed(ulps),
+        );
+        data[(v0 * w + u0) as usize] = lo;
+        data[((v0 + 1 + t % 7) * w + u0 + t % 5) as usize] = hi;
+    }
+    let pose = Isometry3::new(Vector3::new(0.3, -1.2, 0.7), Vector3::new(0.2, 0.1, 0.05));
+    DepthFrame {
+        intrinsics: k,
+        world_from_camera: pose,
+        depth_m: Image {
+            width: w,
+            height: h,
+            data,
+        },
+        color: None,
+    }
+}

@@ -5,6 +5,7 @@
 mod common;
 
 mod analytic;
+mod band_slices;
 mod eval_analytic;
 mod eval_output;
 mod real_data;

@@ -7,6 +7,7 @@ mod common;
 mod depth_support;
 
 mod agreement;
+mod band_slices;
 mod compare;
 mod frame_keys;
 mod in_flight;

@@ -1,0 +1,130 @@
+//! The GPU twin of [`super::band_slices`]: `shaders/band_slices.wgsl` summarises a depth image
+//! on the device as its band slices ([`BandSlices`]), 12 bytes each, from which the host lists
+//! the frame's blocks ([`super::blocks_of_band_slices`]) without the image. The kernel makes the
+//! CPU's decisions exactly: it compares depths by their bits and their differences in 64-bit
+//! fixed point against thresholds derived here ([`band_slice_uniforms`]).
+
+use super::{BandSlice, BandSlices, DepthFusionParams, BAND_SLICE_MAX_SIDE_PX, BAND_TILE_PX};
+use crate::frame::Image;
+use crate::gpu::layout::BandSliceUniforms;
+use crate::gpu::{shaders, ErrorScopes, GpuContext};
+use crate::grid::GridParams;
+use crate::{Error, Result};
+
+/// Units of the kernel's fixed point: 2⁻⁴⁰ m.
+const FIXED_PER_M: f64 = (1u64 << 40) as f64;
+
+/// Slices one tile can make at most (one per pixel).
+const SLICES_PER_TILE: u64 = (BAND_TILE_PX * BAND_TILE_PX) as u64;
+
+/// `x` (≥ 0, an integer below 2⁶⁴) as the kernel's (low, high) words.
+fn words(x: f64) -> [u32; 2] {
+    let n = x as u64;
+    [n as u32, (n >> 32) as u32]
+}
+
+/// The uniforms of `band_slices.wgsl` for an image of `width` × `height` of `grid` fused with
+/// `params`, or why the kernel cannot make the CPU's decisions for them.
+pub fn band_slice_uniforms(
+    grid: &GridParams,
+    params: &DepthFusionParams,
+    width: u32,
+    height: u32,
+) -> Result<BandSliceUniforms> {
+    if width == 0
+        || height == 0
+        || width > BAND_SLICE_MAX_SIDE_PX
+        || height > BAND_SLICE_MAX_SIDE_PX
+    {
+        return Err(Error::InvalidArgument(format!(
+            "band slices on the GPU take images of 1 to {BAND_SLICE_MAX_SIDE_PX} pixels a side, \
+             not {width}×{height}"
+        )));
+    }
+    // Usable depths within the fixed point's exact range, [2⁻¹⁷, 2²⁴) m.
+    let (lo_m, hi_m) = (params.min_depth_m, params.max_depth_m);
+    if !(lo_m >= (-17f32).exp2() && hi_m < 24f32.exp2()) {
+        return Err(Error::InvalidArgument(format!(
+            "band slices on the GPU need usable depths within [2⁻¹⁷, 2²⁴) m, not [{lo_m}, {hi_m}]"
+        )));
+    }
+    // `(hi - lo) as f64 > 2μ` for an f32 difference: the difference rounds above the largest
+    // f32 `t` ≤ 2μ exactly when it is past the midpoint between `t` and the next f32 (or at
+    // it, where that next f32 is the even one).
+    let two_mu = 2.0 * grid.truncation_m as f64;
+    let mut t = two_mu as f32;
+    if t as f64 > two_mu {
+        t = f32::from_bits(t.to_bits() - 1);
+    }
+    let next = f32::from_bits(t.to_bits() + 1);
+    let mid = 0.5 * (t as f64 + next as f64) * FIXED_PER_M;
+    let spread = 0.5 * grid.truncation_m as f64 * FIXED_PER_M;
+    if !(t > 0.0 && mid.fract() == 0.0 && mid < 2f64.powi(64)) {
+        return Err(Error::InvalidArgument(format!(
+            "band slices on the GPU need 2μ within [2⁻¹⁶, 2²⁴) m, not {two_mu} m"
+        )));
+    }
+    let tiles_x = width.div_ceil(BAND_TILE_PX as u32);
+    let tiles = tiles_x * height.div_ceil(BAND_TILE_PX as u32);
+    Ok(BandSliceUniforms {
+        size: [width, height, tiles_x, tiles],
+        usable_bits: [lo_m.to_bits(), hi_m.to_bits()],
+        capacity: (tiles as u64 * SLICES_PER_TILE) as u32,
+        gap_tie_up: (next.to_bits() & 1 == 0) as u32,
+        gap_mid: words(mid),
+        spread: words(spread.floor()),
+    })
+}
+
+/// The band slices of the depth image `depth_m` of a frame of `grid` fused with `params`, made
+/// on the GPU: equal to [`super::band_slices`]'s (`tests/gpu/band_slices.rs`). Uploads the
+/// image and reads back the counters, then the slices (two waits: a building block for a depth
+/// map that stays on the device, not yet a frame's path).
+pub fn band_slices_on_gpu(
+    ctx: &GpuContext,
+    grid: &GridParams,
+    depth_m: &Image<f32>,
+    params: &DepthFusionParams,
+) -> Result<BandSlices> {
+    let uniforms = band_slice_uniforms(grid, params, depth_m.width, depth_m.height)?;
+    let tiles = uniforms.size[3] as u64;
+    let capacity = uniforms.capacity as u64;
+    ctx.check_binding("band slices (768 bytes per 8×8 tile)", capacity * 12)?;
+    ctx.check_binding("the depth image", depth_m.data.len() as u64 * 4)?;
+    let kernel = ctx.kernel(&shaders::BAND_SLICES)?;
+    let scope = ErrorScopes::push(&ctx.device);
+    let buf_uniforms = ctx.uniform("band_slice_uniforms", bytemuck::bytes_of(&uniforms));
+    let buf_depth = ctx.storage("band_depth", bytemuck::cast_slice(&depth_m.data));
+    let buf_scratch = ctx.storage_zeroed("band_scratch", tiles * SLICES_PER_TILE * 4);
+    let buf_counters = ctx.storage_zeroed("band_counters", 8);
+    let buf_slices = ctx.storage_zeroed("band_slices", capacity * 12);
+    let bind = ctx.bind_group(
+        "band_slices",
+        &kernel.layout,
+        &[
+            &buf_uniforms,
+            &buf_depth,
+            &buf_scratch,
+            &buf_counters,
+            &buf_slices,
+        ],
+    );
+    let mut encoder = ctx.encoder("band_slices");
+    ctx.record_dispatch(&mut encoder, &kernel, &bind, tiles)?;
+    ctx.submit(encoder);
+    scope.pop("making a depth frame's band slices on the GPU")?;
+    let counters: Vec<u32> = ctx.read_back_as(&buf_counters, 2)?;
+    let count = counters[0] as usize;
+    if count as u64 > capacity {
+        return Err(Error::Gpu(format!(
+            "the band kernel made {count} slices, more than the {capacity} a frame can have"
+        )));
+    }
+    let words: Vec<[u32; 3]> = if count > 0 {
+        ctx.read_back_as(&buf_slices, count)?
+    } else {
+        Vec::new()
+    };
+    let slices = words.into_iter().map(BandSlice::unpack).collect();
+    Ok(BandSlices::new(slices, counters[1] as usize))
+}
