@@ -24,9 +24,10 @@ pub mod tgv;
 
 pub use gpu::{
     aggregate_paths_gpu, census_transform_gpu, cost_volume_gpu, costs_at_disparities_gpu,
-    diffusion_tensors_gpu, estimate_tgv_gpu, fill_from_background_gpu, filter_disparities_gpu,
-    pointwise_search_gpu, refine_gpu, select_disparities_gpu, window_costs_gpu, SgmMatcherGpu,
-    TgvMatcherGpu, TgvProblemGpu, GPU_SGM_MAX_DISPARITIES,
+    diffusion_tensors_gpu, disparity_depth_uniforms, disparity_to_depth_gpu, estimate_tgv_gpu,
+    fill_from_background_gpu, filter_disparities_gpu, pointwise_search_gpu, refine_gpu,
+    select_disparities_gpu, window_costs_gpu, SgmMatcherGpu, TgvMatcherGpu, TgvProblemGpu,
+    GPU_SGM_MAX_DISPARITIES,
 };
 pub use ground_truth::disparity_from_points;
 pub use metrics::{evaluate_disparity, StereoMetrics};

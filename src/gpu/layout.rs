@@ -241,6 +241,18 @@ pub struct BandSliceUniforms {
     pub spread: [u32; 2],
 }
 
+/// Uniforms of `shaders/disparity_depth.wgsl` (WGSL twin: `DisparityDepthUniforms` there).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct DisparityDepthUniforms {
+    /// Pixels.
+    pub pixels: u32,
+    /// f·B = M · 2^fb_exp.
+    pub fb_exp: i32,
+    /// M's low and high words (53 bits, the top one set).
+    pub fb_words: [u32; 2],
+}
+
 /// Uniforms of `shaders/clear_updated.wgsl` (WGSL twin: `SlotListUniforms` there).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]

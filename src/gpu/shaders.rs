@@ -183,6 +183,13 @@ pub const BAND_SLICES: ShaderSource = kernel!(
     [Uniform, Read, ReadWrite, ReadWrite, ReadWrite]
 );
 
+/// Depth from disparity, one invocation per pixel (the CPU's f64 quotient, in integers).
+pub const DISPARITY_DEPTH: ShaderSource = kernel!(
+    "disparity_depth.wgsl",
+    ["shared/dispatch.wgsl", "shared/float_bits.wgsl"],
+    [Uniform, Read, ReadWrite]
+);
+
 /// Writes the empty block into listed pool slots given to new blocks.
 pub const FILL_SLOTS: ShaderSource = kernel!(
     "fill_slots.wgsl",
@@ -482,6 +489,7 @@ pub const ALL: &[ShaderSource] = &[
     BLOCK_LOOKUP,
     FRAME_KEYS,
     BAND_SLICES,
+    DISPARITY_DEPTH,
     CLEAR_UPDATED,
     FILL_SLOTS,
     // Stereo.

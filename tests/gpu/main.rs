@@ -9,6 +9,7 @@ mod depth_support;
 mod agreement;
 mod band_slices;
 mod compare;
+mod disparity_depth;
 mod frame_keys;
 mod in_flight;
 mod lidar;
