@@ -61,6 +61,7 @@ use sgm_filters::MapOnDevice;
 pub use sgm_filters::{fill_from_background_gpu, filter_disparities_gpu};
 mod invalidate;
 mod to_depth;
+pub(crate) use to_depth::record_disparity_depth;
 pub use to_depth::{disparity_depth_uniforms, disparity_to_depth_gpu};
 
 /// [`crate::depth::tgv::box_filtered_costs`] on the GPU (`shaders/cost_window.wgsl`): the

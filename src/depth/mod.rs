@@ -22,6 +22,7 @@ pub mod metrics;
 pub mod sgm;
 pub mod tgv;
 
+pub(crate) use gpu::record_disparity_depth;
 pub use gpu::{
     aggregate_paths_gpu, census_transform_gpu, cost_volume_gpu, costs_at_disparities_gpu,
     diffusion_tensors_gpu, disparity_depth_uniforms, disparity_to_depth_gpu, estimate_tgv_gpu,

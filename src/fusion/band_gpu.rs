@@ -78,8 +78,7 @@ pub fn band_slice_uniforms(
 
 /// The band slices of the depth image `depth_m` of a frame of `grid` fused with `params`, made
 /// on the GPU: equal to [`super::band_slices`]'s (`tests/gpu/band_slices.rs`). Uploads the
-/// image and reads back the counters, then the slices (two waits: a building block for a depth
-/// map that stays on the device, not yet a frame's path).
+/// image and reads back the counters, then the slices.
 pub fn band_slices_on_gpu(
     ctx: &GpuContext,
     grid: &GridParams,
@@ -87,44 +86,67 @@ pub fn band_slices_on_gpu(
     params: &DepthFusionParams,
 ) -> Result<BandSlices> {
     let uniforms = band_slice_uniforms(grid, params, depth_m.width, depth_m.height)?;
+    ctx.check_binding("the depth image", depth_m.data.len() as u64 * 4)?;
+    let buf_depth = ctx.storage("band_depth", bytemuck::cast_slice(&depth_m.data));
+    let mut encoder = ctx.encoder("band_slices");
+    let out = record_band_slices(ctx, &mut encoder, &uniforms, &buf_depth)?;
+    ctx.submit(encoder);
+    out.read_back(ctx)
+}
+
+/// The outputs of a recorded `band_slices.wgsl` dispatch, on the device.
+pub(crate) struct BandSliceOutputs {
+    counters: wgpu::Buffer,
+    slices: wgpu::Buffer,
+    capacity: u64,
+}
+
+/// Records `band_slices.wgsl` over the depths `buf_depth` (f32, as `uniforms` describes the
+/// image) into `encoder`.
+pub(crate) fn record_band_slices(
+    ctx: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    uniforms: &BandSliceUniforms,
+    buf_depth: &wgpu::Buffer,
+) -> Result<BandSliceOutputs> {
     let tiles = uniforms.size[3] as u64;
     let capacity = uniforms.capacity as u64;
     ctx.check_binding("band slices (768 bytes per 8×8 tile)", capacity * 12)?;
-    ctx.check_binding("the depth image", depth_m.data.len() as u64 * 4)?;
     let kernel = ctx.kernel(&shaders::BAND_SLICES)?;
     let scope = ErrorScopes::push(&ctx.device);
-    let buf_uniforms = ctx.uniform("band_slice_uniforms", bytemuck::bytes_of(&uniforms));
-    let buf_depth = ctx.storage("band_depth", bytemuck::cast_slice(&depth_m.data));
+    let buf_uniforms = ctx.uniform("band_slice_uniforms", bytemuck::bytes_of(uniforms));
     let buf_scratch = ctx.storage_zeroed("band_scratch", tiles * SLICES_PER_TILE * 4);
-    let buf_counters = ctx.storage_zeroed("band_counters", 8);
-    let buf_slices = ctx.storage_zeroed("band_slices", capacity * 12);
-    let bind = ctx.bind_group(
-        "band_slices",
-        &kernel.layout,
-        &[
-            &buf_uniforms,
-            &buf_depth,
-            &buf_scratch,
-            &buf_counters,
-            &buf_slices,
-        ],
-    );
-    let mut encoder = ctx.encoder("band_slices");
-    ctx.record_dispatch(&mut encoder, &kernel, &bind, tiles)?;
-    ctx.submit(encoder);
-    scope.pop("making a depth frame's band slices on the GPU")?;
-    let counters: Vec<u32> = ctx.read_back_as(&buf_counters, 2)?;
-    let count = counters[0] as usize;
-    if count as u64 > capacity {
-        return Err(Error::Gpu(format!(
-            "the band kernel made {count} slices, more than the {capacity} a frame can have"
-        )));
+    let counters = ctx.storage_zeroed("band_counters", 8);
+    let slices = ctx.storage_zeroed("band_slices", capacity * 12);
+    let buffers = [&buf_uniforms, buf_depth, &buf_scratch, &counters, &slices];
+    let bind = ctx.bind_group("band_slices", &kernel.layout, &buffers);
+    ctx.record_dispatch(encoder, &kernel, &bind, tiles)?;
+    scope.pop("recording a depth frame's band slices on the GPU")?;
+    Ok(BandSliceOutputs {
+        counters,
+        slices,
+        capacity,
+    })
+}
+
+impl BandSliceOutputs {
+    /// The slices, once the submit holding their dispatch has run: the counters, then the
+    /// slices (two waits).
+    pub(crate) fn read_back(&self, ctx: &GpuContext) -> Result<BandSlices> {
+        let counters: Vec<u32> = ctx.read_back_as(&self.counters, 2)?;
+        let count = counters[0] as usize;
+        if count as u64 > self.capacity {
+            return Err(Error::Gpu(format!(
+                "the band kernel made {count} slices, more than the {} a frame can have",
+                self.capacity
+            )));
+        }
+        let words: Vec<[u32; 3]> = if count > 0 {
+            ctx.read_back_as(&self.slices, count)?
+        } else {
+            Vec::new()
+        };
+        let slices = words.into_iter().map(BandSlice::unpack).collect();
+        Ok(BandSlices::new(slices, counters[1] as usize))
     }
-    let words: Vec<[u32; 3]> = if count > 0 {
-        ctx.read_back_as(&buf_slices, count)?
-    } else {
-        Vec::new()
-    };
-    let slices = words.into_iter().map(BandSlice::unpack).collect();
-    Ok(BandSlices::new(slices, counters[1] as usize))
 }

@@ -309,6 +309,28 @@ impl DepthPlan {
         }
     }
 
+    /// The plan of a frame whose depths are elsewhere (on the device), from its band slices
+    /// ([`super::band_slices`] or their GPU twin): the same plan as [`DepthPlan::new`] gives
+    /// the frame with its depths. `frame` gives the camera, the pose and the image size.
+    pub fn from_slices(
+        grid: &GridParams,
+        frame: &DepthFrame,
+        params: &DepthFusionParams,
+        slices: &super::BandSlices,
+    ) -> Self {
+        let t = std::time::Instant::now();
+        let (k, pose) = (&frame.intrinsics, &frame.world_from_camera);
+        let band = super::blocks_of_band_slices(grid, k, pose, params, slices);
+        DepthPlan {
+            band,
+            frustum: ViewFrustum::new(frame, params, grid.truncation_m as f64),
+            geometry: DepthGeometry::new(grid, frame),
+            measurements: slices.usable_pixels,
+            camera_m: pose.translation.vector.into(),
+            listing_s: t.elapsed().as_secs_f64(),
+        }
+    }
+
     /// The blocks fusion updates: the band plus the allocated blocks of `layer` in view, sorted.
     pub fn blocks(&self, layer: &Layer) -> TouchedBlocks {
         merge_sorted(&self.band, &visible_blocks_in(layer, &self.frustum))

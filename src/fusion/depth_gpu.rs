@@ -18,6 +18,7 @@
 //! [`integrate_depth_plan`]: super::integrate_depth_plan
 
 use super::depth::{DepthFusionParams, DepthPlan};
+use super::depth_device::DeviceDepthFrame;
 use super::depth_keys::FrameKeys;
 use super::FusionStats;
 use crate::frame::DepthFrame;
@@ -137,6 +138,41 @@ pub fn integrate_depth_resident(
     params: &DepthFusionParams,
     plan: &DepthPlan,
 ) -> Result<(TouchedBlocks, FusionStats)> {
+    integrate_resident(map, layer, (frame, None), params, plan)
+}
+
+/// [`integrate_depth_resident`] for a frame whose depths are on the device (a matcher left
+/// them there): planned from its band slices ([`DeviceDepthFrame::plan`]), its depths copied on
+/// the device into the fusion's input, so that only its colour goes up. Equal to fusing the
+/// frame's depths from the host (`tests/gpu/device_depth.rs`). A frame too large for the pool
+/// reads its depths back (counted) and goes through [`integrate_depth_gpu`].
+pub fn integrate_device_depth_resident(
+    map: &mut ResidentMap,
+    layer: &mut Layer,
+    frame: &DeviceDepthFrame,
+    params: &DepthFusionParams,
+    plan: &DepthPlan,
+) -> Result<(TouchedBlocks, FusionStats)> {
+    integrate_resident(
+        map,
+        layer,
+        (frame.header(), Some(frame.depth_buffer())),
+        params,
+        plan,
+    )
+}
+
+/// The frame's header (the whole frame where `depth` is `None`) and, where its depths are on
+/// the device, their buffer.
+type ResidentInput<'a> = (&'a DepthFrame, Option<&'a wgpu::Buffer>);
+
+fn integrate_resident(
+    map: &mut ResidentMap,
+    layer: &mut Layer,
+    (frame, depth): ResidentInput,
+    params: &DepthFusionParams,
+    plan: &DepthPlan,
+) -> Result<(TouchedBlocks, FusionStats)> {
     if layer.params() != map.grid() {
         return Err(Error::InvalidArgument(
             "resident GPU map and layer have different grids".into(),
@@ -158,6 +194,14 @@ pub fn integrate_depth_resident(
         );
         map.flush_blocks(layer, &blocks)?;
         let ctx = map.context().clone();
+        let read_back;
+        let frame = match depth {
+            Some(buffer) => {
+                read_back = DeviceDepthFrame::read_back_from(&ctx, frame, buffer)?;
+                &read_back
+            }
+            None => frame,
+        };
         let (mut touched, mut stats) = integrate_depth_gpu(&ctx, layer, frame, params, plan)?;
         let (earlier, updates) = map.take_collected();
         touched.extend(earlier);
@@ -177,7 +221,7 @@ pub fn integrate_depth_resident(
         map.make_resident(layer, &listed, plan.camera_m, Some(&mut encoder))?;
         let t = std::time::Instant::now();
         let frame_parts = (listed, first_unsettled, encoder);
-        let inputs_s = run_resident(map, layer, frame_parts, frame, params, plan)?;
+        let inputs_s = run_resident(map, layer, frame_parts, (frame, depth), params, plan)?;
         map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
     }
     let (touched, voxel_updates) = map.end_in_flight(layer)?;
@@ -209,7 +253,7 @@ fn run_resident(
     map: &mut ResidentMap,
     layer: &Layer,
     (blocks, first_unsettled, mut encoder): (Vec<BlockIndex>, usize, wgpu::CommandEncoder),
-    frame: &DepthFrame,
+    (frame, depth): ResidentInput,
     params: &DepthFusionParams,
     plan: &DepthPlan,
 ) -> Result<f64> {
@@ -236,10 +280,8 @@ fn run_resident(
         voxel_count: voxel_count as u32,
         ..fuse_uniforms(plan, frame, params)
     };
-    ctx.check_binding(
-        "depth image (4 bytes per pixel)",
-        frame.depth_m.data.len() as u64 * 4,
-    )?;
+    let depth_bytes = frame.depth_m.width as u64 * frame.depth_m.height as u64 * 4;
+    ctx.check_binding("depth image (4 bytes per pixel)", depth_bytes)?;
     ctx.check_binding("block bases (16 bytes per block)", n * 16)?;
     let keys = FrameKeys::new(&grid, &plan.geometry, &blocks, first_unsettled)?;
     let key_uniforms = keys.uniforms(mask);
@@ -253,7 +295,12 @@ fn run_resident(
     let buf_slots = kept.scratch(ctx, "lookup_slots", n * 4);
     let buf_bases = kept.scratch(ctx, "fuse_block_base", n * 16);
     let buf_uniforms = kept.uniform_with(ctx, "fuse_uniforms", bytemuck::bytes_of(&uniforms));
-    let buf_depth = kept.storage_with(ctx, "fuse_depth", bytemuck::cast_slice(&frame.depth_m.data));
+    let buf_depth = match depth {
+        Some(on_device) => {
+            kept.storage_copied(ctx, &mut encoder, "fuse_depth", (on_device, depth_bytes))
+        }
+        None => kept.storage_with(ctx, "fuse_depth", bytemuck::cast_slice(&frame.depth_m.data)),
+    };
     let buf_color = kept.storage_with(ctx, "fuse_color", color_bytes(frame, params));
     let buf_counters = kept.scratch(ctx, "fuse_counters", 16);
     let buf_updated = kept.scratch(ctx, "block_updated", n * 4);

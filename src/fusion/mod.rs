@@ -22,6 +22,7 @@ mod band;
 mod band_gpu;
 mod depth;
 mod depth_block;
+mod depth_device;
 mod depth_gpu;
 mod depth_keys;
 mod lidar;
@@ -38,8 +39,10 @@ pub use depth::{
     integrate_depth, integrate_depth_plan, visible_blocks, visible_blocks_by_scan,
     visible_blocks_in, DepthFusionParams, DepthGeometry, DepthPlan, ViewFrustum,
 };
+pub use depth_device::DeviceDepthFrame;
 pub use depth_gpu::{
-    frame_keys_on_gpu, integrate_depth_gpu, integrate_depth_resident, ResolvedKeys,
+    frame_keys_on_gpu, integrate_depth_gpu, integrate_depth_resident,
+    integrate_device_depth_resident, ResolvedKeys,
 };
 pub use depth_keys::{pack_offset, unpack_offset, FrameKeys, OFFSET_BITS};
 pub(crate) use lidar::band_m;

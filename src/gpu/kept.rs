@@ -102,6 +102,20 @@ impl Kept {
         self.buffer(ctx, name, bytes, STORAGE)
     }
 
+    /// The kept storage buffer `name` holding the first `bytes` of `source` (a multiple of 4),
+    /// copied on the device in `encoder` (nothing goes up).
+    pub(crate) fn storage_copied(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        name: &'static str,
+        (source, bytes): (&wgpu::Buffer, u64),
+    ) -> wgpu::Buffer {
+        let b = self.buffer(ctx, name, bytes.max(4), STORAGE);
+        encoder.copy_buffer_to_buffer(source, 0, &b, 0, bytes);
+        b
+    }
+
     /// The kept staging buffer for readbacks of up to `bytes`.
     pub(crate) fn staging(&mut self, ctx: &GpuContext, bytes: u64) -> wgpu::Buffer {
         let usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;

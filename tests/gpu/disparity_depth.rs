@@ -13,8 +13,12 @@ fn depth_from_disparity_on_the_gpu_is_the_cpus() {
     let Some(ctx) = gpu() else { return };
     let mut rng = Rng(11);
     // (f, B): KITTI's, exact powers of two, and large and odd products.
-    for (fx_px, baseline_m) in [(718.856, 0.537_165_7), (16.0, 0.5), (2_000.3, 511.7), (525.0, 0.075)]
-    {
+    for (fx_px, baseline_m) in [
+        (718.856, 0.537_165_7),
+        (16.0, 0.5),
+        (2_000.3, 511.7),
+        (525.0, 0.075),
+    ] {
         let fb = fx_px * baseline_m;
         let mut data: Vec<f32> = vec![
             f32::NAN,
@@ -65,7 +69,10 @@ fn depth_from_disparity_on_the_gpu_is_the_cpus() {
             .map(|(i, (a, b))| (map.disparity_px.data[i], *a, *b))
             .take(5)
             .collect::<Vec<_>>();
-        assert!(differing.is_empty(), "f·B {fb}: (d, CPU, GPU) {differing:?}");
+        assert!(
+            differing.is_empty(),
+            "f·B {fb}: (d, CPU, GPU) {differing:?}"
+        );
         // Where f·B is no f32, an f32 division would not do: it differs from the CPU's depth.
         let fb32 = fb as f32;
         let f32_off = map

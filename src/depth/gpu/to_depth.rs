@@ -53,25 +53,38 @@ pub fn disparity_to_depth_gpu(
             data: Vec::new(),
         });
     }
-    let bytes = img.data.len() as u64 * 4;
-    ctx.check_binding("the disparity map", bytes)?;
-    let kernel = ctx.kernel(&shaders::DISPARITY_DEPTH)?;
-    let scope = ErrorScopes::push(&ctx.device);
-    let buf_uniforms = ctx.uniform("disparity_depth_uniforms", bytemuck::bytes_of(&uniforms));
+    ctx.check_binding("the disparity map", img.data.len() as u64 * 4)?;
     let buf_disparity = ctx.storage("disparity", bytemuck::cast_slice(&img.data));
-    let buf_depth = ctx.storage_zeroed("depth", bytes);
-    let bind = ctx.bind_group(
-        "disparity_depth",
-        &kernel.layout,
-        &[&buf_uniforms, &buf_disparity, &buf_depth],
-    );
     let mut encoder = ctx.encoder("disparity_depth");
-    ctx.record_dispatch(&mut encoder, &kernel, &bind, img.data.len() as u64)?;
+    let buf_depth = record_disparity_depth(ctx, &mut encoder, &uniforms, &buf_disparity)?;
     ctx.submit(encoder);
-    scope.pop("converting disparities to depths on the GPU")?;
     Ok(Image {
         width: img.width,
         height: img.height,
         data: ctx.read_back_as(&buf_depth, img.data.len())?,
     })
+}
+
+/// Records `disparity_depth.wgsl` over the disparities `buf_disparity` (f32, `uniforms.pixels`
+/// of them) into `encoder`; returns the buffer the depths will be in (f32, metres).
+pub(crate) fn record_disparity_depth(
+    ctx: &GpuContext,
+    encoder: &mut wgpu::CommandEncoder,
+    uniforms: &DisparityDepthUniforms,
+    buf_disparity: &wgpu::Buffer,
+) -> Result<wgpu::Buffer> {
+    let pixels = uniforms.pixels as u64;
+    ctx.check_binding("the depth map", pixels * 4)?;
+    let kernel = ctx.kernel(&shaders::DISPARITY_DEPTH)?;
+    let scope = ErrorScopes::push(&ctx.device);
+    let buf_uniforms = ctx.uniform("disparity_depth_uniforms", bytemuck::bytes_of(uniforms));
+    let buf_depth = ctx.storage_zeroed("depth", pixels * 4);
+    let bind = ctx.bind_group(
+        "disparity_depth",
+        &kernel.layout,
+        &[&buf_uniforms, buf_disparity, &buf_depth],
+    );
+    ctx.record_dispatch(encoder, &kernel, &bind, pixels)?;
+    scope.pop("recording depth from disparity on the GPU")?;
+    Ok(buf_depth)
 }

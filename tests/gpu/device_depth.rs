@@ -1,0 +1,109 @@
+//! A depth frame whose depths stay on the device (`denser::fusion::DeviceDepthFrame`): made
+//! there from disparities, planned from its band slices and fused where it is, against the
+//! same frame with its depths converted and fused from the host: the same depths, the same plan,
+//! the same map, and, once warm, a frame that sends only its colour and offsets up.
+
+use crate::common::{fuse_depth_resident, gpu};
+use crate::street::street_frame;
+use denser::depth::{disparity_to_depth, DisparityMap};
+use denser::frame::{DepthFrame, Image};
+use denser::fusion::{
+    integrate_device_depth_resident, DepthFusionParams, DepthPlan, DeviceDepthFrame,
+};
+use denser::gpu::{ResidentMap, ResidentOptions};
+use denser::grid::{GridParams, Layer};
+use std::sync::Arc;
+
+/// KITTI's stereo baseline, metres.
+const BASELINE_M: f64 = 0.537_165_7;
+
+/// The disparities a matcher would find for `frame`'s depths, with holes.
+fn disparities_of(frame: &DepthFrame) -> DisparityMap {
+    let fb = frame.intrinsics.fx * BASELINE_M;
+    let w = frame.depth_m.width as usize;
+    let data = (frame.depth_m.data.iter().enumerate())
+        .map(|(p, &z)| {
+            if (p % w + 3 * (p / w)) % 13 == 0 {
+                f32::NAN
+            } else {
+                (fb / z as f64) as f32
+            }
+        })
+        .collect();
+    DisparityMap {
+        disparity_px: Image {
+            width: frame.depth_m.width,
+            height: frame.depth_m.height,
+            data,
+        },
+        confidence: None,
+    }
+}
+
+#[test]
+fn a_frame_fused_from_its_depths_on_the_device_is_the_hosts() {
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let grid = GridParams::paper(0.1);
+    let params = DepthFusionParams::default();
+    let new_map = || {
+        let mut map = ResidentMap::new(ctx.clone(), grid, ResidentOptions::default()).expect("pool");
+        map.set_frames_in_flight(true);
+        map
+    };
+    let (mut host_map, mut host_layer) = (new_map(), Layer::new(grid));
+    let (mut dev_map, mut dev_layer) = (new_map(), Layer::new(grid));
+    let mut steady = 0;
+    for k in 0..6u32 {
+        let frame = street_frame(0.8 * k as f64, k);
+        let disparity = disparities_of(&frame);
+        let fx = frame.intrinsics.fx;
+        let host_frame = DepthFrame {
+            depth_m: disparity_to_depth(&disparity, fx, BASELINE_M),
+            ..frame.clone()
+        };
+        fuse_depth_resident(&mut host_map, &mut host_layer, &host_frame, &params).expect("fuse");
+        let view = (frame.intrinsics, frame.world_from_camera, frame.color.clone());
+        let dev = DeviceDepthFrame::from_disparity(
+            &ctx,
+            (&grid, &params),
+            view,
+            &disparity,
+            BASELINE_M,
+        )
+        .expect("device frame");
+        let back = dev.read_back(&ctx).expect("read back");
+        let bits = |f: &DepthFrame| f.depth_m.data.iter().map(|d| d.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&back), bits(&host_frame), "frame {k}: depths");
+        let plan = dev.plan(&grid, &params);
+        let host_plan = DepthPlan::new(&grid, &host_frame, &params);
+        assert_eq!(plan.band, host_plan.band, "frame {k}: band");
+        assert_eq!(plan.measurements, host_plan.measurements);
+        assert!(plan.band.len() > 3000, "{} blocks: not a street", plan.band.len());
+        ctx.wait_idle_uncounted().expect("idle");
+        let (grows, before) = (dev_map.stats().grows, ctx.traffic());
+        integrate_device_depth_resident(&mut dev_map, &mut dev_layer, &dev, &params, &plan)
+            .expect("fuse on the device");
+        let t = ctx.traffic().since(before);
+        eprintln!(
+            "frame {k}: {} slices ({} bytes), fusion {t:?}",
+            dev.slices().slices.len(),
+            dev.slices().slices.len() * 12
+        );
+        if k >= 3 && dev_map.stats().grows == grows {
+            // Warm: the colour (3 bytes a pixel) and the blocks' offsets go up, not the depths.
+            steady += 1;
+            let colour = 3 * frame.depth_m.data.len() as u64;
+            assert!(t.upload_bytes <= colour + (64 << 10), "{t:?}");
+            assert!(t.readback_bytes <= 64 << 10, "{t:?}");
+            assert_eq!((t.submits, t.waits, t.buffers_created), (1, 0, 0), "{t:?}");
+        }
+    }
+    assert!(steady >= 2, "{steady} warm frames");
+    host_map.sync(&mut host_layer).expect("sync");
+    dev_map.sync(&mut dev_layer).expect("sync");
+    let blocks = host_layer.indices_sorted();
+    assert!(blocks.len() > 3000, "{} blocks", blocks.len());
+    assert_eq!(dev_layer.indices_sorted(), blocks);
+    assert!(blocks.iter().all(|i| dev_layer.get(i) == host_layer.get(i)));
+}
