@@ -71,7 +71,9 @@ fn main() -> anyhow::Result<()> {
         let scan = |k: usize| -> anyhow::Result<denser::frame::LidarScan> {
             match seq.read(k)? {
                 RangeInput::Lidar(s) => Ok(s),
-                RangeInput::Depth(_) => anyhow::bail!("expected LiDAR"),
+                RangeInput::Depth(_) | RangeInput::DeviceDepth(_) => {
+                    anyhow::bail!("expected LiDAR")
+                }
             }
         };
         for k in 17..20 {

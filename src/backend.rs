@@ -22,8 +22,9 @@ use crate::depth::SgmParams;
 use crate::depth::{DisparityEstimator, SgmMatcher, SgmMatcherGpu, StereoMethod, TgvMatcherGpu};
 use crate::frame::DepthFrame;
 use crate::fusion::{
-    integrate_depth_plan, integrate_depth_resident, integrate_lidar_plan, integrate_lidar_resident,
-    DepthFusionParams, DepthPlan, FusionStats, LidarPlan,
+    integrate_depth_plan, integrate_depth_resident, integrate_device_depth_resident,
+    integrate_lidar_plan, integrate_lidar_resident, DepthFusionParams, DepthPlan, DeviceDepthFrame,
+    FusionStats, LidarPlan,
 };
 use crate::gpu::kept::Kept;
 use crate::gpu::{
@@ -202,6 +203,12 @@ impl Backend {
         self.gpu.as_ref().filter(|_| on_gpu)
     }
 
+    /// Whether a GPU matcher's depths can stay on the device for the fusion: stereo and depth
+    /// fusion both run on this backend's GPU.
+    pub fn keeps_depth_on_device(&self) -> bool {
+        self.gpu.is_some() && self.stages.stereo && self.stages.fusion
+    }
+
     /// The device in words, for summaries: "CPU" or the adapter, e.g. "llvmpipe (LLVM 15.0.6,
     /// 256 bits) (Vulkan)".
     pub fn device_name(&self) -> String {
@@ -267,6 +274,32 @@ impl Backend {
         let t = &mut self.traffic;
         counted(Some(&ctx), &mut t.depth, &mut t.depth_frames, || {
             integrate_depth_resident(resident, layer, frame, params, plan)
+        })
+    }
+
+    /// [`Backend::fuse_depth`] for a frame whose depths are on the GPU: fused where they are
+    /// when this backend fuses on that GPU, else read back (counted) and fused as a host frame.
+    pub fn fuse_device_depth(
+        &mut self,
+        layer: &mut Layer,
+        frame: &DeviceDepthFrame,
+        params: &DepthFusionParams,
+        plan: &DepthPlan,
+    ) -> Result<(TouchedBlocks, FusionStats)> {
+        let same_device = |ctx: &Arc<GpuContext>| Arc::ptr_eq(ctx, frame.context());
+        let gpu = self
+            .gpu
+            .clone()
+            .filter(|c| self.stages.fusion && same_device(c));
+        let Some(ctx) = gpu else {
+            let host = frame.read_back(frame.context())?;
+            return self.fuse_depth(layer, &host, params, plan);
+        };
+        let options = (self.resident_options, self.frames_in_flight);
+        let resident = Self::resident_map(&mut self.resident, options, &ctx, layer)?;
+        let t = &mut self.traffic;
+        counted(Some(&ctx), &mut t.depth, &mut t.depth_frames, || {
+            integrate_device_depth_resident(resident, layer, frame, params, plan)
         })
     }
 

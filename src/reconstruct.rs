@@ -6,6 +6,7 @@
 
 use crate::backend::{Backend, TvDevices};
 use crate::frame::{DepthFrame, LidarScan};
+use crate::fusion::DeviceDepthFrame;
 use crate::fusion::{DepthFusionParams, DepthPlan, FusionStats, LidarFusionParams, LidarPlan};
 use crate::gpu::ResidentStats;
 use crate::grid::{GridParams, Layer, TouchedBlocks};
@@ -255,6 +256,7 @@ impl Reconstructor {
     pub fn fuse(&mut self, input: &RangeInput) -> crate::Result<TouchedBlocks> {
         match input {
             RangeInput::Depth(f) => self.fuse_depth(f),
+            RangeInput::DeviceDepth(f) => self.fuse_device_depth(f),
             RangeInput::Lidar(s) => self.fuse_lidar(s),
         }
     }
@@ -303,6 +305,29 @@ impl Reconstructor {
         self.timings.paging_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let (touched, stats) = self.backend.fuse_depth(
+            self.store.layer_mut(),
+            frame,
+            &self.config.depth_fusion,
+            &plan,
+        )?;
+        self.timings.fusion_s += planned_s + t.elapsed().as_secs_f64();
+        self.after_frame(plan.camera_m, &touched, stats)?;
+        Ok(touched)
+    }
+
+    /// Fuses a depth frame whose depths are on the GPU ([`DeviceDepthFrame`]), planned from its
+    /// band slices: where the backend fuses on that GPU, from the depths where they are (only
+    /// the colour goes up), else from the depths read back. The same map as
+    /// [`Reconstructor::fuse_depth`] with the frame's depths.
+    pub fn fuse_device_depth(&mut self, frame: &DeviceDepthFrame) -> crate::Result<TouchedBlocks> {
+        let t = Instant::now();
+        let plan = frame.plan(&self.config.grid, &self.config.depth_fusion)?;
+        let planned_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        self.store.prepare_depth(&plan, &mut self.backend)?;
+        self.timings.paging_s += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let (touched, stats) = self.backend.fuse_device_depth(
             self.store.layer_mut(),
             frame,
             &self.config.depth_fusion,

@@ -50,6 +50,7 @@ fn bench_rgbd(
     let frames: Vec<_> = (0..seq.len())
         .map(|i| match seq.read(i)? {
             RangeInput::Depth(f) => Ok(f),
+            RangeInput::DeviceDepth(f) => f.read_back(f.context()),
             RangeInput::Lidar(_) => Err(denser::Error::bad_input(dir, "expected depth frames")),
         })
         .collect::<denser::Result<_>>()?;

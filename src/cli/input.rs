@@ -55,6 +55,7 @@ impl InputArgs {
                 left_topic: self.left_topic.clone(),
                 right_topic: self.right_topic.clone(),
             },
+            depth_on_device: None,
         }
     }
 }

@@ -352,7 +352,12 @@ pub(crate) fn run_job(job: &Job, backend: Backend) -> Result<Report> {
     // Where the results go is checked before any work (a file, a read-only folder, no space).
     denser::io::atomic::check_output_dir(&job.out_dir)
         .with_context(|| format!("checking the output folder {}", job.out_dir.display()))?;
-    let seq = open_input(&job.input, &job.how.options(job.source), stereo).with_context(context)?;
+    let mut options = job.how.options(job.source);
+    if backend.keeps_depth_on_device() {
+        // Stereo and fusion on one GPU: the depths stay there between them.
+        options.depth_on_device = Some((job.config.grid, job.config.depth_fusion));
+    }
+    let seq = open_input(&job.input, &options, stereo).with_context(context)?;
     let frames = job
         .range
         .select(seq.len(), &seq.describe())

@@ -38,7 +38,7 @@ use crate::depth::sgm::{CostVolume, SgmMatcher, VolumeShape};
 use crate::depth::tgv::{
     check_search, diffusion_tensors, Regularizer, TgvMatcher, TgvProblem, TgvStages,
 };
-use crate::depth::{DisparityEstimator, DisparityMap};
+use crate::depth::{DisparityEstimator, DisparityMap, OnDeviceDisparity};
 use crate::frame::{GreyImage, Image};
 use crate::gpu::kept::Kept;
 use crate::gpu::{ErrorScopes, GpuContext, StageTally};
@@ -237,7 +237,9 @@ pub fn estimate_tgv_gpu(
     left: &GreyImage,
     right: &GreyImage,
 ) -> Result<TgvStages> {
-    estimate_kept(ctx, matcher, &mut Kept::default(), (left, right), true)
+    let finish = Finish::ReadBack { stages: true };
+    let stages = estimate_kept(ctx, matcher, &mut Kept::default(), (left, right), finish)?;
+    Ok(stages.expect("read back"))
 }
 
 /// [`estimate_tgv_gpu`] with the buffers and bind groups kept in `kept` between pairs. With
@@ -248,8 +250,8 @@ fn estimate_kept(
     matcher: &TgvMatcher,
     kept: &mut Kept,
     (left, right): (&GreyImage, &GreyImage),
-    stages: bool,
-) -> Result<TgvStages> {
+    finish: Finish,
+) -> Result<Option<TgvStages>> {
     let p = &matcher.params;
     p.validate()?;
     let census = (&p.sgm.census, p.sgm.min_disparity_px, p.sgm.num_disparities);
@@ -275,11 +277,11 @@ fn estimate_kept(
         *kept = gpu.into_kept();
         let (dense, costs) = gathered?;
         let result = matcher.invalidate_with(&dense, &init, &costs, on_device.shape);
-        return Ok(TgvStages {
+        return Ok(Some(TgvStages {
             sgm: init,
             dense_px: dense,
             result,
-        });
+        }));
     }
     let scope = ErrorScopes::push(&ctx.device);
     let mut encoder = ctx.encoder("sgm");
@@ -295,11 +297,44 @@ fn estimate_kept(
     let volume = (shape, &on_device.volume);
     let left_on_device = (left, Some(&on_device.left));
     let taken = (std::mem::take(kept), encoder);
-    let (mut gpu, encoder) =
+    let (mut gpu, mut encoder) =
         refine_on_device(ctx, taken, matcher, left_on_device, volume, Init::OnDevice)?;
-    let finished = finish_on_device((&mut gpu, encoder), matcher, volume, &sgm, stages);
+    let finished = match finish {
+        Finish::ReadBack { stages } => {
+            finish_on_device((&mut gpu, encoder), matcher, volume, &sgm, stages).map(Some)
+        }
+        Finish::HandOn(arc, hand_on) => {
+            let scope = ErrorScopes::push(&ctx.device);
+            let result = gpu.record_invalidation(&mut encoder, matcher, volume, &sgm);
+            let handed = result.and_then(|result| {
+                hand_on(OnDeviceDisparity {
+                    ctx: arc,
+                    encoder,
+                    disparity: &result.disparity,
+                    width: result.width,
+                    height: result.height,
+                })
+            });
+            handed
+                .and_then(|()| scope.pop("invalidating the variational matcher's disparities"))
+                .map(|()| None)
+        }
+    };
     *kept = gpu.into_kept();
     finished
+}
+
+/// What becomes of a pair's result on the device: read back (with SGM's map and the dense
+/// disparity where `stages`), or handed on where it is.
+enum Finish<'f> {
+    ReadBack {
+        stages: bool,
+    },
+    /// The matcher's context (the device the map is on) and where the map goes.
+    HandOn(
+        &'f std::sync::Arc<GpuContext>,
+        &'f mut dyn FnMut(OnDeviceDisparity) -> Result<()>,
+    ),
 }
 
 /// The invalidation of `gpu`'s disparity against SGM's map `sgm`, on the device, recorded after
@@ -379,9 +414,27 @@ impl DisparityEstimator for TgvMatcherGpu {
 
     fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap> {
         let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
+        let finish = Finish::ReadBack { stages: false };
         let stages = self.tally.count(&self.ctx, || {
-            estimate_kept(&self.ctx, &self.matcher, &mut kept, (left, right), false)
+            estimate_kept(&self.ctx, &self.matcher, &mut kept, (left, right), finish)
         })?;
-        Ok(stages.result)
+        Ok(stages.expect("read back").result)
+    }
+
+    fn estimate_on_device(
+        &self,
+        left: &GreyImage,
+        right: &GreyImage,
+        finish: &mut dyn FnMut(OnDeviceDisparity) -> Result<()>,
+    ) -> Option<Result<()>> {
+        if self.matcher.params.sgm.num_disparities > GPU_SGM_MAX_DISPARITIES {
+            return None;
+        }
+        let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
+        let pair = (left, right);
+        Some(self.tally.count(&self.ctx, || {
+            let finish = Finish::HandOn(&self.ctx, finish);
+            estimate_kept(&self.ctx, &self.matcher, &mut kept, pair, finish).map(|_| ())
+        }))
     }
 }

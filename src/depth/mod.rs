@@ -98,6 +98,21 @@ impl DisparityMap {
     }
 }
 
+/// A pair's disparities left on the GPU by [`DisparityEstimator::estimate_on_device`]: the
+/// encoder that computes them, not yet submitted, and the buffer they will be in.
+pub struct OnDeviceDisparity<'a> {
+    /// The device's context.
+    pub ctx: &'a std::sync::Arc<crate::gpu::GpuContext>,
+    /// The matcher's work, to be continued and submitted.
+    pub encoder: wgpu::CommandEncoder,
+    /// Disparities (f32 pixels, NaN where invalid), row-major, `width` × `height`.
+    pub disparity: &'a wgpu::Buffer,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+}
+
 /// A stereo matcher: rectified grey left/right images of equal size in, disparity map of the left
 /// image out. Implementations are deterministic and `Send + Sync` so a pipeline can share them.
 pub trait DisparityEstimator: Send + Sync {
@@ -105,6 +120,19 @@ pub trait DisparityEstimator: Send + Sync {
     fn name(&self) -> &str;
     /// Estimates the disparity of every pixel of `left`; invalid pixels are NaN.
     fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap>;
+    /// Estimates the same disparities as [`DisparityEstimator::estimate`] on a GPU and hands
+    /// them to `finish` where they are, nothing read back: `finish` records its own work after
+    /// the matcher's and submits the encoder. `None` where the matcher keeps no map on a
+    /// device (the CPU matchers; a GPU matcher with more disparities than its aggregation
+    /// holds).
+    fn estimate_on_device(
+        &self,
+        _left: &GreyImage,
+        _right: &GreyImage,
+        _finish: &mut dyn FnMut(OnDeviceDisparity) -> Result<()>,
+    ) -> Option<Result<()>> {
+        None
+    }
 }
 
 /// The stereo matchers `denser` offers (the CLI's `--method`).

@@ -9,11 +9,14 @@
 use super::band_gpu::{band_slice_uniforms, record_band_slices};
 use super::{BandSlices, DepthFusionParams, DepthPlan};
 use crate::camera::{PinholeIntrinsics, WorldFromCamera};
-use crate::depth::{disparity_depth_uniforms, record_disparity_depth, DisparityMap};
+use crate::depth::{
+    disparity_depth_uniforms, record_disparity_depth, DisparityMap, OnDeviceDisparity,
+};
 use crate::frame::{DepthFrame, Image, RgbImage};
 use crate::gpu::GpuContext;
 use crate::grid::GridParams;
 use crate::Result;
+use std::sync::Arc;
 
 /// A depth frame whose depths are on the device (see the module documentation).
 pub struct DeviceDepthFrame {
@@ -21,31 +24,49 @@ pub struct DeviceDepthFrame {
     header: DepthFrame,
     /// The depths (f32, metres, NaN where invalid), row-major.
     depth: wgpu::Buffer,
+    /// The device they are on.
+    ctx: Arc<GpuContext>,
     slices: BandSlices,
+    /// The truncation and the usable depths (bits) the slices were made for.
+    made_for: [u32; 3],
+}
+
+/// A camera of the frame's size, its pose and its colour.
+pub type CameraView = (PinholeIntrinsics, WorldFromCamera, Option<RgbImage>);
+
+/// What band slices depend on besides the depths: μ and the usable depths, as bits.
+fn made_for(grid: &GridParams, params: &DepthFusionParams) -> [u32; 3] {
+    [grid.truncation_m, params.min_depth_m, params.max_depth_m].map(f32::to_bits)
 }
 
 impl DeviceDepthFrame {
-    /// The frame of the disparities `buf_disparity` (f32 pixels, on the device, as
-    /// `intrinsics` sizes them) of a stereo pair `baseline_m` apart, seen from
-    /// `world_from_camera`, for fusion into `grid` with `params`: depths and band slices made
-    /// in one submit; the slices come back (two waits).
-    pub(crate) fn from_disparity_buffer(
-        ctx: &GpuContext,
+    /// The frame of the disparities `d` (on the device, as a matcher left them) of a stereo
+    /// pair `baseline_m` apart, seen as `view` (camera of `d`'s size, pose, colour), for
+    /// fusion into `grid` with `params`: depths and band slices recorded after the matcher's
+    /// work and submitted with it; the slices come back (two waits).
+    pub fn from_on_device(
+        d: OnDeviceDisparity,
         (grid, params): (&GridParams, &DepthFusionParams),
-        (intrinsics, world_from_camera, color): (
-            PinholeIntrinsics,
-            WorldFromCamera,
-            Option<RgbImage>,
-        ),
-        buf_disparity: &wgpu::Buffer,
+        (intrinsics, world_from_camera, color): CameraView,
         baseline_m: f64,
     ) -> Result<Self> {
-        let (w, h) = (intrinsics.width, intrinsics.height);
+        let OnDeviceDisparity {
+            ctx,
+            mut encoder,
+            disparity,
+            width: w,
+            height: h,
+        } = d;
+        if (intrinsics.width, intrinsics.height) != (w, h) {
+            return Err(crate::Error::InvalidArgument(format!(
+                "disparities of {w}×{h} for a camera of {}×{}",
+                intrinsics.width, intrinsics.height
+            )));
+        }
         let pixels = w as usize * h as usize;
         let to_depth = disparity_depth_uniforms(pixels, intrinsics.fx, baseline_m)?;
         let band = band_slice_uniforms(grid, params, w, h)?;
-        let mut encoder = ctx.encoder("device_depth_frame");
-        let depth = record_disparity_depth(ctx, &mut encoder, &to_depth, buf_disparity)?;
+        let depth = record_disparity_depth(ctx, &mut encoder, &to_depth, disparity)?;
         let out = record_band_slices(ctx, &mut encoder, &band, &depth)?;
         ctx.submit(encoder);
         let slices = out.read_back(ctx)?;
@@ -62,35 +83,41 @@ impl DeviceDepthFrame {
         Ok(DeviceDepthFrame {
             header,
             depth,
+            ctx: ctx.clone(),
             slices,
+            made_for: made_for(grid, params),
         })
     }
 
-    /// [`Self::from_disparity_buffer`] for disparities on the host, uploaded first (the
-    /// disparities of `disparity` must be `intrinsics`' size).
+    /// [`Self::from_on_device`] for disparities on the host, uploaded first.
     pub fn from_disparity(
-        ctx: &GpuContext,
-        (grid, params): (&GridParams, &DepthFusionParams),
-        view: (PinholeIntrinsics, WorldFromCamera, Option<RgbImage>),
+        ctx: &Arc<GpuContext>,
+        fusion: (&GridParams, &DepthFusionParams),
+        view: CameraView,
         disparity: &DisparityMap,
         baseline_m: f64,
     ) -> Result<Self> {
         let img = &disparity.disparity_px;
-        let (w, h) = (view.0.width, view.0.height);
-        if (img.width, img.height) != (w, h) {
-            return Err(crate::Error::InvalidArgument(format!(
-                "disparities of {}×{} for a camera of {w}×{h}",
-                img.width, img.height
-            )));
-        }
         ctx.check_binding("the disparity map", img.data.len() as u64 * 4)?;
         let buf = ctx.storage("disparity", bytemuck::cast_slice(&img.data));
-        Self::from_disparity_buffer(ctx, (grid, params), view, &buf, baseline_m)
+        let d = OnDeviceDisparity {
+            ctx,
+            encoder: ctx.encoder("device_depth_frame"),
+            disparity: &buf,
+            width: img.width,
+            height: img.height,
+        };
+        Self::from_on_device(d, fusion, view, baseline_m)
     }
 
     /// The camera, pose, colour and size (its `depth_m` holds no data).
     pub fn header(&self) -> &DepthFrame {
         &self.header
+    }
+
+    /// The context of the device the depths are on.
+    pub fn context(&self) -> &Arc<GpuContext> {
+        &self.ctx
     }
 
     /// The band slices of the depths.
@@ -103,9 +130,22 @@ impl DeviceDepthFrame {
         &self.depth
     }
 
-    /// The fusion plan of this frame ([`DepthPlan::from_slices`]).
-    pub fn plan(&self, grid: &GridParams, params: &DepthFusionParams) -> DepthPlan {
-        DepthPlan::from_slices(grid, &self.header, params, &self.slices)
+    /// The fusion plan of this frame ([`DepthPlan::from_slices`]) into `grid` with `params`,
+    /// which must be those its slices were made for.
+    pub fn plan(&self, grid: &GridParams, params: &DepthFusionParams) -> Result<DepthPlan> {
+        if made_for(grid, params) != self.made_for {
+            return Err(crate::Error::InvalidArgument(
+                "a depth frame on the device planned with other fusion parameters than its band \
+                 slices were made for"
+                    .into(),
+            ));
+        }
+        Ok(DepthPlan::from_slices(
+            grid,
+            &self.header,
+            params,
+            &self.slices,
+        ))
     }
 
     /// The frame with its depths read back (counted): what the host would have fused.

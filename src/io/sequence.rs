@@ -12,6 +12,7 @@ use super::rgbd::{SimpleRgbdOptions, SimpleRgbdSequence, TumOptions, TumRgbdSequ
 use super::DepthSequence;
 use crate::depth::DisparityEstimator;
 use crate::frame::{DepthFrame, Image, LidarScan};
+use crate::fusion::DeviceDepthFrame;
 use crate::{Error, Result};
 use std::path::Path;
 
@@ -136,6 +137,9 @@ pub enum RangeInput {
     Depth(DepthFrame),
     /// A LiDAR scan with pose.
     Lidar(LidarScan),
+    /// A depth map with pose whose depths stay on the GPU where a matcher made them
+    /// ([`InputOptions::depth_on_device`]).
+    DeviceDepth(Box<crate::fusion::DeviceDepthFrame>),
 }
 
 /// Which frames of a sequence a job uses: `first..last` (to the end when `last` is `None`),
@@ -227,6 +231,10 @@ pub struct InputOptions {
     pub extrinsic: Option<std::path::PathBuf>,
     /// `--lidar-topic`, `--pose-topic`, `--fixed-frame` for a bag.
     pub bag: super::bag::BagOptions,
+    /// Where a GPU matcher's depths may stay on the device, the fusion they are for (the
+    /// grid and the fusion parameters their band slices are made for): a KITTI-layout stereo
+    /// sequence then gives [`RangeInput::DeviceDepth`].
+    pub depth_on_device: Option<(crate::grid::GridParams, crate::fusion::DepthFusionParams)>,
 }
 
 impl InputOptions {
@@ -237,6 +245,7 @@ impl InputOptions {
             poses: None,
             extrinsic: None,
             bag: Default::default(),
+            depth_on_device: None,
         }
     }
 }
@@ -302,6 +311,7 @@ pub fn open_input(
                 RangeSource::GroundTruthDepth => Box::new(KittiGtDepth(seq)),
                 RangeSource::Stereo => Box::new(KittiStereo {
                     seq: with_stereo_images(seq)?,
+                    on_device: opts.depth_on_device,
                     estimator: stereo.ok_or_else(|| {
                         Error::InvalidArgument("stereo input needs a stereo matcher".into())
                     })?,
@@ -465,6 +475,8 @@ impl Sequence for KittiGtDepth {
 struct KittiStereo {
     seq: KittiSequence,
     estimator: Box<dyn DisparityEstimator>,
+    /// [`InputOptions::depth_on_device`].
+    on_device: Option<(crate::grid::GridParams, crate::fusion::DepthFusionParams)>,
 }
 
 impl Sequence for KittiStereo {
@@ -475,7 +487,6 @@ impl Sequence for KittiStereo {
         let seq = &self.seq;
         let left = seq.grey(0, i)?;
         let right = seq.grey(1, i)?;
-        let disparity = self.estimator.estimate(&left, &right)?;
         let mut intrinsics = seq.intrinsics(0)?;
         intrinsics.width = left.width;
         intrinsics.height = left.height;
@@ -486,7 +497,6 @@ impl Sequence for KittiStereo {
                 format!("stereo baseline P0→P1 must be positive, got {baseline_m} m"),
             ));
         }
-        let depth_m = crate::depth::disparity_to_depth(&disparity, intrinsics.fx, baseline_m);
         let color = match kitti_color(seq, i)? {
             Some(c) => c,
             None => Image {
@@ -495,11 +505,33 @@ impl Sequence for KittiStereo {
                 data: left.data.iter().map(|&g| [g; 3]).collect(),
             },
         };
+        let mut view = Some((intrinsics, kitti_pose(seq, i)?, Some(color)));
+        if let Some(fusion) = &self.on_device {
+            // The depths stay on the device: made there from the matcher's disparities, with
+            // their band slices; the colour waits on the host for the fusion.
+            let mut made = None;
+            let ran = self.estimator.estimate_on_device(&left, &right, &mut |d| {
+                let view = view.take().expect("one map per pair");
+                let fusion = (&fusion.0, &fusion.1);
+                made = Some(DeviceDepthFrame::from_on_device(
+                    d, fusion, view, baseline_m,
+                )?);
+                Ok(())
+            });
+            if let Some(ran) = ran {
+                ran?;
+                let frame = made.expect("made by the matcher's hand-on");
+                return Ok(RangeInput::DeviceDepth(Box::new(frame)));
+            }
+        }
+        let (intrinsics, world_from_camera, color) = view.expect("not handed on");
+        let disparity = self.estimator.estimate(&left, &right)?;
+        let depth_m = crate::depth::disparity_to_depth(&disparity, intrinsics.fx, baseline_m);
         Ok(RangeInput::Depth(DepthFrame {
             intrinsics,
-            world_from_camera: kitti_pose(seq, i)?,
+            world_from_camera,
             depth_m,
-            color: Some(color),
+            color,
         }))
     }
     fn describe(&self) -> String {

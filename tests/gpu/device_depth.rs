@@ -47,7 +47,8 @@ fn a_frame_fused_from_its_depths_on_the_device_is_the_hosts() {
     let grid = GridParams::paper(0.1);
     let params = DepthFusionParams::default();
     let new_map = || {
-        let mut map = ResidentMap::new(ctx.clone(), grid, ResidentOptions::default()).expect("pool");
+        let mut map =
+            ResidentMap::new(ctx.clone(), grid, ResidentOptions::default()).expect("pool");
         map.set_frames_in_flight(true);
         map
     };
@@ -63,23 +64,32 @@ fn a_frame_fused_from_its_depths_on_the_device_is_the_hosts() {
             ..frame.clone()
         };
         fuse_depth_resident(&mut host_map, &mut host_layer, &host_frame, &params).expect("fuse");
-        let view = (frame.intrinsics, frame.world_from_camera, frame.color.clone());
-        let dev = DeviceDepthFrame::from_disparity(
-            &ctx,
-            (&grid, &params),
-            view,
-            &disparity,
-            BASELINE_M,
-        )
-        .expect("device frame");
+        let view = (
+            frame.intrinsics,
+            frame.world_from_camera,
+            frame.color.clone(),
+        );
+        let dev =
+            DeviceDepthFrame::from_disparity(&ctx, (&grid, &params), view, &disparity, BASELINE_M)
+                .expect("device frame");
         let back = dev.read_back(&ctx).expect("read back");
-        let bits = |f: &DepthFrame| f.depth_m.data.iter().map(|d| d.to_bits()).collect::<Vec<_>>();
+        let bits = |f: &DepthFrame| {
+            f.depth_m
+                .data
+                .iter()
+                .map(|d| d.to_bits())
+                .collect::<Vec<_>>()
+        };
         assert_eq!(bits(&back), bits(&host_frame), "frame {k}: depths");
-        let plan = dev.plan(&grid, &params);
+        let plan = dev.plan(&grid, &params).expect("plan");
         let host_plan = DepthPlan::new(&grid, &host_frame, &params);
         assert_eq!(plan.band, host_plan.band, "frame {k}: band");
         assert_eq!(plan.measurements, host_plan.measurements);
-        assert!(plan.band.len() > 3000, "{} blocks: not a street", plan.band.len());
+        assert!(
+            plan.band.len() > 3000,
+            "{} blocks: not a street",
+            plan.band.len()
+        );
         ctx.wait_idle_uncounted().expect("idle");
         let (grows, before) = (dev_map.stats().grows, ctx.traffic());
         integrate_device_depth_resident(&mut dev_map, &mut dev_layer, &dev, &params, &plan)
@@ -106,4 +116,93 @@ fn a_frame_fused_from_its_depths_on_the_device_is_the_hosts() {
     assert!(blocks.len() > 3000, "{} blocks", blocks.len());
     assert_eq!(dev_layer.indices_sorted(), blocks);
     assert!(blocks.iter().all(|i| dev_layer.get(i) == host_layer.get(i)));
+}
+
+/// A stereo drive read with GPU SGM and fused on the same GPU, its depths kept on the device
+/// (`InputOptions::depth_on_device`, what `reconstruct --depth stereo --device gpu` sets) or
+/// read back as disparities: the same map, and a pair that reads back its band slices instead
+/// of its disparities and confidences, and a frame that sends its colour up but no depths.
+#[test]
+fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
+    use denser::backend::Backend;
+    use denser::depth::tgv::HoleFill;
+    use denser::depth::{SgmParams, StereoMethod};
+    use denser::io::sequence::{open_input, InputOptions, RangeInput, RangeSource};
+    use denser::reconstruct::{ReconstructionConfig, Reconstructor};
+    use denser::synth::{write_drive, CityConfig, DriveConfig, StereoRig};
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let drive = DriveConfig {
+        city: CityConfig {
+            seed: 3,
+            length_m: 60.0,
+            frame_spacing_m: 1.0,
+            max_frames: Some(4),
+            ..Default::default()
+        },
+        rig: StereoRig::kitti().scaled(320, 96),
+        lidar: None,
+        surface: None,
+        ..Default::default()
+    };
+    let written = write_drive(&drive, dir.path(), false).expect("drive");
+    let (w, h) = (320u64, 96u64);
+    let config = ReconstructionConfig::paper(0.1);
+    for method in [StereoMethod::Sgm, StereoMethod::TgvTensor] {
+        let mut runs = Vec::new();
+        for on_device in [false, true] {
+            let backend = Backend::gpu(ctx.clone(), ResidentOptions::default());
+            let sgm = SgmParams {
+                num_disparities: 32,
+                ..Default::default()
+            };
+            let matcher = backend
+                .stereo_matcher(method, sgm, HoleFill::None)
+                .expect("matcher");
+            assert!(backend.keeps_depth_on_device());
+            let mut options = InputOptions::new(RangeSource::Stereo);
+            if on_device {
+                options.depth_on_device = Some((config.grid, config.depth_fusion));
+            }
+            let dir = &written.sequence_dir;
+            let seq = open_input(dir, &options, Some(matcher)).expect("sequence");
+            let mut rec = Reconstructor::in_memory(config, backend).expect("reconstructor");
+            for i in 0..seq.len() {
+                let input = seq.read(i).expect("pair");
+                assert_eq!(matches!(input, RangeInput::DeviceDepth(_)), on_device);
+                rec.fuse(&input).expect("fuse");
+            }
+            rec.sync().expect("sync");
+            let traffic = rec.gpu_traffic().expect("on a GPU");
+            eprintln!("{method:?}, depths on the device: {on_device}: {traffic:?}");
+            runs.push((rec.layer().clone(), traffic));
+        }
+        let ((host, host_traffic), (dev, dev_traffic)) = (&runs[0], &runs[1]);
+        let blocks = host.indices_sorted();
+        assert!(blocks.len() > 300, "{method:?}: {} blocks", blocks.len());
+        assert_eq!(dev.indices_sorted(), blocks, "{method:?}");
+        assert!(
+            blocks.iter().all(|i| dev.get(i) == host.get(i)),
+            "{method:?}"
+        );
+        // Per pair: the two grey images up; the map's 8 bytes per pixel no longer come back,
+        // the band slices do (12 bytes each, fewer than the pixels here).
+        let pairs = dev_traffic.stereo_pairs;
+        assert_eq!(pairs, 4);
+        let (up, down) = (
+            dev_traffic.stereo.upload_bytes,
+            dev_traffic.stereo.readback_bytes,
+        );
+        assert!(up / pairs <= 2 * w * h + (64 << 10), "{dev_traffic:?}");
+        assert!(host_traffic.stereo.readback_bytes / pairs >= 8 * w * h);
+        assert!(down / pairs < 4 * w * h, "{dev_traffic:?}");
+        // Per frame: no depths up (4 bytes per pixel), only the colour (3) and the offsets.
+        let frames = dev_traffic.depth_frames;
+        let (dev_up, host_up) = (
+            dev_traffic.depth.upload_bytes,
+            host_traffic.depth.upload_bytes,
+        );
+        assert_eq!(host_up - dev_up, frames * 4 * w * h, "{dev_traffic:?}");
+    }
 }

@@ -18,7 +18,7 @@
 use super::sgm_filters::{read_sgm, record_filters, MapOnDevice};
 use super::{cost_volume_on_device, record_cost_volume, OnDevice};
 use crate::depth::sgm::{check_volume, CostVolume, SgmMatcher, SgmParams, SgmPaths, SubpixelFit};
-use crate::depth::{DisparityEstimator, DisparityMap};
+use crate::depth::{DisparityEstimator, DisparityMap, OnDeviceDisparity};
 use crate::frame::{GreyImage, Image};
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{SgmPathUniforms, SgmSelectUniforms};
@@ -326,6 +326,36 @@ impl DisparityEstimator for SgmMatcherGpu {
     fn estimate(&self, left: &GreyImage, right: &GreyImage) -> Result<DisparityMap> {
         self.tally
             .count(&self.ctx, || self.estimate_uncounted(left, right))
+    }
+
+    fn estimate_on_device(
+        &self,
+        left: &GreyImage,
+        right: &GreyImage,
+        finish: &mut dyn FnMut(OnDeviceDisparity) -> Result<()>,
+    ) -> Option<Result<()>> {
+        let p = &self.matcher.params;
+        if p.num_disparities > GPU_SGM_MAX_DISPARITIES {
+            return None;
+        }
+        Some(self.tally.count(&self.ctx, || {
+            p.validate()?;
+            let census = (&p.census, p.min_disparity_px, p.num_disparities);
+            let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
+            let mut encoder = self.ctx.encoder("sgm");
+            let scope = ErrorScopes::push(&self.ctx.device);
+            let on_device =
+                record_cost_volume(&self.ctx, &mut encoder, &mut kept, (left, right), census)?;
+            let sgm = sgm_on_device(&self.ctx, &mut encoder, p, &mut kept, &on_device)?;
+            scope.pop("recording the census cost and SGM kernels")?;
+            finish(OnDeviceDisparity {
+                ctx: &self.ctx,
+                encoder,
+                disparity: &sgm.disparity,
+                width: sgm.width,
+                height: sgm.height,
+            })
+        }))
     }
 }
 
