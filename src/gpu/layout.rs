@@ -619,6 +619,10 @@ pub const WGSL_STRUCTS: &[(&str, usize)] = &[
         "BandSliceUniforms",
         std::mem::size_of::<BandSliceUniforms>(),
     ),
+    (
+        "DisparityDepthUniforms",
+        std::mem::size_of::<DisparityDepthUniforms>(),
+    ),
     ("SlotListUniforms", std::mem::size_of::<SlotListUniforms>()),
     ("SlotFillUniforms", std::mem::size_of::<SlotFillUniforms>()),
     ("LidarUniforms", std::mem::size_of::<LidarUniforms>()),

@@ -23,7 +23,7 @@ fn disparities_of(frame: &DepthFrame) -> DisparityMap {
     let w = frame.depth_m.width as usize;
     let data = (frame.depth_m.data.iter().enumerate())
         .map(|(p, &z)| {
-            if (p % w + 3 * (p / w)) % 13 == 0 {
+            if (p % w + 3 * (p / w)).is_multiple_of(13) {
                 f32::NAN
             } else {
                 (fb / z as f64) as f32
