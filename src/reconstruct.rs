@@ -297,22 +297,10 @@ impl Reconstructor {
     /// Fuses a depth frame; returns the blocks it touched (with frames in flight on a GPU, see
     /// [`Reconstructor::set_frames_in_flight`], those of the frames whose results arrived).
     pub fn fuse_depth(&mut self, frame: &DepthFrame) -> crate::Result<TouchedBlocks> {
-        let t = Instant::now();
-        let plan = DepthPlan::new(&self.config.grid, frame, &self.config.depth_fusion);
-        let planned_s = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        self.store.prepare_depth(&plan, &mut self.backend)?;
-        self.timings.paging_s += t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let (touched, stats) = self.backend.fuse_depth(
-            self.store.layer_mut(),
-            frame,
-            &self.config.depth_fusion,
-            &plan,
-        )?;
-        self.timings.fusion_s += planned_s + t.elapsed().as_secs_f64();
-        self.after_frame(plan.camera_m, &touched, stats)?;
-        Ok(touched)
+        self.fuse_planned(
+            |grid, params| Ok(DepthPlan::new(grid, frame, params)),
+            |backend, layer, params, plan| backend.fuse_depth(layer, frame, params, plan),
+        )
     }
 
     /// Fuses a depth frame whose depths are on the GPU ([`DeviceDepthFrame`]), planned from its
@@ -320,19 +308,32 @@ impl Reconstructor {
     /// the colour goes up), else from the depths read back. The same map as
     /// [`Reconstructor::fuse_depth`] with the frame's depths.
     pub fn fuse_device_depth(&mut self, frame: &DeviceDepthFrame) -> crate::Result<TouchedBlocks> {
+        self.fuse_planned(
+            |grid, params| frame.plan(grid, params),
+            |backend, layer, params, plan| backend.fuse_device_depth(layer, frame, params, plan),
+        )
+    }
+
+    /// A depth frame's fusion: `plan` it, make its blocks resident, `fuse` it, record it.
+    fn fuse_planned(
+        &mut self,
+        plan: impl FnOnce(&GridParams, &DepthFusionParams) -> crate::Result<DepthPlan>,
+        fuse: impl FnOnce(
+            &mut Backend,
+            &mut Layer,
+            &DepthFusionParams,
+            &DepthPlan,
+        ) -> crate::Result<(TouchedBlocks, FusionStats)>,
+    ) -> crate::Result<TouchedBlocks> {
         let t = Instant::now();
-        let plan = frame.plan(&self.config.grid, &self.config.depth_fusion)?;
+        let plan = plan(&self.config.grid, &self.config.depth_fusion)?;
         let planned_s = t.elapsed().as_secs_f64();
         let t = Instant::now();
         self.store.prepare_depth(&plan, &mut self.backend)?;
         self.timings.paging_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let (touched, stats) = self.backend.fuse_device_depth(
-            self.store.layer_mut(),
-            frame,
-            &self.config.depth_fusion,
-            &plan,
-        )?;
+        let layer = self.store.layer_mut();
+        let (touched, stats) = fuse(&mut self.backend, layer, &self.config.depth_fusion, &plan)?;
         self.timings.fusion_s += planned_s + t.elapsed().as_secs_f64();
         self.after_frame(plan.camera_m, &touched, stats)?;
         Ok(touched)
