@@ -6,6 +6,7 @@
 
 use super::{BandSlice, BandSlices, DepthFusionParams, BAND_SLICE_MAX_SIDE_PX, BAND_TILE_PX};
 use crate::frame::Image;
+use crate::gpu::kept::Kept;
 use crate::gpu::layout::BandSliceUniforms;
 use crate::gpu::{shaders, ErrorScopes, GpuContext};
 use crate::grid::GridParams;
@@ -89,9 +90,9 @@ pub fn band_slices_on_gpu(
     ctx.check_binding("the depth image", depth_m.data.len() as u64 * 4)?;
     let buf_depth = ctx.storage("band_depth", bytemuck::cast_slice(&depth_m.data));
     let mut encoder = ctx.encoder("band_slices");
-    let out = record_band_slices(ctx, &mut encoder, &uniforms, &buf_depth)?;
-    ctx.submit(encoder);
-    out.read_back(ctx)
+    let kept = &mut Kept::default();
+    let out = record_band_slices((ctx, kept), &mut encoder, &uniforms, &buf_depth)?;
+    out.submit_and_read_back((ctx, kept), encoder, 0)
 }
 
 /// The outputs of a recorded `band_slices.wgsl` dispatch, on the device.
@@ -102,9 +103,10 @@ pub(crate) struct BandSliceOutputs {
 }
 
 /// Records `band_slices.wgsl` over the depths `buf_depth` (f32, as `uniforms` describes the
-/// image) into `encoder`.
+/// image) into `encoder`, with its buffers and bind group kept in `kept` (the counters cleared
+/// through the queue: 8 bytes up).
 pub(crate) fn record_band_slices(
-    ctx: &GpuContext,
+    (ctx, kept): (&GpuContext, &mut Kept),
     encoder: &mut wgpu::CommandEncoder,
     uniforms: &BandSliceUniforms,
     buf_depth: &wgpu::Buffer,
@@ -114,12 +116,13 @@ pub(crate) fn record_band_slices(
     ctx.check_binding("band slices (768 bytes per 8×8 tile)", capacity * 12)?;
     let kernel = ctx.kernel(&shaders::BAND_SLICES)?;
     let scope = ErrorScopes::push(&ctx.device);
-    let buf_uniforms = ctx.uniform("band_slice_uniforms", bytemuck::bytes_of(uniforms));
-    let buf_scratch = ctx.storage_zeroed("band_scratch", tiles * SLICES_PER_TILE * 4);
-    let counters = ctx.storage_zeroed("band_counters", 8);
-    let slices = ctx.storage_zeroed("band_slices", capacity * 12);
+    let uniform_bytes = bytemuck::bytes_of(uniforms);
+    let buf_uniforms = kept.uniform_with(ctx, "band_slice_uniforms", uniform_bytes);
+    let buf_scratch = kept.scratch(ctx, "band_scratch", tiles * SLICES_PER_TILE * 4);
+    let counters = kept.storage_with(ctx, "band_counters", &[0; 8]);
+    let slices = kept.scratch(ctx, "band_slices", capacity * 12);
     let buffers = [&buf_uniforms, buf_depth, &buf_scratch, &counters, &slices];
-    let bind = ctx.bind_group("band_slices", &kernel.layout, &buffers);
+    let bind = kept.bind_group(ctx, "band_slices", &kernel.layout, &buffers);
     ctx.record_dispatch(encoder, &kernel, &bind, tiles)?;
     scope.pop("recording a depth frame's band slices on the GPU")?;
     Ok(BandSliceOutputs {
@@ -130,10 +133,27 @@ pub(crate) fn record_band_slices(
 }
 
 impl BandSliceOutputs {
-    /// The slices, once the submit holding their dispatch has run: the counters, then the
-    /// slices (two waits).
-    pub(crate) fn read_back(&self, ctx: &GpuContext) -> Result<BandSlices> {
-        let counters: Vec<u32> = ctx.read_back_as(&self.counters, 2)?;
+    /// Submits `encoder` (holding the dispatch) and reads back the slices: the counters and
+    /// the first `expected` slices in one wait, then, where the kernel made more, all of them
+    /// in a second. A caller that expects about as many as the last frame made reads a frame
+    /// in one wait for a few more bytes than its slices.
+    pub(crate) fn submit_and_read_back(
+        &self,
+        (ctx, kept): (&GpuContext, &mut Kept),
+        encoder: wgpu::CommandEncoder,
+        expected: usize,
+    ) -> Result<BandSlices> {
+        let expected = expected.min(self.capacity as usize);
+        let mut counters = [0u32; 2];
+        let mut words: Vec<[u32; 3]> = bytemuck::zeroed_vec(expected);
+        ctx.submit_and_read_back(
+            encoder,
+            kept,
+            &mut [
+                (&self.counters, bytemuck::cast_slice_mut(&mut counters)),
+                (&self.slices, bytemuck::cast_slice_mut(&mut words)),
+            ],
+        )?;
         let count = counters[0] as usize;
         if count as u64 > self.capacity {
             return Err(Error::Gpu(format!(
@@ -141,11 +161,10 @@ impl BandSliceOutputs {
                 self.capacity
             )));
         }
-        let words: Vec<[u32; 3]> = if count > 0 {
-            ctx.read_back_as(&self.slices, count)?
-        } else {
-            Vec::new()
-        };
+        if count > expected {
+            words = ctx.read_back_as(&self.slices, count)?;
+        }
+        words.truncate(count);
         let slices = words.into_iter().map(BandSlice::unpack).collect();
         Ok(BandSlices::new(slices, counters[1] as usize))
     }

@@ -13,6 +13,7 @@ use crate::depth::{
     disparity_depth_uniforms, record_disparity_depth, DisparityMap, OnDeviceDisparity,
 };
 use crate::frame::{DepthFrame, Image, RgbImage};
+use crate::gpu::kept::{BufferPool, Kept, Pooled};
 use crate::gpu::GpuContext;
 use crate::grid::GridParams;
 use crate::Result;
@@ -22,13 +23,39 @@ use std::sync::Arc;
 pub struct DeviceDepthFrame {
     /// The camera, pose and colour; `depth_m` has the image's size and no data.
     header: DepthFrame,
-    /// The depths (f32, metres, NaN where invalid), row-major.
-    depth: wgpu::Buffer,
+    /// The depths (f32, metres, NaN where invalid), row-major, in a buffer handed back to the
+    /// pool of its [`DeviceDepthKept`] when the frame is dropped.
+    depth: Pooled,
     /// The device they are on.
     ctx: Arc<GpuContext>,
     slices: BandSlices,
     /// The truncation and the usable depths (bits) the slices were made for.
     made_for: [u32; 3],
+}
+
+/// What making depth frames on a device keeps between frames, so that a frame creates no
+/// buffer or bind group once the first have sized them and is read back in one wait: the
+/// kernels' buffers and bind groups, the depth buffers of frames dropped already (the reader
+/// runs ahead of the fusion, so as many are lent as frames are alive at once), and how many
+/// slices the last frame made, which sizes the next frame's readback
+/// ([`super::band_gpu::BandSliceOutputs::submit_and_read_back`]).
+#[derive(Debug, Default)]
+pub struct DeviceDepthKept {
+    kept: Kept,
+    depths: BufferPool,
+    last_slices: usize,
+}
+
+impl DeviceDepthKept {
+    /// Slices the next frame's one wait reads: the last frame's and an eighth more, plus 1024
+    /// (12 KiB), as neighbouring frames of a drive make about as many. Fewer cost a second
+    /// wait; the first frame, with none to go by, takes it.
+    fn expected_slices(&self) -> usize {
+        match self.last_slices {
+            0 => 0,
+            n => n + n / 8 + 1024,
+        }
+    }
 }
 
 /// A camera of the frame's size, its pose and its colour.
@@ -43,12 +70,14 @@ impl DeviceDepthFrame {
     /// The frame of the disparities `d` (on the device, as a matcher left them) of a stereo
     /// pair `baseline_m` apart, seen as `view` (camera of `d`'s size, pose, colour), for
     /// fusion into `grid` with `params`: depths and band slices recorded after the matcher's
-    /// work and submitted with it; the slices come back (two waits).
+    /// work, in buffers of `kept`, and submitted with it; the slices come back in the same
+    /// wait (a second where the frame makes more slices than [`DeviceDepthKept`] expects).
     pub fn from_on_device(
         d: OnDeviceDisparity,
         (grid, params): (&GridParams, &DepthFusionParams),
         (intrinsics, world_from_camera, color): CameraView,
         baseline_m: f64,
+        kept: &mut DeviceDepthKept,
     ) -> Result<Self> {
         let OnDeviceDisparity {
             ctx,
@@ -66,10 +95,18 @@ impl DeviceDepthFrame {
         let pixels = w as usize * h as usize;
         let to_depth = disparity_depth_uniforms(pixels, intrinsics.fx, baseline_m)?;
         let band = band_slice_uniforms(grid, params, w, h)?;
-        let depth = record_disparity_depth(ctx, &mut encoder, &to_depth, disparity)?;
-        let out = record_band_slices(ctx, &mut encoder, &band, &depth)?;
-        ctx.submit(encoder);
-        let slices = out.read_back(ctx)?;
+        let expected = kept.expected_slices();
+        let DeviceDepthKept {
+            kept: buffers,
+            depths,
+            last_slices,
+        } = kept;
+        let made = record_disparity_depth((ctx, buffers), &mut encoder, &to_depth, disparity)?;
+        let out = record_band_slices((ctx, buffers), &mut encoder, &band, &made)?;
+        // The frame's own copy of its depths: the kernels' buffers serve the next frame.
+        let depth = depths.copy_of(ctx, &mut encoder, "depth", (&made, pixels as u64 * 4));
+        let slices = out.submit_and_read_back((ctx, buffers), encoder, expected)?;
+        *last_slices = slices.slices.len();
         let header = DepthFrame {
             intrinsics,
             world_from_camera,
@@ -89,7 +126,7 @@ impl DeviceDepthFrame {
         })
     }
 
-    /// [`Self::from_on_device`] for disparities on the host, uploaded first.
+    /// [`Self::from_on_device`] for disparities on the host, uploaded first (nothing kept).
     pub fn from_disparity(
         ctx: &Arc<GpuContext>,
         fusion: (&GridParams, &DepthFusionParams),
@@ -107,7 +144,8 @@ impl DeviceDepthFrame {
             width: img.width,
             height: img.height,
         };
-        Self::from_on_device(d, fusion, view, baseline_m)
+        let kept = &mut DeviceDepthKept::default();
+        Self::from_on_device(d, fusion, view, baseline_m, kept)
     }
 
     /// The camera, pose, colour and size (its `depth_m` holds no data).
@@ -127,7 +165,7 @@ impl DeviceDepthFrame {
 
     /// The depths' buffer on the device.
     pub(crate) fn depth_buffer(&self) -> &wgpu::Buffer {
-        &self.depth
+        self.depth.buffer()
     }
 
     /// The fusion plan of this frame ([`DepthPlan::from_slices`]) into `grid` with `params`,
@@ -150,7 +188,7 @@ impl DeviceDepthFrame {
 
     /// The frame with its depths read back (counted): what the host would have fused.
     pub fn read_back(&self, ctx: &GpuContext) -> Result<DepthFrame> {
-        Self::read_back_from(ctx, &self.header, &self.depth)
+        Self::read_back_from(ctx, &self.header, self.depth.buffer())
     }
 
     /// `header` with the depths of `depth` read back.

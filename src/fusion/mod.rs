@@ -39,7 +39,7 @@ pub use depth::{
     integrate_depth, integrate_depth_plan, visible_blocks, visible_blocks_by_scan,
     visible_blocks_in, DepthFusionParams, DepthGeometry, DepthPlan, ViewFrustum,
 };
-pub use depth_device::{CameraView, DeviceDepthFrame};
+pub use depth_device::{CameraView, DeviceDepthFrame, DeviceDepthKept};
 pub use depth_gpu::{
     frame_keys_on_gpu, integrate_depth_gpu, integrate_depth_resident,
     integrate_device_depth_resident, ResolvedKeys,

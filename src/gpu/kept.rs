@@ -203,3 +203,68 @@ fn write_padded(ctx: &GpuContext, buffer: &wgpu::Buffer, data: &[u8]) {
     padded.resize(data.len().next_multiple_of(align), 0);
     ctx.write_buffer(buffer, 0, &padded);
 }
+
+/// Buffers lent to holders that outlive a call (a depth frame read ahead of its fusion) and
+/// handed back when the holder drops them ([`Pooled`]), so that a steady stream of holders
+/// creates no buffer once the pool holds as many as are alive at once. Clones share the pool.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct BufferPool {
+    free: std::sync::Arc<std::sync::Mutex<Vec<wgpu::Buffer>>>,
+}
+
+/// A buffer lent by a [`BufferPool`], handed back when dropped.
+#[derive(Debug)]
+pub(crate) struct Pooled {
+    buffer: wgpu::Buffer,
+    pool: BufferPool,
+}
+
+impl BufferPool {
+    /// A storage buffer of at least `bytes` (a multiple of 4) holding the first `bytes` of
+    /// `source`, copied on the device in `encoder`: a free one of the pool where one is large
+    /// enough, else one created.
+    pub(crate) fn copy_of(
+        &self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        label: &'static str,
+        (source, bytes): (&wgpu::Buffer, u64),
+    ) -> Pooled {
+        let lent = {
+            let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
+            let at = free.iter().position(|b| b.size() >= bytes);
+            at.map(|k| free.swap_remove(k))
+        };
+        let buffer = lent.unwrap_or_else(|| {
+            ctx.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: bytes.max(4),
+                usage: STORAGE,
+                mapped_at_creation: false,
+            })
+        });
+        if bytes > 0 {
+            encoder.copy_buffer_to_buffer(source, 0, &buffer, 0, bytes);
+        }
+        Pooled {
+            buffer,
+            pool: self.clone(),
+        }
+    }
+}
+
+impl Pooled {
+    /// The buffer lent.
+    pub(crate) fn buffer(&self) -> &wgpu::Buffer {
+        &self.buffer
+    }
+}
+
+impl Drop for Pooled {
+    fn drop(&mut self) {
+        // Holders drop the buffer once the work over it is submitted: that work comes before
+        // any later holder's in queue order, so the next holder may overwrite it.
+        let mut free = self.pool.free.lock().unwrap_or_else(|e| e.into_inner());
+        free.push(self.buffer.clone());
+    }
+}

@@ -25,6 +25,7 @@ pub mod ply_stream;
 pub mod rgbd;
 pub mod scans;
 pub mod sequence;
+mod stereo_depth;
 mod text;
 pub mod trajectory;
 

@@ -9,10 +9,10 @@
 
 use super::kitti::KittiSequence;
 use super::rgbd::{SimpleRgbdOptions, SimpleRgbdSequence, TumOptions, TumRgbdSequence};
+use super::stereo_depth::StereoDepth;
 use super::DepthSequence;
 use crate::depth::DisparityEstimator;
 use crate::frame::{DepthFrame, Image, LidarScan};
-use crate::fusion::DeviceDepthFrame;
 use crate::{Error, Result};
 use std::path::Path;
 
@@ -294,15 +294,9 @@ pub fn open_input(
             poses,
             opts.extrinsic.as_deref(),
         )?),
-        InputKind::Bag if source == RangeSource::Stereo => {
-            Box::new(super::bag::stereo::BagStereo::open(
-                input,
-                &opts.bag,
-                stereo.ok_or_else(|| {
-                    Error::InvalidArgument("stereo input needs a stereo matcher".into())
-                })?,
-            )?)
-        }
+        InputKind::Bag if source == RangeSource::Stereo => Box::new(
+            super::bag::stereo::BagStereo::open(input, &opts.bag, stereo_depth(stereo, opts)?)?,
+        ),
         InputKind::Bag => Box::new(super::bag::BagLidar::open(input, &opts.bag)?),
         InputKind::Kitti => {
             let seq = KittiSequence::open(input, poses)?;
@@ -311,10 +305,7 @@ pub fn open_input(
                 RangeSource::GroundTruthDepth => Box::new(KittiGtDepth(seq)),
                 RangeSource::Stereo => Box::new(KittiStereo {
                     seq: with_stereo_images(seq)?,
-                    on_device: opts.depth_on_device,
-                    estimator: stereo.ok_or_else(|| {
-                        Error::InvalidArgument("stereo input needs a stereo matcher".into())
-                    })?,
+                    stereo: stereo_depth(stereo, opts)?,
                 }),
             }
         }
@@ -469,14 +460,22 @@ impl Sequence for KittiGtDepth {
     }
 }
 
+/// The stereo input's matcher `stereo` (required) with where `opts` sends its depths.
+fn stereo_depth(
+    stereo: Option<Box<dyn DisparityEstimator>>,
+    opts: &InputOptions,
+) -> Result<StereoDepth> {
+    let estimator = stereo
+        .ok_or_else(|| Error::InvalidArgument("stereo input needs a stereo matcher".into()))?;
+    Ok(StereoDepth::new(estimator, opts.depth_on_device))
+}
+
 /// Depth from a KITTI-layout sequence's rectified grey pair (image_0, image_1), `z = fx·B/d`.
 /// Colour comes from image_2 where the colour camera coincides with cam0 (synthetic drives);
 /// otherwise the grey value is used as colour.
 struct KittiStereo {
     seq: KittiSequence,
-    estimator: Box<dyn DisparityEstimator>,
-    /// [`InputOptions::depth_on_device`].
-    on_device: Option<(crate::grid::GridParams, crate::fusion::DepthFusionParams)>,
+    stereo: StereoDepth,
 }
 
 impl Sequence for KittiStereo {
@@ -505,40 +504,14 @@ impl Sequence for KittiStereo {
                 data: left.data.iter().map(|&g| [g; 3]).collect(),
             },
         };
-        let mut view = Some((intrinsics, kitti_pose(seq, i)?, Some(color)));
-        if let Some(fusion) = &self.on_device {
-            // The depths stay on the device: made there from the matcher's disparities, with
-            // their band slices; the colour waits on the host for the fusion.
-            let mut made = None;
-            let ran = self.estimator.estimate_on_device(&left, &right, &mut |d| {
-                let view = view.take().expect("one map per pair");
-                let fusion = (&fusion.0, &fusion.1);
-                made = Some(DeviceDepthFrame::from_on_device(
-                    d, fusion, view, baseline_m,
-                )?);
-                Ok(())
-            });
-            if let Some(ran) = ran {
-                ran?;
-                let frame = made.expect("made by the matcher's hand-on");
-                return Ok(RangeInput::DeviceDepth(Box::new(frame)));
-            }
-        }
-        let (intrinsics, world_from_camera, color) = view.expect("not handed on");
-        let disparity = self.estimator.estimate(&left, &right)?;
-        let depth_m = crate::depth::disparity_to_depth(&disparity, intrinsics.fx, baseline_m);
-        Ok(RangeInput::Depth(DepthFrame {
-            intrinsics,
-            world_from_camera,
-            depth_m,
-            color,
-        }))
+        let view = (intrinsics, kitti_pose(seq, i)?, Some(color));
+        self.stereo.frame((&left, &right), view, baseline_m)
     }
     fn describe(&self) -> String {
         format!(
             "KITTI sequence {} (stereo, {})",
             self.seq.dir().display(),
-            self.estimator.name()
+            self.stereo.name()
         )
     }
     fn fingerprint(&self) -> u64 {

@@ -121,7 +121,8 @@ fn a_frame_fused_from_its_depths_on_the_device_is_the_hosts() {
 /// A stereo drive read with GPU SGM and fused on the same GPU, its depths kept on the device
 /// (`InputOptions::depth_on_device`, what `reconstruct --depth stereo --device gpu` sets) or
 /// read back as disparities: the same map, and a pair that reads back its band slices instead
-/// of its disparities and confidences, and a frame that sends its colour up but no depths.
+/// of its disparities and confidences (after warm-up in one submit and one wait, creating
+/// nothing), and a frame that sends its colour up but no depths.
 #[test]
 fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
     use denser::backend::Backend;
@@ -168,10 +169,27 @@ fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
             let dir = &written.sequence_dir;
             let seq = open_input(dir, &options, Some(matcher)).expect("sequence");
             let mut rec = Reconstructor::in_memory(config, backend).expect("reconstructor");
+            let mut warm = None;
             for i in 0..seq.len() {
                 let input = seq.read(i).expect("pair");
                 assert_eq!(matches!(input, RangeInput::DeviceDepth(_)), on_device);
                 rec.fuse(&input).expect("fuse");
+                if i == 1 {
+                    warm = rec.gpu_traffic().map(|t| t.stereo);
+                }
+            }
+            if on_device {
+                // Once two pairs have sized the kept buffers and the readback: a pair is one
+                // submit and one wait, and creates nothing.
+                let last = rec.gpu_traffic().expect("on a GPU").stereo;
+                let t = last.since(warm.expect("warm"));
+                eprintln!("{method:?}, the last two pairs: {t:?}");
+                assert_eq!((t.submits, t.waits), (2, 2), "{method:?}: {t:?}");
+                assert_eq!(
+                    (t.buffers_created, t.bind_groups_created),
+                    (0, 0),
+                    "{method:?}: {t:?}"
+                );
             }
             rec.sync().expect("sync");
             let traffic = rec.gpu_traffic().expect("on a GPU");
@@ -205,4 +223,87 @@ fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
         );
         assert_eq!(host_up - dev_up, frames * 4 * w * h, "{dev_traffic:?}");
     }
+}
+
+/// A ROS 2 bag's stereo pairs (`tools/make_input_fixtures.py` writes a synthetic drive's as a
+/// bag) keep their depths on the device as a KITTI layout's do, and make the map their depths
+/// read back make.
+#[test]
+fn a_stereo_bag_keeps_its_depths_on_the_device() {
+    use crate::common::skip;
+    use denser::backend::Backend;
+    use denser::depth::tgv::HoleFill;
+    use denser::depth::{SgmParams, StereoMethod};
+    use denser::io::sequence::{open_input, InputOptions, RangeInput, RangeSource};
+    use denser::reconstruct::{ReconstructionConfig, Reconstructor};
+    use denser::synth::{write_drive, CityConfig, DriveConfig, StereoRig};
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let drive = DriveConfig {
+        city: CityConfig {
+            seed: 3,
+            length_m: 60.0,
+            frame_spacing_m: 1.0,
+            max_frames: Some(2),
+            ..Default::default()
+        },
+        rig: StereoRig::kitti().scaled(320, 96),
+        surface: None,
+        ..Default::default()
+    };
+    let written = write_drive(&drive, &dir.path().join("drive"), false).expect("drive");
+    let out = dir.path().join("fixtures");
+    let script =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/make_input_fixtures.py");
+    let made = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(&written.sequence_dir)
+        .arg(&out)
+        .args(["--frames", "2"])
+        .output();
+    match made {
+        Ok(o) if o.status.success() => {}
+        Ok(o) if o.status.code() == Some(3) => {
+            return skip(&format!(
+                "no bag: {}",
+                String::from_utf8_lossy(&o.stderr).trim()
+            ));
+        }
+        Ok(o) => panic!(
+            "the fixture script failed: {}",
+            String::from_utf8_lossy(&o.stderr)
+        ),
+        Err(e) => return skip(&format!("python3 cannot run ({e}): no bag")),
+    }
+    let config = ReconstructionConfig::paper(0.1);
+    let mut maps = Vec::new();
+    for on_device in [false, true] {
+        let backend = Backend::gpu(ctx.clone(), ResidentOptions::default());
+        let sgm = SgmParams {
+            num_disparities: 32,
+            ..Default::default()
+        };
+        let matcher = backend
+            .stereo_matcher(StereoMethod::Sgm, sgm, HoleFill::None)
+            .expect("matcher");
+        let mut options = InputOptions::new(RangeSource::Stereo);
+        if on_device {
+            options.depth_on_device = Some((config.grid, config.depth_fusion));
+        }
+        let seq = open_input(&out.join("bag_stereo"), &options, Some(matcher)).expect("bag");
+        assert_eq!(seq.len(), 2, "{}", seq.describe());
+        let mut rec = Reconstructor::in_memory(config, backend).expect("reconstructor");
+        for i in 0..seq.len() {
+            let input = seq.read(i).expect("pair");
+            assert_eq!(matches!(input, RangeInput::DeviceDepth(_)), on_device);
+            rec.fuse(&input).expect("fuse");
+        }
+        rec.sync().expect("sync");
+        maps.push(rec.layer().clone());
+    }
+    let blocks = maps[0].indices_sorted();
+    assert!(blocks.len() > 100, "{} blocks", blocks.len());
+    assert_eq!(maps[1].indices_sorted(), blocks);
+    assert!(blocks.iter().all(|i| maps[1].get(i) == maps[0].get(i)));
 }

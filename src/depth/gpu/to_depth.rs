@@ -5,6 +5,7 @@
 
 use crate::depth::DisparityMap;
 use crate::frame::{DepthImage, Image};
+use crate::gpu::kept::Kept;
 use crate::gpu::layout::DisparityDepthUniforms;
 use crate::gpu::{shaders, ErrorScopes, GpuContext};
 use crate::{Error, Result};
@@ -56,7 +57,8 @@ pub fn disparity_to_depth_gpu(
     ctx.check_binding("the disparity map", img.data.len() as u64 * 4)?;
     let buf_disparity = ctx.storage("disparity", bytemuck::cast_slice(&img.data));
     let mut encoder = ctx.encoder("disparity_depth");
-    let buf_depth = record_disparity_depth(ctx, &mut encoder, &uniforms, &buf_disparity)?;
+    let kept = &mut Kept::default();
+    let buf_depth = record_disparity_depth((ctx, kept), &mut encoder, &uniforms, &buf_disparity)?;
     ctx.submit(encoder);
     Ok(Image {
         width: img.width,
@@ -66,9 +68,10 @@ pub fn disparity_to_depth_gpu(
 }
 
 /// Records `disparity_depth.wgsl` over the disparities `buf_disparity` (f32, `uniforms.pixels`
-/// of them) into `encoder`; returns the buffer the depths will be in (f32, metres).
+/// of them) into `encoder`, with its buffers and bind group kept in `kept`; returns the buffer
+/// the depths will be in (f32, metres; `kept`'s, overwritten by the next call).
 pub(crate) fn record_disparity_depth(
-    ctx: &GpuContext,
+    (ctx, kept): (&GpuContext, &mut Kept),
     encoder: &mut wgpu::CommandEncoder,
     uniforms: &DisparityDepthUniforms,
     buf_disparity: &wgpu::Buffer,
@@ -77,9 +80,11 @@ pub(crate) fn record_disparity_depth(
     ctx.check_binding("the depth map", pixels * 4)?;
     let kernel = ctx.kernel(&shaders::DISPARITY_DEPTH)?;
     let scope = ErrorScopes::push(&ctx.device);
-    let buf_uniforms = ctx.uniform("disparity_depth_uniforms", bytemuck::bytes_of(uniforms));
-    let buf_depth = ctx.storage_zeroed("depth", pixels * 4);
-    let bind = ctx.bind_group(
+    let uniform_bytes = bytemuck::bytes_of(uniforms);
+    let buf_uniforms = kept.uniform_with(ctx, "disparity_depth_uniforms", uniform_bytes);
+    let buf_depth = kept.scratch(ctx, "depth", pixels * 4);
+    let bind = kept.bind_group(
+        ctx,
         "disparity_depth",
         &kernel.layout,
         &[&buf_uniforms, buf_disparity, &buf_depth],

@@ -15,9 +15,9 @@ use super::msg::{self, types, CameraInfo};
 use super::survey::MsgRef;
 use super::{Bag, BagOptions, Survey};
 use crate::camera::PinholeIntrinsics;
-use crate::depth::DisparityEstimator;
-use crate::frame::{DepthFrame, Image};
+use crate::frame::Image;
 use crate::io::sequence::{pose_digest, RangeInput, Sequence};
+use crate::io::stereo_depth::StereoDepth;
 use crate::{Error, Result};
 use nalgebra::{Isometry3, Matrix3x4};
 use std::path::Path;
@@ -218,16 +218,13 @@ impl Survey {
 pub struct BagStereo {
     bag: Bag,
     selection: StereoSelection,
-    estimator: Box<dyn DisparityEstimator>,
+    stereo: StereoDepth,
 }
 
 impl BagStereo {
-    /// Opens and surveys `path`, chooses the pair with `opts`, and warns about what is skipped.
-    pub fn open(
-        path: &Path,
-        opts: &BagOptions,
-        estimator: Box<dyn DisparityEstimator>,
-    ) -> Result<BagStereo> {
+    /// Opens and surveys `path`, chooses the pair with `opts`, and warns about what is skipped;
+    /// its pairs become depth frames through `stereo`.
+    pub(crate) fn open(path: &Path, opts: &BagOptions, stereo: StereoDepth) -> Result<BagStereo> {
         let bag = Bag::open(path)?;
         for note in &bag.notes {
             tracing::warn!("{note}");
@@ -255,7 +252,7 @@ impl BagStereo {
         Ok(BagStereo {
             bag,
             selection,
-            estimator,
+            stereo,
         })
     }
 
@@ -310,11 +307,9 @@ impl Sequence for BagStereo {
                 ),
             ));
         }
-        let disparity = self.estimator.estimate(&gl, &gr)?;
         let mut intrinsics = s.intrinsics;
         intrinsics.width = gl.width;
         intrinsics.height = gl.height;
-        let depth_m = crate::depth::disparity_to_depth(&disparity, intrinsics.fx, s.baseline_m);
         let rgb = left.to_rgb8();
         let color = Image {
             width: rgb.width(),
@@ -325,12 +320,8 @@ impl Sequence for BagStereo {
                 .map(|c| [c[0], c[1], c[2]])
                 .collect(),
         };
-        Ok(RangeInput::Depth(DepthFrame {
-            intrinsics,
-            world_from_camera: pose,
-            depth_m,
-            color: Some(color),
-        }))
+        let view = (intrinsics, pose, Some(color));
+        self.stereo.frame((&gl, &gr), view, s.baseline_m)
     }
     fn describe(&self) -> String {
         let s = &self.selection;
@@ -339,7 +330,7 @@ impl Sequence for BagStereo {
             self.bag.path().display(),
             s.topics[0],
             s.topics[1],
-            self.estimator.name(),
+            self.stereo.name(),
             s.pose_source,
             s.fixed_frame
         )
