@@ -133,6 +133,27 @@ pub(crate) fn record_band_slices(
 }
 
 impl BandSliceOutputs {
+    /// Slices the output holds.
+    pub(crate) fn capacity(&self) -> u64 {
+        self.capacity
+    }
+
+    /// The slices' words and the counters (`[0]` slices made, `[1]` usable pixels).
+    pub(crate) fn buffers(&self) -> (&wgpu::Buffer, &wgpu::Buffer) {
+        (&self.slices, &self.counters)
+    }
+
+    /// An error where the kernel made `count` slices, more than the output holds.
+    pub(crate) fn check_count(&self, count: u32) -> Result<()> {
+        if count as u64 > self.capacity {
+            return Err(Error::Gpu(format!(
+                "the band kernel made {count} slices, more than the {} a frame can have",
+                self.capacity
+            )));
+        }
+        Ok(())
+    }
+
     /// Submits `encoder` (holding the dispatch) and reads back the slices: the counters and
     /// the first `expected` slices in one wait, then, where the kernel made more, all of them
     /// in a second. A caller that expects about as many as the last frame made reads a frame
@@ -154,13 +175,8 @@ impl BandSliceOutputs {
                 (&self.slices, bytemuck::cast_slice_mut(&mut words)),
             ],
         )?;
+        self.check_count(counters[0])?;
         let count = counters[0] as usize;
-        if count as u64 > self.capacity {
-            return Err(Error::Gpu(format!(
-                "the band kernel made {count} slices, more than the {} a frame can have",
-                self.capacity
-            )));
-        }
         if count > expected {
             words = ctx.read_back_as(&self.slices, count)?;
         }

@@ -321,13 +321,38 @@ impl DepthPlan {
         let t = std::time::Instant::now();
         let (k, pose) = (&frame.intrinsics, &frame.world_from_camera);
         let band = super::blocks_of_band_slices(grid, k, pose, params, slices);
+        Self::of_band(grid, frame, params, (band, slices.usable_pixels), t)
+    }
+
+    /// [`DepthPlan::from_slices`] from the band as the device listed it
+    /// ([`super::DeviceBand`]: its blocks, and the slices it left to the host).
+    pub fn from_device_band(
+        grid: &GridParams,
+        frame: &DepthFrame,
+        params: &DepthFusionParams,
+        band: &super::DeviceBand,
+    ) -> Self {
+        let t = std::time::Instant::now();
+        let (k, pose) = (&frame.intrinsics, &frame.world_from_camera);
+        let blocks = band.blocks(grid, k, pose, params);
+        Self::of_band(grid, frame, params, (blocks, band.usable_pixels), t)
+    }
+
+    /// The plan of `frame` with its band and usable pixels listed already (since `started`).
+    fn of_band(
+        grid: &GridParams,
+        frame: &DepthFrame,
+        params: &DepthFusionParams,
+        (band, measurements): (TouchedBlocks, usize),
+        started: std::time::Instant,
+    ) -> Self {
         DepthPlan {
             band,
             frustum: ViewFrustum::new(frame, params, grid.truncation_m as f64),
             geometry: DepthGeometry::new(grid, frame),
-            measurements: slices.usable_pixels,
-            camera_m: pose.translation.vector.into(),
-            listing_s: t.elapsed().as_secs_f64(),
+            measurements,
+            camera_m: frame.world_from_camera.translation.vector.into(),
+            listing_s: started.elapsed().as_secs_f64(),
         }
     }
 

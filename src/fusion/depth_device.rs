@@ -6,8 +6,9 @@
 //! ([`super::integrate_device_depth_resident`]). Both kernels are exact twins of the CPU, so
 //! the fused map is the one the host's depths give.
 
+use super::band_blocks_gpu::{band_block_params, record_band_blocks};
 use super::band_gpu::{band_slice_uniforms, record_band_slices};
-use super::{BandSlices, DepthFusionParams, DepthPlan};
+use super::{BandSlices, DepthFusionParams, DepthPlan, DeviceBand};
 use crate::camera::{PinholeIntrinsics, WorldFromCamera};
 use crate::depth::{
     disparity_depth_uniforms, record_disparity_depth, DisparityMap, OnDeviceDisparity,
@@ -28,9 +29,17 @@ pub struct DeviceDepthFrame {
     depth: Pooled,
     /// The device they are on.
     ctx: Arc<GpuContext>,
-    slices: BandSlices,
-    /// The truncation and the usable depths (bits) the slices were made for.
-    made_for: [u32; 3],
+    band: FrameBand,
+    /// The voxel size, truncation and usable depths (bits) the band was listed for.
+    made_for: [u32; 4],
+}
+
+/// What came back of a frame's band.
+enum FrameBand {
+    /// Its slices (a device without f64): the host lists the blocks from them.
+    Slices(BandSlices),
+    /// Its blocks, listed on the device, and the slices the device left to the host.
+    Listed(DeviceBand),
 }
 
 /// What making depth frames on a device keeps between frames, so that a frame creates no
@@ -43,27 +52,31 @@ pub struct DeviceDepthFrame {
 pub struct DeviceDepthKept {
     kept: Kept,
     depths: BufferPool,
-    last_slices: usize,
+    /// What the last frame read back: slices, or blocks and deferred slices.
+    last: [usize; 2],
 }
 
 impl DeviceDepthKept {
-    /// Slices the next frame's one wait reads: the last frame's and an eighth more, plus 1024
-    /// (12 KiB), as neighbouring frames of a drive make about as many. Fewer cost a second
-    /// wait; the first frame, with none to go by, takes it.
-    fn expected_slices(&self) -> usize {
-        match self.last_slices {
-            0 => 0,
-            n => n + n / 8 + 1024,
+    /// What the next frame's one wait reads of each of the two kinds `last` counts: the last
+    /// frame's and an eighth more, plus `spare`, as neighbouring frames of a drive make about
+    /// as many. Fewer cost a second wait; the first frame, with none to go by, takes it.
+    fn expected(&self, spare: [usize; 2]) -> (usize, usize) {
+        if self.last[0] == 0 {
+            return (0, 0);
         }
+        let [a, b] = self.last;
+        (a + a / 8 + spare[0], b + b / 8 + spare[1])
     }
 }
 
 /// A camera of the frame's size, its pose and its colour.
 pub type CameraView = (PinholeIntrinsics, WorldFromCamera, Option<RgbImage>);
 
-/// What band slices depend on besides the depths: μ and the usable depths, as bits.
-fn made_for(grid: &GridParams, params: &DepthFusionParams) -> [u32; 3] {
-    [grid.truncation_m, params.min_depth_m, params.max_depth_m].map(f32::to_bits)
+/// What a band depends on besides the depths and the camera: the voxel size, μ and the usable
+/// depths, as bits.
+fn made_for(grid: &GridParams, params: &DepthFusionParams) -> [u32; 4] {
+    let values = [grid.voxel_size_m, grid.truncation_m];
+    [values[0], values[1], params.min_depth_m, params.max_depth_m].map(f32::to_bits)
 }
 
 impl DeviceDepthFrame {
@@ -95,18 +108,29 @@ impl DeviceDepthFrame {
         let pixels = w as usize * h as usize;
         let to_depth = disparity_depth_uniforms(pixels, intrinsics.fx, baseline_m)?;
         let band = band_slice_uniforms(grid, params, w, h)?;
-        let expected = kept.expected_slices();
+        // Slices (12 bytes), or blocks (4) and deferred slices (12).
+        let expected = kept.expected(if ctx.has_f64() { [256, 64] } else { [1024, 0] });
         let DeviceDepthKept {
             kept: buffers,
             depths,
-            last_slices,
+            last,
         } = kept;
         let made = record_disparity_depth((ctx, buffers), &mut encoder, &to_depth, disparity)?;
         let out = record_band_slices((ctx, buffers), &mut encoder, &band, &made)?;
         // The frame's own copy of its depths: the kernels' buffers serve the next frame.
         let depth = depths.copy_of(ctx, &mut encoder, "depth", (&made, pixels as u64 * 4));
-        let slices = out.submit_and_read_back((ctx, buffers), encoder, expected)?;
-        *last_slices = slices.slices.len();
+        let band = if ctx.has_f64() {
+            // The blocks listed where the slices are: a few KiB come back.
+            let p = band_block_params(grid, &intrinsics, &world_from_camera, out.capacity());
+            let listed = record_band_blocks((ctx, buffers), &mut encoder, (&p.0, p.1), &out)?;
+            let band = listed.submit_and_read_back((ctx, buffers), encoder, &out, expected)?;
+            *last = [band.blocks.len(), band.deferred.len()];
+            FrameBand::Listed(band)
+        } else {
+            let slices = out.submit_and_read_back((ctx, buffers), encoder, expected.0)?;
+            *last = [slices.slices.len(), 0];
+            FrameBand::Slices(slices)
+        };
         let header = DepthFrame {
             intrinsics,
             world_from_camera,
@@ -121,7 +145,7 @@ impl DeviceDepthFrame {
             header,
             depth,
             ctx: ctx.clone(),
-            slices,
+            band,
             made_for: made_for(grid, params),
         })
     }
@@ -158,9 +182,20 @@ impl DeviceDepthFrame {
         &self.ctx
     }
 
-    /// The band slices of the depths.
-    pub fn slices(&self) -> &BandSlices {
-        &self.slices
+    /// The band slices of the depths, where they came back (a device without f64).
+    pub fn slices(&self) -> Option<&BandSlices> {
+        match &self.band {
+            FrameBand::Slices(s) => Some(s),
+            FrameBand::Listed(_) => None,
+        }
+    }
+
+    /// The band as the device listed it, where it did (a device with f64).
+    pub fn device_band(&self) -> Option<&DeviceBand> {
+        match &self.band {
+            FrameBand::Listed(b) => Some(b),
+            FrameBand::Slices(_) => None,
+        }
     }
 
     /// The depths' buffer on the device.
@@ -178,12 +213,10 @@ impl DeviceDepthFrame {
                     .into(),
             ));
         }
-        Ok(DepthPlan::from_slices(
-            grid,
-            &self.header,
-            params,
-            &self.slices,
-        ))
+        Ok(match &self.band {
+            FrameBand::Slices(s) => DepthPlan::from_slices(grid, &self.header, params, s),
+            FrameBand::Listed(b) => DepthPlan::from_device_band(grid, &self.header, params, b),
+        })
     }
 
     /// The frame with its depths read back (counted): what the host would have fused.

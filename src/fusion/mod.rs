@@ -19,6 +19,7 @@
 //! Neither integrator carves free space outside the band (blocks are allocated only near surfaces).
 
 mod band;
+mod band_blocks_gpu;
 mod band_gpu;
 mod depth;
 mod depth_block;
@@ -34,6 +35,7 @@ pub use band::{
     band_slices, blocks_of_band_slices, depth_frame_blocks, depth_frame_blocks_exact, BandSlice,
     BandSlices, BAND_SLICE_MAX_SIDE_PX, BAND_TILE_PX,
 };
+pub use band_blocks_gpu::{band_blocks_on_gpu, certainty_margin_m, DeviceBand};
 pub use band_gpu::{band_slice_uniforms, band_slices_on_gpu};
 pub use depth::{
     integrate_depth, integrate_depth_plan, visible_blocks, visible_blocks_by_scan,

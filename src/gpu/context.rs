@@ -85,6 +85,9 @@ pub struct GpuContext {
     info: wgpu::AdapterInfo,
     limits: wgpu::Limits,
     binding_cap_bytes: Option<u64>,
+    /// Whether kernels may use f64 (the device has it, and [`GpuContext::without_f64`] was
+    /// not called).
+    f64_kernels: bool,
     /// Kernels compiled on first use or ahead ([`GpuContext::compile_kernels`]), by file name.
     pub(super) kernels: super::kernels::KernelCache,
     /// What the context has cost so far ([`GpuContext::traffic`]).
@@ -115,8 +118,10 @@ impl GpuContext {
         };
         let info = adapter.get_info();
         let limits = adapter.limits();
-        // Timestamp queries where the adapter has them (kernel device times; nothing else).
-        let features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
+        // Timestamp queries where the adapter has them (kernel device times; nothing else), and
+        // f64 arithmetic (the kernels of `shaders::WITH_F64`).
+        let wanted = wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::SHADER_F64;
+        let features = adapter.features() & wanted;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("denser"),
             required_features: features,
@@ -124,12 +129,14 @@ impl GpuContext {
             ..Default::default()
         }))
         .map_err(|e| Error::Gpu(format!("opening {}: {e}", info.name)))?;
+        let f64_kernels = device.features().contains(wgpu::Features::SHADER_F64);
         Ok(Some(GpuContext {
             device,
             queue,
             info,
             limits,
             binding_cap_bytes: None,
+            f64_kernels,
             kernels: Default::default(),
             traffic: TrafficCounters::default(),
             timer: Default::default(),
@@ -164,6 +171,18 @@ impl GpuContext {
             "{}, {:?}, {:?}",
             self.info.name, self.info.device_type, self.info.backend
         )
+    }
+
+    /// Whether the device runs f64 arithmetic in kernels (`shaders::WITH_F64`).
+    pub fn has_f64(&self) -> bool {
+        self.f64_kernels
+    }
+
+    /// This context with its f64 kernels left unused, as on a device without f64 (tests of
+    /// the paths such a device takes).
+    pub fn without_f64(mut self) -> Self {
+        self.f64_kernels = false;
+        self
     }
 
     /// Whether the adapter is a software one (wgpu's `DeviceType::Cpu`, e.g. llvmpipe).

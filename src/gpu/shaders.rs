@@ -176,6 +176,21 @@ pub const FRAME_KEYS: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite, ReadWrite]
 );
 
+/// A depth frame's band blocks listed from its slices, one invocation per slice (f64; in
+/// [`WITH_F64`]).
+pub const BAND_BLOCKS: ShaderSource = kernel!(
+    "band_blocks.wgsl",
+    ["shared/dispatch.wgsl"],
+    [Read, Read, Read, ReadWrite, ReadWrite, ReadWrite]
+);
+
+/// The band blocks' set as a list, one invocation per slot (f64 parameters; in [`WITH_F64`]).
+pub const BAND_BLOCKS_KEYS: ShaderSource = kernel!(
+    "band_blocks_keys.wgsl",
+    ["shared/dispatch.wgsl"],
+    [Read, ReadWrite, ReadWrite, ReadWrite]
+);
+
 /// A depth frame's band slices, one invocation per 8×8-pixel tile.
 pub const BAND_SLICES: ShaderSource = kernel!(
     "band_slices.wgsl",
@@ -470,7 +485,11 @@ pub const MC_LINK: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite]
 );
 
-/// Every kernel (one per line, so additions merge cleanly).
+/// The kernels that need f64 arithmetic (`wgpu::Features::SHADER_F64`), compiled only where
+/// the device has it ([`crate::gpu::GpuContext::has_f64`]) and not part of [`ALL`].
+pub const WITH_F64: &[ShaderSource] = &[BAND_BLOCKS, BAND_BLOCKS_KEYS];
+
+/// Every kernel without f64 (one per line, so additions merge cleanly).
 pub const ALL: &[ShaderSource] = &[
     // TV regularization.
     TV_DUAL,

@@ -402,6 +402,27 @@ impl Drop for Moto {
     }
 }
 
+/// The grids the band tests use: (voxel, μ) of 10 cm and 5 cm voxels with wide and narrow
+/// truncations.
+pub const BAND_GRIDS: [denser::grid::GridParams; 4] = [
+    band_grid(0.1, 0.8),
+    band_grid(0.05, 0.4),
+    band_grid(0.1, 0.3),
+    band_grid(0.05, 0.2),
+];
+
+const fn band_grid(voxel_size_m: f32, truncation_m: f32) -> denser::grid::GridParams {
+    denser::grid::GridParams {
+        voxel_size_m,
+        truncation_m,
+    }
+}
+
+/// The truncations of [`BAND_GRIDS`], metres (what [`band_test_frame`] takes).
+pub fn band_test_mus() -> Vec<f64> {
+    BAND_GRIDS.iter().map(|g| g.truncation_m as f64).collect()
+}
+
 /// A depth frame that exercises every decision of the band's tile lister
 /// (`denser::fusion::band_slices`): a floor seen at grazing angles out to 30 m, a box in front
 /// of a wall (gaps inside tiles), holes, infinities, negative and out-of-range depths, a width

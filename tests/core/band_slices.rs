@@ -3,19 +3,15 @@
 //! from the pose): together exactly `depth_frame_blocks`. The GPU twin of the slices is checked
 //! in `tests/gpu/band_slices.rs`.
 
-use crate::common::band_test_frame;
+use crate::common::{band_test_frame, band_test_mus, BAND_GRIDS};
 use denser::fusion::{
     band_slices, blocks_of_band_slices, depth_frame_blocks, BandSlice, DepthFusionParams,
     BAND_TILE_PX,
 };
-use denser::grid::GridParams;
-
-/// (voxel, μ) of the grids the band tests use, metres.
-pub const BAND_GRIDS: [(f32, f32); 4] = [(0.1, 0.8), (0.05, 0.4), (0.1, 0.3), (0.05, 0.2)];
 
 #[test]
 fn blocks_of_a_frames_band_slices_are_its_listed_blocks() {
-    let mus: Vec<f64> = BAND_GRIDS.iter().map(|g| g.1 as f64).collect();
+    let mus = band_test_mus();
     let params = DepthFusionParams::default();
     for seed in 1..4 {
         let frame = band_test_frame(seed, &mus);
@@ -27,11 +23,8 @@ fn blocks_of_a_frames_band_slices_are_its_listed_blocks() {
             .iter()
             .filter(|&&d| d.is_finite() && d >= params.min_depth_m && d <= params.max_depth_m)
             .count();
-        for (voxel_size_m, truncation_m) in BAND_GRIDS {
-            let grid = GridParams {
-                voxel_size_m,
-                truncation_m,
-            };
+        for grid in BAND_GRIDS {
+            let truncation_m = grid.truncation_m;
             let slices = band_slices(&grid, &frame, &params);
             let (k, pose) = (&frame.intrinsics, &frame.world_from_camera);
             let blocks = blocks_of_band_slices(&grid, k, pose, &params, &slices);

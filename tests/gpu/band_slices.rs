@@ -2,7 +2,7 @@
 //! twin (`denser::fusion::band_slices`): the same slices, bit for bit, on frames that reach
 //! every decision and both sides of each threshold, and so the same blocks listed from them.
 
-use crate::common::{band_test_frame, gpu};
+use crate::common::{band_test_frame, band_test_mus, gpu, BAND_GRIDS};
 use crate::street::street_frame;
 use denser::fusion::{
     band_slice_uniforms, band_slices, band_slices_on_gpu, blocks_of_band_slices,
@@ -10,21 +10,15 @@ use denser::fusion::{
 };
 use denser::grid::GridParams;
 
-/// (voxel, μ) of the grids, metres (as `tests/core/band_slices.rs`).
-const GRIDS: [(f32, f32); 4] = [(0.1, 0.8), (0.05, 0.4), (0.1, 0.3), (0.05, 0.2)];
-
 #[test]
 fn band_slices_made_on_the_gpu_are_the_cpus() {
     let Some(ctx) = gpu() else { return };
     let params = DepthFusionParams::default();
-    let mus: Vec<f64> = GRIDS.iter().map(|g| g.1 as f64).collect();
+    let mus = band_test_mus();
     for seed in 1..3 {
         let frame = band_test_frame(seed, &mus);
-        for (voxel_size_m, truncation_m) in GRIDS {
-            let grid = GridParams {
-                voxel_size_m,
-                truncation_m,
-            };
+        for grid in BAND_GRIDS {
+            let truncation_m = grid.truncation_m;
             // The frame's threshold pairs fall on both sides of 2μ and of μ/2, and some f32
             // differences round.
             let mu = truncation_m as f64;
@@ -117,5 +111,79 @@ fn band_slices_refuse_what_the_fixed_point_cannot_hold() {
     assert_eq!(
         mid,
         0.5 * (t as f64 + f32::from_bits(t.to_bits() + 1) as f64)
+    );
+}
+
+/// The band blocks listed on the device from its slices (`shaders/band_blocks.wgsl`, f64 with
+/// a margin of certainty; slices it cannot decide listed by the host) are exactly the host's
+/// `depth_frame_blocks`, on the test frames, on street frames near and far from the origin,
+/// and under a pose rotated about every axis kilometres out; and the device decides nearly
+/// every slice of a street itself. (The test frames' depth pairs sit at 2μ and μ/2 on purpose:
+/// a slice 4μ deep is a whole number of blocks deep where μ is a multiple of a block's half,
+/// a tie the device leaves to the host, so the host's side is exercised too.)
+#[test]
+fn band_blocks_listed_on_the_gpu_are_the_hosts() {
+    use denser::fusion::band_blocks_on_gpu;
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+    let Some(ctx) = gpu() else { return };
+    if !ctx.has_f64() {
+        return crate::common::skip(&format!("{} has no f64", ctx.name()));
+    }
+    let params = DepthFusionParams::default();
+    let mus = band_test_mus();
+    let mut frames: Vec<(String, GridParams, denser::frame::DepthFrame)> = Vec::new();
+    for seed in 1..3 {
+        for grid in BAND_GRIDS {
+            let name = format!("test frame {seed}, μ {} m", grid.truncation_m);
+            frames.push((name, grid, band_test_frame(seed, &mus)));
+        }
+    }
+    let grid = GridParams::paper(0.1);
+    for (z_m, seed) in [(0.0, 0), (2000.0, 1)] {
+        frames.push((format!("street at {z_m} m"), grid, street_frame(z_m, seed)));
+    }
+    let mut turned = street_frame(0.0, 2);
+    turned.world_from_camera = Isometry3::from_parts(
+        Translation3::new(1234.567, -3.21, -2345.678),
+        UnitQuaternion::from_euler_angles(0.1, -0.7, 0.05),
+    );
+    frames.push((
+        "street turned, 2.6 km out".into(),
+        GridParams::paper(0.05),
+        turned,
+    ));
+    // (slices, deferred) of the test frames and of the streets.
+    let mut totals = [(0, 0); 2];
+    for (name, grid, frame) in &frames {
+        let band = band_blocks_on_gpu(&ctx, grid, frame, &params)
+            .expect("kernel")
+            .expect("f64");
+        let (k, pose) = (&frame.intrinsics, &frame.world_from_camera);
+        let listed = depth_frame_blocks(grid, frame, &params);
+        assert!(listed.len() > 500, "{name}: {} blocks", listed.len());
+        assert_eq!(band.blocks(grid, k, pose, &params), listed, "{name}");
+        let slices = band_slices(grid, frame, &params);
+        assert_eq!(band.usable_pixels, slices.usable_pixels, "{name}");
+        // The device's own blocks, each once.
+        let mut own = band.blocks.clone();
+        own.sort_by_key(|b| b.sort_key());
+        own.dedup();
+        assert_eq!(own.len(), band.blocks.len(), "{name}");
+        eprintln!(
+            "{name}: {} slices, {} deferred; {} blocks, {} from the device",
+            slices.slices.len(),
+            band.deferred.len(),
+            listed.len(),
+            band.blocks.len()
+        );
+        let t = &mut totals[name.starts_with("street") as usize];
+        t.0 += slices.slices.len();
+        t.1 += band.deferred.len();
+    }
+    let [(_, tied), (streets, deferred)] = totals;
+    assert!(tied > 0, "no slice of the test frames went to the host");
+    assert!(
+        deferred * 1000 <= streets,
+        "{deferred} of {streets} street slices deferred"
     );
 }

@@ -40,9 +40,21 @@ fn disparities_of(frame: &DepthFrame) -> DisparityMap {
     }
 }
 
+/// Street frames made on the device from disparities, planned and fused there, against the
+/// host's: with the blocks listed on the device (where it has f64) and from the slices.
 #[test]
 fn a_frame_fused_from_its_depths_on_the_device_is_the_hosts() {
     let Some(ctx) = gpu() else { return };
+    let f64_too = ctx.has_f64();
+    frames_fused_from_the_device(ctx.without_f64());
+    if f64_too {
+        frames_fused_from_the_device(gpu().expect("a GPU"));
+    } else {
+        crate::common::skip("no f64 on this device: the blocks are listed from the slices");
+    }
+}
+
+fn frames_fused_from_the_device(ctx: denser::gpu::GpuContext) {
     let ctx = Arc::new(ctx);
     let grid = GridParams::paper(0.1);
     let params = DepthFusionParams::default();
@@ -69,9 +81,22 @@ fn a_frame_fused_from_its_depths_on_the_device_is_the_hosts() {
             frame.world_from_camera,
             frame.color.clone(),
         );
+        let made = ctx.traffic();
         let dev =
             DeviceDepthFrame::from_disparity(&ctx, (&grid, &params), view, &disparity, BASELINE_M)
                 .expect("device frame");
+        let made = ctx.traffic().since(made);
+        if ctx.has_f64() {
+            // The blocks listed on the device: what comes back is 4 bytes a block (and the
+            // slices it could not decide), not the slices (12 bytes each, ~22 k here).
+            let band = dev.device_band().expect("listed on the device");
+            assert!(made.readback_bytes <= 64 << 10, "{made:?}");
+            assert!(
+                band.deferred.len() * 1000 <= band.blocks.len(),
+                "{}",
+                band.deferred.len()
+            );
+        }
         let back = dev.read_back(&ctx).expect("read back");
         let bits = |f: &DepthFrame| {
             f.depth_m
@@ -95,11 +120,7 @@ fn a_frame_fused_from_its_depths_on_the_device_is_the_hosts() {
         integrate_device_depth_resident(&mut dev_map, &mut dev_layer, &dev, &params, &plan)
             .expect("fuse on the device");
         let t = ctx.traffic().since(before);
-        eprintln!(
-            "frame {k}: {} slices ({} bytes), fusion {t:?}",
-            dev.slices().slices.len(),
-            dev.slices().slices.len() * 12
-        );
+        eprintln!("frame {k}: made with {made:?}, fusion {t:?}");
         if k >= 3 && dev_map.stats().grows == grows {
             // Warm: the colour (3 bytes a pixel) and the blocks' offsets go up, not the depths.
             steady += 1;
@@ -185,6 +206,10 @@ fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
                 let t = last.since(warm.expect("warm"));
                 eprintln!("{method:?}, the last two pairs: {t:?}");
                 assert_eq!((t.submits, t.waits), (2, 2), "{method:?}: {t:?}");
+                if ctx.has_f64() {
+                    // The blocks come back (~7 k a pair here, 4 bytes each), not the slices.
+                    assert!(t.readback_bytes <= 2 * (64 << 10), "{method:?}: {t:?}");
+                }
                 assert_eq!(
                     (t.buffers_created, t.bind_groups_created),
                     (0, 0),
