@@ -17,6 +17,11 @@
 //!   (`ResidentMap::set_frames_in_flight`): a frame returns once submitted and its flags are
 //!   collected by a later one, so the figure is the steady-state time per frame of frames
 //!   submitted back to back (the readback ring holds three; a fourth waits for the first).
+//! - `band_listing_1241x376/{cpu,gpu_blocks}`: a KITTI-sized street frame's band blocks at
+//!   10 cm (`tests/gpu/street.rs`): listed on the CPU from the depths (`depth_frame_blocks`),
+//!   or on the GPU (the depths uploaded, the slices made and the blocks listed there, 4 bytes
+//!   per block read back, `band_blocks_on_gpu`; a device with f64 only) and their set made on
+//!   the host (`DeviceBand::blocks`): the host's listing step against the device's.
 //! - `marching_cubes/{cpu,gpu}`: the raw field of the fused 5 cm map meshed whole (GPU: the
 //!   samples packed and uploaded, five passes, the mesh read back and joined; the same mesh).
 //! - `marching_cubes/gpu_resident`: the same with the blocks resident on the GPU (the samples
@@ -24,6 +29,8 @@
 
 #[path = "../tests/common/mod.rs"]
 mod common;
+#[path = "../tests/gpu/street.rs"]
+mod street;
 
 use common::bench_gpu as gpu;
 
@@ -142,6 +149,37 @@ fn fusion(c: &mut Criterion) {
     g.finish();
 }
 
+fn band_listing(c: &mut Criterion) {
+    use denser::fusion::{band_blocks_on_gpu, depth_frame_blocks};
+    let frame = street::street_frame(0.0, 0);
+    let grid = GridParams::paper(0.1);
+    let params = DepthFusionParams::default();
+    let ctx = gpu();
+    let mut g = c.benchmark_group("band_listing_1241x376");
+    g.throughput(Throughput::Elements(1));
+    g.sample_size(10);
+    g.bench_function("cpu", |b| {
+        b.iter(|| depth_frame_blocks(&grid, &frame, &params))
+    });
+    match ctx {
+        Some(ctx) if ctx.has_f64() => {
+            let (k, pose) = (&frame.intrinsics, &frame.world_from_camera);
+            g.bench_function("gpu_blocks", |b| {
+                b.iter(|| {
+                    let band = band_blocks_on_gpu(&ctx, &grid, &frame, &params).expect("GPU");
+                    band.expect("f64").blocks(&grid, k, pose, &params)
+                })
+            });
+        }
+        Some(ctx) => eprintln!(
+            "SKIPPED band_listing_1241x376/gpu_blocks: {} has no f64",
+            ctx.name()
+        ),
+        None => {}
+    }
+    g.finish();
+}
+
 fn marching_cubes(c: &mut Criterion) {
     let (layer, _) = scene_layer();
     let ctx = gpu();
@@ -167,5 +205,5 @@ fn marching_cubes(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, tv, fusion, marching_cubes);
+criterion_group!(benches, tv, fusion, band_listing, marching_cubes);
 criterion_main!(benches);

@@ -1,10 +1,13 @@
 //! A depth frame whose depths stay on the GPU: made there from a matcher's disparities
-//! (`shaders/disparity_depth.wgsl`, the CPU's f64 quotient in integers) and summarised there as
-//! its band slices (`shaders/band_slices.wgsl`), so that the host plans its fusion from 12
-//! bytes per slice ([`super::DepthPlan::from_slices`]) instead of 4 bytes per pixel, and the
-//! resident fusion reads the depths where they are
-//! ([`super::integrate_device_depth_resident`]). Both kernels are exact twins of the CPU, so
-//! the fused map is the one the host's depths give.
+//! (`shaders/disparity_depth.wgsl`, the CPU's f64 quotient in integers), summarised there as
+//! its band slices (`shaders/band_slices.wgsl`) and, where the device has f64, its band blocks
+//! listed there from the slices (`shaders/band_blocks.wgsl`, [`super::DeviceBand`]), so that
+//! the host plans its fusion from 4 bytes per block ([`super::DepthPlan::from_device_band`]),
+//! or else 12 bytes per slice ([`super::DepthPlan::from_slices`]), instead of 4 bytes per
+//! pixel, and the resident fusion reads the depths where they are
+//! ([`super::integrate_device_depth_resident`]). The kernels make the CPU's decisions exactly
+//! (the block listing by deciding only what it is certain of and leaving the rest to the
+//! host), so the fused map is the one the host's depths give.
 
 use super::band_blocks_gpu::{band_block_params, record_band_blocks};
 use super::band_gpu::{band_slice_uniforms, record_band_slices};
@@ -82,9 +85,10 @@ fn made_for(grid: &GridParams, params: &DepthFusionParams) -> [u32; 4] {
 impl DeviceDepthFrame {
     /// The frame of the disparities `d` (on the device, as a matcher left them) of a stereo
     /// pair `baseline_m` apart, seen as `view` (camera of `d`'s size, pose, colour), for
-    /// fusion into `grid` with `params`: depths and band slices recorded after the matcher's
-    /// work, in buffers of `kept`, and submitted with it; the slices come back in the same
-    /// wait (a second where the frame makes more slices than [`DeviceDepthKept`] expects).
+    /// fusion into `grid` with `params`: depths, band slices and (with f64) band blocks
+    /// recorded after the matcher's work, in buffers of `kept`, and submitted with it; the
+    /// blocks (or slices) come back in the same wait (a second where the frame makes more than
+    /// [`DeviceDepthKept`] expects).
     pub fn from_on_device(
         d: OnDeviceDisparity,
         (grid, params): (&GridParams, &DepthFusionParams),
