@@ -10,8 +10,10 @@ use denser::frame::{DepthFrame, Image};
 use denser::fusion::{
     integrate_device_depth_resident, DepthFusionParams, DepthPlan, DeviceDepthFrame,
 };
-use denser::gpu::{ResidentMap, ResidentOptions};
+use denser::gpu::{GpuTraffic, ResidentMap, ResidentOptions};
 use denser::grid::{GridParams, Layer};
+use denser::reconstruct::{ReconstructionConfig, Reconstructor};
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 /// KITTI's stereo baseline, metres.
@@ -139,98 +141,109 @@ fn frames_fused_from_the_device(ctx: denser::gpu::GpuContext) {
     assert!(blocks.iter().all(|i| dev_layer.get(i) == host_layer.get(i)));
 }
 
-/// A stereo drive read with GPU SGM and fused on the same GPU, its depths kept on the device
-/// (`InputOptions::depth_on_device`, what `reconstruct --depth stereo --device gpu` sets) or
-/// read back as disparities: the same map, and a pair that reads back its band slices instead
-/// of its disparities and confidences (after warm-up in one submit and one wait, creating
-/// nothing), and a frame that sends its colour up but no depths.
-#[test]
-fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
-    use denser::backend::Backend;
-    use denser::depth::tgv::HoleFill;
-    use denser::depth::{SgmParams, StereoMethod};
-    use denser::io::sequence::{open_input, InputOptions, RangeInput, RangeSource};
-    use denser::reconstruct::{ReconstructionConfig, Reconstructor};
+/// A 320×96 synthetic stereo drive of `frames` pairs written under `dir`, with LiDAR scans
+/// where `lidar` (the bag fixture script needs them).
+fn small_drive(dir: &Path, frames: usize, lidar: bool) -> PathBuf {
     use denser::synth::{write_drive, CityConfig, DriveConfig, StereoRig};
-    let Some(ctx) = gpu() else { return };
-    let ctx = Arc::new(ctx);
-    let dir = tempfile::tempdir().expect("tempdir");
-    let drive = DriveConfig {
+    let mut drive = DriveConfig {
         city: CityConfig {
             seed: 3,
             length_m: 60.0,
             frame_spacing_m: 1.0,
-            max_frames: Some(4),
+            max_frames: Some(frames),
             ..Default::default()
         },
         rig: StereoRig::kitti().scaled(320, 96),
-        lidar: None,
         surface: None,
         ..Default::default()
     };
-    let written = write_drive(&drive, dir.path(), false).expect("drive");
-    let (w, h) = (320u64, 96u64);
+    if !lidar {
+        drive.lidar = None;
+    }
+    write_drive(&drive, dir, false).expect("drive").sequence_dir
+}
+
+/// The stereo input `input` matched with `method` (32 disparities) on the GPU of `ctx` and
+/// fused there, each pair's depths kept on the device where `on_device` (what `reconstruct
+/// --depth stereo --device gpu` sets) or read back as disparities: the map, and the stereo
+/// traffic after each pair.
+fn fuse_stereo(
+    ctx: &Arc<denser::gpu::GpuContext>,
+    input: &Path,
+    method: denser::depth::StereoMethod,
+    on_device: bool,
+) -> (Reconstructor, Vec<GpuTraffic>) {
+    use denser::backend::Backend;
+    use denser::depth::tgv::HoleFill;
+    use denser::depth::SgmParams;
+    use denser::io::sequence::{open_input, InputOptions, RangeInput, RangeSource};
     let config = ReconstructionConfig::paper(0.1);
+    let backend = Backend::gpu(ctx.clone(), ResidentOptions::default());
+    let sgm = SgmParams {
+        num_disparities: 32,
+        ..Default::default()
+    };
+    let matcher = backend
+        .stereo_matcher(method, sgm, HoleFill::None)
+        .expect("matcher");
+    assert!(backend.keeps_depth_on_device());
+    let mut options = InputOptions::new(RangeSource::Stereo);
+    if on_device {
+        options.depth_on_device = Some((config.grid, config.depth_fusion));
+    }
+    let seq = open_input(input, &options, Some(matcher)).expect("sequence");
+    let mut rec = Reconstructor::in_memory(config, backend).expect("reconstructor");
+    let mut after_each = Vec::new();
+    for i in 0..seq.len() {
+        let pair = seq.read(i).expect("pair");
+        assert_eq!(matches!(pair, RangeInput::DeviceDepth(_)), on_device);
+        rec.fuse(&pair).expect("fuse");
+        after_each.push(rec.gpu_traffic().expect("on a GPU").stereo);
+    }
+    rec.sync().expect("sync");
+    (rec, after_each)
+}
+
+/// Whether two maps hold the same blocks with the same voxels (and more than `least`).
+fn assert_same_map(a: &Layer, b: &Layer, least: usize, what: &str) {
+    let blocks = a.indices_sorted();
+    assert!(blocks.len() > least, "{what}: {} blocks", blocks.len());
+    assert_eq!(b.indices_sorted(), blocks, "{what}");
+    assert!(blocks.iter().all(|i| a.get(i) == b.get(i)), "{what}");
+}
+
+/// A stereo drive read with GPU SGM and fused on the same GPU, its depths kept on the device
+/// or read back as disparities: the same map, and a pair that reads back its band's blocks
+/// instead of its disparities and confidences (after warm-up in one submit and one wait,
+/// creating nothing), and a frame that sends its colour up but no depths.
+#[test]
+fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
+    use denser::depth::StereoMethod;
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let input = small_drive(dir.path(), 4, false);
+    let (w, h) = (320u64, 96u64);
     for method in [StereoMethod::Sgm, StereoMethod::TgvTensor] {
-        let mut runs = Vec::new();
-        for on_device in [false, true] {
-            let backend = Backend::gpu(ctx.clone(), ResidentOptions::default());
-            let sgm = SgmParams {
-                num_disparities: 32,
-                ..Default::default()
-            };
-            let matcher = backend
-                .stereo_matcher(method, sgm, HoleFill::None)
-                .expect("matcher");
-            assert!(backend.keeps_depth_on_device());
-            let mut options = InputOptions::new(RangeSource::Stereo);
-            if on_device {
-                options.depth_on_device = Some((config.grid, config.depth_fusion));
-            }
-            let dir = &written.sequence_dir;
-            let seq = open_input(dir, &options, Some(matcher)).expect("sequence");
-            let mut rec = Reconstructor::in_memory(config, backend).expect("reconstructor");
-            let mut warm = None;
-            for i in 0..seq.len() {
-                let input = seq.read(i).expect("pair");
-                assert_eq!(matches!(input, RangeInput::DeviceDepth(_)), on_device);
-                rec.fuse(&input).expect("fuse");
-                if i == 1 {
-                    warm = rec.gpu_traffic().map(|t| t.stereo);
-                }
-            }
-            if on_device {
-                // Once two pairs have sized the kept buffers and the readback: a pair is one
-                // submit and one wait, and creates nothing.
-                let last = rec.gpu_traffic().expect("on a GPU").stereo;
-                let t = last.since(warm.expect("warm"));
-                eprintln!("{method:?}, the last two pairs: {t:?}");
-                assert_eq!((t.submits, t.waits), (2, 2), "{method:?}: {t:?}");
-                if ctx.has_f64() {
-                    // The blocks come back (~7 k a pair here, 4 bytes each), not the slices.
-                    assert!(t.readback_bytes <= 2 * (64 << 10), "{method:?}: {t:?}");
-                }
-                assert_eq!(
-                    (t.buffers_created, t.bind_groups_created),
-                    (0, 0),
-                    "{method:?}: {t:?}"
-                );
-            }
-            rec.sync().expect("sync");
-            let traffic = rec.gpu_traffic().expect("on a GPU");
-            eprintln!("{method:?}, depths on the device: {on_device}: {traffic:?}");
-            runs.push((rec.layer().clone(), traffic));
+        let (host, _) = fuse_stereo(&ctx, &input, method, false);
+        let (dev, after_each) = fuse_stereo(&ctx, &input, method, true);
+        assert_same_map(host.layer(), dev.layer(), 300, &format!("{method:?}"));
+        // Once two pairs have sized the kept buffers and the readback: a pair is one submit
+        // and one wait, and creates nothing.
+        let t = after_each[3].since(after_each[1]);
+        eprintln!("{method:?}, the last two pairs: {t:?}");
+        assert_eq!((t.submits, t.waits), (2, 2), "{method:?}: {t:?}");
+        if ctx.has_f64() {
+            // The blocks come back (~7 k a pair here, 4 bytes each), not the slices.
+            assert!(t.readback_bytes <= 2 * (64 << 10), "{method:?}: {t:?}");
         }
-        let ((host, host_traffic), (dev, dev_traffic)) = (&runs[0], &runs[1]);
-        let blocks = host.indices_sorted();
-        assert!(blocks.len() > 300, "{method:?}: {} blocks", blocks.len());
-        assert_eq!(dev.indices_sorted(), blocks, "{method:?}");
-        assert!(
-            blocks.iter().all(|i| dev.get(i) == host.get(i)),
-            "{method:?}"
+        let created = (t.buffers_created, t.bind_groups_created);
+        assert_eq!(created, (0, 0), "{method:?}: {t:?}");
+        let (host_traffic, dev_traffic) = (
+            host.gpu_traffic().expect("GPU"),
+            dev.gpu_traffic().expect("GPU"),
         );
-        // Per pair: the two grey images up; the map's 8 bytes per pixel no longer come back,
-        // the band slices do (12 bytes each, fewer than the pixels here).
+        // Per pair: the two grey images up; the map's 8 bytes per pixel no longer come back.
         let pairs = dev_traffic.stereo_pairs;
         assert_eq!(pairs, 4);
         let (up, down) = (
@@ -256,44 +269,24 @@ fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
 #[test]
 fn a_stereo_bag_keeps_its_depths_on_the_device() {
     use crate::common::skip;
-    use denser::backend::Backend;
-    use denser::depth::tgv::HoleFill;
-    use denser::depth::{SgmParams, StereoMethod};
-    use denser::io::sequence::{open_input, InputOptions, RangeInput, RangeSource};
-    use denser::reconstruct::{ReconstructionConfig, Reconstructor};
-    use denser::synth::{write_drive, CityConfig, DriveConfig, StereoRig};
+    use denser::depth::StereoMethod;
     let Some(ctx) = gpu() else { return };
     let ctx = Arc::new(ctx);
     let dir = tempfile::tempdir().expect("tempdir");
-    let drive = DriveConfig {
-        city: CityConfig {
-            seed: 3,
-            length_m: 60.0,
-            frame_spacing_m: 1.0,
-            max_frames: Some(2),
-            ..Default::default()
-        },
-        rig: StereoRig::kitti().scaled(320, 96),
-        surface: None,
-        ..Default::default()
-    };
-    let written = write_drive(&drive, &dir.path().join("drive"), false).expect("drive");
+    let input = small_drive(&dir.path().join("drive"), 2, true);
     let out = dir.path().join("fixtures");
-    let script =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/make_input_fixtures.py");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/make_input_fixtures.py");
     let made = std::process::Command::new("python3")
         .arg(&script)
-        .arg(&written.sequence_dir)
+        .arg(&input)
         .arg(&out)
         .args(["--frames", "2"])
         .output();
     match made {
         Ok(o) if o.status.success() => {}
         Ok(o) if o.status.code() == Some(3) => {
-            return skip(&format!(
-                "no bag: {}",
-                String::from_utf8_lossy(&o.stderr).trim()
-            ));
+            let why = String::from_utf8_lossy(&o.stderr);
+            return skip(&format!("no bag: {}", why.trim()));
         }
         Ok(o) => panic!(
             "the fixture script failed: {}",
@@ -301,34 +294,9 @@ fn a_stereo_bag_keeps_its_depths_on_the_device() {
         ),
         Err(e) => return skip(&format!("python3 cannot run ({e}): no bag")),
     }
-    let config = ReconstructionConfig::paper(0.1);
-    let mut maps = Vec::new();
-    for on_device in [false, true] {
-        let backend = Backend::gpu(ctx.clone(), ResidentOptions::default());
-        let sgm = SgmParams {
-            num_disparities: 32,
-            ..Default::default()
-        };
-        let matcher = backend
-            .stereo_matcher(StereoMethod::Sgm, sgm, HoleFill::None)
-            .expect("matcher");
-        let mut options = InputOptions::new(RangeSource::Stereo);
-        if on_device {
-            options.depth_on_device = Some((config.grid, config.depth_fusion));
-        }
-        let seq = open_input(&out.join("bag_stereo"), &options, Some(matcher)).expect("bag");
-        assert_eq!(seq.len(), 2, "{}", seq.describe());
-        let mut rec = Reconstructor::in_memory(config, backend).expect("reconstructor");
-        for i in 0..seq.len() {
-            let input = seq.read(i).expect("pair");
-            assert_eq!(matches!(input, RangeInput::DeviceDepth(_)), on_device);
-            rec.fuse(&input).expect("fuse");
-        }
-        rec.sync().expect("sync");
-        maps.push(rec.layer().clone());
-    }
-    let blocks = maps[0].indices_sorted();
-    assert!(blocks.len() > 100, "{} blocks", blocks.len());
-    assert_eq!(maps[1].indices_sorted(), blocks);
-    assert!(blocks.iter().all(|i| maps[1].get(i) == maps[0].get(i)));
+    let bag = out.join("bag_stereo");
+    let (host, _) = fuse_stereo(&ctx, &bag, StereoMethod::Sgm, false);
+    let (dev, after_each) = fuse_stereo(&ctx, &bag, StereoMethod::Sgm, true);
+    assert_eq!(after_each.len(), 2);
+    assert_same_map(host.layer(), dev.layer(), 100, "bag");
 }
