@@ -88,7 +88,7 @@ pub(super) fn list_band(
 }
 
 /// The blocks of the sort keys `keys` (with repeats, in any order), sorted.
-fn sorted_blocks(mut keys: Vec<u64>) -> TouchedBlocks {
+pub(super) fn sorted_blocks(mut keys: Vec<u64>) -> TouchedBlocks {
     // Sort keys are in the blocks' order: one sort of integers.
     keys.par_sort_unstable();
     keys.dedup();

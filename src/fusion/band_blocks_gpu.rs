@@ -97,11 +97,8 @@ impl DeviceBand {
     ) -> TouchedBlocks {
         let slices = super::BandSlices::new(self.deferred.clone(), 0);
         let host = blocks_of_band_slices(grid, k, world_from_camera, params, &slices);
-        let mut keys: Vec<u64> = self.blocks.iter().map(BlockIndex::sort_key).collect();
-        keys.extend(host.iter().map(BlockIndex::sort_key));
-        keys.sort_unstable();
-        keys.dedup();
-        keys.into_iter().map(BlockIndex::from_sort_key).collect()
+        let keys = self.blocks.iter().chain(&host).map(BlockIndex::sort_key);
+        super::band::sorted_blocks(keys.collect())
     }
 }
 
