@@ -2,6 +2,7 @@
 //! (upload, readback, capacity checks, error scopes). It does not choose between CPU and GPU for
 //! a stage: callers do that with [`DeviceChoice`].
 
+use super::error_scopes::ErrorScopes;
 use super::timing::{KernelTimer, PASS_BYTES};
 use super::traffic::{bump, GpuTraffic, TrafficCounters};
 use crate::{Error, Result};
@@ -652,33 +653,6 @@ fn copy_into(dst: &mut [u8], src: &[u8]) {
     dst.par_chunks_mut(1 << 20)
         .zip(src.par_chunks(1 << 20))
         .for_each(|(d, s)| d.copy_from_slice(s));
-}
-
-/// Validation and out-of-memory error scopes around a group of wgpu calls, so that a failure
-/// becomes an [`Error::Gpu`] instead of wgpu's default panic.
-pub(crate) struct ErrorScopes {
-    // Declared innermost first: dropped without `pop` (an early return), fields drop in this
-    // order, which pops the scopes in reverse order of pushing, as wgpu requires.
-    validation: wgpu::ErrorScopeGuard,
-    oom: wgpu::ErrorScopeGuard,
-}
-
-impl ErrorScopes {
-    pub(crate) fn push(device: &wgpu::Device) -> Self {
-        let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        ErrorScopes { oom, validation }
-    }
-
-    /// Pops both scopes; `doing` names the work in the error message.
-    pub(crate) fn pop(self, doing: &str) -> Result<()> {
-        let validation = pollster::block_on(self.validation.pop());
-        let oom = pollster::block_on(self.oom.pop());
-        if let Some(e) = validation.or(oom) {
-            return Err(Error::Gpu(format!("{doing}: {e}")));
-        }
-        Ok(())
-    }
 }
 
 #[cfg(test)]

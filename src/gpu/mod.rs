@@ -18,6 +18,7 @@
 //! run), or know about chunks, files or the pager.
 
 mod context;
+mod error_scopes;
 pub(crate) mod kept;
 mod kernels;
 pub mod layout;
@@ -27,8 +28,8 @@ pub mod shaders;
 pub mod timing;
 mod traffic;
 
-pub(crate) use context::ErrorScopes;
 pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
+pub(crate) use error_scopes::ErrorScopes;
 pub(crate) use kernels::Kernel;
 pub use kernels::KernelCompilation;
 pub use resident::{ResidentMap, ResidentOptions, ResidentStats};

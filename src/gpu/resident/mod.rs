@@ -166,7 +166,7 @@ impl ResidentMap {
         let device_max = ctx.max_binding_bytes() / SLOT_BYTES;
         let max_blocks = (options.max_bytes / SLOT_BYTES).min(device_max).max(1) as u32;
         let capacity = options.initial_blocks.clamp(1, max_blocks);
-        let scope = super::context::ErrorScopes::push(&ctx.device);
+        let scope = crate::gpu::ErrorScopes::push(&ctx.device);
         let pool = BlockPool::new(&ctx, capacity)?;
         let table = DeviceTable::new(&ctx, max_blocks.min(capacity.saturating_mul(2)));
         scope.pop("allocating the GPU block pool")?;

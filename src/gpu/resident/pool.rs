@@ -4,11 +4,11 @@
 //! the resident map ([`super::ResidentMap`]) chooses what to upload, and [`super::policy`] what
 //! to spill.
 
-use crate::gpu::context::{ErrorScopes, GpuContext};
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{GpuVoxel, SlotFillUniforms, SlotListUniforms};
 use crate::gpu::readback::{LateReadback, ReadbackRing};
 use crate::gpu::shaders;
+use crate::gpu::{ErrorScopes, GpuContext};
 use crate::grid::{BlockIndex, VOXELS_PER_BLOCK};
 use crate::Result;
 

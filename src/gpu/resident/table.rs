@@ -3,9 +3,9 @@
 //! decides residency) and uploads the entries it changed; kernels resolve block keys through
 //! the device copy (`shaders/block_lookup.wgsl`, twin of [`BlockTable::lookup`]).
 
-use crate::gpu::context::{ErrorScopes, GpuContext};
 use crate::gpu::layout::LookupUniforms;
 use crate::gpu::shaders;
+use crate::gpu::{ErrorScopes, GpuContext};
 use crate::grid::BlockIndex;
 use crate::Result;
 
