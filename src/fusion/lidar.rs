@@ -33,6 +33,8 @@ pub(crate) struct Ray {
     pub(crate) range_m: f64,
     /// Intensity as a grey level (the colour every voxel it updates is averaged towards).
     pub(crate) gray: u8,
+    /// The return in the sensor's frame, metres, as scanned (`dir` is its rotated direction).
+    pub(crate) point_sensor_m: [f32; 3],
 }
 
 /// The truncation band `[max(r − μ, 0), r + μ]` of a return at range `range_m`, metres along
@@ -60,6 +62,7 @@ fn rays(scan: &LidarScan, params: &LidarFusionParams) -> Vec<Ray> {
                 dir: d.into(),
                 range_m: r,
                 gray,
+                point_sensor_m: *p,
             })
         })
         .collect()
@@ -132,6 +135,7 @@ pub fn integrate_lidar(
 /// [`integrate_lidar_plan`] applies. A pager builds it first to page in [`LidarPlan::blocks`].
 pub struct LidarPlan {
     origin: [f64; 3],
+    rotation_ijkw: [f64; 4],
     rays: Vec<Ray>,
     pairs: Vec<(BlockIndex, u32)>,
 }
@@ -142,8 +146,10 @@ impl LidarPlan {
         let origin: [f64; 3] = scan.world_from_sensor.translation.vector.into();
         let rays = rays(scan, params);
         let pairs = block_ray_pairs(grid, origin, &rays);
+        let q = &scan.world_from_sensor.rotation.coords;
         LidarPlan {
             origin,
+            rotation_ijkw: [q[0], q[1], q[2], q[3]],
             rays,
             pairs,
         }
@@ -159,6 +165,11 @@ impl LidarPlan {
     /// The sensor's position, world frame, metres.
     pub fn origin_m(&self) -> [f64; 3] {
         self.origin
+    }
+
+    /// The sensor's rotation, world from sensor: a unit quaternion (i, j, k, w).
+    pub fn rotation_ijkw(&self) -> [f64; 4] {
+        self.rotation_ijkw
     }
 
     /// Number of usable rays (returns within the range limits).

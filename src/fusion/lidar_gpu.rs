@@ -29,6 +29,7 @@
 //! point that close to a voxel face, and the last quantisation step of the TSDF (sdf differs by
 //! ~1e-7 m). `tests/gpu/lidar.rs` measures it and states the tolerance.
 
+use crate::fusion::lidar::Ray;
 use crate::fusion::{band_m, FusionStats, LidarPlan};
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{
@@ -178,9 +179,17 @@ pub fn walk_block_ray(
     n
 }
 
+/// A ray's direction (as f32) and grey level, as they go up.
+pub(super) fn ray_dir(r: &Ray) -> GpuRayDir {
+    GpuRayDir {
+        dir: r.dir.map(|d| d as f32),
+        gray: r.gray as u32,
+    }
+}
+
 /// The pairs of `range` (one block's, in scan order) as [`GpuLidarRay`]s, with their rays'
 /// indices.
-fn block_local_rays(
+pub(super) fn block_local_rays(
     grid: &GridParams,
     plan: &LidarPlan,
     range: Range<usize>,
@@ -263,13 +272,7 @@ pub(super) fn upload_rays(
              fit their packed word"
         )));
     }
-    let dir = |k: u32| {
-        let r = &rays[k as usize];
-        GpuRayDir {
-            dir: r.dir.map(|d| d as f32),
-            gray: r.gray as u32,
-        }
-    };
+    let dir = |k: u32| ray_dir(&rays[k as usize]);
     let fill = |out: wgpu::WriteOnly<'_, [u8]>| {
         let (slots, _) = out.into_chunks::<RAY_DIR_BYTES>();
         let slots: Vec<_> = slots.into_iter().collect();

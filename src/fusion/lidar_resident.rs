@@ -4,15 +4,17 @@
 //! scan's blocks where they live on the device, so a scan no longer sends its blocks up and
 //! reads them back (4 KiB each, both ways): the blocks already resident stay, those in RAM go up
 //! once (as for a depth frame), new ones are made empty on the device, and what comes back is
-//! the counters and one flag per block. What goes up besides: each ray once (16 bytes) and each
-//! (block, ray) pair's own values (28 bytes).
+//! the counters and one flag per block. What goes up besides: each ray once (24 bytes: range,
+//! point, grey level) and each (block, ray) pair's ray number (4 bytes), from which the device
+//! makes the walks the host would prepare, bit for bit (`lidar_device.rs`); a scan whose rays
+//! exceed one binding sends the host's walks instead (16 bytes per ray, 28 per pair).
 //!
 //! The result equals the per-call kernel's bit for bit (the same f32 operations on the same
 //! values, in the same order per block), so it keeps its relation to the CPU's walk
 //! (`tests/gpu/lidar.rs`).
 
 use super::lidar_gpu::{dispatch_order, record_passes, upload_rays, PAIR_BYTES};
-use super::{integrate_lidar_gpu, FusionStats, LidarPlan};
+use super::{integrate_lidar_gpu, lidar_device, FusionStats, LidarPlan};
 use crate::gpu::layout::LookupUniforms;
 use crate::gpu::resident::{FrameParts, ResidentMap};
 use crate::gpu::{shaders, ErrorScopes};
@@ -107,13 +109,6 @@ fn run_resident(
     let (order, offsets) = dispatch_order(groups, 0..n);
     let total = *offsets.last().expect("one offset at least");
     ctx.check_binding("block keys (16 bytes per block)", n as u64 * 16)?;
-    let (buf_pairs, buf_dirs, rays_per_pass) = upload_rays(
-        (ctx, Some(&mut *kept)),
-        &grid,
-        (plan, groups),
-        &order,
-        total,
-    )?;
     let keys: Vec<[i32; 4]> = order
         .iter()
         .map(|&b| {
@@ -147,6 +142,19 @@ fn run_resident(
     encoder.clear_buffer(&buf_counters, 0, Some(16));
     encoder.clear_buffer(&buf_updated, 0, Some(n as u64 * 4));
     ctx.record_dispatch(&mut encoder, &lookup, &bind_lookup, n as u64)?;
+    // The walks made on the device where its rays fit one binding, else prepared here.
+    let (buf_pairs, buf_dirs, rays_per_pass) = if lidar_device::fits(ctx, plan) {
+        let made = lidar_device::record_device_pairs(
+            (ctx, &mut *kept, &mut encoder),
+            (&grid, plan),
+            (groups, &order),
+            [&buf_offsets, &buf_keys, &buf_counters],
+        )?;
+        (made.pairs, made.dirs, made.rays_per_pass)
+    } else {
+        let kept = Some(&mut *kept);
+        upload_rays((ctx, kept), &grid, (plan, groups), &order, total)?
+    };
     let counts: Vec<u32> = order.iter().map(|&b| groups[b].1.len() as u32).collect();
     let buffers = [
         &buf_offsets,

@@ -27,6 +27,7 @@ mod depth_device;
 mod depth_gpu;
 mod depth_keys;
 mod lidar;
+mod lidar_device;
 mod lidar_gpu;
 mod lidar_resident;
 pub mod traverse;
@@ -52,6 +53,7 @@ pub use lidar::{
     integrate_lidar, integrate_lidar_plan, integrate_lidar_reference, lidar_scan_blocks,
     LidarFusionParams, LidarPlan,
 };
+pub use lidar_device::{lidar_pairs_on_cpu, lidar_pairs_on_gpu, MAX_WALK_STEPS};
 pub use lidar_gpu::{block_local_ray, integrate_lidar_gpu, walk_block_ray};
 pub use lidar_resident::integrate_lidar_resident;
 

@@ -19,6 +19,7 @@
 
 mod context;
 mod error_scopes;
+pub mod exact_f64;
 pub(crate) mod kept;
 mod kernels;
 pub mod layout;

@@ -252,6 +252,35 @@ pub const FUSE_LIDAR_RESIDENT: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite, ReadWrite, Read, ReadWrite, Read, ReadWrite]
 );
 
+/// A LiDAR scan's rays made on the device in exact f64 (the CPU's directions, bit for bit).
+pub const LIDAR_RAYS: ShaderSource = kernel!(
+    "lidar_rays.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/exact_f64.wgsl",
+        "shared/lidar_scan.wgsl"
+    ],
+    [Read, Read, ReadWrite, ReadWrite, ReadWrite]
+);
+
+/// A LiDAR scan's (block, ray) pairs made on the device in exact f64 (the CPU's, bit for bit).
+pub const LIDAR_PAIRS: ShaderSource = kernel!(
+    "lidar_pairs.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/exact_f64.wgsl",
+        "shared/lidar_scan.wgsl"
+    ],
+    [Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite]
+);
+
+/// The exact f64 operations on test cases (`crate::gpu::exact_f64`).
+pub const EXACT_F64_CHECK: ShaderSource = kernel!(
+    "exact_f64_check.wgsl",
+    ["shared/dispatch.wgsl", "shared/exact_f64.wgsl"],
+    [Read, ReadWrite]
+);
+
 /// TGV stereo dual step (`p` with the tensor, `q`).
 pub const TGV_DUAL: ShaderSource = kernel!(
     "tgv_dual.wgsl",
@@ -504,6 +533,9 @@ pub const ALL: &[ShaderSource] = &[
     FUSE_DEPTH_RESIDENT,
     FUSE_LIDAR,
     FUSE_LIDAR_RESIDENT,
+    LIDAR_RAYS,
+    LIDAR_PAIRS,
+    EXACT_F64_CHECK,
     // The GPU hash table and pool.
     BLOCK_LOOKUP,
     FRAME_KEYS,

@@ -37,6 +37,7 @@ use denser::backend::Backend;
 use denser::frame::LidarScan;
 use denser::fusion::{integrate_lidar_gpu, integrate_lidar_reference, integrate_lidar_resident};
 use denser::fusion::{integrate_lidar_plan, LidarFusionParams, LidarPlan};
+use denser::fusion::{lidar_pairs_on_cpu, lidar_pairs_on_gpu, MAX_WALK_STEPS};
 use denser::gpu::resident::SLOT_BYTES;
 use denser::gpu::{GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats};
 use denser::grid::{Block, BlockIndex, GridParams, Layer, MAX_WEIGHT, VOXELS_PER_BLOCK};
@@ -565,16 +566,17 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
     assert!(s1.grows >= 1 && s1.blocks_spilled == 0 && s1.oversize_frames == 0);
     assert_eq!(touched, per_call_touched, "touched blocks per scan");
     assert_layers_identical("resident vs per call", &per_call, &grown);
-    // The second round's scans find their blocks resident: up go each ray once (16 bytes), each
-    // (block, ray) pair's own values (28 bytes; before, whole 52-byte pairs) and small inputs,
-    // down the counters and a flag per block; no block either way, and nothing is created.
+    // The second round's scans find their blocks resident: up go each ray once (24 bytes: its
+    // range, point and grey level), each (block, ray) pair's ray number (4 bytes; before, the
+    // host's 28-byte walk and 16 bytes per ray) and small inputs, down the counters and a flag
+    // per block; no block either way, and nothing is created.
     for (k, t) in traffic.iter().enumerate().skip(3) {
         let plan = LidarPlan::new(&grid, &scans[k], &PARAMS);
         let (pairs, blocks) = (plan.pair_count() as u64, plan.blocks().len() as u64);
         let rays = plan.ray_count() as u64;
         eprintln!("scan {k}: {rays} rays, {pairs} pairs, {blocks} blocks: {t:?}");
         assert!(
-            t.upload_bytes <= 16 * rays + 28 * pairs + 20 * blocks + (64 << 10),
+            t.upload_bytes <= 24 * rays + 4 * pairs + 20 * blocks + (64 << 10),
             "{t:?}"
         );
         assert!(t.readback_bytes <= 4 * blocks + (4 << 10), "{t:?}");
@@ -614,4 +616,47 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
     );
     assert_eq!(touched, per_call_touched);
     assert_layers_identical("tiny pool vs per call", &per_call, &small);
+}
+
+#[test]
+fn device_made_rays_and_pairs_equal_the_hosts() {
+    // The walks the device makes from each ray's range and point, in exact f64, are the ones
+    // the host prepares, bit for bit: near the origin and kilometres from it, for sensors in
+    // general position and on voxel corners (rays exactly in voxel faces, floors of exact
+    // integers), on both grids.
+    let Some(ctx) = gpu() else { return };
+    let mut checked = (0, 0);
+    for (grid, offset, origins) in [
+        (GRIDS[0], OFFSETS[0], &ORIGINS),
+        (GRIDS[1], OFFSETS[1], &ORIGINS),
+        (GRIDS[0], OFFSETS[1], &ORIGINS_ON_GRID),
+        (GRIDS[1], OFFSETS[0], &ORIGINS_ON_GRID),
+    ] {
+        for scan in sphere_scans_from(origins, offset).iter().take(2) {
+            let plan = LidarPlan::new(&grid, scan, &PARAMS);
+            let (pairs, dirs, not_made) = lidar_pairs_on_gpu(&ctx, &grid, &plan).expect("device");
+            let (want_pairs, want_dirs) = lidar_pairs_on_cpu(&grid, &plan);
+            assert_eq!(not_made, 0, "rays or pairs the device could not make");
+            assert_eq!(dirs.len(), want_dirs.len());
+            let wrong_dirs = dirs.iter().zip(&want_dirs).filter(|(a, b)| a != b).count();
+            let mut wrong_pairs = 0;
+            for (k, (got, want)) in pairs.iter().zip(&want_pairs).enumerate() {
+                let want = want.expect("the host's pairs pack");
+                assert!(want.cells_steps >> 24 <= MAX_WALK_STEPS, "{want:?}");
+                if *got != want {
+                    wrong_pairs += 1;
+                    if wrong_pairs <= 5 {
+                        eprintln!("pair {k}: device {got:?}, host {want:?}");
+                    }
+                }
+            }
+            assert_eq!((wrong_dirs, wrong_pairs), (0, 0), "offset {offset:?}");
+            checked.0 += dirs.len();
+            checked.1 += pairs.len();
+        }
+    }
+    eprintln!(
+        "device-made walks: {} rays, {} pairs, all the host's",
+        checked.0, checked.1
+    );
 }

@@ -11,6 +11,7 @@ mod band_slices;
 mod compare;
 mod device_depth;
 mod disparity_depth;
+mod exact_f64;
 mod frame_keys;
 mod in_flight;
 mod lidar;

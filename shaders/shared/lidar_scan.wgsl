@@ -1,0 +1,18 @@
+// What the scan kernels (lidar_rays.wgsl, lidar_pairs.wgsl) share: the scan's constants, as
+// the CPU's f64 values' bits (`LidarScanWords` in src/fusion/lidar_device.rs).
+
+// Words: [0, 6) the sensor's position, world frame, metres (x, y, z); [6, 14) its rotation, a
+// unit quaternion (i, j, k, w); [14, 16) the voxel size, metres; [16, 18) the truncation μ,
+// metres; [18, 20) 1 / voxel size (the CPU's rounding); [20] rays; [21] (block, ray) pairs;
+// [22] listed blocks.
+@group(0) @binding(0) var<storage, read> scan: array<u32>;
+
+fn scan_f64(w: u32) -> vec2<u32> {
+    return vec2<u32>(scan[w], scan[w + 1u]);
+}
+
+// Per ray, 6 words: its range (f64, the CPU's norm of the point), the point in the sensor's
+// frame (3 f32) and its grey level.
+const RAY_WORDS: u32 = 6u;
+// Per ray, 6 words: its unit direction, world frame (3 f64).
+const DIR_WORDS: u32 = 6u;
