@@ -34,8 +34,11 @@ fn apply(op: u32, a: vec2<u32>, b: vec2<u32>) -> vec2<u32> {
         case 7u: {
             return vec2<u32>(select(0u, 1u, f64_less(a, b)), 0u);
         }
-        default: {
+        case 8u: {
             return f64_from_i32(bitcast<i32>(a.x));
+        }
+        default: {
+            return f64_sqrt(a);
         }
     }
 }

@@ -6,19 +6,19 @@
 // listed blocks' (in dispatch order, `ray_offsets`), each block's rays in scan order.
 // Shared files and bindings: src/gpu/shaders.rs.
 
-@group(0) @binding(1) var<storage, read> rays_in: array<u32>;
-@group(0) @binding(2) var<storage, read> dirs_f64: array<u32>;
+// Per ray: direction and range (lidar_rays.wgsl).
+@group(0) @binding(1) var<storage, read> rays_f64: array<u32>;
 // Pair i's ray (its index into the rays).
-@group(0) @binding(3) var<storage, read> pair_rays: array<u32>;
+@group(0) @binding(2) var<storage, read> pair_rays: array<u32>;
 // Listed block b's pairs: ray_offsets[b] .. ray_offsets[b + 1].
-@group(0) @binding(4) var<storage, read> ray_offsets: array<u32>;
+@group(0) @binding(3) var<storage, read> ray_offsets: array<u32>;
 // Listed block b's position (x, y, z, unused).
-@group(0) @binding(5) var<storage, read> block_keys: array<vec4<i32>>;
+@group(0) @binding(4) var<storage, read> block_keys: array<vec4<i32>>;
 // LidarPair (shared/lidar_walk.wgsl) as 7 words.
-@group(0) @binding(6) var<storage, read_write> pairs: array<u32>;
+@group(0) @binding(5) var<storage, read_write> pairs: array<u32>;
 // [1]: pairs the exact arithmetic could not make, or that do not pack (never: see
 // `GpuLidarPair::pack`).
-@group(0) @binding(7) var<storage, read_write> counters: array<atomic<u32>>;
+@group(0) @binding(6) var<storage, read_write> counters: array<atomic<u32>>;
 
 // Cells a walk visits at most (`MAX_WALK_STEPS` in src/fusion/lidar_device.rs): the passes
 // are sized by it.
@@ -65,11 +65,11 @@ fn main(
     }
     let key = block_keys[block_of_pair(i)];
     let k = pair_rays[i];
-    let range = vec2<u32>(rays_in[k * RAY_WORDS], rays_in[k * RAY_WORDS + 1u]);
-    let at = k * DIR_WORDS;
-    let d0 = vec2<u32>(dirs_f64[at], dirs_f64[at + 1u]);
-    let d1 = vec2<u32>(dirs_f64[at + 2u], dirs_f64[at + 3u]);
-    let d2 = vec2<u32>(dirs_f64[at + 4u], dirs_f64[at + 5u]);
+    let at = k * RAY_F64_WORDS;
+    let d0 = vec2<u32>(rays_f64[at], rays_f64[at + 1u]);
+    let d1 = vec2<u32>(rays_f64[at + 2u], rays_f64[at + 3u]);
+    let d2 = vec2<u32>(rays_f64[at + 4u], rays_f64[at + 5u]);
+    let range = vec2<u32>(rays_f64[at + 6u], rays_f64[at + 7u]);
     let o0 = scan_f64(0u);
     let o1 = scan_f64(2u);
     let o2 = scan_f64(4u);

@@ -1,12 +1,13 @@
 // A LiDAR scan's rays made on the device exactly as the CPU makes them (`rays` in
-// src/fusion/lidar.rs): the unit direction d = q · (p / r) · q⁻¹ of each usable return p at
-// range r, with nalgebra's operations in nalgebra's order, in exact f64
-// (shared/exact_f64.wgsl): t = 2 (q⃗ × u), d = (t w + q⃗ × t) + u. Writes the direction in f64
-// for lidar_pairs.wgsl and, as f32, with the grey level for the fusion (`LidarRayDir`).
+// src/fusion/lidar.rs): the range r = √((x² + y²) + z²) of each usable return p = (x, y, z) and
+// its unit direction d = q · (p / r) · q⁻¹, with nalgebra's operations in nalgebra's order, in
+// exact f64 (shared/exact_f64.wgsl): u = p / r, t = 2 (q⃗ × u), d = (t w + q⃗ × t) + u. Writes the
+// direction and range in f64 for lidar_pairs.wgsl and the direction as f32, with the grey
+// level, for the fusion (`LidarRayDir`).
 // One invocation per ray. Shared files and bindings: src/gpu/shaders.rs.
 
 @group(0) @binding(1) var<storage, read> rays_in: array<u32>;
-@group(0) @binding(2) var<storage, read_write> dirs_f64: array<u32>;
+@group(0) @binding(2) var<storage, read_write> rays_f64: array<u32>;
 // LidarRayDir (shared/lidar_walk.wgsl) as 4 words: x, y, z (f32 bits), grey.
 @group(0) @binding(3) var<storage, read_write> ray_dirs: array<u32>;
 // [1]: rays or pairs the exact arithmetic could not make (never, for finite inputs).
@@ -23,10 +24,13 @@ fn main(
         return;
     }
     let at = k * RAY_WORDS;
-    let r = vec2<u32>(rays_in[at], rays_in[at + 1u]);
-    let u0 = f64_div(f64_from_f32(rays_in[at + 2u]), r);
-    let u1 = f64_div(f64_from_f32(rays_in[at + 3u]), r);
-    let u2 = f64_div(f64_from_f32(rays_in[at + 4u]), r);
+    let x = f64_from_f32(rays_in[at]);
+    let y = f64_from_f32(rays_in[at + 1u]);
+    let z = f64_from_f32(rays_in[at + 2u]);
+    let r = f64_sqrt(f64_add(f64_add(f64_mul(x, x), f64_mul(y, y)), f64_mul(z, z)));
+    let u0 = f64_div(x, r);
+    let u1 = f64_div(y, r);
+    let u2 = f64_div(z, r);
     let qi = scan_f64(6u);
     let qj = scan_f64(8u);
     let qk = scan_f64(10u);
@@ -42,17 +46,19 @@ fn main(
     let d0 = f64_add(f64_add(f64_mul(t0, qw), c0), u0);
     let d1 = f64_add(f64_add(f64_mul(t1, qw), c1), u1);
     let d2 = f64_add(f64_add(f64_mul(t2, qw), c2), u2);
-    let out = k * DIR_WORDS;
-    dirs_f64[out] = d0.x;
-    dirs_f64[out + 1u] = d0.y;
-    dirs_f64[out + 2u] = d1.x;
-    dirs_f64[out + 3u] = d1.y;
-    dirs_f64[out + 4u] = d2.x;
-    dirs_f64[out + 5u] = d2.y;
+    let out = k * RAY_F64_WORDS;
+    rays_f64[out] = d0.x;
+    rays_f64[out + 1u] = d0.y;
+    rays_f64[out + 2u] = d1.x;
+    rays_f64[out + 3u] = d1.y;
+    rays_f64[out + 4u] = d2.x;
+    rays_f64[out + 5u] = d2.y;
+    rays_f64[out + 6u] = r.x;
+    rays_f64[out + 7u] = r.y;
     ray_dirs[k * 4u] = f64_to_f32(d0);
     ray_dirs[k * 4u + 1u] = f64_to_f32(d1);
     ray_dirs[k * 4u + 2u] = f64_to_f32(d2);
-    ray_dirs[k * 4u + 3u] = rays_in[at + 5u];
+    ray_dirs[k * 4u + 3u] = rays_in[at + 3u];
     if (f64_status != 0u) {
         atomicAdd(&counters[1], 1u);
     }

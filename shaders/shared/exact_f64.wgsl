@@ -338,6 +338,58 @@ fn f64_div(a: vec2<u32>, b: vec2<u32>) -> vec2<u32> {
     return f64_round(neg, exp, q, !u64_is_zero(rem));
 }
 
+// a >> n, 0 < n < 64, the bits shifted out dropped.
+fn u64_shr(a: vec2<u32>, n: u32) -> vec2<u32> {
+    if (n >= 32u) {
+        return vec2<u32>(a.y >> (n - 32u), 0u);
+    }
+    return vec2<u32>((a.x >> n) | (a.y << (32u - n)), a.y >> n);
+}
+
+fn f64_sqrt(a: vec2<u32>) -> vec2<u32> {
+    let x = f64_unpack(a);
+    if (u64_is_zero(x.m)) {
+        return a;
+    }
+    if (x.neg) {
+        f64_status = 1u;
+        return vec2<u32>(0u, 0x7ff80000u);
+    }
+    // a = sig · 2^e2, sig of 53 bits (54 where e2 is made even); the root of N = sig · 2^56,
+    // 2^108 ≤ N < 2^110, digit by digit: 55 bits, 2^54 ≤ root < 2^55, and whether any
+    // remainder is left.
+    var sig = u64_shr(x.m, 11u);
+    var e2 = x.exp - 52;
+    if ((e2 & 1) != 0) {
+        sig = u64_shl(sig, 1u);
+        e2 = e2 - 1;
+    }
+    var rem = vec2<u32>(0u, 0u);
+    var root = vec2<u32>(0u, 0u);
+    for (var i = 54; i >= 0; i = i - 1) {
+        // Bits 2i + 1 and 2i of N: sig's bits 2i − 55 and 2i − 56, zero below bit 56.
+        var pair = 0u;
+        if (i >= 28) {
+            let at = u32(2 * i - 56);
+            if (at == 0u) {
+                pair = sig.x & 3u;
+            } else {
+                pair = u64_shr(sig, at).x & 3u;
+            }
+        }
+        rem = u64_shl(rem, 2u);
+        rem.x = rem.x | pair;
+        let trial = u64_shl(root, 2u) | vec2<u32>(1u, 0u);
+        root = u64_shl(root, 1u);
+        if (!u64_less(rem, trial)) {
+            rem = u64_sub(rem, trial);
+            root.x = root.x | 1u;
+        }
+    }
+    // √a = root · 2^((e2 − 56) / 2); root's bit 54 brought to bit 63.
+    return f64_round(false, (e2 - 56) / 2 + 54, u64_shl(root, 9u), !u64_is_zero(rem));
+}
+
 // a < b, for finite values (−0 = +0).
 fn f64_less(a: vec2<u32>, b: vec2<u32>) -> bool {
     if (f64_is_zero(a) && f64_is_zero(b)) {

@@ -11,8 +11,7 @@ fn scan_f64(w: u32) -> vec2<u32> {
     return vec2<u32>(scan[w], scan[w + 1u]);
 }
 
-// Per ray, 6 words: its range (f64, the CPU's norm of the point), the point in the sensor's
-// frame (3 f32) and its grey level.
-const RAY_WORDS: u32 = 6u;
-// Per ray, 6 words: its unit direction, world frame (3 f64).
-const DIR_WORDS: u32 = 6u;
+// Per ray, 4 words: the return as scanned, in the sensor's frame (3 f32), and its grey level.
+const RAY_WORDS: u32 = 4u;
+// Per ray, 8 words: its unit direction, world frame (3 f64), and its range (f64).
+const RAY_F64_WORDS: u32 = 8u;

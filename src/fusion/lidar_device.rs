@@ -1,9 +1,9 @@
 //! A LiDAR scan's rays and (block, ray) pairs made on the device, so that a resident scan
-//! ([`super::integrate_lidar_resident`]) sends 24 bytes per ray and 4 per pair instead of the
-//! host's 16 per ray and 28 per pair: each ray goes up as its range (the CPU's f64 norm), its
-//! point as scanned and its grey level, each pair as its ray's number (the listed blocks' keys
-//! and pair offsets go up already, for the lookup and the passes). `shaders/lidar_rays.wgsl`
-//! rotates the rays as [`super::LidarPlan`] does and `shaders/lidar_pairs.wgsl` makes each
+//! ([`super::integrate_lidar_resident`]) sends 16 bytes per ray and 4 per pair instead of the
+//! host's 16 per ray and 28 per pair: each ray goes up as its point as scanned and its grey
+//! level, each pair as its ray's number (the listed blocks' keys and pair offsets go up
+//! already, for the lookup and the passes). `shaders/lidar_rays.wgsl`
+//! measures and rotates the rays as [`super::LidarPlan`] does and `shaders/lidar_pairs.wgsl` makes each
 //! pair's walk as [`super::block_local_ray`] and [`GpuLidarPair::pack`] do, both in exact f64
 //! (`shaders/shared/exact_f64.wgsl`, [`crate::gpu::exact_f64`]): the same values bit for bit
 //! on any device, so the fusion's result is the host-prepared one's.
@@ -27,8 +27,8 @@ use std::ops::Range;
 /// block (keep in sync with `shaders/lidar_pairs.wgsl`).
 pub const MAX_WALK_STEPS: u32 = 49;
 
-/// Bytes of one ray as it goes up: range (f64), point (3 × f32), grey level (u32).
-const RAY_IN_BYTES: u64 = 24;
+/// Bytes of one ray as it goes up: its point (3 × f32) and grey level (u32).
+const RAY_IN_BYTES: u64 = 16;
 
 /// Where the device made the scan's walks: the pairs (in dispatch order, as the fusion kernel
 /// reads them), the rays' directions and grey levels, and the rays each pass applies per block.
@@ -63,10 +63,13 @@ fn scan_words(grid: &GridParams, plan: &LidarPlan, pairs: usize, blocks: usize) 
     words
 }
 
+/// Bytes of one ray as the device keeps it for the pairs: direction and range (4 × f64).
+const RAY_F64_BYTES: u64 = 32;
+
 /// Whether the device can make this scan's rays: they fit one binding (else the host prepares
 /// the pairs, numbering only the rays of each batch).
 pub(super) fn fits(ctx: &GpuContext, plan: &LidarPlan) -> bool {
-    plan.ray_count() as u64 * RAY_IN_BYTES <= ctx.max_binding_bytes()
+    plan.ray_count() as u64 * RAY_F64_BYTES <= ctx.max_binding_bytes()
 }
 
 /// Uploads the scan's rays and the pairs' ray numbers (the listed blocks `order`, indices into
@@ -86,9 +89,8 @@ pub(super) fn record_device_pairs(
     let ray_words: Vec<u32> = rays
         .iter()
         .flat_map(|r| {
-            let range = r.range_m.to_bits();
             let [x, y, z] = r.point_sensor_m.map(f32::to_bits);
-            [range as u32, (range >> 32) as u32, x, y, z, r.gray as u32]
+            [x, y, z, r.gray as u32]
         })
         .collect();
     let pair_rays: Vec<u32> = order
@@ -104,7 +106,7 @@ pub(super) fn record_device_pairs(
     let buf_scan = kept.storage_with(ctx, "lidar_scan_words", bytemuck::cast_slice(&words));
     let buf_rays = kept.storage_with(ctx, "lidar_rays_in", bytemuck::cast_slice(&ray_words));
     let buf_pair_rays = kept.storage_with(ctx, "lidar_pair_rays", bytemuck::cast_slice(&pair_rays));
-    let buf_dirs_f64 = kept.scratch(ctx, "lidar_dirs_f64", rays.len() as u64 * 24);
+    let buf_rays_f64 = kept.scratch(ctx, "lidar_rays_f64", rays.len() as u64 * RAY_F64_BYTES);
     let dir_bytes = (rays.len() * std::mem::size_of::<GpuRayDir>()) as u64;
     let buf_dirs = kept.scratch(ctx, "lidar_ray_dirs", dir_bytes);
     let buf_pairs = kept.scratch(ctx, "lidar_pairs", pair_bytes);
@@ -114,7 +116,7 @@ pub(super) fn record_device_pairs(
         ctx,
         "lidar_rays",
         &make_rays.layout,
-        &[&buf_scan, &buf_rays, &buf_dirs_f64, &buf_dirs, counters],
+        &[&buf_scan, &buf_rays, &buf_rays_f64, &buf_dirs, counters],
     );
     let bind_pairs = kept.bind_group(
         ctx,
@@ -122,8 +124,7 @@ pub(super) fn record_device_pairs(
         &make_pairs.layout,
         &[
             &buf_scan,
-            &buf_rays,
-            &buf_dirs_f64,
+            &buf_rays_f64,
             &buf_pair_rays,
             offsets,
             keys,

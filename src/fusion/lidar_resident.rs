@@ -4,8 +4,8 @@
 //! scan's blocks where they live on the device, so a scan no longer sends its blocks up and
 //! reads them back (4 KiB each, both ways): the blocks already resident stay, those in RAM go up
 //! once (as for a depth frame), new ones are made empty on the device, and what comes back is
-//! the counters and one flag per block. What goes up besides: each ray once (24 bytes: range,
-//! point, grey level) and each (block, ray) pair's ray number (4 bytes), from which the device
+//! the counters and one flag per block. What goes up besides: each ray once (16 bytes: its
+//! point and grey level) and each (block, ray) pair's ray number (4 bytes), from which the device
 //! makes the walks the host would prepare, bit for bit (`lidar_device.rs`); a scan whose rays
 //! exceed one binding sends the host's walks instead (16 bytes per ray, 28 per pair).
 //!

@@ -31,6 +31,8 @@ pub enum F64Op {
     Less = 7,
     /// `n as f64` of the i32 whose bits are a's low word.
     FromI32 = 8,
+    /// √a.
+    Sqrt = 9,
 }
 
 impl F64Op {
@@ -48,6 +50,7 @@ impl F64Op {
             F64Op::FloorI32 => floor_i64(a) as i32 as u32 as u64,
             F64Op::Less => (a < b) as u64,
             F64Op::FromI32 => (low as i32 as f64).to_bits(),
+            F64Op::Sqrt => a.sqrt().to_bits(),
         }
     }
 }

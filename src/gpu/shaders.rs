@@ -271,7 +271,7 @@ pub const LIDAR_PAIRS: ShaderSource = kernel!(
         "shared/exact_f64.wgsl",
         "shared/lidar_scan.wgsl"
     ],
-    [Read, Read, Read, Read, Read, Read, ReadWrite, ReadWrite]
+    [Read, Read, Read, Read, Read, ReadWrite, ReadWrite]
 );
 
 /// The exact f64 operations on test cases (`crate::gpu::exact_f64`).

@@ -52,6 +52,7 @@ fn check(ctx: &denser::gpu::GpuContext, cases: &[(F64Op, f64, f64)]) -> usize {
             F64Op::Add | F64Op::Sub | F64Op::Mul | F64Op::Div => f64::from_bits(want).is_finite(),
             F64Op::ToF32 => f32::from_bits(want as u32).is_finite(),
             F64Op::FloorI32 => a.floor().abs() < 2f64.powi(31),
+            F64Op::Sqrt => a >= 0.0 || a == 0.0,
             _ => true,
         };
         if !finite {
@@ -157,6 +158,23 @@ fn exact_f64_operations_equal_the_cpus_bit_for_bit() {
         -2147483648.0,
     ] {
         cases.push((F64Op::FloorI32, a, 0.0));
+    }
+    // Square roots: random values (odd and even exponents), squares, the values next to them,
+    // subnormals, zeros, negatives (flagged).
+    for _ in 0..6000 {
+        let a = value(&mut rng, 1000).abs();
+        cases.push((F64Op::Sqrt, a, 0.0));
+        let s = (value(&mut rng, 20).abs() * 1e3).round();
+        for k in [-1i64, 0, 1] {
+            cases.push((
+                F64Op::Sqrt,
+                f64::from_bits(((s * s).to_bits() as i64 + k) as u64),
+                0.0,
+            ));
+        }
+    }
+    for a in [0.0, -0.0, 5e-324, 1e-310, 2.0, 4.0, 0.25, -1.0, 1e300] {
+        cases.push((F64Op::Sqrt, a, 0.0));
     }
     let wrong = check(&ctx, &cases);
     eprintln!(

@@ -566,8 +566,8 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
     assert!(s1.grows >= 1 && s1.blocks_spilled == 0 && s1.oversize_frames == 0);
     assert_eq!(touched, per_call_touched, "touched blocks per scan");
     assert_layers_identical("resident vs per call", &per_call, &grown);
-    // The second round's scans find their blocks resident: up go each ray once (24 bytes: its
-    // range, point and grey level), each (block, ray) pair's ray number (4 bytes; before, the
+    // The second round's scans find their blocks resident: up go each ray once (16 bytes: its
+    // point and grey level), each (block, ray) pair's ray number (4 bytes; before, the
     // host's 28-byte walk and 16 bytes per ray) and small inputs, down the counters and a flag
     // per block; no block either way, and nothing is created.
     for (k, t) in traffic.iter().enumerate().skip(3) {
@@ -576,7 +576,7 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
         let rays = plan.ray_count() as u64;
         eprintln!("scan {k}: {rays} rays, {pairs} pairs, {blocks} blocks: {t:?}");
         assert!(
-            t.upload_bytes <= 24 * rays + 4 * pairs + 20 * blocks + (64 << 10),
+            t.upload_bytes <= 16 * rays + 4 * pairs + 20 * blocks + (64 << 10),
             "{t:?}"
         );
         assert!(t.readback_bytes <= 4 * blocks + (4 << 10), "{t:?}");
