@@ -9,6 +9,10 @@
 //!
 //! - `fuse_lidar/cpu`: `integrate_lidar` (f64 walk, rayon over blocks).
 //! - `fuse_lidar/gpu`: `LidarPlan::new` + `integrate_lidar_gpu`.
+//! - `lidar_walks/host`: the scan's walks prepared on the host (`lidar_pairs_on_cpu`: every
+//!   pair's `block_local_ray`, packed), what a resident scan no longer does.
+//! - `lidar_walks/gpu`: the same made on the device (`lidar_pairs_on_gpu`, exact f64; its
+//!   buffers created per call and read back, so an upper bound of the resident scan's cost).
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -17,8 +21,8 @@ use common::bench_gpu as gpu;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use denser::frame::LidarScan;
-use denser::fusion::integrate_lidar_gpu;
 use denser::fusion::{integrate_lidar, LidarFusionParams, LidarPlan};
+use denser::fusion::{integrate_lidar_gpu, lidar_pairs_on_cpu, lidar_pairs_on_gpu};
 use denser::grid::{GridParams, Layer};
 use denser::synth::{City, CityConfig, LidarConfig};
 
@@ -66,6 +70,16 @@ fn fuse_lidar(c: &mut Criterion) {
                 let plan = LidarPlan::new(&grid, &scan, &params);
                 integrate_lidar_gpu(ctx, &mut layer, &plan).expect("GPU")
             })
+        });
+    }
+    g.finish();
+    let mut g = c.benchmark_group("lidar_walks");
+    g.throughput(Throughput::Elements(plan.pair_count() as u64));
+    g.sample_size(10);
+    g.bench_function("host", |b| b.iter(|| lidar_pairs_on_cpu(&grid, &plan)));
+    if let Some(ctx) = &ctx {
+        g.bench_function("gpu", |b| {
+            b.iter(|| lidar_pairs_on_gpu(ctx, &grid, &plan).expect("GPU"))
         });
     }
     g.finish();

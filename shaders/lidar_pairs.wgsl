@@ -8,8 +8,9 @@
 
 // Per ray: direction and range (lidar_rays.wgsl).
 @group(0) @binding(1) var<storage, read> rays_f64: array<u32>;
-// Pair i's ray (its index into the rays).
-@group(0) @binding(2) var<storage, read> pair_rays: array<u32>;
+// The pairs' rays in runs: run r's pairs, ray_runs[r].y .. ray_runs[r + 1].y, have the rays
+// ray_runs[r].x, ray_runs[r].x + 1, … (one run more at the end: [0, the pairs]).
+@group(0) @binding(2) var<storage, read> ray_runs: array<vec2<u32>>;
 // Listed block b's pairs: ray_offsets[b] .. ray_offsets[b + 1].
 @group(0) @binding(3) var<storage, read> ray_offsets: array<u32>;
 // Listed block b's position (x, y, z, unused).
@@ -23,6 +24,22 @@
 // Cells a walk visits at most (`MAX_WALK_STEPS` in src/fusion/lidar_device.rs): the passes
 // are sized by it.
 const MAX_WALK_STEPS: i32 = 49;
+
+// The ray of pair i: its run found by bisection.
+fn ray_of_pair(i: u32) -> u32 {
+    var lo = 0u;
+    var hi = scan[23];
+    // ray_runs[lo].y ≤ i < ray_runs[hi].y.
+    while (hi - lo > 1u) {
+        let mid = (lo + hi) / 2u;
+        if (ray_runs[mid].y <= i) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    return ray_runs[lo].x + (i - ray_runs[lo].y);
+}
 
 // The listed block whose pairs hold pair i.
 fn block_of_pair(i: u32) -> u32 {
@@ -64,7 +81,7 @@ fn main(
         return;
     }
     let key = block_keys[block_of_pair(i)];
-    let k = pair_rays[i];
+    let k = ray_of_pair(i);
     let at = k * RAY_F64_WORDS;
     let d0 = vec2<u32>(rays_f64[at], rays_f64[at + 1u]);
     let d1 = vec2<u32>(rays_f64[at + 2u], rays_f64[at + 3u]);

@@ -4,7 +4,7 @@
 // Words: [0, 6) the sensor's position, world frame, metres (x, y, z); [6, 14) its rotation, a
 // unit quaternion (i, j, k, w); [14, 16) the voxel size, metres; [16, 18) the truncation μ,
 // metres; [18, 20) 1 / voxel size (the CPU's rounding); [20] rays; [21] (block, ray) pairs;
-// [22] listed blocks.
+// [22] listed blocks; [23] runs of pairs (lidar_pairs.wgsl).
 @group(0) @binding(0) var<storage, read> scan: array<u32>;
 
 fn scan_f64(w: u32) -> vec2<u32> {

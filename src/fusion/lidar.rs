@@ -182,6 +182,16 @@ impl LidarPlan {
         self.pairs.len()
     }
 
+    /// Number of runs of consecutive rays in a block among the pairs: what a resident scan
+    /// sends of its pairs (8 bytes a run), where the device makes their walks.
+    pub fn run_count(&self) -> usize {
+        let p = &self.pairs;
+        (p.len() > 0) as usize
+            + p.windows(2)
+                .filter(|w| w[0].0 != w[1].0 || w[1].1 != w[0].1 + 1)
+                .count()
+    }
+
     /// The usable rays, in scan order.
     pub(crate) fn rays(&self) -> &[Ray] {
         &self.rays

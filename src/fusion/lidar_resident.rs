@@ -5,9 +5,10 @@
 //! reads them back (4 KiB each, both ways): the blocks already resident stay, those in RAM go up
 //! once (as for a depth frame), new ones are made empty on the device, and what comes back is
 //! the counters and one flag per block. What goes up besides: each ray once (16 bytes: its
-//! point and grey level) and each (block, ray) pair's ray number (4 bytes), from which the device
-//! makes the walks the host would prepare, bit for bit (`lidar_device.rs`); a scan whose rays
-//! exceed one binding sends the host's walks instead (16 bytes per ray, 28 per pair).
+//! point and grey level) and the pairs' rays as runs of consecutive rays (8 bytes a run), from
+//! which the device makes the walks the host would prepare, bit for bit (`lidar_device.rs`); a
+//! scan whose rays exceed one binding sends the host's walks instead (16 bytes per ray, 28 per
+//! pair).
 //!
 //! The result equals the per-call kernel's bit for bit (the same f32 operations on the same
 //! values, in the same order per block), so it keeps its relation to the CPU's walk

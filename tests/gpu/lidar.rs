@@ -567,16 +567,17 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
     assert_eq!(touched, per_call_touched, "touched blocks per scan");
     assert_layers_identical("resident vs per call", &per_call, &grown);
     // The second round's scans find their blocks resident: up go each ray once (16 bytes: its
-    // point and grey level), each (block, ray) pair's ray number (4 bytes; before, the
-    // host's 28-byte walk and 16 bytes per ray) and small inputs, down the counters and a flag
-    // per block; no block either way, and nothing is created.
+    // point and grey level), the pairs' rays as runs of consecutive rays (8 bytes a run; before,
+    // the host's 28-byte walk per pair and 16 bytes per ray) and small inputs, down the
+    // counters and a flag per block; no block either way, and nothing is created.
     for (k, t) in traffic.iter().enumerate().skip(3) {
         let plan = LidarPlan::new(&grid, &scans[k], &PARAMS);
         let (pairs, blocks) = (plan.pair_count() as u64, plan.blocks().len() as u64);
-        let rays = plan.ray_count() as u64;
-        eprintln!("scan {k}: {rays} rays, {pairs} pairs, {blocks} blocks: {t:?}");
+        let (rays, runs) = (plan.ray_count() as u64, plan.run_count() as u64);
+        eprintln!("scan {k}: {rays} rays, {pairs} pairs in {runs} runs, {blocks} blocks: {t:?}");
+        assert!(runs * 2 < pairs, "runs of one ray: nothing saved");
         assert!(
-            t.upload_bytes <= 16 * rays + 4 * pairs + 20 * blocks + (64 << 10),
+            t.upload_bytes <= 16 * rays + 8 * (runs + 1) + 20 * blocks + (64 << 10),
             "{t:?}"
         );
         assert!(t.readback_bytes <= 4 * blocks + (4 << 10), "{t:?}");
