@@ -186,7 +186,7 @@ impl LidarPlan {
     /// sends of its pairs (8 bytes a run), where the device makes their walks.
     pub fn run_count(&self) -> usize {
         let p = &self.pairs;
-        (p.len() > 0) as usize
+        (!p.is_empty()) as usize
             + p.windows(2)
                 .filter(|w| w[0].0 != w[1].0 || w[1].1 != w[0].1 + 1)
                 .count()
