@@ -205,7 +205,8 @@ impl ResidentMap {
         )?;
         if counts[1] != 0 {
             return Err(Error::Gpu(format!(
-                "the GPU hash table could not resolve {} of {n} resident blocks",
+                "the GPU could not resolve {} of {n} resident blocks (or make a LiDAR scan's walks \
+                 through them)",
                 counts[1]
             )));
         }
