@@ -22,15 +22,18 @@ fn value(rng: &mut Rng, spread: i32) -> f64 {
     }
 }
 
+/// `v` and the f64s either side of it.
+fn around(v: f64) -> [f64; 3] {
+    [-1i64, 0, 1].map(|k| f64::from_bits((v.to_bits() as i64 + k) as u64))
+}
+
 /// Values where rounding decides: near powers of two, halfway cases, next-door neighbours.
 fn edges() -> Vec<f64> {
     let mut v = vec![
         0.0, -0.0, 1.0, -1.0, 0.5, 3.0, 0.1, 1e-300, 2.2e-308, 5e-324, 1e300,
     ];
     for base in [1.0f64, 3.0, 1e3, 8.0, 0.1, 1.0 / 3.0, 1e-310] {
-        for k in [-2i64, -1, 0, 1, 2] {
-            v.push(f64::from_bits((base.to_bits() as i64 + k) as u64));
-        }
+        v.extend(around(base));
     }
     // 1 + 2^-53 is not an f64, but 1 + 2^-52 and the f32 midpoints are.
     v.push(1.0 + f64::EPSILON);
@@ -87,8 +90,7 @@ fn exact_f64_operations_equal_the_cpus_bit_for_bit() {
     // Neighbours: a ± a(1 ± ulp), products and quotients at halfway points.
     for _ in 0..4000 {
         let a = value(&mut rng, 30);
-        let k = (rng.next_u64() % 7) as i64 - 3;
-        let b = -f64::from_bits((a.to_bits() as i64 + k) as u64);
+        let b = -around(a)[(rng.next_u64() % 3) as usize];
         cases.push((F64Op::Add, a, b));
         cases.push((F64Op::Sub, a, -b));
         let h = f64::from_bits((rng.next_u64() & 0xfff) | 0x3ff0_0000_0000_0000);
@@ -110,12 +112,8 @@ fn exact_f64_operations_equal_the_cpus_bit_for_bit() {
         cases.push((F64Op::ToF32, a, 0.0));
         let f = a as f32;
         let mid = (f as f64 + f32::from_bits(f.to_bits() + 1) as f64) / 2.0;
-        for k in [-1i64, 0, 1] {
-            cases.push((
-                F64Op::ToF32,
-                f64::from_bits((mid.to_bits() as i64 + k) as u64),
-                0.0,
-            ));
+        for m in around(mid) {
+            cases.push((F64Op::ToF32, m, 0.0));
         }
         cases.push((
             F64Op::FromF32,
@@ -125,12 +123,8 @@ fn exact_f64_operations_equal_the_cpus_bit_for_bit() {
         let x = value(&mut rng, 33);
         cases.push((F64Op::FloorI32, x, 0.0));
         let n = (x as i64).clamp(-(1 << 30), 1 << 30) as f64;
-        for k in [-1i64, 0, 1] {
-            cases.push((
-                F64Op::FloorI32,
-                f64::from_bits((n.to_bits() as i64 + k) as u64),
-                0.0,
-            ));
+        for m in around(n) {
+            cases.push((F64Op::FloorI32, m, 0.0));
         }
         cases.push((
             F64Op::FromI32,
@@ -165,12 +159,8 @@ fn exact_f64_operations_equal_the_cpus_bit_for_bit() {
         let a = value(&mut rng, 1000).abs();
         cases.push((F64Op::Sqrt, a, 0.0));
         let s = (value(&mut rng, 20).abs() * 1e3).round();
-        for k in [-1i64, 0, 1] {
-            cases.push((
-                F64Op::Sqrt,
-                f64::from_bits(((s * s).to_bits() as i64 + k) as u64),
-                0.0,
-            ));
+        for m in around(s * s) {
+            cases.push((F64Op::Sqrt, m, 0.0));
         }
     }
     for a in [0.0, -0.0, 5e-324, 1e-310, 2.0, 4.0, 0.25, -1.0, 1e300] {
