@@ -42,6 +42,7 @@ use denser::gpu::resident::SLOT_BYTES;
 use denser::gpu::{GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats};
 use denser::grid::{Block, BlockIndex, GridParams, Layer, MAX_WEIGHT, VOXELS_PER_BLOCK};
 use denser::reconstruct::{ReconstructionConfig, Reconstructor};
+use nalgebra::{Isometry3, UnitQuaternion};
 use std::collections::BTreeSet;
 use std::sync::Arc;
 
@@ -621,20 +622,27 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
 
 #[test]
 fn device_made_rays_and_pairs_equal_the_hosts() {
-    // The walks the device makes from each ray's range and point, in exact f64, are the ones
-    // the host prepares, bit for bit: near the origin and kilometres from it, for sensors in
+    // The rays and walks the device makes from each return as scanned, in exact f64, are the
+    // ones the host makes, bit for bit: near the origin and kilometres from it, for sensors in
     // general position and on voxel corners (rays exactly in voxel faces, floors of exact
-    // integers), on both grids.
+    // integers), unrotated and turned about every axis, on both grids.
     let Some(ctx) = gpu() else { return };
+    let turned = |mut scan: LidarScan| {
+        let rotation = UnitQuaternion::from_euler_angles(0.3, -1.1, 2.0);
+        scan.world_from_sensor =
+            Isometry3::from_parts(scan.world_from_sensor.translation, rotation);
+        scan
+    };
     let mut checked = (0, 0);
-    for (grid, offset, origins) in [
-        (GRIDS[0], OFFSETS[0], &ORIGINS),
-        (GRIDS[1], OFFSETS[1], &ORIGINS),
-        (GRIDS[0], OFFSETS[1], &ORIGINS_ON_GRID),
-        (GRIDS[1], OFFSETS[0], &ORIGINS_ON_GRID),
+    for (grid, offset, origins, turn) in [
+        (GRIDS[0], OFFSETS[0], &ORIGINS, false),
+        (GRIDS[1], OFFSETS[1], &ORIGINS, true),
+        (GRIDS[0], OFFSETS[1], &ORIGINS_ON_GRID, false),
+        (GRIDS[1], OFFSETS[0], &ORIGINS_ON_GRID, true),
     ] {
-        for scan in sphere_scans_from(origins, offset).iter().take(2) {
-            let plan = LidarPlan::new(&grid, scan, &PARAMS);
+        for scan in sphere_scans_from(origins, offset).into_iter().take(2) {
+            let scan = if turn { turned(scan) } else { scan };
+            let plan = LidarPlan::new(&grid, &scan, &PARAMS);
             let (pairs, dirs, not_made) = lidar_pairs_on_gpu(&ctx, &grid, &plan).expect("device");
             let (want_pairs, want_dirs) = lidar_pairs_on_cpu(&grid, &plan);
             assert_eq!(not_made, 0, "rays or pairs the device could not make");
