@@ -13,6 +13,7 @@
 //! sized by [`MAX_WALK_STEPS`], a bound on every walk, instead of the longest one (which only
 //! the device knows now): more, shorter passes on llvmpipe, the same updates in the same order.
 
+use super::lidar::run_starts;
 use super::lidar_gpu::LOOP_BUDGET;
 use super::LidarPlan;
 use crate::gpu::kept::Kept;
@@ -77,14 +78,9 @@ fn ray_runs(
     let mut runs = Vec::new();
     let mut at = 0u32;
     for &b in order {
-        let mut next = u32::MAX;
-        for &(_, k) in &plan.pairs()[groups[b].1.clone()] {
-            if k != next {
-                runs.push([k, at]);
-            }
-            next = k.wrapping_add(1);
-            at += 1;
-        }
+        let pairs = &plan.pairs()[groups[b].1.clone()];
+        runs.extend(run_starts(pairs).map(|i| [pairs[i].1, at + i as u32]));
+        at += pairs.len() as u32;
     }
     runs.push([0, at]);
     runs
