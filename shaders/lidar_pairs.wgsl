@@ -7,12 +7,9 @@
 // Shared files and bindings: src/gpu/shaders.rs.
 
 // Per ray: direction and range (lidar_rays.wgsl).
-@group(0) @binding(1) var<storage, read> rays_f64: array<u32>;
-// The pairs' rays in runs: run r's pairs, ray_runs[r].y .. ray_runs[r + 1].y, have the rays
-// ray_runs[r].x, ray_runs[r].x + 1, … (one run more at the end: [0, the pairs]).
-@group(0) @binding(2) var<storage, read> ray_runs: array<vec2<u32>>;
-// Listed block b's pairs: ray_offsets[b] .. ray_offsets[b + 1].
-@group(0) @binding(3) var<storage, read> ray_offsets: array<u32>;
+@group(0) @binding(2) var<storage, read> rays_f64: array<u32>;
+// Each pair's ray (lidar_rank.wgsl): each listed block's rays in scan order.
+@group(0) @binding(3) var<storage, read> pair_rays: array<u32>;
 // Listed block b's position (x, y, z, unused).
 @group(0) @binding(4) var<storage, read> block_keys: array<vec4<i32>>;
 // LidarPair (shared/lidar_walk.wgsl) as 7 words.
@@ -24,38 +21,6 @@
 // Cells a walk visits at most (`MAX_WALK_STEPS` in src/fusion/lidar_device.rs): the passes
 // are sized by it.
 const MAX_WALK_STEPS: i32 = 49;
-
-// The ray of pair i: its run found by bisection.
-fn ray_of_pair(i: u32) -> u32 {
-    var lo = 0u;
-    var hi = scan[23];
-    // ray_runs[lo].y ≤ i < ray_runs[hi].y.
-    while (hi - lo > 1u) {
-        let mid = (lo + hi) / 2u;
-        if (ray_runs[mid].y <= i) {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    return ray_runs[lo].x + (i - ray_runs[lo].y);
-}
-
-// The listed block whose pairs hold pair i.
-fn block_of_pair(i: u32) -> u32 {
-    var lo = 0u;
-    var hi = scan[22];
-    // ray_offsets[lo] ≤ i < ray_offsets[hi].
-    while (hi - lo > 1u) {
-        let mid = (lo + hi) / 2u;
-        if (ray_offsets[mid] <= i) {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    return lo;
-}
 
 // The slab of one axis narrows [lo, hi] (x: lo, y: hi) as the CPU's loop does.
 fn clip_axis(band: vec4<u32>, corner: vec2<u32>, size: vec2<u32>, o: vec2<u32>, d: vec2<u32>)
@@ -81,7 +46,7 @@ fn main(
         return;
     }
     let key = block_keys[block_of_pair(i)];
-    let k = ray_of_pair(i);
+    let k = pair_rays[i];
     let at = k * RAY_F64_WORDS;
     let d0 = vec2<u32>(rays_f64[at], rays_f64[at + 1u]);
     let d1 = vec2<u32>(rays_f64[at + 2u], rays_f64[at + 3u]);

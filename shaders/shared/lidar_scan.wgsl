@@ -1,10 +1,13 @@
-// What the scan kernels (lidar_rays.wgsl, lidar_pairs.wgsl) share: the scan's constants, as
-// the CPU's f64 values' bits (`LidarScanWords` in src/fusion/lidar_device.rs).
+// What the scan kernels (lidar_{rays,listed,list,rank,pairs}.wgsl) share: the scan's constants,
+// as the CPU's f64 values' bits (`scan_words` in src/fusion/lidar_device.rs).
 
 // Words: [0, 6) the sensor's position, world frame, metres (x, y, z); [6, 14) its rotation, a
 // unit quaternion (i, j, k, w); [14, 16) the voxel size, metres; [16, 18) the truncation μ,
 // metres; [18, 20) 1 / voxel size (the CPU's rounding); [20] rays; [21] (block, ray) pairs;
-// [22] listed blocks; [23] runs of pairs (lidar_pairs.wgsl).
+// [22] listed blocks; [23] the listed blocks' table's mask (lidar_listed.wgsl); [24, 26) the
+// block size, metres; [26, 28) 1 / block size; [28, 31) the sensor's block (x, y, z), from
+// which the listed blocks' packed offsets count; [31] words per listed block sent: 1 (an
+// offset packed) or 3 (x, y, z).
 @group(0) @binding(0) var<storage, read> scan: array<u32>;
 
 fn scan_f64(w: u32) -> vec2<u32> {

@@ -105,13 +105,6 @@ fn block_ray_pairs(grid: &GridParams, origin: [f64; 3], rays: &[Ray]) -> Vec<(Bl
         .collect()
 }
 
-/// Where runs of consecutive rays in a block begin among `pairs` (sorted by block, then ray):
-/// at the first pair, a new block or a ray that is not the one after the last.
-pub(crate) fn run_starts(pairs: &[(BlockIndex, u32)]) -> impl Iterator<Item = usize> + '_ {
-    (0..pairs.len())
-        .filter(|&i| i == 0 || pairs[i].0 != pairs[i - 1].0 || pairs[i].1 != pairs[i - 1].1 + 1)
-}
-
 /// The blocks crossed by the truncation band of every usable return, sorted. Reads no layer.
 pub fn lidar_scan_blocks(
     grid: &GridParams,
@@ -189,10 +182,9 @@ impl LidarPlan {
         self.pairs.len()
     }
 
-    /// Number of runs of consecutive rays in a block among the pairs: what a resident scan
-    /// sends of its pairs (8 bytes a run), where the device makes their walks.
-    pub fn run_count(&self) -> usize {
-        run_starts(&self.pairs).count()
+    /// How many (block, ray) pairs each block has (blocks sorted).
+    pub fn pairs_per_block(&self) -> Vec<usize> {
+        self.groups().iter().map(|g| g.1.len()).collect()
     }
 
     /// The usable rays, in scan order.

@@ -1,27 +1,33 @@
 //! A LiDAR scan's rays and (block, ray) pairs made on the device, so that a resident scan
-//! ([`super::integrate_lidar_resident`]) sends 16 bytes per ray and 8 per run of pairs instead of the
-//! host's 16 per ray and 28 per pair: each ray goes up as its point as scanned and its grey
-//! level, and the pairs' rays as runs of consecutive rays in a block (8 bytes a run, which
-//! holds 5–12 pairs on the scans measured: [`ray_runs`]); the listed blocks' keys and pair
-//! offsets go up already, for the lookup and the passes. `shaders/lidar_rays.wgsl`
-//! measures and rotates the rays as [`super::LidarPlan`] does and `shaders/lidar_pairs.wgsl` makes each
-//! pair's walk as [`super::block_local_ray`] and [`GpuLidarPair::pack`] do, both in exact f64
-//! (`shaders/shared/exact_f64.wgsl`, [`crate::gpu::exact_f64`]): the same values bit for bit
-//! on any device, so the fusion's result is the host-prepared one's.
+//! ([`super::integrate_lidar_resident`]) sends 16 bytes per ray and the listed blocks (their
+//! positions and how many pairs each has, 20 bytes a block) instead of the host's 16 per ray
+//! and 28 per pair. Each ray goes up as its point as scanned and its grey level;
+//! `shaders/lidar_rays.wgsl` measures and rotates the rays as [`super::LidarPlan`] does,
+//! `shaders/lidar_list.wgsl` walks each ray's band through the blocks as the host's listing
+//! does (`traverse_cells`) and writes the ray among each crossed block's pairs (found through a
+//! hash table of the listed blocks, `shaders/lidar_listed.wgsl`, at a place taken by an atomic
+//! counter), `shaders/lidar_rank.wgsl` puts each block's rays in scan order (each one's rank
+//! among its block's), and `shaders/lidar_pairs.wgsl` makes each pair's walk as
+//! [`super::block_local_ray`] and [`GpuLidarPair::pack`] do. The arithmetic is exact f64
+//! (`shaders/shared/exact_f64.wgsl`, [`crate::gpu::exact_f64`]): the same values bit for bit on
+//! any device, the same pairs in the same order, so the fusion's result is the host-prepared
+//! one's.
 //!
-//! The host still lists the pairs (it pages their blocks in) and numbers them; the passes are
-//! sized by [`MAX_WALK_STEPS`], a bound on every walk, instead of the longest one (which only
-//! the device knows now): more, shorter passes on llvmpipe, the same updates in the same order.
+//! The host still lists the blocks and counts their pairs (it pages the blocks in); the passes
+//! are sized by [`MAX_WALK_STEPS`], a bound on every walk, instead of the longest one (which
+//! only the device knows): more, shorter passes on llvmpipe, the same updates in the same order.
 
-use super::lidar::run_starts;
-use super::lidar_gpu::LOOP_BUDGET;
+use super::depth_keys::pack_offset;
+use super::lidar_gpu::{dispatch_order, LOOP_BUDGET};
 use super::LidarPlan;
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{GpuLidarPair, GpuRayDir};
+use crate::gpu::Kernel;
 use crate::gpu::{shaders, GpuContext};
 use crate::grid::{BlockIndex, GridParams};
 use crate::Result;
 use std::ops::Range;
+use std::sync::Arc;
 
 /// The most cells a pair's walk visits: it spans at most the block's diagonal and a voxel at
 /// either end (8√3 + 2 voxels), so at most 31 cells; the kernel counts a pair beyond this bound
@@ -33,83 +39,97 @@ pub const MAX_WALK_STEPS: u32 = 49;
 const RAY_IN_BYTES: u64 = 16;
 
 /// Where the device made the scan's walks: the pairs (in dispatch order, as the fusion kernel
-/// reads them), the rays' directions and grey levels, and the rays each pass applies per block.
+/// reads them), the rays' directions and grey levels, the listed blocks' positions and first
+/// pairs (in dispatch order, for the lookup and the passes), and the rays each pass applies
+/// per block.
 pub(super) struct DevicePairs {
     pub(super) pairs: wgpu::Buffer,
     pub(super) dirs: wgpu::Buffer,
+    pub(super) keys: wgpu::Buffer,
+    pub(super) offsets: wgpu::Buffer,
     pub(super) rays_per_pass: u32,
 }
 
 /// The scan's constants as `shaders/shared/lidar_scan.wgsl` reads them.
-fn scan_words(grid: &GridParams, plan: &LidarPlan, [pairs, blocks, runs]: [usize; 3]) -> Vec<u32> {
+fn scan_words(
+    (grid, plan): (&GridParams, &LidarPlan),
+    [pairs, blocks, mask]: [usize; 3],
+    (origin, key_words): ([i32; 3], u32),
+) -> Vec<u32> {
     let vs = grid.voxel_size_m as f64;
     let [i, j, k, w] = plan.rotation_ijkw();
     let o = plan.origin_m();
-    let values = [
-        o[0],
-        o[1],
-        o[2],
-        i,
-        j,
-        k,
-        w,
-        vs,
-        grid.truncation_m as f64,
-        1.0 / vs,
-    ];
-    let mut words: Vec<u32> = values
-        .iter()
-        .flat_map(|v| [v.to_bits() as u32, (v.to_bits() >> 32) as u32])
-        .collect();
-    words.extend([plan.ray_count(), pairs, blocks, runs].map(|n| n as u32));
+    let f64_words = |values: &[f64]| -> Vec<u32> {
+        values
+            .iter()
+            .flat_map(|v| [v.to_bits() as u32, (v.to_bits() >> 32) as u32])
+            .collect()
+    };
+    let mu = grid.truncation_m as f64;
+    let mut words = f64_words(&[o[0], o[1], o[2], i, j, k, w, vs, mu, 1.0 / vs]);
+    words.extend([plan.ray_count(), pairs, blocks, mask].map(|n| n as u32));
+    // The host's listing walks blocks of this size (`block_ray_pairs`, `traverse_cells`).
+    let block = grid.block_size_m();
+    words.extend(f64_words(&[block, 1.0 / block]));
+    words.extend(origin.map(|c| c as u32));
+    words.push(key_words);
     words
 }
 
-/// The pairs' rays as runs: the listed blocks `order` (indices into `groups`) one after the
-/// other, each one's rays (in scan order) cut where the next is not the ray after; per run its
-/// first ray and its first pair, then the total, as `[ray, pair]` (a sentinel `[0, total]`).
-/// Neighbouring returns cross the same blocks, so a run holds several pairs: 12 on average on
-/// KITTI 00/0's scan, 4.9 on a synthetic city's, at 10 cm.
-fn ray_runs(
-    plan: &LidarPlan,
+/// The listed blocks `order` (indices into `groups`) as they go up: each one's offset from
+/// `origin` packed in one word ([`pack_offset`]) where every offset packs, else its position in
+/// three; and the words per block.
+fn sent_keys(
     groups: &[(BlockIndex, Range<usize>)],
     order: &[usize],
-) -> Vec<[u32; 2]> {
-    let mut runs = Vec::new();
-    let mut at = 0u32;
-    for &b in order {
-        let pairs = &plan.pairs()[groups[b].1.clone()];
-        runs.extend(run_starts(pairs).map(|i| [pairs[i].1, at + i as u32]));
-        at += pairs.len() as u32;
+    origin: [i32; 3],
+) -> (Vec<u32>, u32) {
+    let offset = |b: usize| [0, 1, 2].map(|a| groups[b].0 .0[a] - origin[a]);
+    let packed: Option<Vec<u32>> = order.iter().map(|&b| pack_offset(offset(b))).collect();
+    match packed {
+        Some(words) => (words, 1),
+        None => {
+            let wide = order.iter().flat_map(|&b| groups[b].0 .0.map(|c| c as u32));
+            (wide.collect(), 3)
+        }
     }
-    runs.push([0, at]);
-    runs
+}
+
+/// Entries of the listed blocks' hash table (`shaders/lidar_listed.wgsl`): a power of two, at
+/// least twice the blocks.
+fn listed_capacity(blocks: usize) -> usize {
+    (2 * blocks).next_power_of_two().max(64)
 }
 
 /// Bytes of one ray as the device keeps it for the pairs: direction and range (4 × f64).
 const RAY_F64_BYTES: u64 = 32;
 
-/// Whether the device can make this scan's rays: they fit one binding (else the host prepares
+/// Whether the device can make this scan's rays and pairs: the rays fit one binding and no
+/// block has more pairs than `lidar_rank.wgsl` reads in one invocation (else the host prepares
 /// the pairs, numbering only the rays of each batch).
 pub(super) fn fits(ctx: &GpuContext, plan: &LidarPlan) -> bool {
     plan.ray_count() as u64 * RAY_F64_BYTES <= ctx.max_binding_bytes()
+        && plan.pairs_per_block().into_iter().max().unwrap_or(0) <= LOOP_BUDGET as usize
 }
 
-/// Uploads the scan's rays and the pairs' runs of rays (the listed blocks `order`, indices into
-/// `groups`, each one's pairs in plan order) into `kept`'s buffers and records the kernels that
-/// make the rays and pairs into `encoder`. `offsets` and `keys` are the listed blocks' first
-/// pairs (and the total) and positions, as uploaded for the lookup; `counters[1]` counts what
-/// could not be made.
+/// Uploads the scan's rays and the listed blocks `order` (indices into `groups`, by decreasing
+/// pair count: [`super::lidar_gpu::dispatch_order`]) into `kept`'s buffers and records into
+/// `encoder` the kernels that make the rays, count and list each block's pairs, order them and
+/// make their walks. What goes up is 16 bytes per ray and 4 per block (12 where a block's offset
+/// from the sensor's does not pack); `counters[1]` counts what could not be made.
 pub(super) fn record_device_pairs(
     (ctx, kept, encoder): (&GpuContext, &mut Kept, &mut wgpu::CommandEncoder),
     (grid, plan): (&GridParams, &LidarPlan),
     (groups, order): (&[(BlockIndex, Range<usize>)], &[usize]),
-    [offsets, keys, counters]: [&wgpu::Buffer; 3],
+    counters: &wgpu::Buffer,
 ) -> Result<DevicePairs> {
     let total: usize = order.iter().map(|&b| groups[b].1.len()).sum();
-    let rays = plan.rays();
-    let runs = ray_runs(plan, groups, order);
-    let words = scan_words(grid, plan, [total, order.len(), runs.len() - 1]);
+    let (rays, n) = (plan.rays(), order.len());
+    let capacity = listed_capacity(n);
+    let o = plan.origin_m();
+    let origin = [0, 1, 2].map(|a| (o[a] / grid.block_size_m()).floor() as i32);
+    let (key_words, width) = sent_keys(groups, order, origin);
+    let words = scan_words((grid, plan), [total, n, capacity - 1], (origin, width));
     let ray_words: Vec<u32> = rays
         .iter()
         .flat_map(|r| {
@@ -123,40 +143,120 @@ pub(super) fn record_device_pairs(
     )?;
     let pair_bytes = total as u64 * std::mem::size_of::<GpuLidarPair>() as u64;
     ctx.check_binding("LiDAR (block, ray) pairs (28 bytes per pair)", pair_bytes)?;
+    ctx.check_binding("block keys (16 bytes per block)", n as u64 * 16)?;
     let buf_scan = kept.storage_with(ctx, "lidar_scan_words", bytemuck::cast_slice(&words));
     let buf_rays = kept.storage_with(ctx, "lidar_rays_in", bytemuck::cast_slice(&ray_words));
-    let buf_runs = kept.storage_with(ctx, "lidar_ray_runs", bytemuck::cast_slice(&runs));
+    let buf_sent = kept.storage_with(ctx, "lidar_sent_keys", bytemuck::cast_slice(&key_words));
+    let buf_keys = kept.scratch(ctx, "lidar_block_keys", n as u64 * 16);
+    let buf_offsets = kept.scratch(ctx, "lidar_pair_offsets", (n as u64 + 1) * 4);
     let buf_rays_f64 = kept.scratch(ctx, "lidar_rays_f64", rays.len() as u64 * RAY_F64_BYTES);
     let dir_bytes = (rays.len() * std::mem::size_of::<GpuRayDir>()) as u64;
     let buf_dirs = kept.scratch(ctx, "lidar_ray_dirs", dir_bytes);
+    let listed_bytes = capacity as u64 * 4;
+    let buf_listed = kept.scratch(ctx, "lidar_listed", listed_bytes);
+    let fill_bytes = n as u64 * 4;
+    let buf_fill = kept.scratch(ctx, "lidar_fill", fill_bytes);
+    let buf_unsorted = kept.scratch(ctx, "lidar_unsorted_rays", total as u64 * 4);
+    let buf_pair_rays = kept.scratch(ctx, "lidar_pair_rays", total as u64 * 4);
     let buf_pairs = kept.scratch(ctx, "lidar_pairs", pair_bytes);
-    let make_rays = ctx.kernel(&shaders::LIDAR_RAYS)?;
-    let make_pairs = ctx.kernel(&shaders::LIDAR_PAIRS)?;
-    let bind_rays = kept.bind_group(
-        ctx,
-        "lidar_rays",
-        &make_rays.layout,
-        &[&buf_scan, &buf_rays, &buf_rays_f64, &buf_dirs, counters],
-    );
-    let bind_pairs = kept.bind_group(
-        ctx,
-        "lidar_pairs",
-        &make_pairs.layout,
-        &[
-            &buf_scan,
-            &buf_rays_f64,
-            &buf_runs,
-            offsets,
-            keys,
-            &buf_pairs,
-            counters,
-        ],
-    );
-    ctx.record_dispatch(encoder, &make_rays, &bind_rays, rays.len() as u64)?;
-    ctx.record_dispatch(encoder, &make_pairs, &bind_pairs, total as u64)?;
+    let kernel = |src| ctx.kernel(src);
+    let walk = [
+        &buf_scan,
+        &buf_offsets,
+        &buf_rays_f64,
+        &buf_keys,
+        &buf_listed,
+        &buf_fill,
+    ];
+    let mut list = walk.to_vec();
+    list.extend([counters, &buf_unsorted]);
+    // In order; the count of rays written restarts between the count and the listing.
+    let steps: [(&'static str, Arc<Kernel>, Vec<&wgpu::Buffer>, usize); 8] = [
+        (
+            "lidar_rays",
+            kernel(&shaders::LIDAR_RAYS)?,
+            vec![&buf_scan, &buf_rays, &buf_rays_f64, &buf_dirs, counters],
+            rays.len(),
+        ),
+        (
+            "lidar_listed",
+            kernel(&shaders::LIDAR_LISTED)?,
+            vec![&buf_scan, &buf_sent, &buf_keys, &buf_listed, counters],
+            n,
+        ),
+        (
+            "lidar_count",
+            kernel(&shaders::LIDAR_COUNT)?,
+            [&walk[..], &[counters]].concat(),
+            rays.len(),
+        ),
+        (
+            "lidar_prefix",
+            kernel(&shaders::LIDAR_PREFIX)?,
+            vec![&buf_scan, &buf_fill, &buf_offsets, counters],
+            64,
+        ),
+        (
+            "lidar_list",
+            kernel(&shaders::LIDAR_LIST)?,
+            list,
+            rays.len(),
+        ),
+        (
+            "lidar_sort",
+            kernel(&shaders::LIDAR_SORT)?,
+            vec![
+                &buf_scan,
+                &buf_offsets,
+                &buf_fill,
+                &buf_unsorted,
+                &buf_pair_rays,
+            ],
+            n * 64,
+        ),
+        (
+            "lidar_rank",
+            kernel(&shaders::LIDAR_RANK)?,
+            vec![
+                &buf_scan,
+                &buf_offsets,
+                &buf_fill,
+                &buf_unsorted,
+                &buf_pair_rays,
+                counters,
+            ],
+            total,
+        ),
+        (
+            "lidar_pairs",
+            kernel(&shaders::LIDAR_PAIRS)?,
+            vec![
+                &buf_scan,
+                &buf_offsets,
+                &buf_rays_f64,
+                &buf_pair_rays,
+                &buf_keys,
+                &buf_pairs,
+                counters,
+            ],
+            total,
+        ),
+    ];
+    // The table and the counts start empty on the device.
+    encoder.clear_buffer(&buf_listed, 0, Some(listed_bytes));
+    encoder.clear_buffer(&buf_fill, 0, Some(fill_bytes));
+    for (label, kernel, buffers, invocations) in &steps {
+        if *label == "lidar_list" {
+            encoder.clear_buffer(&buf_fill, 0, Some(fill_bytes));
+        }
+        let bind = kept.bind_group(ctx, label, &kernel.layout, buffers);
+        ctx.record_dispatch(encoder, kernel, &bind, *invocations as u64)?;
+    }
     Ok(DevicePairs {
         pairs: buf_pairs,
         dirs: buf_dirs,
+        keys: buf_keys,
+        offsets: buf_offsets,
         rays_per_pass: (LOOP_BUDGET / (MAX_WALK_STEPS + 1)).max(1),
     })
 }
@@ -173,25 +273,16 @@ pub fn lidar_pairs_on_gpu(
         return Ok((Vec::new(), Vec::new(), 0));
     }
     let groups = plan.groups();
-    let order: Vec<usize> = (0..groups.len()).collect();
-    let mut offsets = vec![0u32];
-    for g in &groups {
-        offsets.push(offsets.last().copied().unwrap_or(0) + g.1.len() as u32);
-    }
-    let keys: Vec<[i32; 4]> = groups
-        .iter()
-        .map(|g| [g.0 .0[0], g.0 .0[1], g.0 .0[2], 0])
-        .collect();
+    // In dispatch order on the device, put back in plan order below.
+    let (order, offsets) = dispatch_order(&groups, 0..groups.len());
     let kept = &mut Kept::default();
-    let buf_offsets = kept.storage_with(ctx, "offsets", bytemuck::cast_slice(&offsets));
-    let buf_keys = kept.storage_with(ctx, "keys", bytemuck::cast_slice(&keys));
     let buf_counters = kept.storage_with(ctx, "counters", &[0u8; 16]);
     let mut encoder = ctx.encoder("lidar_pairs_on_gpu");
     let made = record_device_pairs(
         (ctx, kept, &mut encoder),
         (grid, plan),
         (&groups, &order),
-        [&buf_offsets, &buf_keys, &buf_counters],
+        &buf_counters,
     )?;
     let mut pairs: Vec<GpuLidarPair> = bytemuck::zeroed_vec(plan.pair_count());
     let mut dirs: Vec<GpuRayDir> = bytemuck::zeroed_vec(plan.ray_count());
@@ -205,7 +296,15 @@ pub fn lidar_pairs_on_gpu(
             (&buf_counters, bytemuck::cast_slice_mut(&mut counters)),
         ],
     )?;
-    Ok((pairs, dirs, counters[1]))
+    let mut in_plan_order = Vec::with_capacity(pairs.len());
+    let mut place = vec![0; groups.len()];
+    for (k, &b) in order.iter().enumerate() {
+        place[b] = k;
+    }
+    for p in place {
+        in_plan_order.extend_from_slice(&pairs[offsets[p] as usize..offsets[p + 1] as usize]);
+    }
+    Ok((in_plan_order, dirs, counters[1]))
 }
 
 /// The host's preparation of the same (its CPU twin): every pair of `plan` in plan order as

@@ -5,10 +5,11 @@
 //! reads them back (4 KiB each, both ways): the blocks already resident stay, those in RAM go up
 //! once (as for a depth frame), new ones are made empty on the device, and what comes back is
 //! the counters and one flag per block. What goes up besides: each ray once (16 bytes: its
-//! point and grey level) and the pairs' rays as runs of consecutive rays (8 bytes a run), from
-//! which the device makes the walks the host would prepare, bit for bit (`lidar_device.rs`); a
-//! scan whose rays exceed one binding sends the host's walks instead (16 bytes per ray, 28 per
-//! pair).
+//! point and grey level) and the listed blocks (4 bytes each: an offset from the sensor's block),
+//! from which the device lists and orders the (block, ray) pairs and makes the walks the host
+//! would prepare, bit for bit (`lidar_device.rs`); a scan whose rays exceed one binding, or
+//! one of whose blocks has more pairs than a kernel invocation reads, sends the host's walks
+//! instead (16 bytes per ray, 28 per pair).
 //!
 //! The result equals the per-call kernel's bit for bit (the same f32 operations on the same
 //! values, in the same order per block), so it keeps its relation to the CPU's walk
@@ -109,14 +110,6 @@ fn run_resident(
     let n = groups.len();
     let (order, offsets) = dispatch_order(groups, 0..n);
     let total = *offsets.last().expect("one offset at least");
-    ctx.check_binding("block keys (16 bytes per block)", n as u64 * 16)?;
-    let keys: Vec<[i32; 4]> = order
-        .iter()
-        .map(|&b| {
-            let k = groups[b].0 .0;
-            [k[0], k[1], k[2], 0]
-        })
-        .collect();
     let lookup = ctx.kernel(&shaders::BLOCK_LOOKUP)?;
     let fuse = ctx.kernel(&shaders::FUSE_LIDAR_RESIDENT)?;
     let lookup_uniforms = LookupUniforms {
@@ -127,34 +120,54 @@ fn run_resident(
     let scope = ErrorScopes::push(&ctx.device);
     let bytes = bytemuck::bytes_of(&lookup_uniforms);
     let buf_lookup = kept.uniform_with(ctx, "lookup_uniforms", bytes);
-    let buf_keys = kept.storage_with(ctx, "lookup_keys", bytemuck::cast_slice(&keys));
     // Every listed key's slot is written by the lookup.
     let buf_slots = kept.scratch(ctx, "lookup_slots", n as u64 * 4);
-    let buf_offsets = kept.storage_with(ctx, "lidar_ray_offsets", bytemuck::cast_slice(&offsets));
     let buf_counters = kept.scratch(ctx, "lidar_counters", 16);
     let buf_updated = kept.scratch(ctx, "lidar_updated", n as u64 * 4);
+    // Counters and flags start at zero on the device, not uploaded.
+    encoder.clear_buffer(&buf_counters, 0, Some(16));
+    encoder.clear_buffer(&buf_updated, 0, Some(n as u64 * 4));
+    // The pairs listed and their walks made on the device where its rays fit one binding (the
+    // blocks' positions and first pairs made there too), else prepared here.
+    let (made, buf_keys, buf_offsets) = if lidar_device::fits(ctx, plan) {
+        let made = lidar_device::record_device_pairs(
+            (ctx, &mut *kept, &mut encoder),
+            (&grid, plan),
+            (groups, &order),
+            &buf_counters,
+        )?;
+        let (keys, offsets) = (made.keys.clone(), made.offsets.clone());
+        (Some(made), keys, offsets)
+    } else {
+        ctx.check_binding("block keys (16 bytes per block)", n as u64 * 16)?;
+        let keys: Vec<[i32; 4]> = order
+            .iter()
+            .map(|&b| {
+                let k = groups[b].0 .0;
+                [k[0], k[1], k[2], 0]
+            })
+            .collect();
+        let buf_keys = kept.storage_with(ctx, "lookup_keys", bytemuck::cast_slice(&keys));
+        let bytes = bytemuck::cast_slice(&offsets);
+        (
+            None,
+            buf_keys,
+            kept.storage_with(ctx, "lidar_ray_offsets", bytes),
+        )
+    };
     let bind_lookup = kept.bind_group(
         ctx,
         "block_lookup",
         &lookup.layout,
         &[&buf_lookup, table, &buf_keys, &buf_slots],
     );
-    // Counters and flags start at zero on the device, not uploaded.
-    encoder.clear_buffer(&buf_counters, 0, Some(16));
-    encoder.clear_buffer(&buf_updated, 0, Some(n as u64 * 4));
     ctx.record_dispatch(&mut encoder, &lookup, &bind_lookup, n as u64)?;
-    // The walks made on the device where its rays fit one binding, else prepared here.
-    let (buf_pairs, buf_dirs, rays_per_pass) = if lidar_device::fits(ctx, plan) {
-        let made = lidar_device::record_device_pairs(
-            (ctx, &mut *kept, &mut encoder),
-            (&grid, plan),
-            (groups, &order),
-            [&buf_offsets, &buf_keys, &buf_counters],
-        )?;
-        (made.pairs, made.dirs, made.rays_per_pass)
-    } else {
-        let kept = Some(&mut *kept);
-        upload_rays((ctx, kept), &grid, (plan, groups), &order, total)?
+    let (buf_pairs, buf_dirs, rays_per_pass) = match made {
+        Some(made) => (made.pairs, made.dirs, made.rays_per_pass),
+        None => {
+            let kept = Some(&mut *kept);
+            upload_rays((ctx, kept), &grid, (plan, groups), &order, total)?
+        }
     };
     let counts: Vec<u32> = order.iter().map(|&b| groups[b].1.len() as u32).collect();
     let buffers = [

@@ -263,13 +263,82 @@ pub const LIDAR_RAYS: ShaderSource = kernel!(
     [Read, Read, ReadWrite, ReadWrite, ReadWrite]
 );
 
+/// A LiDAR scan's listed blocks made positions and put in a hash table of their own.
+pub const LIDAR_LISTED: ShaderSource = kernel!(
+    "lidar_listed.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/lidar_scan.wgsl",
+        "shared/block_hash.wgsl"
+    ],
+    [Read, Read, ReadWrite, ReadWrite, ReadWrite]
+);
+
+/// A LiDAR scan's (block, ray) pairs counted per block on the device (the CPU's walk, exact).
+pub const LIDAR_COUNT: ShaderSource = kernel!(
+    "lidar_count.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/exact_f64.wgsl",
+        "shared/lidar_scan.wgsl",
+        "shared/lidar_offsets.wgsl",
+        "shared/block_hash.wgsl",
+        "shared/lidar_traverse.wgsl"
+    ],
+    [Read, Read, Read, Read, Read, ReadWrite, ReadWrite]
+);
+
+/// Each listed block's first pair from the counts (one workgroup).
+pub const LIDAR_PREFIX: ShaderSource = kernel!(
+    "lidar_prefix.wgsl",
+    ["shared/lidar_scan.wgsl", "shared/workgroup_scan.wgsl"],
+    [Read, Read, ReadWrite, ReadWrite]
+);
+
+/// A LiDAR scan's (block, ray) pairs listed on the device (the CPU's walk, exact).
+pub const LIDAR_LIST: ShaderSource = kernel!(
+    "lidar_list.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/exact_f64.wgsl",
+        "shared/lidar_scan.wgsl",
+        "shared/lidar_offsets.wgsl",
+        "shared/block_hash.wgsl",
+        "shared/lidar_traverse.wgsl"
+    ],
+    [Read, Read, Read, Read, Read, ReadWrite, ReadWrite, ReadWrite]
+);
+
+/// Each listed block's rays sorted in workgroup memory (the CPU's order of the pairs).
+pub const LIDAR_SORT: ShaderSource = kernel!(
+    "lidar_sort.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/lidar_scan.wgsl",
+        "shared/lidar_offsets.wgsl"
+    ],
+    [Read, Read, Read, Read, ReadWrite]
+);
+
+/// The rays of the blocks `LIDAR_SORT` leaves put in scan order by rank.
+pub const LIDAR_RANK: ShaderSource = kernel!(
+    "lidar_rank.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/lidar_scan.wgsl",
+        "shared/lidar_offsets.wgsl"
+    ],
+    [Read, Read, Read, Read, ReadWrite, ReadWrite]
+);
+
 /// A LiDAR scan's (block, ray) pairs made on the device in exact f64 (the CPU's, bit for bit).
 pub const LIDAR_PAIRS: ShaderSource = kernel!(
     "lidar_pairs.wgsl",
     [
         "shared/dispatch.wgsl",
         "shared/exact_f64.wgsl",
-        "shared/lidar_scan.wgsl"
+        "shared/lidar_scan.wgsl",
+        "shared/lidar_offsets.wgsl"
     ],
     [Read, Read, Read, Read, Read, ReadWrite, ReadWrite]
 );
@@ -534,6 +603,12 @@ pub const ALL: &[ShaderSource] = &[
     FUSE_LIDAR,
     FUSE_LIDAR_RESIDENT,
     LIDAR_RAYS,
+    LIDAR_LISTED,
+    LIDAR_COUNT,
+    LIDAR_PREFIX,
+    LIDAR_LIST,
+    LIDAR_SORT,
+    LIDAR_RANK,
     LIDAR_PAIRS,
     EXACT_F64_CHECK,
     // The GPU hash table and pool.
