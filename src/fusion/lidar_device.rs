@@ -107,9 +107,14 @@ const RAY_F64_BYTES: u64 = 32;
 /// Whether the device can make this scan's rays and pairs: the rays fit one binding and no
 /// block has more pairs than `lidar_rank.wgsl` reads in one invocation (else the host prepares
 /// the pairs, numbering only the rays of each batch).
-pub(super) fn fits(ctx: &GpuContext, plan: &LidarPlan) -> bool {
+pub(super) fn fits(
+    ctx: &GpuContext,
+    plan: &LidarPlan,
+    groups: &[(BlockIndex, Range<usize>)],
+) -> bool {
+    let most = groups.iter().map(|g| g.1.len()).max().unwrap_or(0);
     plan.ray_count() as u64 * RAY_F64_BYTES <= ctx.max_binding_bytes()
-        && plan.pairs_per_block().into_iter().max().unwrap_or(0) <= LOOP_BUDGET as usize
+        && most <= LOOP_BUDGET as usize
 }
 
 /// Uploads the scan's rays and the listed blocks `order` (indices into `groups`, by decreasing

@@ -129,7 +129,7 @@ fn run_resident(
     encoder.clear_buffer(&buf_updated, 0, Some(n as u64 * 4));
     // The pairs listed and their walks made on the device where its rays fit one binding (the
     // blocks' positions and first pairs made there too), else prepared here.
-    let (made, buf_keys, buf_offsets) = if lidar_device::fits(ctx, plan) {
+    let (made, buf_keys, buf_offsets) = if lidar_device::fits(ctx, plan, groups) {
         let made = lidar_device::record_device_pairs(
             (ctx, &mut *kept, &mut encoder),
             (&grid, plan),
