@@ -80,9 +80,9 @@ fn main(
         f64_floor_i32(f64_mul(pa2, inv_cell)),
     );
     let last = vec3<i32>(
-        f64_floor_i32(f64_mul(f64_add(o0, f64_mul(tb, d0)), inv_cell)),
-        f64_floor_i32(f64_mul(f64_add(o1, f64_mul(tb, d1)), inv_cell)),
-        f64_floor_i32(f64_mul(f64_add(o2, f64_mul(tb, d2)), inv_cell)),
+        f64_cell_at(o0, tb, d0, inv_cell),
+        f64_cell_at(o1, tb, d1, inv_cell),
+        f64_cell_at(o2, tb, d2, inv_cell),
     );
     let span = abs(last - first);
     var steps = span.x + span.y + span.z + 1;

@@ -438,3 +438,9 @@ fn f64_floor_i32(v: vec2<u32>) -> i32 {
     }
     return i32(whole);
 }
+
+// The cell of edge 1 / `inv_cell` holding the ray's point o + t·d along one axis:
+// ⌊(o + t·d) · inv_cell⌋, the CPU's `floor_i64((o + t * d) * inv_cell)`.
+fn f64_cell_at(o: vec2<u32>, t: vec2<u32>, d: vec2<u32>, inv_cell: vec2<u32>) -> i32 {
+    return f64_floor_i32(f64_mul(f64_add(o, f64_mul(t, d)), inv_cell));
+}

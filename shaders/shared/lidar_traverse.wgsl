@@ -94,9 +94,9 @@ fn walk_ray(k: u32) {
         f64_floor_i32(f64_mul(s2, inv_block)),
     );
     let last = vec3<i32>(
-        f64_floor_i32(f64_mul(f64_add(o0, f64_mul(t1, d0)), inv_block)),
-        f64_floor_i32(f64_mul(f64_add(o1, f64_mul(t1, d1)), inv_block)),
-        f64_floor_i32(f64_mul(f64_add(o2, f64_mul(t1, d2)), inv_block)),
+        f64_cell_at(o0, t1, d0, inv_block),
+        f64_cell_at(o1, t1, d1, inv_block),
+        f64_cell_at(o2, t1, d2, inv_block),
     );
     // Per axis: t of the next boundary (x, y) and between boundaries (z, w); +∞ where d = 0.
     let inf = vec3<bool>(f64_is_zero(d0), f64_is_zero(d1), f64_is_zero(d2));

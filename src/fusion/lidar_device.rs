@@ -175,7 +175,7 @@ pub(super) fn record_device_pairs(
     ];
     let mut list = walk.to_vec();
     list.extend([counters, &buf_unsorted]);
-    // In order; the count of rays written restarts between the count and the listing.
+    // In order.
     let steps: [(&'static str, Arc<Kernel>, Vec<&wgpu::Buffer>, usize); 8] = [
         (
             "lidar_rays",
@@ -251,7 +251,8 @@ pub(super) fn record_device_pairs(
     encoder.clear_buffer(&buf_listed, 0, Some(listed_bytes));
     encoder.clear_buffer(&buf_fill, 0, Some(fill_bytes));
     for (label, kernel, buffers, invocations) in &steps {
-        if *label == "lidar_list" {
+        // The listing counts the rays it writes from zero again.
+        if kernel.name == "lidar_list" {
             encoder.clear_buffer(&buf_fill, 0, Some(fill_bytes));
         }
         let bind = kept.bind_group(ctx, label, &kernel.layout, buffers);
