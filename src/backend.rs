@@ -20,11 +20,11 @@
 use crate::depth::tgv::HoleFill;
 use crate::depth::SgmParams;
 use crate::depth::{DisparityEstimator, SgmMatcher, SgmMatcherGpu, StereoMethod, TgvMatcherGpu};
-use crate::frame::DepthFrame;
+use crate::frame::{DepthFrame, LidarScan};
 use crate::fusion::{
     integrate_depth_plan, integrate_depth_resident, integrate_device_depth_resident,
-    integrate_lidar_plan, integrate_lidar_resident, DepthFusionParams, DepthPlan, DeviceDepthFrame,
-    FusionStats, LidarPlan,
+    integrate_lidar_plan, integrate_lidar_resident, list_lidar_blocks, DepthFusionParams,
+    DepthPlan, DeviceDepthFrame, FusionStats, LidarFusionParams, LidarListings, LidarPlan,
 };
 use crate::gpu::kept::Kept;
 use crate::gpu::{
@@ -98,6 +98,8 @@ pub struct Backend {
     stereo_tally: StageTally,
     /// The TV solves' buffers, kept from region to region ([`Backend::release_tv_buffers`]).
     tv_kept: Kept,
+    /// What listing LiDAR scans on the GPU keeps between scans ([`Backend::plan_lidar`]).
+    lidar_listings: LidarListings,
 }
 
 /// The GPU traffic of `work` added to `into` (nothing without a GPU).
@@ -138,6 +140,7 @@ impl Backend {
             traffic: StageTraffic::default(),
             stereo_tally: StageTally::default(),
             tv_kept: Kept::default(),
+            lidar_listings: LidarListings::default(),
         }
     }
 
@@ -333,6 +336,32 @@ impl Backend {
     /// the last call: a frame in flight reports its updates when collected.
     pub fn take_late_voxel_updates(&mut self) -> usize {
         self.resident.as_mut().map_or(0, |r| r.take_collected().1)
+    }
+
+    /// Plans the fusion of LiDAR scan `scan` into `layer`: where the GPU fuses, its blocks
+    /// listed on the GPU (`src/fusion/lidar_listing.rs`, the rays left there for
+    /// [`Backend::fuse_lidar`]), else on the host ([`LidarPlan::new`]); the same plan either
+    /// way. The listing's traffic counts as the scan's.
+    pub fn plan_lidar(
+        &mut self,
+        layer: &Layer,
+        scan: &LidarScan,
+        params: &LidarFusionParams,
+    ) -> Result<LidarPlan> {
+        let grid = layer.params();
+        let Some(ctx) = self.gpu.clone().filter(|_| self.stages.fusion) else {
+            return Ok(LidarPlan::new(&grid, scan, params));
+        };
+        let options = (self.resident_options, self.frames_in_flight);
+        let resident = Self::resident_map(&mut self.resident, options, &ctx, layer)?;
+        let plan = LidarPlan::rays_only(&grid, scan, params);
+        let listings = &mut self.lidar_listings;
+        let mut calls = 0;
+        let listed = counted(Some(&ctx), &mut self.traffic.lidar, &mut calls, || {
+            list_lidar_blocks(resident, listings, plan)
+        })?;
+        // A plan the device could not list lists its pairs on the host when asked.
+        Ok(listed.unwrap_or_else(|plan| plan))
     }
 
     /// Fuses one LiDAR scan planned by `plan` into `layer` (on a GPU, into the blocks resident

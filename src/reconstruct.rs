@@ -7,7 +7,7 @@
 use crate::backend::{Backend, TvDevices};
 use crate::frame::{DepthFrame, LidarScan};
 use crate::fusion::DeviceDepthFrame;
-use crate::fusion::{DepthFusionParams, DepthPlan, FusionStats, LidarFusionParams, LidarPlan};
+use crate::fusion::{DepthFusionParams, DepthPlan, FusionStats, LidarFusionParams};
 use crate::gpu::ResidentStats;
 use crate::grid::{GridParams, Layer, TouchedBlocks};
 use crate::io::sequence::{for_each_input, RangeInput, Sequence};
@@ -342,7 +342,8 @@ impl Reconstructor {
     /// Fuses a LiDAR scan; returns the blocks it touched (as [`Reconstructor::fuse_depth`]).
     pub fn fuse_lidar(&mut self, scan: &LidarScan) -> crate::Result<TouchedBlocks> {
         let t = Instant::now();
-        let plan = LidarPlan::new(&self.config.grid, scan, &self.config.lidar_fusion);
+        let layer = self.store.layer_mut();
+        let plan = (self.backend).plan_lidar(layer, scan, &self.config.lidar_fusion)?;
         let planned_s = t.elapsed().as_secs_f64();
         if plan.ray_count() == 0 && !scan.points_sensor_m.is_empty() {
             let p = &self.config.lidar_fusion;

@@ -1,51 +1,15 @@
-// What lidar_count.wgsl and lidar_list.wgsl share: each ray's truncation band walked through
-// the blocks it crosses exactly as the CPU walks it (`traverse_cells` in
+// What lidar_blocks.wgsl, lidar_count.wgsl and lidar_list.wgsl share: each ray's truncation
+// band walked through the blocks it crosses exactly as the CPU walks it (`traverse_cells` in
 // src/fusion/traverse.rs with the block as cell, from `block_ray_pairs` in
 // src/fusion/lidar.rs), every operation the CPU's in the CPU's order, in exact f64
-// (shared/exact_f64.wgsl), and each block crossed found among the listed ones
-// (lidar_listed.wgsl). Follows shared/lidar_offsets.wgsl and shared/block_hash.wgsl.
+// (shared/exact_f64.wgsl), each block crossed handed to `visit(key, k)`, which the kernel
+// defines (lidar_blocks.wgsl) or shared/lidar_lookup.wgsl does. Follows shared/lidar_scan.wgsl.
 
 // Per ray: direction and range (lidar_rays.wgsl).
 @group(0) @binding(2) var<storage, read> rays_f64: array<u32>;
-// Listed block b's position (x, y, z, unused).
-@group(0) @binding(3) var<storage, read> block_keys: array<vec4<i32>>;
-// The listed blocks' table (lidar_listed.wgsl): listed index + 1, 0 where empty.
-@group(0) @binding(4) var<storage, read> listed: array<u32>;
-// Per listed block: its rays counted (lidar_count.wgsl) or written so far (lidar_list.wgsl).
-@group(0) @binding(5) var<storage, read_write> fill: array<atomic<u32>>;
-// [1]: rays the exact arithmetic could not walk, blocks crossed that were not listed, or
-// more rays than listed (never: the host walks the same).
-@group(0) @binding(6) var<storage, read_write> counters: array<atomic<u32>>;
-
-const NOT_LISTED: u32 = 0xffffffffu;
-
-// The listed index of the block at `key`, NOT_LISTED where it is not listed.
-fn listed_index(key: vec3<i32>) -> u32 {
-    let mask = scan[23];
-    var h = block_hash(key) & mask;
-    for (var probes = 0u; probes <= mask; probes++) {
-        let e = listed[h];
-        if (e == 0u) {
-            return NOT_LISTED;
-        }
-        if (all(block_keys[e - 1u].xyz == key)) {
-            return e - 1u;
-        }
-        h = (h + 1u) & mask;
-    }
-    return NOT_LISTED;
-}
-
-// Finds the block at `key` among the listed ones and calls `visit_listed(b, k)` (defined by
-// the kernel), or counts it as not listed.
-fn visit(key: vec3<i32>, k: u32) {
-    let b = listed_index(key);
-    if (b == NOT_LISTED) {
-        atomicAdd(&counters[1], 1u);
-        return;
-    }
-    visit_listed(b, k);
-}
+// [1]: rays the exact arithmetic could not walk, blocks crossed that were not listed or that
+// could not be listed, or more rays than listed (never: the host walks the same).
+@group(0) @binding(3) var<storage, read_write> counters: array<atomic<u32>>;
 
 // a < b where either may be +∞ (an axis the ray does not move along).
 fn less_or_inf(a: vec2<u32>, a_inf: bool, b: vec2<u32>, b_inf: bool) -> bool {

@@ -6,6 +6,7 @@ use super::FusionStats;
 use crate::frame::LidarScan;
 use crate::grid::{linear_index, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_SIDE};
 use rayon::prelude::*;
+use std::sync::OnceLock;
 
 /// Options of LiDAR fusion.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -133,31 +134,85 @@ pub fn integrate_lidar(
 
 /// A scan's usable rays and the (block, ray) pairs of their truncation bands: what
 /// [`integrate_lidar_plan`] applies. A pager builds it first to page in [`LidarPlan::blocks`].
+/// The host lists the pairs ([`LidarPlan::new`]), or a GPU lists the blocks and counts their
+/// pairs ([`crate::Backend::plan_lidar`], [`LidarPlan::with_listed_blocks`]); the pairs are
+/// then listed on the host only where something asks for them ([`LidarPlan::pairs`]).
 pub struct LidarPlan {
+    grid: GridParams,
     origin: [f64; 3],
     rotation_ijkw: [f64; 4],
     rays: Vec<Ray>,
-    pairs: Vec<(BlockIndex, u32)>,
+    /// Sorted by block then ray: made at once by [`LidarPlan::new`], else on first use.
+    pairs: OnceLock<Vec<(BlockIndex, u32)>>,
+    /// The blocks (sorted) and their pair counts, where a device listed them.
+    listed: Option<Vec<(BlockIndex, u32)>>,
+    /// The listing whose rays the device keeps ([`crate::Backend::plan_lidar`]).
+    device_listing: Option<u64>,
 }
 
 impl LidarPlan {
     /// Lists the rays and band blocks of `scan` on `grid`.
     pub fn new(grid: &GridParams, scan: &LidarScan, params: &LidarFusionParams) -> Self {
-        let origin: [f64; 3] = scan.world_from_sensor.translation.vector.into();
-        let rays = rays(scan, params);
-        let pairs = block_ray_pairs(grid, origin, &rays);
+        let plan = Self::rays_only(grid, scan, params);
+        let pairs = block_ray_pairs(grid, plan.origin, &plan.rays);
+        plan.pairs.set(pairs).expect("a new plan has no pairs");
+        plan
+    }
+
+    /// The rays of `scan`, its blocks not listed yet.
+    pub(crate) fn rays_only(
+        grid: &GridParams,
+        scan: &LidarScan,
+        params: &LidarFusionParams,
+    ) -> Self {
         let q = &scan.world_from_sensor.rotation.coords;
         LidarPlan {
-            origin,
+            grid: *grid,
+            origin: scan.world_from_sensor.translation.vector.into(),
             rotation_ijkw: [q[0], q[1], q[2], q[3]],
-            rays,
-            pairs,
+            rays: rays(scan, params),
+            pairs: OnceLock::new(),
+            listed: None,
+            device_listing: None,
         }
+    }
+
+    /// This plan with its blocks and their pair counts as a device listed them (`blocks`: any
+    /// order, each block once), the listing `device_listing` whose rays the device keeps.
+    /// Exactly what [`LidarPlan::new`] lists (`tests/gpu/lidar_listing.rs`).
+    pub(crate) fn with_listed_blocks(
+        mut self,
+        mut blocks: Vec<(BlockIndex, u32)>,
+        device_listing: u64,
+    ) -> Self {
+        blocks.sort_unstable_by_key(|b| b.0);
+        self.listed = Some(blocks);
+        self.device_listing = Some(device_listing);
+        self
+    }
+
+    /// The device listing whose rays the device keeps for this plan, if one listed it.
+    pub(crate) fn device_listing(&self) -> Option<u64> {
+        self.device_listing
+    }
+
+    /// Whether a device listed the blocks.
+    pub fn listed_on_device(&self) -> bool {
+        self.listed.is_some()
+    }
+
+    /// Whether the host has walked the rays and listed the pairs (never, for a plan a device
+    /// listed and fused: [`LidarPlan::pairs`] is asked only where the device cannot fuse it).
+    pub fn host_walked(&self) -> bool {
+        self.pairs.get().is_some()
     }
 
     /// The blocks the scan will update, sorted.
     pub fn blocks(&self) -> TouchedBlocks {
-        let mut b: Vec<BlockIndex> = self.pairs.iter().map(|p| p.0).collect();
+        if let Some(listed) = &self.listed {
+            return listed.iter().map(|b| b.0).collect();
+        }
+        let mut b: Vec<BlockIndex> = self.pairs().iter().map(|p| p.0).collect();
         b.dedup();
         b
     }
@@ -179,7 +234,10 @@ impl LidarPlan {
 
     /// Number of (block, ray) pairs: the block-ray work items of an integration.
     pub fn pair_count(&self) -> usize {
-        self.pairs.len()
+        match &self.listed {
+            Some(listed) => listed.iter().map(|b| b.1 as usize).sum(),
+            None => self.pairs().len(),
+        }
     }
 
     /// How many (block, ray) pairs each block has (blocks sorted).
@@ -192,15 +250,27 @@ impl LidarPlan {
         &self.rays
     }
 
-    /// The (block, ray) pairs, sorted by block then ray.
+    /// The (block, ray) pairs, sorted by block then ray (listed on the host on first use where
+    /// a device listed the blocks).
     pub(crate) fn pairs(&self) -> &[(BlockIndex, u32)] {
-        &self.pairs
+        self.pairs
+            .get_or_init(|| block_ray_pairs(&self.grid, self.origin, &self.rays))
     }
 
     /// The pairs grouped by block: each block (sorted) with its range in [`LidarPlan::pairs`]
     /// (rays in scan order).
     pub(crate) fn groups(&self) -> Vec<(BlockIndex, std::ops::Range<usize>)> {
-        let pairs = &self.pairs;
+        if let Some(listed) = &self.listed {
+            let mut start = 0;
+            return listed
+                .iter()
+                .map(|&(b, n)| {
+                    start += n as usize;
+                    (b, start - n as usize..start)
+                })
+                .collect();
+        }
+        let pairs = self.pairs();
         let mut groups = Vec::new();
         let mut start = 0;
         for i in 1..=pairs.len() {
@@ -225,7 +295,7 @@ pub fn integrate_lidar_plan(layer: &mut Layer, plan: &LidarPlan) -> (TouchedBloc
     let grid = layer.params();
     let origin = plan.origin;
     let rays = &plan.rays;
-    let pairs = &plan.pairs;
+    let pairs = plan.pairs();
     let groups = plan.groups();
     let indices: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
     let mut taken = layer.take_blocks(&indices);
@@ -264,7 +334,7 @@ pub fn integrate_lidar_reference(
     let grid = layer.params();
     let origin = plan.origin;
     let rays = &plan.rays;
-    let pairs = &plan.pairs;
+    let pairs = plan.pairs();
     let groups = plan.groups();
     let indices: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
     let mut taken = layer.take_blocks(&indices);

@@ -13,9 +13,11 @@
 //! any device, the same pairs in the same order, so the fusion's result is the host-prepared
 //! one's.
 //!
-//! The host still lists the blocks and counts their pairs (it pages the blocks in); the passes
-//! are sized by [`MAX_WALK_STEPS`], a bound on every walk, instead of the longest one (which
-//! only the device knows): more, shorter passes on llvmpipe, the same updates in the same order.
+//! The blocks and their pair counts come from the plan: the device's own listing
+//! (`super::lidar_listing`, which leaves the rays on the device: [`record_rays`]) or the
+//! host's. The passes are sized by [`MAX_WALK_STEPS`], a bound on every walk, instead of the
+//! longest one (which only the device knows): more, shorter passes on llvmpipe, the same
+//! updates in the same order.
 
 use super::depth_keys::pack_offset;
 use super::lidar_gpu::{dispatch_order, LOOP_BUDGET};
@@ -50,8 +52,14 @@ pub(super) struct DevicePairs {
     pub(super) rays_per_pass: u32,
 }
 
+/// The sensor's block, from which the listed blocks' offsets count.
+pub(super) fn sensor_block(grid: &GridParams, plan: &LidarPlan) -> [i32; 3] {
+    let o = plan.origin_m();
+    [0, 1, 2].map(|a| (o[a] / grid.block_size_m()).floor() as i32)
+}
+
 /// The scan's constants as `shaders/shared/lidar_scan.wgsl` reads them.
-fn scan_words(
+pub(super) fn scan_words(
     (grid, plan): (&GridParams, &LidarPlan),
     [pairs, blocks, mask]: [usize; 3],
     (origin, key_words): ([i32; 3], u32),
@@ -113,28 +121,36 @@ pub(super) fn fits(
     groups: &[(BlockIndex, Range<usize>)],
 ) -> bool {
     let most = groups.iter().map(|g| g.1.len()).max().unwrap_or(0);
-    plan.ray_count() as u64 * RAY_F64_BYTES <= ctx.max_binding_bytes()
-        && most <= LOOP_BUDGET as usize
+    rays_fit(ctx, plan) && most <= LOOP_BUDGET as usize
 }
 
-/// Uploads the scan's rays and the listed blocks `order` (indices into `groups`, by decreasing
-/// pair count: [`super::lidar_gpu::dispatch_order`]) into `kept`'s buffers and records into
-/// `encoder` the kernels that make the rays, count and list each block's pairs, order them and
-/// make their walks. What goes up is 16 bytes per ray and 4 per block (12 where a block's offset
-/// from the sensor's does not pack); `counters[1]` counts what could not be made.
-pub(super) fn record_device_pairs(
+/// Whether the scan's rays, as the device keeps them, fit one binding.
+pub(super) fn rays_fit(ctx: &GpuContext, plan: &LidarPlan) -> bool {
+    plan.ray_count() as u64 * RAY_F64_BYTES <= ctx.max_binding_bytes()
+}
+
+/// Uploads the scan's rays (16 bytes each) into `kept`'s buffers and records into `encoder` the
+/// kernel that measures and rotates them (`lidar_rays.wgsl`, reading the scan's words
+/// `buf_scan`); returns the rays' f64 words and their directions. Where `made`, a listing
+/// ([`super::lidar_listing`]) recorded it for this scan already: the kept buffers are returned
+/// as they are, nothing recorded.
+pub(super) fn record_rays(
     (ctx, kept, encoder): (&GpuContext, &mut Kept, &mut wgpu::CommandEncoder),
-    (grid, plan): (&GridParams, &LidarPlan),
-    (groups, order): (&[(BlockIndex, Range<usize>)], &[usize]),
-    counters: &wgpu::Buffer,
-) -> Result<DevicePairs> {
-    let total: usize = order.iter().map(|&b| groups[b].1.len()).sum();
-    let (rays, n) = (plan.rays(), order.len());
-    let capacity = listed_capacity(n);
-    let o = plan.origin_m();
-    let origin = [0, 1, 2].map(|a| (o[a] / grid.block_size_m()).floor() as i32);
-    let (key_words, width) = sent_keys(groups, order, origin);
-    let words = scan_words((grid, plan), [total, n, capacity - 1], (origin, width));
+    plan: &LidarPlan,
+    (buf_scan, counters): (&wgpu::Buffer, &wgpu::Buffer),
+    made: bool,
+) -> Result<(wgpu::Buffer, wgpu::Buffer)> {
+    let rays = plan.rays();
+    ctx.check_binding(
+        "LiDAR rays (16 bytes per ray)",
+        rays.len() as u64 * RAY_IN_BYTES,
+    )?;
+    let buf_rays_f64 = kept.scratch(ctx, "lidar_rays_f64", rays.len() as u64 * RAY_F64_BYTES);
+    let dir_bytes = (rays.len() * std::mem::size_of::<GpuRayDir>()) as u64;
+    let buf_dirs = kept.scratch(ctx, "lidar_ray_dirs", dir_bytes);
+    if made {
+        return Ok((buf_rays_f64, buf_dirs));
+    }
     let ray_words: Vec<u32> = rays
         .iter()
         .flat_map(|r| {
@@ -142,21 +158,45 @@ pub(super) fn record_device_pairs(
             [x, y, z, r.gray as u32]
         })
         .collect();
-    ctx.check_binding(
-        "LiDAR rays (16 bytes per ray)",
-        rays.len() as u64 * RAY_IN_BYTES,
-    )?;
+    let buf_rays = kept.storage_with(ctx, "lidar_rays_in", bytemuck::cast_slice(&ray_words));
+    let kernel = ctx.kernel(&shaders::LIDAR_RAYS)?;
+    let buffers = [buf_scan, &buf_rays, &buf_rays_f64, &buf_dirs, counters];
+    let bind = kept.bind_group(ctx, "lidar_rays", &kernel.layout, &buffers);
+    ctx.record_dispatch(encoder, &kernel, &bind, rays.len() as u64)?;
+    Ok((buf_rays_f64, buf_dirs))
+}
+
+/// Uploads the scan's rays (unless `rays_made`: [`record_rays`]) and the listed blocks `order`
+/// (indices into `groups`, by decreasing pair count: [`super::lidar_gpu::dispatch_order`])
+/// into `kept`'s buffers and records into `encoder` the kernels that make the rays, count and
+/// list each block's pairs, order them and make their walks. What goes up is 16 bytes per ray
+/// and 4 per block (12 where a block's offset from the sensor's does not pack); `counters[1]`
+/// counts what could not be made.
+pub(super) fn record_device_pairs(
+    (ctx, kept, encoder): (&GpuContext, &mut Kept, &mut wgpu::CommandEncoder),
+    (grid, plan): (&GridParams, &LidarPlan),
+    (groups, order): (&[(BlockIndex, Range<usize>)], &[usize]),
+    (counters, rays_made): (&wgpu::Buffer, bool),
+) -> Result<DevicePairs> {
+    let total: usize = order.iter().map(|&b| groups[b].1.len()).sum();
+    let n = order.len();
+    let capacity = listed_capacity(n);
+    let origin = sensor_block(grid, plan);
+    let (key_words, width) = sent_keys(groups, order, origin);
+    let words = scan_words((grid, plan), [total, n, capacity - 1], (origin, width));
     let pair_bytes = total as u64 * std::mem::size_of::<GpuLidarPair>() as u64;
     ctx.check_binding("LiDAR (block, ray) pairs (28 bytes per pair)", pair_bytes)?;
     ctx.check_binding("block keys (16 bytes per block)", n as u64 * 16)?;
     let buf_scan = kept.storage_with(ctx, "lidar_scan_words", bytemuck::cast_slice(&words));
-    let buf_rays = kept.storage_with(ctx, "lidar_rays_in", bytemuck::cast_slice(&ray_words));
+    let (buf_rays_f64, buf_dirs) = record_rays(
+        (ctx, &mut *kept, &mut *encoder),
+        plan,
+        (&buf_scan, counters),
+        rays_made,
+    )?;
     let buf_sent = kept.storage_with(ctx, "lidar_sent_keys", bytemuck::cast_slice(&key_words));
     let buf_keys = kept.scratch(ctx, "lidar_block_keys", n as u64 * 16);
     let buf_offsets = kept.scratch(ctx, "lidar_pair_offsets", (n as u64 + 1) * 4);
-    let buf_rays_f64 = kept.scratch(ctx, "lidar_rays_f64", rays.len() as u64 * RAY_F64_BYTES);
-    let dir_bytes = (rays.len() * std::mem::size_of::<GpuRayDir>()) as u64;
-    let buf_dirs = kept.scratch(ctx, "lidar_ray_dirs", dir_bytes);
     let listed_bytes = capacity as u64 * 4;
     let buf_listed = kept.scratch(ctx, "lidar_listed", listed_bytes);
     let fill_bytes = n as u64 * 4;
@@ -169,20 +209,15 @@ pub(super) fn record_device_pairs(
         &buf_scan,
         &buf_offsets,
         &buf_rays_f64,
+        counters,
         &buf_keys,
         &buf_listed,
         &buf_fill,
     ];
     let mut list = walk.to_vec();
-    list.extend([counters, &buf_unsorted]);
+    list.push(&buf_unsorted);
     // In order.
-    let steps: [(&'static str, Arc<Kernel>, Vec<&wgpu::Buffer>, usize); 8] = [
-        (
-            "lidar_rays",
-            kernel(&shaders::LIDAR_RAYS)?,
-            vec![&buf_scan, &buf_rays, &buf_rays_f64, &buf_dirs, counters],
-            rays.len(),
-        ),
+    let steps: [(&'static str, Arc<Kernel>, Vec<&wgpu::Buffer>, usize); 7] = [
         (
             "lidar_listed",
             kernel(&shaders::LIDAR_LISTED)?,
@@ -192,8 +227,8 @@ pub(super) fn record_device_pairs(
         (
             "lidar_count",
             kernel(&shaders::LIDAR_COUNT)?,
-            [&walk[..], &[counters]].concat(),
-            rays.len(),
+            walk.to_vec(),
+            plan.ray_count(),
         ),
         (
             "lidar_prefix",
@@ -205,7 +240,7 @@ pub(super) fn record_device_pairs(
             "lidar_list",
             kernel(&shaders::LIDAR_LIST)?,
             list,
-            rays.len(),
+            plan.ray_count(),
         ),
         (
             "lidar_sort",
@@ -288,7 +323,7 @@ pub fn lidar_pairs_on_gpu(
         (ctx, kept, &mut encoder),
         (grid, plan),
         (&groups, &order),
-        &buf_counters,
+        (&buf_counters, false),
     )?;
     let mut pairs: Vec<GpuLidarPair> = bytemuck::zeroed_vec(plan.pair_count());
     let mut dirs: Vec<GpuRayDir> = bytemuck::zeroed_vec(plan.ray_count());

@@ -5,11 +5,12 @@
 //! reads them back (4 KiB each, both ways): the blocks already resident stay, those in RAM go up
 //! once (as for a depth frame), new ones are made empty on the device, and what comes back is
 //! the counters and one flag per block. What goes up besides: each ray once (16 bytes: its
-//! point and grey level) and the listed blocks (4 bytes each: an offset from the sensor's block),
-//! from which the device lists and orders the (block, ray) pairs and makes the walks the host
-//! would prepare, bit for bit (`lidar_device.rs`); a scan whose rays exceed one binding, or
-//! one of whose blocks has more pairs than a kernel invocation reads, sends the host's walks
-//! instead (16 bytes per ray, 28 per pair).
+//! point and grey level, sent by the listing where the device listed the scan's blocks,
+//! `lidar_listing.rs`, and kept there) and the listed blocks (4 bytes each: an offset from the
+//! sensor's block), from which the device lists and orders the (block, ray) pairs and makes the
+//! walks the host would prepare, bit for bit (`lidar_device.rs`); a scan whose rays exceed one
+//! binding, or one of whose blocks has more pairs than a kernel invocation reads, sends the
+//! host's walks instead (16 bytes per ray, 28 per pair).
 //!
 //! The result equals the per-call kernel's bit for bit (the same f32 operations on the same
 //! values, in the same order per block), so it keeps its relation to the CPU's walk
@@ -67,13 +68,17 @@ pub fn integrate_lidar_resident(
         stats.voxel_updates += updates;
         return Ok((touched, stats));
     }
+    // The rays a device listing left on the device for this plan, if any (used once).
+    let rays_made = map
+        .take_lidar_rays_of()
+        .is_some_and(|l| plan.device_listing() == Some(l));
     if !blocks.is_empty() {
         // One submit: the empty blocks' fill, the lookup and the passes.
         map.note_listed_in_flight(0); // a scan lists its rays' blocks alone
         let mut encoder = map.context().encoder("fuse_lidar_resident");
         map.make_resident(layer, &blocks, plan.origin_m(), Some(&mut encoder))?;
         let t = std::time::Instant::now();
-        let inputs_s = run_resident(map, layer, plan, &groups, encoder)?;
+        let inputs_s = run_resident(map, layer, (plan, rays_made), &groups, encoder)?;
         map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
     }
     let (touched, voxel_updates) = map.end_in_flight(layer)?;
@@ -93,7 +98,7 @@ pub fn integrate_lidar_resident(
 fn run_resident(
     map: &mut ResidentMap,
     layer: &Layer,
-    plan: &LidarPlan,
+    (plan, rays_made): (&LidarPlan, bool),
     groups: &[(BlockIndex, Range<usize>)],
     mut encoder: wgpu::CommandEncoder,
 ) -> Result<f64> {
@@ -134,7 +139,7 @@ fn run_resident(
             (ctx, &mut *kept, &mut encoder),
             (&grid, plan),
             (groups, &order),
-            &buf_counters,
+            (&buf_counters, rays_made),
         )?;
         let (keys, offsets) = (made.keys.clone(), made.offsets.clone());
         (Some(made), keys, offsets)

@@ -29,6 +29,7 @@ mod depth_keys;
 mod lidar;
 mod lidar_device;
 mod lidar_gpu;
+mod lidar_listing;
 mod lidar_resident;
 pub mod traverse;
 
@@ -55,6 +56,7 @@ pub use lidar::{
 };
 pub use lidar_device::{lidar_pairs_on_cpu, lidar_pairs_on_gpu, MAX_WALK_STEPS};
 pub use lidar_gpu::{block_local_ray, integrate_lidar_gpu, walk_block_ray};
+pub(crate) use lidar_listing::{list_lidar_blocks, LidarListings};
 pub use lidar_resident::integrate_lidar_resident;
 
 /// Work counters of one integration call.

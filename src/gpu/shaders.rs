@@ -263,6 +263,26 @@ pub const LIDAR_RAYS: ShaderSource = kernel!(
     [Read, Read, ReadWrite, ReadWrite, ReadWrite]
 );
 
+/// A LiDAR scan's blocks found on the device, with their pairs (the CPU's walk, exact).
+pub const LIDAR_BLOCKS: ShaderSource = kernel!(
+    "lidar_blocks.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/exact_f64.wgsl",
+        "shared/lidar_scan.wgsl",
+        "shared/block_hash.wgsl",
+        "shared/lidar_traverse.wgsl"
+    ],
+    [Read, ReadWrite, Read, ReadWrite]
+);
+
+/// The blocks `LIDAR_BLOCKS` found, listed from its table.
+pub const LIDAR_FOUND: ShaderSource = kernel!(
+    "lidar_found.wgsl",
+    ["shared/dispatch.wgsl", "shared/lidar_scan.wgsl"],
+    [Read, Read, ReadWrite, ReadWrite]
+);
+
 /// A LiDAR scan's listed blocks made positions and put in a hash table of their own.
 pub const LIDAR_LISTED: ShaderSource = kernel!(
     "lidar_listed.wgsl",
@@ -283,9 +303,10 @@ pub const LIDAR_COUNT: ShaderSource = kernel!(
         "shared/lidar_scan.wgsl",
         "shared/lidar_offsets.wgsl",
         "shared/block_hash.wgsl",
-        "shared/lidar_traverse.wgsl"
+        "shared/lidar_traverse.wgsl",
+        "shared/lidar_lookup.wgsl"
     ],
-    [Read, Read, Read, Read, Read, ReadWrite, ReadWrite]
+    [Read, Read, Read, ReadWrite, Read, Read, ReadWrite]
 );
 
 /// Each listed block's first pair from the counts (one workgroup).
@@ -304,9 +325,10 @@ pub const LIDAR_LIST: ShaderSource = kernel!(
         "shared/lidar_scan.wgsl",
         "shared/lidar_offsets.wgsl",
         "shared/block_hash.wgsl",
-        "shared/lidar_traverse.wgsl"
+        "shared/lidar_traverse.wgsl",
+        "shared/lidar_lookup.wgsl"
     ],
-    [Read, Read, Read, Read, Read, ReadWrite, ReadWrite, ReadWrite]
+    [Read, Read, Read, ReadWrite, Read, Read, ReadWrite, ReadWrite]
 );
 
 /// Each listed block's rays sorted in workgroup memory (the CPU's order of the pairs).
@@ -603,6 +625,8 @@ pub const ALL: &[ShaderSource] = &[
     FUSE_LIDAR,
     FUSE_LIDAR_RESIDENT,
     LIDAR_RAYS,
+    LIDAR_BLOCKS,
+    LIDAR_FOUND,
     LIDAR_LISTED,
     LIDAR_COUNT,
     LIDAR_PREFIX,

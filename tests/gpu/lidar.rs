@@ -1,10 +1,10 @@
-//! LiDAR fusion on the GPU (`shaders/fuse_lidar.wgsl`) against its CPU twins: the f32
-//! block-local walk `integrate_lidar_plan` (the CPU's LiDAR fusion, which the kernel mirrors
-//! operation for operation) and the f64 reference `integrate_lidar_reference`. Scenes: simulated scans of the
-//! analytic sphere-above-a-floor, at the origin and translated by kilometres (where a
-//! world-frame f32 walk would be centimetres off), and an HDL-64-like scan of the synthetic
-//! city. Every GPU test skips with a message where no GPU adapter exists (install lavapipe with
-//! `tools/setup.sh` to run them on the CPU); the twin-vs-reference test runs everywhere.
+//! LiDAR fusion on the GPU (`shaders/fuse_lidar.wgsl`) against its CPU twins: the f32 block-local
+//! walk `integrate_lidar_plan` (the CPU's LiDAR fusion, which the kernel mirrors operation for
+//! operation) and the f64 reference `integrate_lidar_reference`. Scenes: simulated scans of the
+//! analytic sphere-above-a-floor, at the origin and translated by kilometres (where a world-frame
+//! f32 walk would be centimetres off), and an HDL-64-like scan of the synthetic city. Every GPU
+//! test skips with a message where no GPU adapter exists (install lavapipe with `tools/setup.sh` to
+//! run them on the CPU); the twin-vs-reference test runs everywhere.
 //!
 //! Tolerances:
 //! - GPU vs the f32 twin: bit-identical on a software adapter (lavapipe: the same IEEE f32
@@ -46,7 +46,7 @@ use nalgebra::{Isometry3, UnitQuaternion};
 use std::collections::BTreeSet;
 use std::sync::Arc;
 
-const PARAMS: LidarFusionParams = LidarFusionParams {
+pub(crate) const PARAMS: LidarFusionParams = LidarFusionParams {
     min_range_m: 0.5,
     max_range_m: 80.0,
 };
@@ -62,20 +62,20 @@ fn scene(offset_m: [f64; 3]) -> SphereScene {
 }
 
 /// Sensor positions of [`sphere_scans`] (before the offset), metres: in general position.
-const ORIGINS: [[f64; 3]; 3] = [
+pub(crate) const ORIGINS: [[f64; 3]; 3] = [
     [-3.0123, -0.4871, -1.0377],
     [2.5311, -0.7093, -2.0158],
     [0.3472, -0.4216, 3.2269],
 ];
 
-/// Sensor positions on voxel corners (multiples of 10 cm): with the scan's azimuths of exactly
-/// 0° and 45°, thousands of rays run exactly in voxel faces or through voxel edges, where the
-/// walk's choice between two equally near cells depends on rounding.
-const ORIGINS_ON_GRID: [[f64; 3]; 3] = [[-3.0, -0.5, -1.0], [2.5, -0.7, -2.0], [0.3, -0.4, 3.2]];
+/// Sensor positions on voxel corners (multiples of 10 cm): with azimuths of exactly 0° and 45°,
+/// thousands of rays run in voxel faces or through voxel edges, where ties depend on rounding.
+pub(crate) const ORIGINS_ON_GRID: [[f64; 3]; 3] =
+    [[-3.0, -0.5, -1.0], [2.5, -0.7, -2.0], [0.3, -0.4, 3.2]];
 
 /// Three noisy HDL-64-like sweeps around the sphere (64 rings × 1000 steps) from `origins`,
 /// everything offset by `offset_m`.
-fn sphere_scans_from(origins: &[[f64; 3]; 3], offset_m: [f64; 3]) -> Vec<LidarScan> {
+pub(crate) fn sphere_scans_from(origins: &[[f64; 3]; 3], offset_m: [f64; 3]) -> Vec<LidarScan> {
     let sc = scene(offset_m);
     let mut rng = Rng(17);
     origins
@@ -259,7 +259,7 @@ fn assert_within_steps(what: &str, r: &Agreement, weight_fraction: f64) {
     assert!(r.color_differ as f64 <= 1e-4 * n, "{what}: colour");
 }
 
-fn assert_layers_identical(what: &str, a: &Layer, b: &Layer) {
+pub(crate) fn assert_layers_identical(what: &str, a: &Layer, b: &Layer) {
     assert_eq!(a.indices_sorted(), b.indices_sorted(), "{what}: block sets");
     let differ = a
         .indices_sorted()
@@ -273,7 +273,7 @@ fn assert_layers_identical(what: &str, a: &Layer, b: &Layer) {
     assert_eq!(differ, 0, "{what}");
 }
 
-const GRIDS: [GridParams; 2] = [
+pub(crate) const GRIDS: [GridParams; 2] = [
     GridParams {
         voxel_size_m: 0.1,
         truncation_m: 1.0,
@@ -285,7 +285,7 @@ const GRIDS: [GridParams; 2] = [
 ];
 
 /// Offsets of the scene: at the origin, and kilometres away (negative block indices in y).
-const OFFSETS: [[f64; 3]; 2] = [[0.0; 3], [3000.0, -3000.0, 3000.0]];
+pub(crate) const OFFSETS: [[f64; 3]; 2] = [[0.0; 3], [3000.0, -3000.0, 3000.0]];
 
 #[test]
 fn f32_twin_is_close_to_the_f64_reference_near_and_far_from_the_origin() {
@@ -515,7 +515,7 @@ fn reconstructor_fuses_lidar_on_the_gpu_when_one_is_set() {
 
 /// Fuses `scans` into the blocks resident in a fresh pool of `options`, then writes them back:
 /// the layer, the touched blocks per scan, the pool's counters and each scan's traffic.
-fn fuse_resident(
+pub(crate) fn fuse_resident(
     ctx: &Arc<GpuContext>,
     grid: GridParams,
     scans: &[LidarScan],
@@ -683,7 +683,7 @@ fn device_made_rays_and_pairs_equal_the_hosts() {
 }
 
 /// 6 000 returns in a 4 cm patch 6 m ahead of `origin` + `offset_m`: crowded blocks.
-fn dense_scan(origin: [f64; 3], offset_m: [f64; 3]) -> LidarScan {
+pub(crate) fn dense_scan(origin: [f64; 3], offset_m: [f64; 3]) -> LidarScan {
     let mut rng = Rng(29);
     let points_sensor_m: Vec<[f32; 3]> = (0..6000)
         .map(|_| {

@@ -15,6 +15,7 @@ mod exact_f64;
 mod frame_keys;
 mod in_flight;
 mod lidar;
+mod lidar_listing;
 mod mesh;
 mod sgm;
 mod shaders;

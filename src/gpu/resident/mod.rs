@@ -134,6 +134,8 @@ pub struct ResidentMap {
     late: late::InFlight,
     /// Released blocks whose copies have not been collected (`behind`).
     behind: behind::Behind,
+    /// The LiDAR listing whose rays `kept` holds (`src/fusion/lidar_listing.rs`).
+    lidar_rays_of: Option<u64>,
 }
 
 /// What a frame's kernels need at once ([`ResidentMap::frame_parts`]).
@@ -181,6 +183,7 @@ impl ResidentMap {
             ring: ReadbackRing::default(),
             late: late::InFlight::default(),
             behind: behind::Behind::default(),
+            lidar_rays_of: None,
             stats: ResidentStats {
                 capacity_blocks: capacity,
                 max_blocks,
@@ -252,6 +255,16 @@ impl ResidentMap {
             kept: &mut self.kept,
             ring: &mut self.ring,
         }
+    }
+
+    /// Records that `kept` holds the rays of LiDAR listing `listing` (`None`: no listing's).
+    pub(crate) fn set_lidar_rays_of(&mut self, listing: Option<u64>) {
+        self.lidar_rays_of = listing;
+    }
+
+    /// The LiDAR listing whose rays `kept` holds, forgotten (a scan uses them once).
+    pub(crate) fn take_lidar_rays_of(&mut self) -> Option<u64> {
+        self.lidar_rays_of.take()
     }
 
     /// Counts a frame of `blocks` blocks (before any other work on it).

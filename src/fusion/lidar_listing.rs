@@ -1,0 +1,123 @@
+//! A LiDAR scan's blocks listed on the device, so that the host never walks a scan's rays when
+//! a GPU fuses it: the rays go up once (16 bytes each, [`super::lidar_device::record_rays`]),
+//! `shaders/lidar_blocks.wgsl` walks each ray's band through the blocks exactly as the host's
+//! listing does (`shared/lidar_traverse.wgsl`) and puts each block crossed in a hash table keyed
+//! by its offset from the sensor's block, counting its pairs, and `shaders/lidar_found.wgsl`
+//! lists the table; the host reads back 8 bytes per block (its packed offset and pair count),
+//! sorts them, pages the blocks in and fuses the scan from the rays the device kept
+//! ([`super::integrate_lidar_resident`]). One submit and one wait; a second wait only where a
+//! scan has more blocks than the last one's readback was sized for.
+//!
+//! Where the device cannot list a scan (a block more than 512 blocks from the sensor's, a table
+//! too full, arithmetic the exact f64 cannot do), the kernels count it and the host lists the
+//! scan itself: the same plan either way (`tests/gpu/lidar_listing.rs`).
+
+use super::lidar_device::{record_rays, scan_words, sensor_block};
+use super::LidarPlan;
+use crate::gpu::resident::{FrameParts, ResidentMap};
+use crate::gpu::{shaders, ErrorScopes};
+use crate::grid::BlockIndex;
+use crate::Result;
+
+/// Offsets from the sensor's block that pack (`FOUND_HALF` in `shaders/lidar_blocks.wgsl`).
+const FOUND_HALF: i32 = 512;
+
+/// What a listing keeps between scans: how many listings ran (each one's number names the rays
+/// it leaves on the device) and how many blocks the last scan had (which sizes the next one's
+/// table and readback).
+#[derive(Debug, Default)]
+pub(crate) struct LidarListings {
+    listings: u64,
+    last_blocks: usize,
+}
+
+/// Entries of the table: a power of two, at least four times the blocks expected (the last
+/// scan's, or one per eight rays, at least 1 024).
+fn table_entries(rays: usize, last_blocks: usize) -> usize {
+    (4 * last_blocks.max(rays / 8).max(1024)).next_power_of_two()
+}
+
+/// The block at `word`, an offset packed by `shaders/lidar_blocks.wgsl` from `origin`.
+fn unpack_found(origin: [i32; 3], word: u32) -> BlockIndex {
+    let axis = |a: u32| ((word >> (10 * a)) & 1023) as i32 - FOUND_HALF;
+    BlockIndex([0, 1, 2].map(|a| origin[a as usize] + axis(a)))
+}
+
+/// Lists the blocks of `plan` (its rays alone: [`LidarPlan::rays_only`]) on the device of
+/// `map` and returns the plan with them ([`LidarPlan::with_listed_blocks`]), the rays left on
+/// the device for its fusion; or, where the device could not list them, the plan as it came
+/// (`Err`), whose pairs the host lists when asked.
+pub(crate) fn list_lidar_blocks(
+    map: &mut ResidentMap,
+    listings: &mut LidarListings,
+    plan: LidarPlan,
+) -> Result<std::result::Result<LidarPlan, LidarPlan>> {
+    let rays = plan.ray_count();
+    if rays == 0 || !super::lidar_device::rays_fit(map.context(), &plan) {
+        return Ok(Err(plan));
+    }
+    let FrameParts {
+        ctx, grid, kept, ..
+    } = map.frame_parts();
+    let entries = table_entries(rays, listings.last_blocks);
+    let origin = sensor_block(&grid, &plan);
+    let words = scan_words((&grid, &plan), [0, 0, entries - 1], (origin, 1));
+    let scope = ErrorScopes::push(&ctx.device);
+    let mut encoder = ctx.encoder("lidar_listing");
+    let buf_scan = kept.storage_with(ctx, "lidar_listing_words", bytemuck::cast_slice(&words));
+    let buf_counters = kept.scratch(ctx, "lidar_listing_counters", 16);
+    let table_bytes = entries as u64 * 8;
+    let buf_table = kept.scratch(ctx, "lidar_found_table", table_bytes);
+    let buf_list = kept.scratch(ctx, "lidar_found_list", table_bytes);
+    encoder.clear_buffer(&buf_counters, 0, Some(16));
+    encoder.clear_buffer(&buf_table, 0, Some(table_bytes));
+    let (buf_rays_f64, _) = record_rays(
+        (ctx, &mut *kept, &mut encoder),
+        &plan,
+        (&buf_scan, &buf_counters),
+        false,
+    )?;
+    let blocks = ctx.kernel(&shaders::LIDAR_BLOCKS)?;
+    let buffers = [&buf_scan, &buf_table, &buf_rays_f64, &buf_counters];
+    let bind = kept.bind_group(ctx, "lidar_blocks", &blocks.layout, &buffers);
+    ctx.record_dispatch(&mut encoder, &blocks, &bind, rays as u64)?;
+    let found = ctx.kernel(&shaders::LIDAR_FOUND)?;
+    let buffers = [&buf_scan, &buf_table, &buf_list, &buf_counters];
+    let bind = kept.bind_group(ctx, "lidar_found", &found.layout, &buffers);
+    ctx.record_dispatch(&mut encoder, &found, &bind, entries as u64)?;
+    // The readback sized by the last scan's blocks, and a quarter more.
+    let guess = (listings.last_blocks + listings.last_blocks / 4 + 256).min(entries);
+    let mut counters = [0u32; 4];
+    let mut list = vec![0u32; 2 * guess];
+    ctx.submit_and_read_back(
+        encoder,
+        kept,
+        &mut [
+            (&buf_counters, bytemuck::cast_slice_mut(&mut counters)),
+            (&buf_list, bytemuck::cast_slice_mut(&mut list)),
+        ],
+    )?;
+    let [_, failed, count, _] = counters.map(|c| c as usize);
+    if failed == 0 && count > guess {
+        list = vec![0u32; 2 * count];
+        let encoder = ctx.encoder("lidar_listing_rest");
+        let target = bytemuck::cast_slice_mut(&mut list);
+        ctx.submit_and_read_back(encoder, kept, &mut [(&buf_list, target)])?;
+    }
+    scope.pop("listing a LiDAR scan's blocks on the GPU")?;
+    listings.listings += 1;
+    if failed > 0 {
+        tracing::debug!("{failed} crossings the GPU could not list: the host lists the scan");
+        map.set_lidar_rays_of(None);
+        let plan_blocks = plan.blocks().len();
+        listings.last_blocks = plan_blocks;
+        return Ok(Err(plan));
+    }
+    listings.last_blocks = count;
+    let found: Vec<(BlockIndex, u32)> = list[..2 * count]
+        .chunks_exact(2)
+        .map(|e| (unpack_found(origin, e[0]), e[1]))
+        .collect();
+    map.set_lidar_rays_of(Some(listings.listings));
+    Ok(Ok(plan.with_listed_blocks(found, listings.listings)))
+}
