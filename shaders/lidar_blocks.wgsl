@@ -2,7 +2,7 @@
 // ray's band walked through the blocks it crosses (shared/lidar_traverse.wgsl, the host's walk
 // exactly) and each block crossed put in a hash table keyed by its offset from the sensor's
 // block (scan[28..31)), with its pairs counted. Entry h is two words: found[2h] the offset
-// packed (10 bits an axis, x low, each biased by 512) plus one, 0 where empty, inserted by
+// packed plus one (`found_word`, shared/lidar_scan.wgsl), 0 where empty, inserted by
 // compare-and-swap; found[2h + 1] the block's (block, ray) pairs. lidar_found.wgsl lists the
 // entries. A block whose offset does not pack, or a table too full, is counted in counters[1]
 // and the host lists the scan itself. One invocation per ray. Shared files and bindings:
@@ -11,20 +11,12 @@
 // scan[23] + 1 entries of two words, cleared before.
 @group(0) @binding(1) var<storage, read_write> found: array<atomic<u32>>;
 
-// Offsets from the sensor's block that pack: -FOUND_HALF ≤ d < FOUND_HALF on every axis.
-const FOUND_HALF: i32 = 512;
-// Probes before an insert gives up (the table is kept at most a quarter full).
-const FOUND_PROBES: u32 = 4096u;
-
 fn visit(key: vec3<i32>, k: u32) {
-    let origin = bitcast<vec3<i32>>(vec3<u32>(scan[28], scan[29], scan[30]));
-    let d = key - origin;
-    if (any(d < vec3<i32>(-FOUND_HALF)) || any(d >= vec3<i32>(FOUND_HALF))) {
+    let word = found_word(key);
+    if (word == 0u) {
         atomicAdd(&counters[1], 1u);
         return;
     }
-    let u = bitcast<vec3<u32>>(d + vec3<i32>(FOUND_HALF));
-    let word = (u.x | (u.y << 10u) | (u.z << 20u)) + 1u;
     let mask = scan[23];
     var h = mix32(word) & mask;
     for (var tries = 0u; tries < FOUND_PROBES; tries++) {

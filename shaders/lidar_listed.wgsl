@@ -5,6 +5,8 @@
 // (shared/lidar_traverse.wgsl) find a block's place in dispatch order from its position:
 // entry = listed index + 1 (0: empty, the buffer cleared before), inserted by
 // compare-and-swap. Lookups find the one entry of a key whatever order the inserts ran in.
+// Where the device listed the scan (lidar_blocks.wgsl), each block's pairs are read from the
+// listing's table, so lidar_count.wgsl need not walk the rays again.
 // One invocation per listed block. Shared files and bindings: src/gpu/shaders.rs.
 
 // Per listed block: its packed offset, or three words (x, y, z) where scan[31] is 3.
@@ -13,8 +15,34 @@
 @group(0) @binding(2) var<storage, read_write> block_keys: array<vec4<i32>>;
 // At most half full: a power of two of entries, mask scan[23].
 @group(0) @binding(3) var<storage, read_write> listed: array<atomic<u32>>;
-// [1]: blocks not inserted (never: the table has room for twice the blocks).
+// [1]: blocks not inserted (never: the table has room for twice the blocks), or not in the
+// listing's table.
 @group(0) @binding(4) var<storage, read_write> counters: array<atomic<u32>>;
+// lidar_blocks.wgsl's table where it listed the scan (scan[32] entries), unread else.
+@group(0) @binding(5) var<storage, read> found: array<u32>;
+// Per listed block: its pairs, from the listing's table (where scan[32] is not 0; else
+// lidar_count.wgsl counts them).
+@group(0) @binding(6) var<storage, read_write> fill: array<u32>;
+
+// Listed block b's pairs as the listing counted them, found in its table by `key`.
+fn listing_count(b: u32, key: vec3<i32>) {
+    let word = found_word(key);
+    let mask = scan[32] - 1u;
+    var h = mix32(word) & mask;
+    for (var probes = 0u; word != 0u && probes < FOUND_PROBES; probes++) {
+        let e = found[2u * h];
+        if (e == word) {
+            fill[b] = found[2u * h + 1u];
+            return;
+        }
+        if (e == 0u) {
+            break;
+        }
+        h = (h + 1u) & mask;
+    }
+    fill[b] = 0u;
+    atomicAdd(&counters[1], 1u);
+}
 
 // Listed block b's position from the words sent.
 fn sent_key(b: u32) -> vec3<i32> {
@@ -43,6 +71,9 @@ fn main(
     }
     let key = sent_key(b);
     block_keys[b] = vec4<i32>(key, 0);
+    if (scan[32] != 0u) {
+        listing_count(b, key);
+    }
     let mask = scan[23];
     var h = block_hash(key) & mask;
     // A weak compare-and-swap may fail without a rival: that position is tried again.

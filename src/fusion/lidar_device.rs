@@ -62,7 +62,7 @@ pub(super) fn sensor_block(grid: &GridParams, plan: &LidarPlan) -> [i32; 3] {
 pub(super) fn scan_words(
     (grid, plan): (&GridParams, &LidarPlan),
     [pairs, blocks, mask]: [usize; 3],
-    (origin, key_words): ([i32; 3], u32),
+    (origin, key_words, found_entries): ([i32; 3], u32, u32),
 ) -> Vec<u32> {
     let vs = grid.voxel_size_m as f64;
     let [i, j, k, w] = plan.rotation_ijkw();
@@ -80,7 +80,7 @@ pub(super) fn scan_words(
     let block = grid.block_size_m();
     words.extend(f64_words(&[block, 1.0 / block]));
     words.extend(origin.map(|c| c as u32));
-    words.push(key_words);
+    words.extend([key_words, found_entries]);
     words
 }
 
@@ -166,24 +166,31 @@ pub(super) fn record_rays(
     Ok((buf_rays_f64, buf_dirs))
 }
 
-/// Uploads the scan's rays (unless `rays_made`: [`record_rays`]) and the listed blocks `order`
-/// (indices into `groups`, by decreasing pair count: [`super::lidar_gpu::dispatch_order`])
-/// into `kept`'s buffers and records into `encoder` the kernels that make the rays, count and
-/// list each block's pairs, order them and make their walks. What goes up is 16 bytes per ray
+/// Uploads the scan's rays and the listed blocks `order` (indices into `groups`, by decreasing
+/// pair count: [`super::lidar_gpu::dispatch_order`]) into `kept`'s buffers and records into
+/// `encoder` the kernels that make the rays, count and list each block's pairs, order them and
+/// make their walks. Where `listing` (the entries of the table of the device's own listing of
+/// this scan, `super::lidar_listing`), the rays it left are used ([`record_rays`]) and the
+/// counts read from its table instead of walking the rays again. What goes up is 16 bytes per ray
 /// and 4 per block (12 where a block's offset from the sensor's does not pack); `counters[1]`
 /// counts what could not be made.
 pub(super) fn record_device_pairs(
     (ctx, kept, encoder): (&GpuContext, &mut Kept, &mut wgpu::CommandEncoder),
     (grid, plan): (&GridParams, &LidarPlan),
     (groups, order): (&[(BlockIndex, Range<usize>)], &[usize]),
-    (counters, rays_made): (&wgpu::Buffer, bool),
+    (counters, listing): (&wgpu::Buffer, Option<u32>),
 ) -> Result<DevicePairs> {
     let total: usize = order.iter().map(|&b| groups[b].1.len()).sum();
     let n = order.len();
     let capacity = listed_capacity(n);
     let origin = sensor_block(grid, plan);
     let (key_words, width) = sent_keys(groups, order, origin);
-    let words = scan_words((grid, plan), [total, n, capacity - 1], (origin, width));
+    let found_entries = listing.unwrap_or(0);
+    let words = scan_words(
+        (grid, plan),
+        [total, n, capacity - 1],
+        (origin, width, found_entries),
+    );
     let pair_bytes = total as u64 * std::mem::size_of::<GpuLidarPair>() as u64;
     ctx.check_binding("LiDAR (block, ray) pairs (28 bytes per pair)", pair_bytes)?;
     ctx.check_binding("block keys (16 bytes per block)", n as u64 * 16)?;
@@ -192,7 +199,7 @@ pub(super) fn record_device_pairs(
         (ctx, &mut *kept, &mut *encoder),
         plan,
         (&buf_scan, counters),
-        rays_made,
+        listing.is_some(),
     )?;
     let buf_sent = kept.storage_with(ctx, "lidar_sent_keys", bytemuck::cast_slice(&key_words));
     let buf_keys = kept.scratch(ctx, "lidar_block_keys", n as u64 * 16);
@@ -204,6 +211,10 @@ pub(super) fn record_device_pairs(
     let buf_unsorted = kept.scratch(ctx, "lidar_unsorted_rays", total as u64 * 4);
     let buf_pair_rays = kept.scratch(ctx, "lidar_pair_rays", total as u64 * 4);
     let buf_pairs = kept.scratch(ctx, "lidar_pairs", pair_bytes);
+    // The listing's table (`lidar_listing.rs`), whose counts `lidar_listed.wgsl` reads where
+    // the device listed the scan; unread else.
+    let found_bytes = (found_entries as u64 * 8).max(8);
+    let buf_found = kept.scratch(ctx, "lidar_found_table", found_bytes);
     let kernel = |src| ctx.kernel(src);
     let walk = [
         &buf_scan,
@@ -221,7 +232,15 @@ pub(super) fn record_device_pairs(
         (
             "lidar_listed",
             kernel(&shaders::LIDAR_LISTED)?,
-            vec![&buf_scan, &buf_sent, &buf_keys, &buf_listed, counters],
+            vec![
+                &buf_scan,
+                &buf_sent,
+                &buf_keys,
+                &buf_listed,
+                counters,
+                &buf_found,
+                &buf_fill,
+            ],
             n,
         ),
         (
@@ -286,6 +305,10 @@ pub(super) fn record_device_pairs(
     encoder.clear_buffer(&buf_listed, 0, Some(listed_bytes));
     encoder.clear_buffer(&buf_fill, 0, Some(fill_bytes));
     for (label, kernel, buffers, invocations) in &steps {
+        // Where the device listed the scan, `lidar_listed` read the counts from its table.
+        if kernel.name == "lidar_count" && listing.is_some() {
+            continue;
+        }
         // The listing counts the rays it writes from zero again.
         if kernel.name == "lidar_list" {
             encoder.clear_buffer(&buf_fill, 0, Some(fill_bytes));
@@ -323,7 +346,7 @@ pub fn lidar_pairs_on_gpu(
         (ctx, kept, &mut encoder),
         (grid, plan),
         (&groups, &order),
-        (&buf_counters, false),
+        (&buf_counters, None),
     )?;
     let mut pairs: Vec<GpuLidarPair> = bytemuck::zeroed_vec(plan.pair_count());
     let mut dirs: Vec<GpuRayDir> = bytemuck::zeroed_vec(plan.ray_count());

@@ -61,7 +61,7 @@ pub(crate) fn list_lidar_blocks(
     } = map.frame_parts();
     let entries = table_entries(rays, listings.last_blocks);
     let origin = sensor_block(&grid, &plan);
-    let words = scan_words((&grid, &plan), [0, 0, entries - 1], (origin, 1));
+    let words = scan_words((&grid, &plan), [0, 0, entries - 1], (origin, 1, 0));
     let scope = ErrorScopes::push(&ctx.device);
     let mut encoder = ctx.encoder("lidar_listing");
     let buf_scan = kept.storage_with(ctx, "lidar_listing_words", bytemuck::cast_slice(&words));
@@ -118,6 +118,6 @@ pub(crate) fn list_lidar_blocks(
         .chunks_exact(2)
         .map(|e| (unpack_found(origin, e[0]), e[1]))
         .collect();
-    map.set_lidar_rays_of(Some(listings.listings));
+    map.set_lidar_rays_of(Some((listings.listings, entries as u32)));
     Ok(Ok(plan.with_listed_blocks(found, listings.listings)))
 }

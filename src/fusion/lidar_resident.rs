@@ -68,17 +68,19 @@ pub fn integrate_lidar_resident(
         stats.voxel_updates += updates;
         return Ok((touched, stats));
     }
-    // The rays a device listing left on the device for this plan, if any (used once).
-    let rays_made = map
+    // The rays and table a device listing left on the device for this plan, if any (used
+    // once): the listing's table entries.
+    let listing = map
         .take_lidar_rays_of()
-        .is_some_and(|l| plan.device_listing() == Some(l));
+        .filter(|l| plan.device_listing() == Some(l.0))
+        .map(|l| l.1);
     if !blocks.is_empty() {
         // One submit: the empty blocks' fill, the lookup and the passes.
         map.note_listed_in_flight(0); // a scan lists its rays' blocks alone
         let mut encoder = map.context().encoder("fuse_lidar_resident");
         map.make_resident(layer, &blocks, plan.origin_m(), Some(&mut encoder))?;
         let t = std::time::Instant::now();
-        let inputs_s = run_resident(map, layer, (plan, rays_made), &groups, encoder)?;
+        let inputs_s = run_resident(map, layer, (plan, listing), &groups, encoder)?;
         map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
     }
     let (touched, voxel_updates) = map.end_in_flight(layer)?;
@@ -98,7 +100,7 @@ pub fn integrate_lidar_resident(
 fn run_resident(
     map: &mut ResidentMap,
     layer: &Layer,
-    (plan, rays_made): (&LidarPlan, bool),
+    (plan, listing): (&LidarPlan, Option<u32>),
     groups: &[(BlockIndex, Range<usize>)],
     mut encoder: wgpu::CommandEncoder,
 ) -> Result<f64> {
@@ -139,7 +141,7 @@ fn run_resident(
             (ctx, &mut *kept, &mut encoder),
             (&grid, plan),
             (groups, &order),
-            (&buf_counters, rays_made),
+            (&buf_counters, listing),
         )?;
         let (keys, offsets) = (made.keys.clone(), made.offsets.clone());
         (Some(made), keys, offsets)

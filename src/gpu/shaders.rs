@@ -291,7 +291,7 @@ pub const LIDAR_LISTED: ShaderSource = kernel!(
         "shared/lidar_scan.wgsl",
         "shared/block_hash.wgsl"
     ],
-    [Read, Read, ReadWrite, ReadWrite, ReadWrite]
+    [Read, Read, ReadWrite, ReadWrite, ReadWrite, Read, ReadWrite]
 );
 
 /// A LiDAR scan's (block, ray) pairs counted per block on the device (the CPU's walk, exact).

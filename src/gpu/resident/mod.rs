@@ -134,8 +134,9 @@ pub struct ResidentMap {
     late: late::InFlight,
     /// Released blocks whose copies have not been collected (`behind`).
     behind: behind::Behind,
-    /// The LiDAR listing whose rays `kept` holds (`src/fusion/lidar_listing.rs`).
-    lidar_rays_of: Option<u64>,
+    /// The LiDAR listing whose rays and table `kept` holds, and the table's entries
+    /// (`src/fusion/lidar_listing.rs`).
+    lidar_rays_of: Option<(u64, u32)>,
 }
 
 /// What a frame's kernels need at once ([`ResidentMap::frame_parts`]).
@@ -257,13 +258,14 @@ impl ResidentMap {
         }
     }
 
-    /// Records that `kept` holds the rays of LiDAR listing `listing` (`None`: no listing's).
-    pub(crate) fn set_lidar_rays_of(&mut self, listing: Option<u64>) {
+    /// Records that `kept` holds the rays and table of LiDAR listing `listing` (its number and
+    /// the table's entries; `None`: no listing's).
+    pub(crate) fn set_lidar_rays_of(&mut self, listing: Option<(u64, u32)>) {
         self.lidar_rays_of = listing;
     }
 
-    /// The LiDAR listing whose rays `kept` holds, forgotten (a scan uses them once).
-    pub(crate) fn take_lidar_rays_of(&mut self) -> Option<u64> {
+    /// The LiDAR listing whose rays and table `kept` holds, forgotten (a scan uses them once).
+    pub(crate) fn take_lidar_rays_of(&mut self) -> Option<(u64, u32)> {
         self.lidar_rays_of.take()
     }
 
