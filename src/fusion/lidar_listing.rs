@@ -19,7 +19,7 @@ use crate::gpu::{shaders, ErrorScopes};
 use crate::grid::BlockIndex;
 use crate::Result;
 
-/// Offsets from the sensor's block that pack (`FOUND_HALF` in `shaders/lidar_blocks.wgsl`).
+/// Offsets from the sensor's block that pack (`FOUND_HALF` in `shaders/shared/lidar_scan.wgsl`).
 const FOUND_HALF: i32 = 512;
 
 /// What a listing keeps between scans: how many listings ran (each one's number names the rays
