@@ -16,15 +16,3 @@ fn visit_listed(b: u32, k: u32) {
     }
     unsorted_rays[ray_offsets[b] + at] = k;
 }
-
-@compute @workgroup_size(64)
-fn main(
-    @builtin(workgroup_id) wg: vec3<u32>,
-    @builtin(num_workgroups) num_wg: vec3<u32>,
-    @builtin(local_invocation_index) local: u32,
-) {
-    let k = flat_index(wg, num_wg, local);
-    if (k < scan[20]) {
-        walk_ray(k);
-    }
-}

@@ -3,7 +3,8 @@
 // src/fusion/traverse.rs with the block as cell, from `block_ray_pairs` in
 // src/fusion/lidar.rs), every operation the CPU's in the CPU's order, in exact f64
 // (shared/exact_f64.wgsl), each block crossed handed to `visit(key, k)`, which the kernel
-// defines (lidar_blocks.wgsl) or shared/lidar_lookup.wgsl does. Follows shared/lidar_scan.wgsl.
+// defines (lidar_blocks.wgsl) or shared/lidar_lookup.wgsl does; and their entry point, one
+// invocation per ray. Follows shared/dispatch.wgsl and shared/lidar_scan.wgsl.
 
 // Per ray: direction and range (lidar_rays.wgsl).
 @group(0) @binding(2) var<storage, read> rays_f64: array<u32>;
@@ -122,5 +123,17 @@ fn walk_ray(k: u32) {
     }
     if (f64_status != 0u) {
         atomicAdd(&counters[1], 1u);
+    }
+}
+
+@compute @workgroup_size(64)
+fn main(
+    @builtin(workgroup_id) wg: vec3<u32>,
+    @builtin(num_workgroups) num_wg: vec3<u32>,
+    @builtin(local_invocation_index) local: u32,
+) {
+    let k = flat_index(wg, num_wg, local);
+    if (k < scan[20]) {
+        walk_ray(k);
     }
 }
