@@ -22,9 +22,10 @@ use crate::depth::SgmParams;
 use crate::depth::{DisparityEstimator, SgmMatcher, SgmMatcherGpu, StereoMethod, TgvMatcherGpu};
 use crate::frame::{DepthFrame, LidarScan};
 use crate::fusion::{
-    integrate_depth_plan, integrate_depth_resident, integrate_device_depth_resident,
-    integrate_lidar_plan, integrate_lidar_resident, list_lidar_blocks, DepthFusionParams,
-    DepthPlan, DeviceDepthFrame, FusionStats, LidarFusionParams, LidarListings, LidarPlan,
+    begin_lidar_listing, finish_lidar_listing, integrate_depth_plan, integrate_depth_resident,
+    integrate_device_depth_resident, integrate_lidar_plan, integrate_lidar_resident,
+    DepthFusionParams, DepthPlan, DeviceDepthFrame, FusionStats, LidarFusionParams, LidarListings,
+    LidarPlan, PendingLidarPlan,
 };
 use crate::gpu::kept::Kept;
 use crate::gpu::{
@@ -348,17 +349,53 @@ impl Backend {
         scan: &LidarScan,
         params: &LidarFusionParams,
     ) -> Result<LidarPlan> {
+        let pending = self.begin_lidar_plan(layer, scan, params)?;
+        self.finish_lidar_plan(pending)
+    }
+
+    /// Whether [`Backend::begin_lidar_plan`] lists scans on a GPU with their results read back
+    /// late (frames in flight), so that a caller gains by finishing a scan's plan a call later.
+    pub(crate) fn lists_lidar_in_flight(&self) -> bool {
+        self.gpu.is_some() && self.stages.fusion && self.frames_in_flight
+    }
+
+    /// [`Backend::plan_lidar`] begun: where the GPU fuses, the listing submitted and not waited
+    /// for; [`Backend::finish_lidar_plan`] collects it (after any other GPU work, but before
+    /// the next scan's listing: the rays and the table are kept once).
+    pub(crate) fn begin_lidar_plan(
+        &mut self,
+        layer: &Layer,
+        scan: &LidarScan,
+        params: &LidarFusionParams,
+    ) -> Result<PendingLidarPlan> {
         let grid = layer.params();
         let Some(ctx) = self.gpu.clone().filter(|_| self.stages.fusion) else {
-            return Ok(LidarPlan::new(&grid, scan, params));
+            return Ok(PendingLidarPlan::Planned(LidarPlan::new(
+                &grid, scan, params,
+            )));
         };
         let options = (self.resident_options, self.frames_in_flight);
         let resident = Self::resident_map(&mut self.resident, options, &ctx, layer)?;
         let plan = LidarPlan::rays_only(&grid, scan, params);
         let listings = &mut self.lidar_listings;
         let mut calls = 0;
+        counted(Some(&ctx), &mut self.traffic.lidar, &mut calls, || {
+            begin_lidar_listing(resident, listings, plan)
+        })
+    }
+
+    /// The plan [`Backend::begin_lidar_plan`] began (see there).
+    pub(crate) fn finish_lidar_plan(&mut self, pending: PendingLidarPlan) -> Result<LidarPlan> {
+        let Some(ctx) = self.gpu.clone() else {
+            let PendingLidarPlan::Planned(plan) = pending else {
+                unreachable!("a listing on a GPU without one")
+            };
+            return Ok(plan);
+        };
+        let listings = &mut self.lidar_listings;
+        let mut calls = 0;
         let listed = counted(Some(&ctx), &mut self.traffic.lidar, &mut calls, || {
-            list_lidar_blocks(resident, listings, plan)
+            finish_lidar_listing(&ctx, listings, pending)
         })?;
         // A plan the device could not list lists its pairs on the host when asked.
         Ok(listed.unwrap_or_else(|plan| plan))

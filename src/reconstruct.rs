@@ -6,8 +6,8 @@
 
 use crate::backend::{Backend, TvDevices};
 use crate::frame::{DepthFrame, LidarScan};
-use crate::fusion::DeviceDepthFrame;
 use crate::fusion::{DepthFusionParams, DepthPlan, FusionStats, LidarFusionParams};
+use crate::fusion::{DeviceDepthFrame, PendingLidarPlan};
 use crate::gpu::ResidentStats;
 use crate::grid::{GridParams, Layer, TouchedBlocks};
 use crate::io::sequence::{for_each_input, RangeInput, Sequence};
@@ -128,6 +128,9 @@ pub struct Reconstructor {
     checkpoint_every: u64,
     /// Sensor position of every frame fused in this run, world frame, metres.
     trajectory_m: Vec<[f64; 3]>,
+    /// The LiDAR scan whose blocks a GPU is listing, fused by the next call
+    /// ([`Reconstructor::fuse_lidar`]).
+    pending_lidar: Option<PendingLidarPlan>,
 }
 
 impl std::fmt::Debug for Reconstructor {
@@ -184,6 +187,7 @@ impl Reconstructor {
             frames_synced: frames_total,
             checkpoint_every,
             trajectory_m: Vec::new(),
+            pending_lidar: None,
         })
     }
 
@@ -202,7 +206,8 @@ impl Reconstructor {
         self.store.as_ref()
     }
 
-    /// Takes the store out (e.g. a paged map to inspect after the run).
+    /// Takes the store out (e.g. a paged map to inspect after the run; after
+    /// [`Reconstructor::sync`], which fuses a LiDAR scan still being listed).
     pub fn into_store(self) -> Box<dyn BlockStore> {
         self.store
     }
@@ -325,6 +330,7 @@ impl Reconstructor {
             &DepthPlan,
         ) -> crate::Result<(TouchedBlocks, FusionStats)>,
     ) -> crate::Result<TouchedBlocks> {
+        let mut touched = self.finish_lidar()?;
         let t = Instant::now();
         let plan = plan(&self.config.grid, &self.config.depth_fusion)?;
         let planned_s = t.elapsed().as_secs_f64();
@@ -333,33 +339,82 @@ impl Reconstructor {
         self.timings.paging_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let layer = self.store.layer_mut();
-        let (touched, stats) = fuse(&mut self.backend, layer, &self.config.depth_fusion, &plan)?;
+        let (frame, stats) = fuse(&mut self.backend, layer, &self.config.depth_fusion, &plan)?;
         self.timings.fusion_s += planned_s + t.elapsed().as_secs_f64();
-        self.after_frame(plan.camera_m, &touched, stats)?;
+        self.after_frame(plan.camera_m, &frame, stats)?;
+        touched.extend(frame);
         Ok(touched)
     }
 
     /// Fuses a LiDAR scan; returns the blocks it touched (as [`Reconstructor::fuse_depth`]).
+    /// With frames in flight on a GPU ([`Reconstructor::set_frames_in_flight`]) the scan's
+    /// blocks are listed on the device while the host goes on, and the scan is fused by the next
+    /// call (or whatever else comes next: a depth frame, [`Reconstructor::sync`], a mesh), so
+    /// that no call waits for its own listing; [`Reconstructor::frames_total`] counts it then.
     pub fn fuse_lidar(&mut self, scan: &LidarScan) -> crate::Result<TouchedBlocks> {
-        let t = Instant::now();
-        let layer = self.store.layer_mut();
-        let plan = (self.backend).plan_lidar(layer, scan, &self.config.lidar_fusion)?;
-        let planned_s = t.elapsed().as_secs_f64();
-        if plan.ray_count() == 0 && !scan.points_sensor_m.is_empty() {
-            let p = &self.config.lidar_fusion;
+        if !self.backend.lists_lidar_in_flight() {
+            let t = Instant::now();
+            let pending = self.begin_lidar(scan)?;
+            return self.fuse_lidar_plan(pending, None, t.elapsed().as_secs_f64());
+        }
+        match self.pending_lidar.take() {
+            Some(earlier) => self.fuse_lidar_plan(earlier, Some(scan), 0.0),
+            None => {
+                let t = Instant::now();
+                self.pending_lidar = Some(self.begin_lidar(scan)?);
+                self.timings.fusion_s += t.elapsed().as_secs_f64();
+                Ok(Vec::new())
+            }
+        }
+    }
+
+    /// Fuses the LiDAR scan whose blocks are being listed, if any (see
+    /// [`Reconstructor::fuse_lidar`]); returns the blocks it touched.
+    fn finish_lidar(&mut self) -> crate::Result<TouchedBlocks> {
+        match self.pending_lidar.take() {
+            Some(pending) => self.fuse_lidar_plan(pending, None, 0.0),
+            None => Ok(Vec::new()),
+        }
+    }
+
+    /// Begins the plan of `scan` (on a GPU: its listing submitted).
+    fn begin_lidar(&mut self, scan: &LidarScan) -> crate::Result<PendingLidarPlan> {
+        let layer = self.store.layer();
+        let params = &self.config.lidar_fusion;
+        let pending = (self.backend).begin_lidar_plan(layer, scan, params)?;
+        if pending.ray_count() == 0 && !scan.points_sensor_m.is_empty() {
             tracing::warn!(
                 "a LiDAR scan of {} points has no return between {} and {} m: nothing fused",
                 scan.points_sensor_m.len(),
-                p.min_range_m,
-                p.max_range_m
+                params.min_range_m,
+                params.max_range_m
             );
         }
+        Ok(pending)
+    }
+
+    /// Fuses the scan of `pending` (`begun_s` seconds spent beginning it), beginning the plan of
+    /// `next` once the scan's fusion is submitted.
+    fn fuse_lidar_plan(
+        &mut self,
+        pending: PendingLidarPlan,
+        next: Option<&LidarScan>,
+        begun_s: f64,
+    ) -> crate::Result<TouchedBlocks> {
+        let t = Instant::now();
+        let plan = self.backend.finish_lidar_plan(pending)?;
+        let planned_s = begun_s + t.elapsed().as_secs_f64();
         let t = Instant::now();
         self.store
             .prepare_blocks(&plan.blocks(), &mut self.backend)?;
         self.timings.paging_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
         let (touched, stats) = self.backend.fuse_lidar(self.store.layer_mut(), &plan)?;
+        // The next scan's listing queued behind this scan's fusion, which reads the rays and
+        // the table the listing keeps.
+        if let Some(scan) = next {
+            self.pending_lidar = Some(self.begin_lidar(scan)?);
+        }
         self.timings.fusion_s += planned_s + t.elapsed().as_secs_f64();
         self.after_frame(plan.origin_m(), &touched, stats)?;
         Ok(touched)
@@ -389,6 +444,7 @@ impl Reconstructor {
     /// layer current (GPU blocks written back). The time counts as fusion (the GPU's write-back)
     /// and paging (the checkpoint).
     pub fn sync(&mut self) -> crate::Result<()> {
+        self.finish_lidar()?;
         let t = Instant::now();
         self.store.commit(self.frames_total, &mut self.backend)?;
         self.frames_synced = self.frames_total;
@@ -442,6 +498,7 @@ impl Reconstructor {
         mesh_path: &Path,
         points_path: Option<&Path>,
     ) -> crate::Result<SurfaceOutput> {
+        self.finish_lidar()?;
         let t = Instant::now();
         let out = self
             .store
@@ -461,7 +518,7 @@ impl Reconstructor {
     ) -> crate::Result<Results> {
         std::fs::create_dir_all(out_dir).map_err(|e| crate::Error::io(out_dir, e))?;
         // Every frame fused so far committed first: a paged map's fusion ends with the raw mesh.
-        if self.frames_synced != self.frames_total {
+        if self.frames_synced != self.frames_total || self.pending_lidar.is_some() {
             self.sync()?;
         }
         let mut surfaces =

@@ -5,8 +5,11 @@
 //! by its offset from the sensor's block, counting its pairs, and `shaders/lidar_found.wgsl`
 //! lists the table; the host reads back 8 bytes per block (its packed offset and pair count),
 //! sorts them, pages the blocks in and fuses the scan from the rays the device kept
-//! ([`super::integrate_lidar_resident`]). One submit and one wait; a second wait only where a
-//! scan has more blocks than the last one's readback was sized for.
+//! ([`super::integrate_lidar_resident`]). One submit; the results come back through a ring of
+//! staging buffers ([`crate::gpu::readback`]), collected when the scan is fused: a pipelined run
+//! (`Reconstructor::fuse_lidar` with frames in flight) lists scan N+1 while the host finishes
+//! scan N and reads the next one, and waits only where the device has not finished (a second
+//! wait where a scan has more blocks than the last one's readback was sized for).
 //!
 //! Where the device cannot list a scan (a block more than 512 blocks from the sensor's, a table
 //! too full, arithmetic the exact f64 cannot do), the kernels count it and the host lists the
@@ -14,8 +17,10 @@
 
 use super::lidar_device::{record_rays, scan_words, sensor_block};
 use super::LidarPlan;
+use crate::gpu::kept::Kept;
+use crate::gpu::readback::{LateReadback, ReadbackRing};
 use crate::gpu::resident::{FrameParts, ResidentMap};
-use crate::gpu::{shaders, ErrorScopes};
+use crate::gpu::{shaders, ErrorScopes, GpuContext};
 use crate::grid::BlockIndex;
 use crate::Result;
 
@@ -29,6 +34,10 @@ const FOUND_HALF: i32 = 512;
 pub(crate) struct LidarListings {
     listings: u64,
     last_blocks: usize,
+    /// The staging buffers the listings' results come back through.
+    ring: ReadbackRing,
+    /// The staging buffer of a second readback.
+    kept: Kept,
 }
 
 /// Entries of the table: a power of two, at least four times the blocks expected (the last
@@ -43,18 +52,52 @@ fn unpack_found(origin: [i32; 3], word: u32) -> BlockIndex {
     BlockIndex([0, 1, 2].map(|a| origin[a as usize] + axis(a)))
 }
 
-/// Lists the blocks of `plan` (its rays alone: [`LidarPlan::rays_only`]) on the device of
-/// `map` and returns the plan with them ([`LidarPlan::with_listed_blocks`]), the rays left on
-/// the device for its fusion; or, where the device could not list them, the plan as it came
-/// (`Err`), whose pairs the host lists when asked.
-pub(crate) fn list_lidar_blocks(
+/// A scan whose blocks are being listed on the device: its listing submitted, the results on
+/// their way back ([`begin_lidar_listing`], [`finish_lidar_listing`]).
+pub(crate) struct LidarListing {
+    plan: LidarPlan,
+    readback: LateReadback,
+    /// The listing's number (which names the rays it leaves on the device).
+    number: u64,
+    /// The sensor's block, from which the listed blocks' offsets pack.
+    origin: [i32; 3],
+    /// The list's entries read back with the counters: sized by the last scan's blocks.
+    guess: usize,
+    /// The listed blocks (where a scan has more than `guess`, read again).
+    list: wgpu::Buffer,
+}
+
+/// A LiDAR scan's plan, or its listing on the device on the way to one.
+pub(crate) enum PendingLidarPlan {
+    /// Planned (on the host, or a device listing finished).
+    Planned(LidarPlan),
+    /// Listed on the device, not collected yet.
+    Listing(Box<LidarListing>),
+}
+
+impl PendingLidarPlan {
+    /// The scan's usable rays.
+    pub(crate) fn ray_count(&self) -> usize {
+        match self {
+            PendingLidarPlan::Planned(plan) => plan.ray_count(),
+            PendingLidarPlan::Listing(l) => l.plan.ray_count(),
+        }
+    }
+}
+
+/// Records and submits the listing of the blocks of `plan` (its rays alone:
+/// [`LidarPlan::rays_only`]) on the device of `map`, its results read back late (a ring of
+/// staging buffers kept by `listings`: [`finish_lidar_listing`] collects them), the rays left on
+/// the device for the scan's fusion. Where the device cannot take the rays, the plan as it came,
+/// whose pairs the host lists when asked.
+pub(crate) fn begin_lidar_listing(
     map: &mut ResidentMap,
     listings: &mut LidarListings,
     plan: LidarPlan,
-) -> Result<std::result::Result<LidarPlan, LidarPlan>> {
+) -> Result<PendingLidarPlan> {
     let rays = plan.ray_count();
     if rays == 0 || !super::lidar_device::rays_fit(map.context(), &plan) {
-        return Ok(Err(plan));
+        return Ok(PendingLidarPlan::Planned(plan));
     }
     let FrameParts {
         ctx, grid, kept, ..
@@ -87,37 +130,63 @@ pub(crate) fn list_lidar_blocks(
     ctx.record_dispatch(&mut encoder, &found, &bind, entries as u64)?;
     // The readback sized by the last scan's blocks, and a quarter more.
     let guess = (listings.last_blocks + listings.last_blocks / 4 + 256).min(entries);
+    let parts = [(&buf_counters, 16), (&buf_list, 8 * guess)];
+    let readback = listings.ring.submit(ctx, encoder, &parts);
+    scope.pop("listing a LiDAR scan's blocks on the GPU")?;
+    listings.listings += 1;
+    map.set_lidar_rays_of(Some((listings.listings, entries as u32)));
+    Ok(PendingLidarPlan::Listing(Box::new(LidarListing {
+        plan,
+        readback,
+        number: listings.listings,
+        origin,
+        guess,
+        list: buf_list,
+    })))
+}
+
+/// The plan of a scan whose listing [`begin_lidar_listing`] submitted: its blocks as the device
+/// listed them ([`LidarPlan::with_listed_blocks`]), or, where the device could not list them,
+/// the plan as it came (`Err`), whose pairs the host lists when asked. Waits (one counted wait)
+/// only where the device has not finished the listing, and a second time where the scan has
+/// more blocks than were read back.
+pub(crate) fn finish_lidar_listing(
+    ctx: &GpuContext,
+    listings: &mut LidarListings,
+    pending: PendingLidarPlan,
+) -> Result<std::result::Result<LidarPlan, LidarPlan>> {
+    let listing = match pending {
+        PendingLidarPlan::Planned(plan) => return Ok(Err(plan)),
+        PendingLidarPlan::Listing(listing) => *listing,
+    };
     let mut counters = [0u32; 4];
-    let mut list = vec![0u32; 2 * guess];
-    ctx.submit_and_read_back(
-        encoder,
-        kept,
+    let mut list = vec![0u32; 2 * listing.guess];
+    ctx.poll_finished()?;
+    listing.readback.collect(
+        ctx,
         &mut [
-            (&buf_counters, bytemuck::cast_slice_mut(&mut counters)),
-            (&buf_list, bytemuck::cast_slice_mut(&mut list)),
+            bytemuck::cast_slice_mut(&mut counters),
+            bytemuck::cast_slice_mut(&mut list),
         ],
     )?;
     let [_, failed, count, _] = counters.map(|c| c as usize);
-    if failed == 0 && count > guess {
+    let plan = listing.plan;
+    if failed > 0 {
+        tracing::debug!("{failed} crossings the GPU could not list: the host lists the scan");
+        listings.last_blocks = plan.blocks().len();
+        return Ok(Err(plan));
+    }
+    if count > listing.guess {
         list = vec![0u32; 2 * count];
         let encoder = ctx.encoder("lidar_listing_rest");
         let target = bytemuck::cast_slice_mut(&mut list);
-        ctx.submit_and_read_back(encoder, kept, &mut [(&buf_list, target)])?;
-    }
-    scope.pop("listing a LiDAR scan's blocks on the GPU")?;
-    listings.listings += 1;
-    if failed > 0 {
-        tracing::debug!("{failed} crossings the GPU could not list: the host lists the scan");
-        map.set_lidar_rays_of(None);
-        let plan_blocks = plan.blocks().len();
-        listings.last_blocks = plan_blocks;
-        return Ok(Err(plan));
+        let kept = &mut listings.kept;
+        ctx.submit_and_read_back(encoder, kept, &mut [(&listing.list, target)])?;
     }
     listings.last_blocks = count;
     let found: Vec<(BlockIndex, u32)> = list[..2 * count]
         .chunks_exact(2)
-        .map(|e| (unpack_found(origin, e[0]), e[1]))
+        .map(|e| (unpack_found(listing.origin, e[0]), e[1]))
         .collect();
-    map.set_lidar_rays_of(Some((listings.listings, entries as u32)));
-    Ok(Ok(plan.with_listed_blocks(found, listings.listings)))
+    Ok(Ok(plan.with_listed_blocks(found, listing.number)))
 }

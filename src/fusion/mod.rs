@@ -56,7 +56,9 @@ pub use lidar::{
 };
 pub use lidar_device::{lidar_pairs_on_cpu, lidar_pairs_on_gpu, MAX_WALK_STEPS};
 pub use lidar_gpu::{block_local_ray, integrate_lidar_gpu, walk_block_ray};
-pub(crate) use lidar_listing::{list_lidar_blocks, LidarListings};
+pub(crate) use lidar_listing::{
+    begin_lidar_listing, finish_lidar_listing, LidarListings, PendingLidarPlan,
+};
 pub use lidar_resident::integrate_lidar_resident;
 
 /// Work counters of one integration call.

@@ -1,10 +1,13 @@
 //! A LiDAR scan's blocks listed on the GPU (`Backend::plan_lidar`,
 //! `src/fusion/lidar_listing.rs`: `shaders/lidar_blocks.wgsl` and `lidar_found.wgsl`) against
 //! the host's listing (`LidarPlan::new`): the same blocks and pair counts; the scans fused from
-//! such plans equal those fused from the host's, the host never walking a ray; and what a scan
-//! costs, listing and fusion together, once warm. Skips where no GPU adapter exists.
+//! such plans equal those fused from the host's, the host never walking a ray; what a scan
+//! costs, listing and fusion together, once warm; and a `Reconstructor` that lists each scan
+//! while the host goes on (frames in flight) leaves the map of one that waits, waiting for
+//! nothing itself. Skips where no GPU adapter exists.
 
 use crate::common::gpu;
+use crate::compare::orbit_frames;
 use crate::lidar::{assert_layers_identical, dense_scan, fuse_resident, sphere_scans_from};
 use crate::lidar::{GRIDS, OFFSETS, ORIGINS, ORIGINS_ON_GRID, PARAMS};
 use denser::backend::Backend;
@@ -12,6 +15,7 @@ use denser::frame::LidarScan;
 use denser::fusion::LidarPlan;
 use denser::gpu::ResidentOptions;
 use denser::grid::{GridParams, Layer};
+use denser::reconstruct::{ReconstructionConfig, Reconstructor};
 use std::sync::Arc;
 
 /// The sphere scans from `origins` and the dense one, `offset_m` away.
@@ -142,4 +146,79 @@ fn device_listed_scans_fuse_as_host_listed_ones_and_cost_their_rays() {
     backend.flush_all(&mut layer).expect("write-back");
     assert_eq!(touched, want_touched, "touched blocks per scan");
     assert_layers_identical("device-listed vs host-listed", &want, &layer);
+}
+
+#[test]
+fn scans_listed_while_the_host_goes_on_leave_the_map_of_scans_that_wait() {
+    // With frames in flight (a `Reconstructor`'s default) each `fuse_lidar` submits its scan's
+    // listing and fuses the scan before it, whose listing it collects; a depth frame or a sync
+    // fuses the scan still listed first. Three rounds of the sphere scans, a depth frame and a
+    // sync among them: the map of scans that each wait for their own listing, bit for bit. A
+    // device that keeps up (idle before each call, as a real GPU is well within a scan's time)
+    // is waited for by no call once warm (the third round's), except to read again the blocks of
+    // a scan with more than its readback was sized for; each call sends the rays of its scan
+    // once and at most 64 KiB besides, in two submits (the listing of its scan and the fusion
+    // of the one before), creating nothing.
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let mut config = ReconstructionConfig::paper(0.1);
+    config.grid = GRIDS[0];
+    config.lidar_fusion = PARAMS;
+    let round = sphere_scans_from(&ORIGINS, OFFSETS[0]);
+    let blocks: Vec<u64> = (round.iter())
+        .map(|s| LidarPlan::new(&config.grid, s, &PARAMS).blocks().len() as u64)
+        .collect();
+    let frame = &orbit_frames(1, 0.01)[0];
+    // Scan k of the round, or (`None`) the depth frame, or a sync (`Some(usize::MAX)`).
+    let mut calls: Vec<Option<usize>> = vec![Some(0), Some(1), Some(2), Some(0), None, Some(1)];
+    calls.extend([Some(usize::MAX), Some(2), Some(0), Some(1), Some(2)]);
+    let run = |in_flight: bool| {
+        let backend = Backend::gpu(ctx.clone(), ResidentOptions::default());
+        let mut rec = Reconstructor::in_memory(config, backend).expect("config");
+        rec.set_frames_in_flight(in_flight).expect("in flight");
+        let mut costs = Vec::new();
+        for call in &calls {
+            ctx.wait_idle_uncounted().expect("idle");
+            let (before, frames) = (ctx.traffic(), rec.frames_total());
+            match call {
+                Some(usize::MAX) => rec.sync().expect("sync"),
+                Some(k) => drop(rec.fuse_lidar(&round[*k]).expect("scan")),
+                None => drop(rec.fuse_depth(frame).expect("frame")),
+            }
+            costs.push((ctx.traffic().since(before), rec.frames_total() - frames));
+        }
+        rec.sync().expect("sync");
+        assert_eq!(
+            rec.frames_total(),
+            calls.len() as u64 - 1,
+            "all but the sync"
+        );
+        (rec.layer().clone(), costs)
+    };
+    let (waited, _) = run(false);
+    let (flying, costs) = run(true);
+    assert_layers_identical("scans in flight vs scans that wait", &waited, &flying);
+    // The frames each call fused: a scan's call fuses the scan before it, if any.
+    let fused: Vec<u64> = costs.iter().map(|c| c.1).collect();
+    assert_eq!(fused, [0, 1, 1, 1, 2, 0, 1, 0, 1, 1, 1]);
+    let mut last_listed = None;
+    for (k, (call, (t, _))) in calls.iter().zip(&costs).enumerate() {
+        eprintln!("call {k} ({call:?}): {t:?}");
+        let Some(scan) = call.filter(|&s| s < round.len()) else {
+            continue;
+        };
+        let listed = last_listed.replace(scan);
+        if k < 8 {
+            continue; // warming up
+        }
+        // The scan before, collected here: a second readback where it has more blocks than
+        // a quarter over the one listed before it, and 256.
+        let before = listed.expect("a scan before");
+        let last = blocks[(before + 2) % 3];
+        let more = u64::from(blocks[before] > last + last / 4 + 256);
+        let rays = LidarPlan::new(&config.grid, &round[scan], &PARAMS).ray_count() as u64;
+        assert!(t.upload_bytes <= 16 * rays + (64 << 10), "{t:?}");
+        assert_eq!((t.submits, t.waits), (2 + more, more), "{t:?}");
+        assert_eq!((t.buffers_created, t.bind_groups_created), (0, 0), "{t:?}");
+    }
 }
