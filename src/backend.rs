@@ -386,16 +386,15 @@ impl Backend {
 
     /// The plan [`Backend::begin_lidar_plan`] began (see there).
     pub(crate) fn finish_lidar_plan(&mut self, pending: PendingLidarPlan) -> Result<LidarPlan> {
-        let Some(ctx) = self.gpu.clone() else {
-            let PendingLidarPlan::Planned(plan) = pending else {
-                unreachable!("a listing on a GPU without one")
-            };
-            return Ok(plan);
+        let listing = match pending {
+            PendingLidarPlan::Planned(plan) => return Ok(plan),
+            PendingLidarPlan::Listing(listing) => *listing,
         };
+        let ctx = listing.context().clone();
         let listings = &mut self.lidar_listings;
         let mut calls = 0;
         let listed = counted(Some(&ctx), &mut self.traffic.lidar, &mut calls, || {
-            finish_lidar_listing(&ctx, listings, pending)
+            finish_lidar_listing(listings, listing)
         })?;
         // A plan the device could not list lists its pairs on the host when asked.
         Ok(listed.unwrap_or_else(|plan| plan))

@@ -23,6 +23,7 @@ use crate::gpu::resident::{FrameParts, ResidentMap};
 use crate::gpu::{shaders, ErrorScopes, GpuContext};
 use crate::grid::BlockIndex;
 use crate::Result;
+use std::sync::Arc;
 
 /// Offsets from the sensor's block that pack (`FOUND_HALF` in `shaders/shared/lidar_scan.wgsl`).
 const FOUND_HALF: i32 = 512;
@@ -56,6 +57,8 @@ fn unpack_found(origin: [i32; 3], word: u32) -> BlockIndex {
 /// their way back ([`begin_lidar_listing`], [`finish_lidar_listing`]).
 pub(crate) struct LidarListing {
     plan: LidarPlan,
+    /// The device listing it.
+    ctx: Arc<GpuContext>,
     readback: LateReadback,
     /// The listing's number (which names the rays it leaves on the device).
     number: u64,
@@ -99,6 +102,7 @@ pub(crate) fn begin_lidar_listing(
     if rays == 0 || !super::lidar_device::rays_fit(map.context(), &plan) {
         return Ok(PendingLidarPlan::Planned(plan));
     }
+    let device = map.context().clone();
     let FrameParts {
         ctx, grid, kept, ..
     } = map.frame_parts();
@@ -137,6 +141,7 @@ pub(crate) fn begin_lidar_listing(
     map.set_lidar_rays_of(Some((listings.listings, entries as u32)));
     Ok(PendingLidarPlan::Listing(Box::new(LidarListing {
         plan,
+        ctx: device,
         readback,
         number: listings.listings,
         origin,
@@ -145,20 +150,23 @@ pub(crate) fn begin_lidar_listing(
     })))
 }
 
+impl LidarListing {
+    /// The device listing the scan.
+    pub(crate) fn context(&self) -> &Arc<GpuContext> {
+        &self.ctx
+    }
+}
+
 /// The plan of a scan whose listing [`begin_lidar_listing`] submitted: its blocks as the device
 /// listed them ([`LidarPlan::with_listed_blocks`]), or, where the device could not list them,
 /// the plan as it came (`Err`), whose pairs the host lists when asked. Waits (one counted wait)
 /// only where the device has not finished the listing, and a second time where the scan has
 /// more blocks than were read back.
 pub(crate) fn finish_lidar_listing(
-    ctx: &GpuContext,
     listings: &mut LidarListings,
-    pending: PendingLidarPlan,
+    listing: LidarListing,
 ) -> Result<std::result::Result<LidarPlan, LidarPlan>> {
-    let listing = match pending {
-        PendingLidarPlan::Planned(plan) => return Ok(Err(plan)),
-        PendingLidarPlan::Listing(listing) => *listing,
-    };
+    let ctx = &*listing.ctx;
     let mut counters = [0u32; 4];
     let mut list = vec![0u32; 2 * listing.guess];
     ctx.poll_finished()?;
