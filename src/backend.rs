@@ -307,6 +307,19 @@ impl Backend {
         })
     }
 
+    /// Collects the band of `frame` ([`DeviceDepthFrame::collect_band`]): its readback,
+    /// submitted with the stereo pair, counts as the pair's traffic.
+    pub fn collect_device_band(&self, frame: &DeviceDepthFrame) -> Result<()> {
+        (self.stereo_tally).add(frame.context(), || frame.collect_band())
+    }
+
+    /// Whether `frame` is fused in flight ([`crate::reconstruct::Reconstructor::fuse_input`]):
+    /// frames in flight, on the GPU its depths are on.
+    pub(crate) fn fuses_depth_in_flight(&self, frame: &DeviceDepthFrame) -> bool {
+        let same = |ctx: &Arc<GpuContext>| Arc::ptr_eq(ctx, frame.context());
+        self.frames_in_flight && self.stages.fusion && self.gpu.as_ref().is_some_and(same)
+    }
+
     /// The GPU-resident blocks over `layer` in `resident`, opened on `ctx` with `options` by
     /// the first frame or scan fused there (with frames in flight when `in_flight`).
     fn resident_map<'a>(

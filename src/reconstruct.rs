@@ -50,7 +50,8 @@ impl ReconstructionConfig {
 /// Wall-clock seconds and work per stage.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct StageTimings {
-    /// Seconds spent producing depth frames or scans (reading files, stereo matching).
+    /// Seconds spent producing depth frames or scans (reading files, stereo matching, and
+    /// waiting for a pair matched on the GPU when its frame is fused).
     pub input_s: f64,
     /// Seconds spent fusing (planning and updating blocks).
     pub fusion_s: f64,
@@ -131,6 +132,9 @@ pub struct Reconstructor {
     /// The LiDAR scan whose blocks a GPU is listing, fused by the next call
     /// ([`Reconstructor::fuse_lidar`]).
     pending_lidar: Option<PendingLidarPlan>,
+    /// The GPU depth frame whose band is coming back, fused by the next call
+    /// ([`Reconstructor::fuse_input`]).
+    pending_depth: Option<Box<DeviceDepthFrame>>,
 }
 
 impl std::fmt::Debug for Reconstructor {
@@ -188,6 +192,7 @@ impl Reconstructor {
             checkpoint_every,
             trajectory_m: Vec::new(),
             pending_lidar: None,
+            pending_depth: None,
         })
     }
 
@@ -266,6 +271,34 @@ impl Reconstructor {
         }
     }
 
+    /// [`Reconstructor::fuse`], taking the input: with frames in flight on the GPU that made
+    /// a depth frame on the device (see [`Reconstructor::set_frames_in_flight`]), the frame
+    /// waits here while its band comes back and the host reads the next input, and is fused
+    /// by the next call (or whatever else comes next: another input,
+    /// [`Reconstructor::sync`], a mesh), so that no call waits for the band of its own pair;
+    /// [`Reconstructor::frames_total`] counts it then.
+    pub fn fuse_input(&mut self, input: RangeInput) -> crate::Result<TouchedBlocks> {
+        match input {
+            RangeInput::DeviceDepth(frame) if self.backend.fuses_depth_in_flight(&frame) => {
+                let mut touched = self.finish_lidar()?;
+                if let Some(earlier) = self.pending_depth.replace(frame) {
+                    touched.extend(self.fuse_device_depth_now(&earlier)?);
+                }
+                Ok(touched)
+            }
+            input => self.fuse(&input),
+        }
+    }
+
+    /// Fuses the inputs still in flight ([`Reconstructor::fuse_input`],
+    /// [`Reconstructor::fuse_lidar`]), in the order they came; returns the blocks they touched.
+    fn finish_pending(&mut self) -> crate::Result<TouchedBlocks> {
+        // A scan pending came before the frame: fuse_planned fuses it first.
+        let mut touched = self.finish_pending_depth()?;
+        touched.extend(self.finish_lidar()?);
+        Ok(touched)
+    }
+
     /// Fuses `frames` of `seq` in order, after the ones the store already holds (a resumed
     /// map continues where it stopped), then [`Reconstructor::sync`]s.
     pub fn fuse_sequence(&mut self, seq: &dyn Sequence, frames: &[usize]) -> crate::Result<()> {
@@ -281,7 +314,7 @@ impl Reconstructor {
         }
         for_each_input(seq, frames, done as usize, |input, seconds| {
             self.add_input_time(seconds);
-            self.fuse(&input).map(|_| ())
+            self.fuse_input(input).map(|_| ())
         })?;
         self.sync()
     }
@@ -302,10 +335,20 @@ impl Reconstructor {
     /// Fuses a depth frame; returns the blocks it touched (with frames in flight on a GPU, see
     /// [`Reconstructor::set_frames_in_flight`], those of the frames whose results arrived).
     pub fn fuse_depth(&mut self, frame: &DepthFrame) -> crate::Result<TouchedBlocks> {
-        self.fuse_planned(
+        let mut touched = self.finish_pending_depth()?;
+        touched.extend(self.fuse_planned(
             |grid, params| Ok(DepthPlan::new(grid, frame, params)),
             |backend, layer, params, plan| backend.fuse_depth(layer, frame, params, plan),
-        )
+        )?);
+        Ok(touched)
+    }
+
+    /// Fuses the depth frame in flight, if any ([`Reconstructor::fuse_input`]).
+    fn finish_pending_depth(&mut self) -> crate::Result<TouchedBlocks> {
+        match self.pending_depth.take() {
+            Some(frame) => self.fuse_device_depth_now(&frame),
+            None => Ok(Vec::new()),
+        }
     }
 
     /// Fuses a depth frame whose depths are on the GPU ([`DeviceDepthFrame`]), planned from its
@@ -313,6 +356,17 @@ impl Reconstructor {
     /// the colour goes up), else from the depths read back. The same map as
     /// [`Reconstructor::fuse_depth`] with the frame's depths.
     pub fn fuse_device_depth(&mut self, frame: &DeviceDepthFrame) -> crate::Result<TouchedBlocks> {
+        let mut touched = self.finish_pending_depth()?;
+        touched.extend(self.fuse_device_depth_now(frame)?);
+        Ok(touched)
+    }
+
+    /// [`Reconstructor::fuse_device_depth`] of `frame` alone.
+    fn fuse_device_depth_now(&mut self, frame: &DeviceDepthFrame) -> crate::Result<TouchedBlocks> {
+        // Waiting for the band is waiting for the pair's matching: input time.
+        let t = Instant::now();
+        self.backend.collect_device_band(frame)?;
+        self.timings.input_s += t.elapsed().as_secs_f64();
         self.fuse_planned(
             |grid, params| frame.plan(grid, params),
             |backend, layer, params, plan| backend.fuse_device_depth(layer, frame, params, plan),
@@ -352,20 +406,22 @@ impl Reconstructor {
     /// call (or whatever else comes next: a depth frame, [`Reconstructor::sync`], a mesh), so
     /// that no call waits for its own listing; [`Reconstructor::frames_total`] counts it then.
     pub fn fuse_lidar(&mut self, scan: &LidarScan) -> crate::Result<TouchedBlocks> {
+        let mut touched = self.finish_pending_depth()?;
         if !self.backend.lists_lidar_in_flight() {
             let t = Instant::now();
             let pending = self.begin_lidar(scan)?;
-            return self.fuse_lidar_plan(pending, None, t.elapsed().as_secs_f64());
+            touched.extend(self.fuse_lidar_plan(pending, None, t.elapsed().as_secs_f64())?);
+            return Ok(touched);
         }
         match self.pending_lidar.take() {
-            Some(earlier) => self.fuse_lidar_plan(earlier, Some(scan), 0.0),
+            Some(earlier) => touched.extend(self.fuse_lidar_plan(earlier, Some(scan), 0.0)?),
             None => {
                 let t = Instant::now();
                 self.pending_lidar = Some(self.begin_lidar(scan)?);
                 self.timings.fusion_s += t.elapsed().as_secs_f64();
-                Ok(Vec::new())
             }
         }
+        Ok(touched)
     }
 
     /// Fuses the LiDAR scan whose blocks are being listed, if any (see
@@ -444,7 +500,7 @@ impl Reconstructor {
     /// layer current (GPU blocks written back). The time counts as fusion (the GPU's write-back)
     /// and paging (the checkpoint).
     pub fn sync(&mut self) -> crate::Result<()> {
-        self.finish_lidar()?;
+        self.finish_pending()?;
         let t = Instant::now();
         self.store.commit(self.frames_total, &mut self.backend)?;
         self.frames_synced = self.frames_total;
@@ -498,7 +554,7 @@ impl Reconstructor {
         mesh_path: &Path,
         points_path: Option<&Path>,
     ) -> crate::Result<SurfaceOutput> {
-        self.finish_lidar()?;
+        self.finish_pending()?;
         let t = Instant::now();
         let out = self
             .store
@@ -518,7 +574,8 @@ impl Reconstructor {
     ) -> crate::Result<Results> {
         std::fs::create_dir_all(out_dir).map_err(|e| crate::Error::io(out_dir, e))?;
         // Every frame fused so far committed first: a paged map's fusion ends with the raw mesh.
-        if self.frames_synced != self.frames_total || self.pending_lidar.is_some() {
+        let pending = self.pending_lidar.is_some() || self.pending_depth.is_some();
+        if self.frames_synced != self.frames_total || pending {
             self.sync()?;
         }
         let mut surfaces =

@@ -149,7 +149,121 @@ pub(crate) fn record_band_blocks(
     })
 }
 
+/// What a frame's band reads back: the slices' counters (`[0]` made, `[1]` usable pixels),
+/// the blocks' counters (`[0]` listed, `[1]` slices deferred), and the first blocks and deferred
+/// slices of the device's lists.
+pub(crate) struct BandWords {
+    slice_counters: [u32; 2],
+    counts: [u32; 2],
+    keys: Vec<u32>,
+    deferred: Vec<[u32; 3]>,
+}
+
+impl BandWords {
+    /// Room for the counters, `expected.0` blocks and `expected.1` deferred slices.
+    pub(crate) fn new(expected: (usize, usize)) -> Self {
+        BandWords {
+            slice_counters: [0; 2],
+            counts: [0; 2],
+            keys: bytemuck::zeroed_vec(expected.0),
+            deferred: bytemuck::zeroed_vec(expected.1),
+        }
+    }
+
+    /// The four parts' bytes, in the order of [`BandBlockOutputs::sources`].
+    pub(crate) fn targets(&mut self) -> [&mut [u8]; 4] {
+        [
+            bytemuck::cast_slice_mut(&mut self.slice_counters),
+            bytemuck::cast_slice_mut(&mut self.counts),
+            bytemuck::cast_slice_mut(&mut self.keys),
+            bytemuck::cast_slice_mut(&mut self.deferred),
+        ]
+    }
+
+    /// Blocks listed and slices deferred, as the device counted them.
+    pub(crate) fn counts(&self) -> (usize, usize) {
+        (self.counts[0] as usize, self.counts[1] as usize)
+    }
+}
+
+/// What turns a frame's [`BandWords`] into its band: the camera's block and the room for
+/// slices it was listed with.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct BandDecoder {
+    base: [i64; 3],
+    slice_capacity: u64,
+}
+
+impl BandDecoder {
+    /// The band `words` hold, or `None` where the device listed more blocks or deferred more
+    /// slices than they hold (read them again with room for [`BandWords::counts`]).
+    pub(crate) fn band(&self, words: &BandWords) -> Result<Option<DeviceBand>> {
+        let slices = words.slice_counters[0] as u64;
+        if slices > self.slice_capacity {
+            return Err(Error::Gpu(format!(
+                "the band kernel made {slices} slices, more than the {} a frame can have",
+                self.slice_capacity
+            )));
+        }
+        let (n_keys, n_deferred) = words.counts();
+        if n_keys > TABLE_SLOTS as usize || n_deferred as u64 > self.slice_capacity {
+            return Err(Error::Gpu(format!(
+                "the band block kernel listed {n_keys} blocks and deferred {n_deferred} slices, \
+                 more than it holds"
+            )));
+        }
+        if n_keys > words.keys.len() || n_deferred > words.deferred.len() {
+            return Ok(None);
+        }
+        let [bx, by, bz] = self.base;
+        let field = |key: u32, shift: u32| ((key >> shift) & 1023) as i64 - OFFSET_BIAS;
+        let blocks = words.keys[..n_keys]
+            .iter()
+            .map(|&k| {
+                let o = [bx + field(k, 0), by + field(k, 10), bz + field(k, 20)];
+                BlockIndex(o.map(|c| c as i32))
+            })
+            .collect();
+        let deferred = &words.deferred[..n_deferred];
+        Ok(Some(DeviceBand {
+            blocks,
+            deferred: deferred.iter().copied().map(BandSlice::unpack).collect(),
+            usable_pixels: words.slice_counters[1] as usize,
+        }))
+    }
+}
+
 impl BandBlockOutputs {
+    /// The decoder of these outputs' words.
+    pub(crate) fn decoder(&self) -> BandDecoder {
+        BandDecoder {
+            base: self.base,
+            slice_capacity: self.slice_capacity,
+        }
+    }
+
+    /// Where the parts of `words` are on the device (the slices' counters in `slices`), with
+    /// their lengths, bytes: a readback's sources.
+    pub(crate) fn sources<'a>(
+        &'a self,
+        slices: &'a BandSliceOutputs,
+        words: &BandWords,
+    ) -> [(&'a wgpu::Buffer, usize); 4] {
+        let (_, slice_counters) = slices.buffers();
+        [
+            (slice_counters, 8),
+            (&self.counts, 8),
+            (&self.keys, 4 * words.keys.len()),
+            (&self.deferred, 12 * words.deferred.len()),
+        ]
+    }
+
+    /// `expected` clamped to what the outputs hold.
+    pub(crate) fn clamp(&self, expected: (usize, usize)) -> (usize, usize) {
+        let keys = expected.0.min(TABLE_SLOTS as usize);
+        (keys, expected.1.min(self.slice_capacity as usize))
+    }
+
     /// Submits `encoder` (holding the dispatches) and reads back the band: the counters, the
     /// first `expected.0` blocks and the first `expected.1` deferred slices in one wait, then,
     /// where there were more, all of them in a second.
@@ -160,55 +274,21 @@ impl BandBlockOutputs {
         slices: &BandSliceOutputs,
         expected: (usize, usize),
     ) -> Result<DeviceBand> {
-        let expected_keys = expected.0.min(TABLE_SLOTS as usize);
-        let expected_deferred = expected.1.min(self.slice_capacity as usize);
-        let (mut slice_counters, mut counts) = ([0u32; 2], [0u32; 2]);
-        let mut keys: Vec<u32> = bytemuck::zeroed_vec(expected_keys);
-        let mut deferred: Vec<[u32; 3]> = bytemuck::zeroed_vec(expected_deferred);
-        let (_, slice_counter_buffer) = slices.buffers();
-        ctx.submit_and_read_back(
-            encoder,
-            kept,
-            &mut [
-                (
-                    slice_counter_buffer,
-                    bytemuck::cast_slice_mut(&mut slice_counters),
-                ),
-                (&self.counts, bytemuck::cast_slice_mut(&mut counts)),
-                (&self.keys, bytemuck::cast_slice_mut(&mut keys)),
-                (&self.deferred, bytemuck::cast_slice_mut(&mut deferred)),
-            ],
-        )?;
-        slices.check_count(slice_counters[0])?;
-        let (n_keys, n_deferred) = (counts[0] as usize, counts[1] as usize);
-        if n_keys > TABLE_SLOTS as usize || n_deferred as u64 > self.slice_capacity {
-            return Err(Error::Gpu(format!(
-                "the band block kernel listed {n_keys} blocks and deferred {n_deferred} slices, \
-                 more than it holds"
-            )));
+        let mut words = BandWords::new(self.clamp(expected));
+        let sources = self.sources(slices, &words).map(|(buffer, _)| buffer);
+        let mut parts: Vec<_> = sources.into_iter().zip(words.targets()).collect();
+        ctx.submit_and_read_back(encoder, kept, &mut parts)?;
+        if let Some(band) = self.decoder().band(&words)? {
+            return Ok(band);
         }
-        if n_keys > expected_keys {
-            keys = ctx.read_back_as(&self.keys, n_keys)?;
+        let (n_keys, n_deferred) = words.counts();
+        if n_keys > words.keys.len() {
+            words.keys = ctx.read_back_as(&self.keys, n_keys)?;
         }
-        if n_deferred > expected_deferred {
-            deferred = ctx.read_back_as(&self.deferred, n_deferred)?;
+        if n_deferred > words.deferred.len() {
+            words.deferred = ctx.read_back_as(&self.deferred, n_deferred)?;
         }
-        keys.truncate(n_keys);
-        deferred.truncate(n_deferred);
-        let [bx, by, bz] = self.base;
-        let field = |key: u32, shift: u32| ((key >> shift) & 1023) as i64 - OFFSET_BIAS;
-        let blocks = keys
-            .iter()
-            .map(|&k| {
-                let o = [bx + field(k, 0), by + field(k, 10), bz + field(k, 20)];
-                BlockIndex(o.map(|c| c as i32))
-            })
-            .collect();
-        Ok(DeviceBand {
-            blocks,
-            deferred: deferred.into_iter().map(BandSlice::unpack).collect(),
-            usable_pixels: slice_counters[1] as usize,
-        })
+        Ok(self.decoder().band(&words)?.expect("read whole"))
     }
 }
 

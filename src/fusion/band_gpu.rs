@@ -143,15 +143,10 @@ impl BandSliceOutputs {
         (&self.slices, &self.counters)
     }
 
-    /// An error where the kernel made `count` slices, more than the output holds.
-    pub(crate) fn check_count(&self, count: u32) -> Result<()> {
-        if count as u64 > self.capacity {
-            return Err(Error::Gpu(format!(
-                "the band kernel made {count} slices, more than the {} a frame can have",
-                self.capacity
-            )));
-        }
-        Ok(())
+    /// Where the parts of `words` are on the device, with their lengths, bytes: a readback's
+    /// sources.
+    pub(crate) fn sources(&self, words: &SliceWords) -> [(&wgpu::Buffer, usize); 2] {
+        [(&self.counters, 8), (&self.slices, 12 * words.slices.len())]
     }
 
     /// Submits `encoder` (holding the dispatch) and reads back the slices: the counters and
@@ -164,24 +159,63 @@ impl BandSliceOutputs {
         encoder: wgpu::CommandEncoder,
         expected: usize,
     ) -> Result<BandSlices> {
-        let expected = expected.min(self.capacity as usize);
-        let mut counters = [0u32; 2];
-        let mut words: Vec<[u32; 3]> = bytemuck::zeroed_vec(expected);
-        ctx.submit_and_read_back(
-            encoder,
-            kept,
-            &mut [
-                (&self.counters, bytemuck::cast_slice_mut(&mut counters)),
-                (&self.slices, bytemuck::cast_slice_mut(&mut words)),
-            ],
-        )?;
-        self.check_count(counters[0])?;
-        let count = counters[0] as usize;
-        if count > expected {
-            words = ctx.read_back_as(&self.slices, count)?;
+        let mut words = SliceWords::new(expected.min(self.capacity as usize));
+        let sources = self.sources(&words).map(|(buffer, _)| buffer);
+        let mut parts: Vec<_> = sources.into_iter().zip(words.targets()).collect();
+        ctx.submit_and_read_back(encoder, kept, &mut parts)?;
+        if let Some(slices) = words.slices(self.capacity)? {
+            return Ok(slices);
         }
-        words.truncate(count);
-        let slices = words.into_iter().map(BandSlice::unpack).collect();
-        Ok(BandSlices::new(slices, counters[1] as usize))
+        words.slices = ctx.read_back_as(&self.slices, words.count())?;
+        Ok(words.slices(self.capacity)?.expect("read whole"))
+    }
+}
+
+/// What a frame's slices read back: the counters (`[0]` slices made, `[1]` usable pixels) and
+/// the first slices.
+pub(crate) struct SliceWords {
+    counters: [u32; 2],
+    slices: Vec<[u32; 3]>,
+}
+
+impl SliceWords {
+    /// Room for the counters and `expected` slices.
+    pub(crate) fn new(expected: usize) -> Self {
+        SliceWords {
+            counters: [0; 2],
+            slices: bytemuck::zeroed_vec(expected),
+        }
+    }
+
+    /// The two parts' bytes, in the order of [`BandSliceOutputs::sources`].
+    pub(crate) fn targets(&mut self) -> [&mut [u8]; 2] {
+        [
+            bytemuck::cast_slice_mut(&mut self.counters),
+            bytemuck::cast_slice_mut(&mut self.slices),
+        ]
+    }
+
+    /// Slices made, as the device counted them.
+    pub(crate) fn count(&self) -> usize {
+        self.counters[0] as usize
+    }
+
+    /// The slices these words hold of an output of `capacity` slices, or `None` where the
+    /// kernel made more than they hold (read them again with room for [`SliceWords::count`]).
+    pub(crate) fn slices(&self, capacity: u64) -> Result<Option<BandSlices>> {
+        let count = self.count();
+        if count as u64 > capacity {
+            return Err(Error::Gpu(format!(
+                "the band kernel made {count} slices, more than the {capacity} a frame can have"
+            )));
+        }
+        if count > self.slices.len() {
+            return Ok(None);
+        }
+        let slices = self.slices[..count].iter().copied().map(BandSlice::unpack);
+        Ok(Some(BandSlices::new(
+            slices.collect(),
+            self.counters[1] as usize,
+        )))
     }
 }

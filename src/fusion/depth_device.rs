@@ -9,8 +9,8 @@
 //! (the block listing by deciding only what it is certain of and leaving the rest to the
 //! host), so the fused map is the one the host's depths give.
 
-use super::band_blocks_gpu::{band_block_params, record_band_blocks};
-use super::band_gpu::{band_slice_uniforms, record_band_slices};
+use super::band_blocks_gpu::{band_block_params, record_band_blocks, BandDecoder, BandWords};
+use super::band_gpu::{band_slice_uniforms, record_band_slices, SliceWords};
 use super::{BandSlices, DepthFusionParams, DepthPlan, DeviceBand};
 use crate::camera::{PinholeIntrinsics, WorldFromCamera};
 use crate::depth::{
@@ -18,10 +18,12 @@ use crate::depth::{
 };
 use crate::frame::{DepthFrame, Image, RgbImage};
 use crate::gpu::kept::{BufferPool, Kept, Pooled};
+use crate::gpu::layout::BandSliceUniforms;
+use crate::gpu::readback::{LateReadback, ReadbackRing};
 use crate::gpu::GpuContext;
 use crate::grid::GridParams;
 use crate::Result;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 /// A depth frame whose depths are on the device (see the module documentation).
 pub struct DeviceDepthFrame {
@@ -32,42 +34,128 @@ pub struct DeviceDepthFrame {
     depth: Pooled,
     /// The device they are on.
     ctx: Arc<GpuContext>,
-    band: FrameBand,
+    /// The band, collected when first asked for.
+    band: Mutex<FrameBand>,
     /// The voxel size, truncation and usable depths (bits) the band was listed for.
     made_for: [u32; 4],
 }
 
-/// What came back of a frame's band.
+/// What came back of a frame's band, or is on its way.
 enum FrameBand {
     /// Its slices (a device without f64): the host lists the blocks from them.
     Slices(BandSlices),
     /// Its blocks, listed on the device, and the slices the device left to the host.
     Listed(DeviceBand),
+    /// Submitted with the frame and not collected yet.
+    Late(Box<LateBand>),
+    /// Collecting it failed (the error was returned then).
+    Failed,
+}
+
+/// A frame's band on its way back through the ring of staging buffers of its
+/// [`DeviceDepthKept`] (`src/gpu/readback.rs`), collected when the frame is first planned: a
+/// frame planned a pair later, as `Reconstructor::fuse_input` does with frames in flight,
+/// finds it there and waits for nothing. Where the frame made more blocks (or slices) than
+/// the readback held, the band is listed again from the frame's own depths, in buffers of its
+/// own (the kept ones serve the frames made since), and read back whole in one wait.
+struct LateBand {
+    readback: LateReadback,
+    words: LateWords,
+    /// The band's uniforms, to list it again.
+    uniforms: BandSliceUniforms,
+    shared: Arc<BandsShared>,
+}
+
+/// What the frames of one [`DeviceDepthKept`] share with it once made: the buffers a second
+/// listing uses ([`LateBand`]), and what the last band collected had (slices, or blocks and
+/// deferred slices), which sizes the next frames' readbacks.
+#[derive(Debug, Default)]
+struct BandsShared {
+    relist: Mutex<Kept>,
+    last: Mutex<[usize; 2]>,
+}
+
+/// What a late band's readback fills in.
+enum LateWords {
+    /// Blocks listed on the device, listed with `params` of [`band_block_params`].
+    Listed(BandWords, BandDecoder, (Vec<f64>, [i64; 3])),
+    /// Slices, of an output of that many.
+    Slices(SliceWords, u64),
+}
+
+impl LateBand {
+    /// The band, waiting (one counted wait) only where the device has not got there, and a
+    /// second time where the frame's band did not fit the readback.
+    fn collect(self, ctx: &GpuContext, depth: &wgpu::Buffer) -> Result<FrameBand> {
+        let LateBand {
+            readback,
+            words,
+            uniforms,
+            shared,
+        } = self;
+        ctx.poll_finished()?;
+        let relist = || shared.relist.lock().unwrap_or_else(|e| e.into_inner());
+        let (band, counts) = match words {
+            LateWords::Listed(mut words, decoder, (params, base)) => {
+                readback.collect(ctx, &mut words.targets())?;
+                let band = match decoder.band(&words)? {
+                    Some(band) => band,
+                    None => {
+                        let kept = &mut *relist();
+                        let mut encoder = ctx.encoder("band_relisted");
+                        let out = record_band_slices((ctx, kept), &mut encoder, &uniforms, depth)?;
+                        let listed =
+                            record_band_blocks((ctx, kept), &mut encoder, (&params, base), &out)?;
+                        let counts = words.counts();
+                        listed.submit_and_read_back((ctx, kept), encoder, &out, counts)?
+                    }
+                };
+                let counts = [band.blocks.len(), band.deferred.len()];
+                (FrameBand::Listed(band), counts)
+            }
+            LateWords::Slices(mut words, capacity) => {
+                readback.collect(ctx, &mut words.targets())?;
+                let slices = match words.slices(capacity)? {
+                    Some(slices) => slices,
+                    None => {
+                        let kept = &mut *relist();
+                        let mut encoder = ctx.encoder("band_relisted");
+                        let out = record_band_slices((ctx, kept), &mut encoder, &uniforms, depth)?;
+                        out.submit_and_read_back((ctx, kept), encoder, words.count())?
+                    }
+                };
+                let counts = [slices.slices.len(), 0];
+                (FrameBand::Slices(slices), counts)
+            }
+        };
+        *shared.last.lock().unwrap_or_else(|e| e.into_inner()) = counts;
+        Ok(band)
+    }
 }
 
 /// What making depth frames on a device keeps between frames, so that a frame creates no
-/// buffer or bind group once the first have sized them and is read back in one wait: the
-/// kernels' buffers and bind groups, the depth buffers of frames dropped already (the reader
-/// runs ahead of the fusion, so as many are lent as frames are alive at once), and how many
-/// slices the last frame made, which sizes the next frame's readback
-/// ([`super::band_gpu::BandSliceOutputs::submit_and_read_back`]).
+/// buffer or bind group once the first have sized them and waits for nothing where it is
+/// planned after the device got through it: the kernels' buffers and bind groups, the depth
+/// buffers of frames dropped already (the reader runs ahead of the fusion, so as many are lent
+/// as frames are alive at once), the ring of staging buffers the bands come back through, and
+/// how many blocks (or slices) the last band collected had, which sizes the next readbacks.
 #[derive(Debug, Default)]
 pub struct DeviceDepthKept {
     kept: Kept,
     depths: BufferPool,
-    /// What the last frame read back: slices, or blocks and deferred slices.
-    last: [usize; 2],
+    ring: ReadbackRing,
+    shared: Arc<BandsShared>,
 }
 
 impl DeviceDepthKept {
-    /// What the next frame's one wait reads of each of the two kinds `last` counts: the last
-    /// frame's and an eighth more, plus `spare`, as neighbouring frames of a drive make about
-    /// as many. Fewer cost a second wait; the first frame, with none to go by, takes it.
-    fn expected(&self, spare: [usize; 2]) -> (usize, usize) {
-        if self.last[0] == 0 {
-            return (0, 0);
+    /// What the next frame's readback holds of each of the two kinds `last` counts: the last
+    /// band's and an eighth more, plus `spare`, as neighbouring frames of a drive make about
+    /// as many; before any, `first`. Fewer cost the frame a second listing and wait.
+    fn expected(&self, spare: [usize; 2], first: [usize; 2]) -> (usize, usize) {
+        let [a, b] = *self.shared.last.lock().unwrap_or_else(|e| e.into_inner());
+        if a == 0 {
+            return (first[0], first[1]);
         }
-        let [a, b] = self.last;
         (a + a / 8 + spare[0], b + b / 8 + spare[1])
     }
 }
@@ -87,8 +175,7 @@ impl DeviceDepthFrame {
     /// pair `baseline_m` apart, seen as `view` (camera of `d`'s size, pose, colour), for
     /// fusion into `grid` with `params`: depths, band slices and (with f64) band blocks
     /// recorded after the matcher's work, in buffers of `kept`, and submitted with it; the
-    /// blocks (or slices) come back in the same wait (a second where the frame makes more than
-    /// [`DeviceDepthKept`] expects).
+    /// blocks (or slices) come back later, collected when the frame is planned ([`LateBand`]).
     pub fn from_on_device(
         d: OnDeviceDisparity,
         (grid, params): (&GridParams, &DepthFusionParams),
@@ -112,29 +199,41 @@ impl DeviceDepthFrame {
         let pixels = w as usize * h as usize;
         let to_depth = disparity_depth_uniforms(pixels, intrinsics.fx, baseline_m)?;
         let band = band_slice_uniforms(grid, params, w, h)?;
-        // Slices (12 bytes), or blocks (4) and deferred slices (12).
-        let expected = kept.expected(if ctx.has_f64() { [256, 64] } else { [1024, 0] });
+        // Slices (12 bytes), or blocks (4) and deferred slices (12): at most 48 KiB before
+        // the first band says how many.
+        let expected = if ctx.has_f64() {
+            kept.expected([256, 64], [8192, 1024])
+        } else {
+            kept.expected([1024, 0], [4096, 0])
+        };
         let DeviceDepthKept {
             kept: buffers,
             depths,
-            last,
+            ring,
+            shared,
         } = kept;
         let made = record_disparity_depth((ctx, buffers), &mut encoder, &to_depth, disparity)?;
         let out = record_band_slices((ctx, buffers), &mut encoder, &band, &made)?;
         // The frame's own copy of its depths: the kernels' buffers serve the next frame.
         let depth = depths.copy_of(ctx, &mut encoder, "depth", (&made, pixels as u64 * 4));
-        let band = if ctx.has_f64() {
+        let (readback, words) = if ctx.has_f64() {
             // The blocks listed where the slices are: a few KiB come back.
             let p = band_block_params(grid, &intrinsics, &world_from_camera, out.capacity());
             let listed = record_band_blocks((ctx, buffers), &mut encoder, (&p.0, p.1), &out)?;
-            let band = listed.submit_and_read_back((ctx, buffers), encoder, &out, expected)?;
-            *last = [band.blocks.len(), band.deferred.len()];
-            FrameBand::Listed(band)
+            let words = BandWords::new(listed.clamp(expected));
+            let readback = ring.submit(ctx, encoder, &listed.sources(&out, &words));
+            (readback, LateWords::Listed(words, listed.decoder(), p))
         } else {
-            let slices = out.submit_and_read_back((ctx, buffers), encoder, expected.0)?;
-            *last = [slices.slices.len(), 0];
-            FrameBand::Slices(slices)
+            let words = SliceWords::new(expected.0.min(out.capacity() as usize));
+            let readback = ring.submit(ctx, encoder, &out.sources(&words));
+            (readback, LateWords::Slices(words, out.capacity()))
         };
+        let band = FrameBand::Late(Box::new(LateBand {
+            readback,
+            words,
+            uniforms: band,
+            shared: shared.clone(),
+        }));
         let header = DepthFrame {
             intrinsics,
             world_from_camera,
@@ -149,18 +248,19 @@ impl DeviceDepthFrame {
             header,
             depth,
             ctx: ctx.clone(),
-            band,
+            band: Mutex::new(band),
             made_for: made_for(grid, params),
         })
     }
 
-    /// [`Self::from_on_device`] for disparities on the host, uploaded first (nothing kept).
+    /// [`Self::from_on_device`] for disparities on the host, uploaded first (in a buffer made
+    /// for it), the rest in buffers of `kept`.
     pub fn from_disparity(
         ctx: &Arc<GpuContext>,
         fusion: (&GridParams, &DepthFusionParams),
         view: CameraView,
-        disparity: &DisparityMap,
-        baseline_m: f64,
+        (disparity, baseline_m): (&DisparityMap, f64),
+        kept: &mut DeviceDepthKept,
     ) -> Result<Self> {
         let img = &disparity.disparity_px;
         ctx.check_binding("the disparity map", img.data.len() as u64 * 4)?;
@@ -172,7 +272,6 @@ impl DeviceDepthFrame {
             width: img.width,
             height: img.height,
         };
-        let kept = &mut DeviceDepthKept::default();
         Self::from_on_device(d, fusion, view, baseline_m, kept)
     }
 
@@ -186,20 +285,45 @@ impl DeviceDepthFrame {
         &self.ctx
     }
 
-    /// The band slices of the depths, where they came back (a device without f64).
-    pub fn slices(&self) -> Option<&BandSlices> {
-        match &self.band {
-            FrameBand::Slices(s) => Some(s),
-            FrameBand::Listed(_) => None,
+    /// The band, collected first where it is still on its way ([`LateBand`]).
+    fn band(&self) -> Result<std::sync::MutexGuard<'_, FrameBand>> {
+        let mut band = self.band.lock().unwrap_or_else(|e| e.into_inner());
+        if let FrameBand::Late(_) = &*band {
+            let FrameBand::Late(late) = std::mem::replace(&mut *band, FrameBand::Failed) else {
+                unreachable!("matched above")
+            };
+            *band = late.collect(&self.ctx, self.depth.buffer())?;
         }
+        if let FrameBand::Failed = &*band {
+            return Err(crate::Error::Gpu(
+                "a depth frame's band could not be read back from the device".into(),
+            ));
+        }
+        Ok(band)
     }
 
-    /// The band as the device listed it, where it did (a device with f64).
-    pub fn device_band(&self) -> Option<&DeviceBand> {
-        match &self.band {
-            FrameBand::Listed(b) => Some(b),
-            FrameBand::Slices(_) => None,
-        }
+    /// Collects the band where it is on its way: waits (one counted wait) only where the
+    /// device has not finished the frame; [`Self::plan`] then waits for nothing.
+    pub fn collect_band(&self) -> Result<()> {
+        self.band().map(|_| ())
+    }
+
+    /// The band slices of the depths, where they came back (a device without f64); collects
+    /// the band first where it is on its way.
+    pub fn slices(&self) -> Result<Option<BandSlices>> {
+        Ok(match &*self.band()? {
+            FrameBand::Slices(s) => Some(s.clone()),
+            _ => None,
+        })
+    }
+
+    /// The band as the device listed it, where it did (a device with f64); collects it first
+    /// where it is on its way.
+    pub fn device_band(&self) -> Result<Option<DeviceBand>> {
+        Ok(match &*self.band()? {
+            FrameBand::Listed(b) => Some(b.clone()),
+            _ => None,
+        })
     }
 
     /// The depths' buffer on the device.
@@ -208,7 +332,8 @@ impl DeviceDepthFrame {
     }
 
     /// The fusion plan of this frame ([`DepthPlan::from_slices`]) into `grid` with `params`,
-    /// which must be those its slices were made for.
+    /// which must be those its slices were made for; collects the band first where it is on
+    /// its way (a counted wait where the device has not finished it).
     pub fn plan(&self, grid: &GridParams, params: &DepthFusionParams) -> Result<DepthPlan> {
         if made_for(grid, params) != self.made_for {
             return Err(crate::Error::InvalidArgument(
@@ -217,9 +342,10 @@ impl DeviceDepthFrame {
                     .into(),
             ));
         }
-        Ok(match &self.band {
+        Ok(match &*self.band()? {
             FrameBand::Slices(s) => DepthPlan::from_slices(grid, &self.header, params, s),
             FrameBand::Listed(b) => DepthPlan::from_device_band(grid, &self.header, params, b),
+            FrameBand::Late(_) | FrameBand::Failed => unreachable!("collected by band()"),
         })
     }
 

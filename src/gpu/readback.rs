@@ -8,7 +8,7 @@
 use super::context::GpuContext;
 use super::kept::Kept;
 use crate::{Error, Result};
-use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 use std::sync::Arc;
 
 /// Staging buffers in the ring: frames in flight before the oldest must be collected.
@@ -30,6 +30,9 @@ const FAILED: u8 = 2;
 pub(crate) struct ReadbackRing {
     kept: Kept,
     next: usize,
+    /// Per staging buffer: whether a readback not yet collected (nor dropped) holds it. A
+    /// submit that comes to a held one takes a buffer of its own (created, counted) instead.
+    held: [Arc<AtomicBool>; RING_LEN],
 }
 
 /// Results on their way back from the device (see the module documentation).
@@ -42,13 +45,16 @@ pub(crate) struct LateReadback {
     state: Arc<AtomicU8>,
     /// Set once the results were copied out and the buffer unmapped.
     collected: bool,
+    /// The ring's mark that this readback holds its staging buffer, cleared when it is dropped.
+    held: Arc<AtomicBool>,
 }
 
 impl ReadbackRing {
     /// Appends to `encoder` copies of the first `lens[k]` bytes of `buffers[k]` into the next
     /// staging buffer of the ring, submits it and asks for the staging buffer to be mapped.
-    /// The caller collects at most [`RING_LEN`] of these at once (a staging buffer is reused
-    /// by the call `RING_LEN` later).
+    /// A caller that keeps at most [`RING_LEN`] of these uncollected at once creates no buffer
+    /// once the ring's are made (a staging buffer is reused by the call `RING_LEN` later where
+    /// its readback was collected or dropped by then).
     pub(crate) fn submit(
         &mut self,
         ctx: &GpuContext,
@@ -109,9 +115,22 @@ impl ReadbackRing {
         }
         let mapped_bytes = end.max(align);
         let usage = wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST;
-        let name = RING_NAMES[self.next];
-        self.next = (self.next + 1) % RING_LEN;
-        let staging = (self.kept).buffer(ctx, name, mapped_bytes.max(MIN_RING_BYTES), usage);
+        let slot = self.next;
+        self.next = (slot + 1) % RING_LEN;
+        let (staging, held) = if self.held[slot].swap(true, Ordering::AcqRel) {
+            // Still held by a readback more than a ring behind: this one gets its own buffer.
+            let staging = ctx.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("late_readback_spare"),
+                size: mapped_bytes,
+                usage,
+                mapped_at_creation: false,
+            });
+            (staging, Arc::new(AtomicBool::new(true)))
+        } else {
+            let bytes = mapped_bytes.max(MIN_RING_BYTES);
+            let staging = (self.kept).buffer(ctx, RING_NAMES[slot], bytes, usage);
+            (staging, self.held[slot].clone())
+        };
         copies(&mut encoder, &staging, &parts);
         ctx.submit(encoder);
         let state = Arc::new(AtomicU8::new(WAITING));
@@ -127,6 +146,7 @@ impl ReadbackRing {
             mapped_bytes,
             state,
             collected: false,
+            held,
         }
     }
 }
@@ -172,5 +192,6 @@ impl Drop for LateReadback {
         if !self.collected {
             self.staging.unmap();
         }
+        self.held.store(false, Ordering::Release);
     }
 }

@@ -107,6 +107,17 @@ impl StageTally {
         out
     }
 
+    /// Runs `work`, adding its traffic on `ctx` to the tally's, as part of calls counted
+    /// before (a pair's results collected later).
+    pub fn add<T>(&self, ctx: &super::GpuContext, work: impl FnOnce() -> T) -> T {
+        let before = ctx.traffic();
+        let out = work();
+        let spent = ctx.traffic().since(before);
+        let mut tally = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        tally.1 = tally.1.plus(spent);
+        out
+    }
+
     /// The calls counted and their traffic.
     pub fn get(&self) -> (u64, GpuTraffic) {
         *self.0.lock().unwrap_or_else(|e| e.into_inner())

@@ -9,6 +9,7 @@ use denser::depth::{disparity_to_depth, DisparityMap};
 use denser::frame::{DepthFrame, Image};
 use denser::fusion::{
     integrate_device_depth_resident, DepthFusionParams, DepthPlan, DeviceDepthFrame,
+    DeviceDepthKept,
 };
 use denser::gpu::{GpuTraffic, ResidentMap, ResidentOptions};
 use denser::grid::{GridParams, Layer};
@@ -84,14 +85,18 @@ fn frames_fused_from_the_device(ctx: denser::gpu::GpuContext) {
             frame.color.clone(),
         );
         let made = ctx.traffic();
-        let dev =
-            DeviceDepthFrame::from_disparity(&ctx, (&grid, &params), view, &disparity, BASELINE_M)
-                .expect("device frame");
+        let kept = &mut DeviceDepthKept::default();
+        let disparity = (&disparity, BASELINE_M);
+        let dev = DeviceDepthFrame::from_disparity(&ctx, (&grid, &params), view, disparity, kept)
+            .expect("device frame");
+        // The band comes back late: made without a wait, collected when asked for.
+        assert_eq!(ctx.traffic().since(made).waits, 0);
+        let band = dev.device_band().expect("collected");
         let made = ctx.traffic().since(made);
         if ctx.has_f64() {
             // The blocks listed on the device: what comes back is 4 bytes a block (and the
             // slices it could not decide), not the slices (12 bytes each, ~22 k here).
-            let band = dev.device_band().expect("listed on the device");
+            let band = band.expect("listed on the device");
             assert!(made.readback_bytes <= 64 << 10, "{made:?}");
             assert!(
                 band.deferred.len() * 1000 <= band.blocks.len(),
@@ -141,6 +146,71 @@ fn frames_fused_from_the_device(ctx: denser::gpu::GpuContext) {
     assert!(blocks.iter().all(|i| dev_layer.get(i) == host_layer.get(i)));
 }
 
+/// Frames made ahead of their plans, more of them than the readback ring holds, whose bands
+/// outgrow what the last band collected led them to read back: each listed again from its own
+/// depths (the kept buffers hold a later frame's by then) and planned as the host plans it.
+#[test]
+fn frames_made_ahead_with_larger_bands_plan_as_the_host() {
+    let Some(ctx) = gpu() else { return };
+    let f64_too = ctx.has_f64();
+    frames_made_ahead(Arc::new(ctx.without_f64()));
+    if f64_too {
+        frames_made_ahead(Arc::new(gpu().expect("a GPU")));
+    }
+}
+
+fn frames_made_ahead(ctx: Arc<denser::gpu::GpuContext>) {
+    let grid = GridParams::paper(0.1);
+    let params = DepthFusionParams::default();
+    let kept = &mut DeviceDepthKept::default();
+    let make = |k: u32, patch: bool, kept: &mut DeviceDepthKept| {
+        let frame = street_frame(0.8 * k as f64, k);
+        let mut disparity = disparities_of(&frame);
+        if patch {
+            // A 16×16 patch of depths: a band of a few blocks.
+            let w = disparity.disparity_px.width as usize;
+            for (p, d) in disparity.disparity_px.data.iter_mut().enumerate() {
+                if p % w >= 16 || p / w >= 16 {
+                    *d = f32::NAN;
+                }
+            }
+        }
+        let fx = frame.intrinsics.fx;
+        let host = DepthFrame {
+            depth_m: disparity_to_depth(&disparity, fx, BASELINE_M),
+            ..frame.clone()
+        };
+        let view = (frame.intrinsics, frame.world_from_camera, None);
+        let disparity = (&disparity, BASELINE_M);
+        let dev = DeviceDepthFrame::from_disparity(&ctx, (&grid, &params), view, disparity, kept)
+            .expect("device frame");
+        (host, dev)
+    };
+    let (host, small) = make(0, true, kept);
+    let small_plan = small.plan(&grid, &params).expect("plan");
+    assert_eq!(small_plan.band, DepthPlan::new(&grid, &host, &params).band);
+    assert!(
+        small_plan.band.len() < 64,
+        "{} blocks",
+        small_plan.band.len()
+    );
+    let before = ctx.traffic();
+    let ahead: Vec<_> = (1..6).map(|k| make(k, false, kept)).collect();
+    assert_eq!(ctx.traffic().since(before).waits, 0, "made without waiting");
+    let before = ctx.traffic();
+    for (k, (host, dev)) in ahead.iter().enumerate() {
+        let plan = dev.plan(&grid, &params).expect("plan");
+        let host_plan = DepthPlan::new(&grid, host, &params);
+        assert_eq!(plan.band, host_plan.band, "frame {k}");
+        assert_eq!(plan.measurements, host_plan.measurements, "frame {k}");
+        assert!(plan.band.len() > 3000, "{} blocks", plan.band.len());
+    }
+    // Each band listed again (one submit) and read back whole.
+    let t = ctx.traffic().since(before);
+    eprintln!("{}: five frames planned: {t:?}", ctx.name());
+    assert_eq!(t.submits, 5, "{t:?}");
+}
+
 /// A 320×96 synthetic stereo drive of `frames` pairs written under `dir`, with LiDAR scans
 /// where `lidar` (the bag fixture script needs them).
 fn small_drive(dir: &Path, frames: usize, lidar: bool) -> PathBuf {
@@ -163,16 +233,29 @@ fn small_drive(dir: &Path, frames: usize, lidar: bool) -> PathBuf {
     write_drive(&drive, dir, false).expect("drive").sequence_dir
 }
 
+/// How `fuse_stereo` hands a pair's depths to the fusion.
+#[derive(Clone, Copy, PartialEq, Debug)]
+enum Depths {
+    /// Read back as disparities and converted on the host.
+    Host,
+    /// Kept on the device, each pair fused by its own call (`Reconstructor::fuse`).
+    Device,
+    /// Kept on the device, each pair fused by the next call (`Reconstructor::fuse_input`, as
+    /// `reconstruct --depth stereo --device gpu` does), the device idle before each call (a
+    /// device that keeps up).
+    InFlight,
+}
+
 /// The stereo input `input` matched with `method` (32 disparities) on the GPU of `ctx` and
-/// fused there, each pair's depths kept on the device where `on_device` (what `reconstruct
-/// --depth stereo --device gpu` sets) or read back as disparities: the map, and the stereo
+/// fused there, each pair's depths handed on as `depths` says: the map, and the stereo
 /// traffic after each pair.
 fn fuse_stereo(
     ctx: &Arc<denser::gpu::GpuContext>,
     input: &Path,
     method: denser::depth::StereoMethod,
-    on_device: bool,
+    depths: Depths,
 ) -> (Reconstructor, Vec<GpuTraffic>) {
+    let on_device = depths != Depths::Host;
     use denser::backend::Backend;
     use denser::depth::tgv::HoleFill;
     use denser::depth::SgmParams;
@@ -197,7 +280,16 @@ fn fuse_stereo(
     for i in 0..seq.len() {
         let pair = seq.read(i).expect("pair");
         assert_eq!(matches!(pair, RangeInput::DeviceDepth(_)), on_device);
-        rec.fuse(&pair).expect("fuse");
+        let frames = rec.frames_total();
+        if depths == Depths::InFlight {
+            ctx.wait_idle_uncounted().expect("idle");
+            rec.fuse_input(pair).expect("fuse");
+            // The pair before this one fused, this one waiting.
+            assert_eq!(rec.frames_total(), i as u64, "after pair {i}");
+        } else {
+            rec.fuse(&pair).expect("fuse");
+            assert_eq!(rec.frames_total(), frames + 1);
+        }
         after_each.push(rec.gpu_traffic().expect("on a GPU").stereo);
     }
     rec.sync().expect("sync");
@@ -222,15 +314,15 @@ fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
     let Some(ctx) = gpu() else { return };
     let ctx = Arc::new(ctx);
     let dir = tempfile::tempdir().expect("tempdir");
-    let input = small_drive(dir.path(), 4, false);
+    let input = small_drive(dir.path(), 5, false);
     let (w, h) = (320u64, 96u64);
     for method in [StereoMethod::Sgm, StereoMethod::TgvTensor] {
-        let (host, _) = fuse_stereo(&ctx, &input, method, false);
-        let (dev, after_each) = fuse_stereo(&ctx, &input, method, true);
+        let (host, _) = fuse_stereo(&ctx, &input, method, Depths::Host);
+        let (dev, after_each) = fuse_stereo(&ctx, &input, method, Depths::Device);
         assert_same_map(host.layer(), dev.layer(), 300, &format!("{method:?}"));
-        // Once two pairs have sized the kept buffers and the readback: a pair is one submit
-        // and one wait, and creates nothing.
-        let t = after_each[3].since(after_each[1]);
+        // Once three pairs have sized the kept buffers and made the readback's ring: a pair
+        // fused by its own call is one submit and one wait (for its band), and creates nothing.
+        let t = after_each[4].since(after_each[2]);
         eprintln!("{method:?}, the last two pairs: {t:?}");
         assert_eq!((t.submits, t.waits), (2, 2), "{method:?}: {t:?}");
         if ctx.has_f64() {
@@ -245,7 +337,7 @@ fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
         );
         // Per pair: the two grey images up; the map's 8 bytes per pixel no longer come back.
         let pairs = dev_traffic.stereo_pairs;
-        assert_eq!(pairs, 4);
+        assert_eq!(pairs, 5);
         let (up, down) = (
             dev_traffic.stereo.upload_bytes,
             dev_traffic.stereo.readback_bytes,
@@ -261,6 +353,30 @@ fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
         );
         assert_eq!(host_up - dev_up, frames * 4 * w * h, "{dev_traffic:?}");
     }
+}
+
+/// A stereo drive whose pairs are fused a call later, as `reconstruct` fuses them: the map of
+/// the pairs read back, and, where the device keeps up, a warm pair that waits for nothing
+/// (its band collected when the next pair comes), in one submit, creating nothing.
+#[test]
+fn a_stereo_pair_fused_a_call_later_waits_for_no_band() {
+    use denser::depth::StereoMethod;
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let input = small_drive(dir.path(), 6, false);
+    let (host, _) = fuse_stereo(&ctx, &input, StereoMethod::Sgm, Depths::Host);
+    let (dev, after_each) = fuse_stereo(&ctx, &input, StereoMethod::Sgm, Depths::InFlight);
+    assert_same_map(host.layer(), dev.layer(), 300, "in flight");
+    // Pairs 4 and 5 read, pairs 3 and 4 collected (the ring's staging buffers made by then).
+    let t = after_each[5].since(after_each[3]);
+    eprintln!("the last two pairs, fused a call later: {t:?}");
+    assert_eq!((t.submits, t.waits), (2, 0), "{t:?}");
+    assert_eq!((t.buffers_created, t.bind_groups_created), (0, 0), "{t:?}");
+    if ctx.has_f64() {
+        assert!(t.readback_bytes <= 2 * (64 << 10), "{t:?}");
+    }
+    assert!(t.readback_bytes > 0, "the bands came back: {t:?}");
 }
 
 /// A ROS 2 bag's stereo pairs (`tools/make_input_fixtures.py` writes a synthetic drive's as a
@@ -295,8 +411,8 @@ fn a_stereo_bag_keeps_its_depths_on_the_device() {
         Err(e) => return skip(&format!("python3 cannot run ({e}): no bag")),
     }
     let bag = out.join("bag_stereo");
-    let (host, _) = fuse_stereo(&ctx, &bag, StereoMethod::Sgm, false);
-    let (dev, after_each) = fuse_stereo(&ctx, &bag, StereoMethod::Sgm, true);
+    let (host, _) = fuse_stereo(&ctx, &bag, StereoMethod::Sgm, Depths::Host);
+    let (dev, after_each) = fuse_stereo(&ctx, &bag, StereoMethod::Sgm, Depths::InFlight);
     assert_eq!(after_each.len(), 2);
     assert_same_map(host.layer(), dev.layer(), 100, "bag");
 }
