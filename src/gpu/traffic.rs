@@ -90,20 +90,16 @@ fn human_bytes(bytes: f64) -> String {
 /// The traffic of a stage that runs outside the backend's calls, summed over its calls and
 /// shared with whoever reports it: stereo, whose matcher belongs to the input sequence while
 /// the backend reports the run. A call's figure is the difference of the context's counters
-/// around it, exact while no other GPU work runs at the same time (today stereo and fusion take
-/// turns: a frame is matched, then fused).
+/// around it, exact while no other GPU work is recorded at the same time (the host's calls take
+/// turns: a pair is matched, a frame fused, the pair's band collected).
 #[derive(Clone, Debug, Default)]
 pub struct StageTally(std::sync::Arc<std::sync::Mutex<(u64, GpuTraffic)>>);
 
 impl StageTally {
     /// Runs `work`, adding its traffic on `ctx` and one call to the tally.
     pub fn count<T>(&self, ctx: &super::GpuContext, work: impl FnOnce() -> T) -> T {
-        let before = ctx.traffic();
-        let out = work();
-        let spent = ctx.traffic().since(before);
-        let mut tally = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        tally.0 += 1;
-        tally.1 = tally.1.plus(spent);
+        let out = self.add(ctx, work);
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).0 += 1;
         out
     }
 
