@@ -10,7 +10,7 @@
 //! host), so the fused map is the one the host's depths give.
 
 use super::band_blocks_gpu::{band_block_params, record_band_blocks, BandDecoder, BandWords};
-use super::band_gpu::{band_slice_uniforms, record_band_slices, SliceWords};
+use super::band_gpu::{band_slice_uniforms, record_band_slices, BandSliceOutputs, SliceWords};
 use super::{BandSlices, DepthFusionParams, DepthPlan, DeviceBand};
 use crate::camera::{PinholeIntrinsics, WorldFromCamera};
 use crate::depth::{
@@ -102,8 +102,7 @@ impl LateBand {
                     Some(band) => band,
                     None => {
                         let kept = &mut *relist();
-                        let mut encoder = ctx.encoder("band_relisted");
-                        let out = record_band_slices((ctx, kept), &mut encoder, &uniforms, depth)?;
+                        let (mut encoder, out) = relist_slices((ctx, kept), &uniforms, depth)?;
                         let listed =
                             record_band_blocks((ctx, kept), &mut encoder, (&params, base), &out)?;
                         let counts = words.counts();
@@ -119,8 +118,7 @@ impl LateBand {
                     Some(slices) => slices,
                     None => {
                         let kept = &mut *relist();
-                        let mut encoder = ctx.encoder("band_relisted");
-                        let out = record_band_slices((ctx, kept), &mut encoder, &uniforms, depth)?;
+                        let (encoder, out) = relist_slices((ctx, kept), &uniforms, depth)?;
                         out.submit_and_read_back((ctx, kept), encoder, words.count())?
                     }
                 };
@@ -131,6 +129,18 @@ impl LateBand {
         *shared.last.lock().unwrap_or_else(|e| e.into_inner()) = counts;
         Ok(band)
     }
+}
+
+/// The slices of the depths `depth` with `uniforms` recorded again, in buffers of `kept`: the
+/// first step of listing a band again ([`LateBand`]).
+fn relist_slices(
+    (ctx, kept): (&GpuContext, &mut Kept),
+    uniforms: &BandSliceUniforms,
+    depth: &wgpu::Buffer,
+) -> Result<(wgpu::CommandEncoder, BandSliceOutputs)> {
+    let mut encoder = ctx.encoder("band_relisted");
+    let out = record_band_slices((ctx, kept), &mut encoder, uniforms, depth)?;
+    Ok((encoder, out))
 }
 
 /// What making depth frames on a device keeps between frames, so that a frame creates no
