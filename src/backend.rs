@@ -24,14 +24,14 @@ use crate::frame::{DepthFrame, LidarScan};
 use crate::fusion::{
     begin_lidar_listing, finish_lidar_listing, integrate_depth_plan, integrate_depth_resident,
     integrate_device_depth_resident, integrate_lidar_plan, integrate_lidar_resident,
-    DepthFusionParams, DepthPlan, DeviceDepthFrame, FusionStats, LidarFusionParams, LidarListings,
-    LidarPlan, PendingLidarPlan,
+    DepthFusionParams, DepthPlan, DeviceDepthFrame, DeviceDepthKept, FusionStats,
+    LidarFusionParams, LidarListings, LidarPlan, PendingLidarPlan,
 };
 use crate::gpu::kept::Kept;
 use crate::gpu::{
     DeviceChoice, GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats, StageTally,
 };
-use crate::grid::{BlockIndex, Layer, TouchedBlocks};
+use crate::grid::{BlockIndex, GridParams, Layer, TouchedBlocks};
 use crate::mesh::{extract_mesh, extract_mesh_gpu_from, Field, Mesh, SampleSource};
 use crate::regularize::{
     regularize_resident, solve_gpu_kept, CpuSolver, RegularizeStats, TvParams, TvProblem, TvSolver,
@@ -101,6 +101,9 @@ pub struct Backend {
     tv_kept: Kept,
     /// What listing LiDAR scans on the GPU keeps between scans ([`Backend::plan_lidar`]).
     lidar_listings: LidarListings,
+    /// What listing host depth frames on the GPU keeps between frames
+    /// ([`Backend::depth_to_device`]).
+    host_depths: DeviceDepthKept,
 }
 
 /// The GPU traffic of `work` added to `into` (nothing without a GPU).
@@ -142,6 +145,7 @@ impl Backend {
             stereo_tally: StageTally::default(),
             tv_kept: Kept::default(),
             lidar_listings: LidarListings::default(),
+            host_depths: DeviceDepthKept::default(),
         }
     }
 
@@ -308,9 +312,40 @@ impl Backend {
     }
 
     /// Collects the band of `frame` ([`DeviceDepthFrame::collect_band`]): its readback,
-    /// submitted with the stereo pair, counts as the pair's traffic.
-    pub fn collect_device_band(&self, frame: &DeviceDepthFrame) -> Result<()> {
-        (self.stereo_tally).add(frame.context(), || frame.collect_band())
+    /// submitted with the stereo pair, counts as the pair's traffic, or with the depth frame's
+    /// upload ([`Backend::depth_to_device`]) as the frame's.
+    pub fn collect_device_band(&mut self, frame: &DeviceDepthFrame) -> Result<()> {
+        if frame.matched() {
+            return (self.stereo_tally).add(frame.context(), || frame.collect_band());
+        }
+        let mut calls = 0;
+        let depth = &mut self.traffic.depth;
+        counted(Some(frame.context()), depth, &mut calls, || {
+            frame.collect_band()
+        })
+    }
+
+    /// A depth frame from the host sent to the GPU that fuses it, where frames are in flight
+    /// there ([`DeviceDepthFrame::from_depths`]): its depths go up once, its band is listed on
+    /// the device and comes back late, and the frame is fused from there as a matched pair is,
+    /// so the host walks none of its pixels. The frame back, untouched, where this backend
+    /// fuses on the CPU, waits for each frame, or the device cannot list its band. The upload
+    /// and listing count as the frame's depth traffic.
+    pub fn depth_to_device(
+        &mut self,
+        frame: DepthFrame,
+        (grid, params): (&GridParams, &DepthFusionParams),
+    ) -> Result<std::result::Result<DeviceDepthFrame, DepthFrame>> {
+        let gpu = self.gpu.clone().filter(|_| self.frames_in_flight);
+        let ctx = match gpu.filter(|_| self.stages.fusion) {
+            Some(ctx) if DeviceDepthFrame::can_list(&frame, grid, params) => ctx,
+            _ => return Ok(Err(frame)),
+        };
+        let (kept, mut calls) = (&mut self.host_depths, 0);
+        let depth = &mut self.traffic.depth;
+        counted(Some(&ctx), depth, &mut calls, || {
+            DeviceDepthFrame::from_depths(&ctx, (grid, params), frame, kept).map(Ok)
+        })
     }
 
     /// Whether `frame` is fused in flight ([`crate::reconstruct::Reconstructor::fuse_input`]):

@@ -276,8 +276,23 @@ impl Reconstructor {
     /// waits here while its band comes back and the host reads the next input, and is fused
     /// by the next call (or whatever else comes next: another input,
     /// [`Reconstructor::sync`], a mesh), so that no call waits for the band of its own pair;
-    /// [`Reconstructor::frames_total`] counts it then.
+    /// [`Reconstructor::frames_total`] counts it then. A depth frame from the host goes to
+    /// that GPU first where it fuses in flight ([`Backend::depth_to_device`]): its band is
+    /// listed there, not by the host.
     pub fn fuse_input(&mut self, input: RangeInput) -> crate::Result<TouchedBlocks> {
+        let input = match input {
+            RangeInput::Depth(frame) => {
+                let t = Instant::now();
+                let fusion = (&self.config.grid, &self.config.depth_fusion);
+                let sent = self.backend.depth_to_device(frame, fusion)?;
+                self.timings.fusion_s += t.elapsed().as_secs_f64();
+                match sent {
+                    Ok(on_device) => RangeInput::DeviceDepth(Box::new(on_device)),
+                    Err(frame) => RangeInput::Depth(frame),
+                }
+            }
+            input => input,
+        };
         match input {
             RangeInput::DeviceDepth(frame) if self.backend.fuses_depth_in_flight(&frame) => {
                 let mut touched = self.finish_lidar()?;
@@ -363,10 +378,15 @@ impl Reconstructor {
 
     /// [`Reconstructor::fuse_device_depth`] of `frame` alone.
     fn fuse_device_depth_now(&mut self, frame: &DeviceDepthFrame) -> crate::Result<TouchedBlocks> {
-        // Waiting for the band is waiting for the pair's matching: input time.
+        // Waiting for a pair's band is waiting for its matching (input time); for a host
+        // frame's, for its listing (fusion time).
         let t = Instant::now();
         self.backend.collect_device_band(frame)?;
-        self.timings.input_s += t.elapsed().as_secs_f64();
+        let waited_s = t.elapsed().as_secs_f64();
+        match frame.matched() {
+            true => self.timings.input_s += waited_s,
+            false => self.timings.fusion_s += waited_s,
+        }
         self.fuse_planned(
             |grid, params| frame.plan(grid, params),
             |backend, layer, params, plan| backend.fuse_device_depth(layer, frame, params, plan),

@@ -38,6 +38,8 @@ pub struct DeviceDepthFrame {
     band: Mutex<FrameBand>,
     /// The voxel size, truncation and usable depths (bits) the band was listed for.
     made_for: [u32; 4],
+    /// Whether a matcher made the depths on the device (else they came from the host).
+    matched: bool,
 }
 
 /// What came back of a frame's band, or is on its way.
@@ -173,6 +175,22 @@ impl DeviceDepthKept {
 /// A camera of the frame's size, its pose and its colour.
 pub type CameraView = (PinholeIntrinsics, WorldFromCamera, Option<RgbImage>);
 
+/// The band slices' uniforms of depths of `size` seen by `camera`, for fusion with `fusion`;
+/// an error where the size is not the camera's or the device cannot list the band.
+fn band_uniforms(
+    (grid, params): (&GridParams, &DepthFusionParams),
+    camera: &PinholeIntrinsics,
+    (w, h): (u32, u32),
+) -> Result<BandSliceUniforms> {
+    if (camera.width, camera.height) != (w, h) {
+        return Err(crate::Error::InvalidArgument(format!(
+            "depths of {w}×{h} for a camera of {}×{}",
+            camera.width, camera.height
+        )));
+    }
+    band_slice_uniforms(grid, params, w, h)
+}
+
 /// What a band depends on besides the depths and the camera: the voxel size, μ and the usable
 /// depths, as bits.
 fn made_for(grid: &GridParams, params: &DepthFusionParams) -> [u32; 4] {
@@ -188,8 +206,8 @@ impl DeviceDepthFrame {
     /// blocks (or slices) come back later, collected when the frame is planned ([`LateBand`]).
     pub fn from_on_device(
         d: OnDeviceDisparity,
-        (grid, params): (&GridParams, &DepthFusionParams),
-        (intrinsics, world_from_camera, color): CameraView,
+        fusion: (&GridParams, &DepthFusionParams),
+        view: CameraView,
         baseline_m: f64,
         kept: &mut DeviceDepthKept,
     ) -> Result<Self> {
@@ -200,15 +218,69 @@ impl DeviceDepthFrame {
             width: w,
             height: h,
         } = d;
-        if (intrinsics.width, intrinsics.height) != (w, h) {
-            return Err(crate::Error::InvalidArgument(format!(
-                "disparities of {w}×{h} for a camera of {}×{}",
-                intrinsics.width, intrinsics.height
-            )));
-        }
+        let band = band_uniforms(fusion, &view.0, (w, h))?;
         let pixels = w as usize * h as usize;
-        let to_depth = disparity_depth_uniforms(pixels, intrinsics.fx, baseline_m)?;
-        let band = band_slice_uniforms(grid, params, w, h)?;
+        let to_depth = disparity_depth_uniforms(pixels, view.0.fx, baseline_m)?;
+        let made =
+            record_disparity_depth((ctx, &mut kept.kept), &mut encoder, &to_depth, disparity)?;
+        let frame = Self::listed(ctx, encoder, (fusion, band), view, &made, kept)?;
+        Ok(DeviceDepthFrame {
+            matched: true,
+            ..frame
+        })
+    }
+
+    /// The frame of depths the host holds (a depth camera's, ground truth, a CPU matcher's),
+    /// for fusion into `grid` with `params` on `ctx`: its depths uploaded once (4 bytes per
+    /// pixel, into a buffer of `kept`'s pool that the fusion reads), its band slices and (with
+    /// f64) blocks listed on the device and submitted; the band comes back later, as a
+    /// matched pair's does, so that the host walks none of its pixels. Any depth values go up
+    /// (NaN, ±∞, zero and negative ones are not usable, as on the host). An error where the
+    /// image is not the camera's size or the device cannot list its band (see
+    /// [`Self::can_list`]).
+    pub fn from_depths(
+        ctx: &Arc<GpuContext>,
+        fusion: (&GridParams, &DepthFusionParams),
+        frame: DepthFrame,
+        kept: &mut DeviceDepthKept,
+    ) -> Result<Self> {
+        let DepthFrame {
+            intrinsics,
+            world_from_camera,
+            depth_m,
+            color,
+        } = frame;
+        let band = band_uniforms(fusion, &intrinsics, (depth_m.width, depth_m.height))?;
+        ctx.check_binding("the depth map", depth_m.data.len() as u64 * 4)?;
+        let data = bytemuck::cast_slice(&depth_m.data);
+        let sent = kept.kept.storage_with(ctx, "host_depth", data);
+        let encoder = ctx.encoder("host_depth_frame");
+        let view = (intrinsics, world_from_camera, color);
+        Self::listed(ctx, encoder, (fusion, band), view, &sent, kept)
+    }
+
+    /// Whether [`Self::from_depths`] takes a frame of `frame`'s size into `grid` with `params`
+    /// (its band can be listed on a device): images of 1 to 8 192 pixels a side, the camera's
+    /// size, usable depths within [2⁻¹⁷, 2²⁴) m, μ within [2⁻¹⁷, 2²³) m.
+    pub fn can_list(frame: &DepthFrame, grid: &GridParams, params: &DepthFusionParams) -> bool {
+        let size = (frame.depth_m.width, frame.depth_m.height);
+        band_uniforms((grid, params), &frame.intrinsics, size).is_ok()
+    }
+
+    /// The frame of the depths `made` (a buffer of `kept`, so that the kernels bind the same
+    /// buffers every frame) seen as `view`: its own copy of them (the kernels' buffers serve
+    /// the next frame), its band slices and (with f64) band blocks recorded into `encoder` in
+    /// buffers of `kept`, and the band's readback submitted with them through `kept`'s ring.
+    fn listed(
+        ctx: &Arc<GpuContext>,
+        mut encoder: wgpu::CommandEncoder,
+        ((grid, params), band): ((&GridParams, &DepthFusionParams), BandSliceUniforms),
+        (intrinsics, world_from_camera, color): CameraView,
+        made: &wgpu::Buffer,
+        kept: &mut DeviceDepthKept,
+    ) -> Result<Self> {
+        let bytes = intrinsics.width as u64 * intrinsics.height as u64 * 4;
+        let depth = (kept.depths).copy_of(ctx, &mut encoder, "depth", (made, bytes));
         // Slices (12 bytes), or blocks (4) and deferred slices (12): at most 48 KiB before
         // the first band says how many.
         let expected = if ctx.has_f64() {
@@ -218,14 +290,11 @@ impl DeviceDepthFrame {
         };
         let DeviceDepthKept {
             kept: buffers,
-            depths,
             ring,
             shared,
+            ..
         } = kept;
-        let made = record_disparity_depth((ctx, buffers), &mut encoder, &to_depth, disparity)?;
-        let out = record_band_slices((ctx, buffers), &mut encoder, &band, &made)?;
-        // The frame's own copy of its depths: the kernels' buffers serve the next frame.
-        let depth = depths.copy_of(ctx, &mut encoder, "depth", (&made, pixels as u64 * 4));
+        let out = record_band_slices((ctx, buffers), &mut encoder, &band, made)?;
         let (readback, words) = if ctx.has_f64() {
             // The blocks listed where the slices are: a few KiB come back.
             let p = band_block_params(grid, &intrinsics, &world_from_camera, out.capacity());
@@ -248,8 +317,8 @@ impl DeviceDepthFrame {
             intrinsics,
             world_from_camera,
             depth_m: Image {
-                width: w,
-                height: h,
+                width: intrinsics.width,
+                height: intrinsics.height,
                 data: Vec::new(),
             },
             color,
@@ -260,6 +329,7 @@ impl DeviceDepthFrame {
             ctx: ctx.clone(),
             band: Mutex::new(band),
             made_for: made_for(grid, params),
+            matched: false,
         })
     }
 
@@ -288,6 +358,12 @@ impl DeviceDepthFrame {
     /// The camera, pose, colour and size (its `depth_m` holds no data).
     pub fn header(&self) -> &DepthFrame {
         &self.header
+    }
+
+    /// Whether a matcher made the depths on the device ([`Self::from_on_device`]), rather than
+    /// the host sending them up ([`Self::from_depths`]).
+    pub fn matched(&self) -> bool {
+        self.matched
     }
 
     /// The context of the device the depths are on.

@@ -211,6 +211,137 @@ fn frames_made_ahead(ctx: Arc<denser::gpu::GpuContext>) {
     assert_eq!(t.submits, 5, "{t:?}");
 }
 
+/// Depth frames from the host (a street's depths with NaN, ±∞, zero, negative, subnormal and
+/// out-of-range values among them) sent up and listed on the device: one submit and no wait
+/// each, the depths up once and bit for bit, and the plan the host makes of them; a frame that
+/// is not its camera's size is refused, naming both sizes.
+#[test]
+fn a_host_frame_listed_on_the_device_plans_as_the_host() {
+    let Some(ctx) = gpu() else { return };
+    let f64_too = ctx.has_f64();
+    host_frames_listed(Arc::new(ctx.without_f64()));
+    if f64_too {
+        host_frames_listed(Arc::new(gpu().expect("a GPU")));
+    }
+}
+
+fn host_frames_listed(ctx: Arc<denser::gpu::GpuContext>) {
+    let grid = GridParams::paper(0.1);
+    let params = DepthFusionParams::default();
+    let kept = &mut DeviceDepthKept::default();
+    let (lo, hi) = (params.min_depth_m, params.max_depth_m);
+    let below = |d: f32| f32::from_bits(d.to_bits() - 1);
+    let above = |d: f32| f32::from_bits(d.to_bits() + 1);
+    let odd = [
+        f32::NAN,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        0.0,
+        -0.0,
+        -3.0,
+        f32::MIN_POSITIVE / 4.0,
+        below(lo),
+        lo,
+        hi,
+        above(hi),
+        1e30,
+    ];
+    for k in 0..3u32 {
+        let mut frame = street_frame(0.8 * k as f64, k);
+        let pixels = frame.depth_m.data.len() as u64;
+        for (p, d) in frame.depth_m.data.iter_mut().enumerate() {
+            if p % 7 == k as usize {
+                *d = odd[(p / 7) % odd.len()];
+            }
+        }
+        assert!(DeviceDepthFrame::can_list(&frame, &grid, &params));
+        let before = ctx.traffic();
+        let dev = DeviceDepthFrame::from_depths(&ctx, (&grid, &params), frame.clone(), kept)
+            .expect("sent up");
+        let t = ctx.traffic().since(before);
+        assert_eq!((t.submits, t.waits), (1, 0), "{t:?}");
+        assert!(t.upload_bytes >= 4 * pixels, "{t:?}");
+        assert!(t.upload_bytes <= 4 * pixels + (64 << 10), "{t:?}");
+        assert!(!dev.matched());
+        let plan = dev.plan(&grid, &params).expect("plan");
+        let host_plan = DepthPlan::new(&grid, &frame, &params);
+        assert_eq!(plan.band, host_plan.band, "frame {k}: band");
+        assert_eq!(plan.measurements, host_plan.measurements, "frame {k}");
+        assert!(plan.band.len() > 3000, "{} blocks", plan.band.len());
+        let bits = |f: &DepthFrame| {
+            f.depth_m
+                .data
+                .iter()
+                .map(|d| d.to_bits())
+                .collect::<Vec<_>>()
+        };
+        let back = dev.read_back(&ctx).expect("read back");
+        assert_eq!(bits(&back), bits(&frame), "frame {k}: depths");
+        assert_eq!(back.color, frame.color);
+    }
+    let mut frame = street_frame(0.0, 0);
+    frame.depth_m = Image::filled(100, 50, 1.0);
+    assert!(!DeviceDepthFrame::can_list(&frame, &grid, &params));
+    let refused = DeviceDepthFrame::from_depths(&ctx, (&grid, &params), frame, kept);
+    let message = refused.err().expect("refused").to_string();
+    assert!(
+        message.contains("100×50") && message.contains("1241×376"),
+        "{message}"
+    );
+}
+
+/// Depth frames from the host fused as `reconstruct --depth gt --device gpu` fuses them
+/// (`Reconstructor::fuse_input`, frames in flight): each sent up and listed on the device and
+/// fused a call later, the same map as of the frames the host planned; once warm, where the
+/// device keeps up, a frame in two submits (its listing, its fusion), no wait, nothing
+/// created, its depths and colour up once (plus 64 KiB), at most 64 KiB down.
+#[test]
+fn host_depth_frames_are_listed_on_the_device_and_fused_a_call_later() {
+    use denser::backend::Backend;
+    use denser::io::sequence::RangeInput;
+    let Some(ctx) = gpu() else { return };
+    let ctx = Arc::new(ctx);
+    let config = ReconstructionConfig::paper(0.1);
+    let options = ResidentOptions {
+        initial_blocks: 16384,
+        ..Default::default()
+    };
+    let new = || Reconstructor::in_memory(config, Backend::gpu(ctx.clone(), options));
+    let frames: Vec<DepthFrame> = (0..6).map(|k| street_frame(0.8 * k as f64, k)).collect();
+    let mut host = new().expect("reconstructor");
+    for f in &frames {
+        host.fuse_depth(f).expect("fuse");
+    }
+    host.sync().expect("sync");
+    let mut dev = new().expect("reconstructor");
+    let mut after_each = Vec::new();
+    for (i, f) in frames.iter().enumerate() {
+        ctx.wait_idle_uncounted().expect("idle");
+        dev.fuse_input(RangeInput::Depth(f.clone())).expect("fuse");
+        // The frame before this one fused, this one listed and waiting.
+        assert_eq!(dev.frames_total(), i as u64, "after frame {i}");
+        after_each.push(dev.gpu_traffic().expect("on a GPU").depth);
+    }
+    dev.sync().expect("sync");
+    assert_eq!(dev.frames_total(), 6);
+    assert_same_map(
+        host.layer(),
+        dev.layer(),
+        3000,
+        "host frames listed on the device",
+    );
+    // Frames 4 and 5 sent up and listed, frames 3 and 4 fused.
+    let t = after_each[5].since(after_each[3]);
+    eprintln!("the last two frames, listed on the device: {t:?}");
+    assert_eq!((t.submits, t.waits), (4, 0), "{t:?}");
+    assert_eq!((t.buffers_created, t.bind_groups_created), (0, 0), "{t:?}");
+    let pixels = frames[0].depth_m.data.len() as u64;
+    assert!(t.upload_bytes <= 2 * (7 * pixels + (64 << 10)), "{t:?}");
+    if ctx.has_f64() {
+        assert!(t.readback_bytes <= 2 * (64 << 10), "{t:?}");
+    }
+}
+
 /// A 320×96 synthetic stereo drive of `frames` pairs written under `dir`, with LiDAR scans
 /// where `lidar` (the bag fixture script needs them).
 fn small_drive(dir: &Path, frames: usize, lidar: bool) -> PathBuf {
