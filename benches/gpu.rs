@@ -170,6 +170,13 @@ fn band_listing(c: &mut Criterion) {
                     band.expect("f64").blocks(&grid, k, pose, &params)
                 })
             });
+            // The host's share of a band listed on the device: the blocks read back (and the
+            // slices the device left) made the sorted band, with the device idle.
+            let band = band_blocks_on_gpu(&ctx, &grid, &frame, &params).expect("GPU");
+            let band = band.expect("f64");
+            g.bench_function("gpu_blocks_host_share", |b| {
+                b.iter(|| band.blocks(&grid, k, pose, &params))
+            });
         }
         Some(ctx) => eprintln!(
             "SKIPPED band_listing_1241x376/gpu_blocks: {} has no f64",
