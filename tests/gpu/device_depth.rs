@@ -342,6 +342,44 @@ fn host_depth_frames_are_listed_on_the_device_and_fused_a_call_later() {
     }
 }
 
+/// Real RGB-D frames (`../shared/data/rgbd_5frames_slambook2`: 640×480, depths in mm with
+/// holes) fused on the GPU as `reconstruct` fuses them (`fuse_sequence`: each listed on the
+/// device, in a second submit, and fused a call later) make the map of the same frames planned
+/// on the host and fused on the same GPU (one submit each).
+#[test]
+fn real_rgbd_frames_listed_on_the_device_make_the_hosts_map() {
+    use denser::backend::Backend;
+    use denser::io::sequence::{open_sequence, FrameRange, RangeInput, RangeSource};
+    let Some(ctx) = gpu() else { return };
+    let Some(dir) = crate::common::shared_data("rgbd_5frames_slambook2") else {
+        return;
+    };
+    let ctx = Arc::new(ctx);
+    let seq = open_sequence(&dir, RangeSource::Lidar, None, None).expect("sequence");
+    let mut config = ReconstructionConfig::paper(0.05);
+    config.grid.truncation_m = 0.2;
+    let backend = || Backend::gpu(ctx.clone(), ResidentOptions::default());
+    let new = || Reconstructor::in_memory(config, backend()).expect("reconstructor");
+    let mut dev = new();
+    let frames = FrameRange::ALL.indices(seq.len());
+    dev.fuse_sequence(seq.as_ref(), &frames).expect("fusion");
+    let mut host = new();
+    for i in frames {
+        let RangeInput::Depth(frame) = seq.read(i).expect("frame") else {
+            panic!("frame {i}: not a depth frame")
+        };
+        host.fuse_depth(&frame).expect("fuse");
+    }
+    host.sync().expect("sync");
+    assert_eq!((dev.frames_total(), host.frames_total()), (5, 5));
+    assert_same_map(host.layer(), dev.layer(), 100, "RGB-D");
+    let submits = |rec: &Reconstructor| rec.gpu_traffic().expect("GPU").depth.submits;
+    eprintln!("RGB-D, listed on the device: {:?}", dev.gpu_traffic());
+    // Two submits a frame at least (a band that outgrows its readback is listed again).
+    assert!(submits(&dev) >= 10, "{}", submits(&dev));
+    assert_eq!(submits(&host), 5);
+}
+
 /// A 320×96 synthetic stereo drive of `frames` pairs written under `dir`, with LiDAR scans
 /// where `lidar` (the bag fixture script needs them).
 fn small_drive(dir: &Path, frames: usize, lidar: bool) -> PathBuf {
