@@ -13,7 +13,8 @@
 // [0..9) the camera's x, y and z axes (world frame), [9..12) the camera centre less the
 // camera block's corner (metres), [12] block side (m), [13] its inverse, [14] μ (m), [15] fx,
 // [16] fy, [17] cx, [18] cy (pixels), [19] eps (m), [20] table slots (a power of two),
-// [21] its log2, [22] slices the input holds at most, [23] blocks a slice's box may hold.
+// [21] its log2, [22] slices the input holds at most, [23] blocks a slice's box may hold,
+// [24..26) μ's f64 bits and [26..28) B's (low word, high word, each a whole number).
 @group(0) @binding(0) var<storage, read> params: array<f64>;
 // Three words per slice (`BandSlice::pack`), from band_slices.wgsl.
 @group(0) @binding(1) var<storage, read> slices: array<u32>;
@@ -115,6 +116,23 @@ fn insert(key: u32) -> bool {
     return false;
 }
 
+// The host's ⌈(z1 − z0)/B⌉ (at least 1) for a slice of depths `lo` to `hi` (f32 bits):
+// `SliceGeometry::blocks_of_slice` in src/fusion/band.rs, in its f64 rounding
+// (shared/exact_f64.wgsl); 0 where that arithmetic left the finite values it handles.
+fn host_pieces(lo: u32, hi: u32) -> i32 {
+    let mu = vec2<u32>(u32(params[24]), u32(params[25]));
+    let block = vec2<u32>(u32(params[26]), u32(params[27]));
+    let z0 = f64_max(f64_sub(f64_from_f32(lo), mu), vec2<u32>(0u));
+    let z1 = f64_add(f64_from_f32(hi), mu);
+    let q = f64_div(f64_sub(z1, z0), block);
+    let whole = f64_floor_i32(q);
+    let above = any(f64_from_i32(whole) != q);
+    if (f64_status != 0u) {
+        return 0;
+    }
+    return max(whole + select(0, 1, above), 1);
+}
+
 @compute @workgroup_size(WORKGROUP_SIZE)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) num_wg: vec3<u32>,
         @builtin(local_invocation_index) local: u32) {
@@ -158,13 +176,19 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) num_wg: v
     let r11 = (cx * a.y + cy * b.y) + cz;
     let r_lo = min(min(r00, r01), min(r10, r11));
     let r_hi = max(max(r00, r01), max(r10, r11));
-    // Pieces: ⌈(z1 − z0)/B⌉, at least one; undecided where the quotient is about an integer.
+    // Pieces: ⌈(z1 − z0)/B⌉, at least one. Where the quotient is about an integer n ≥ 1
+    // (a slice of one depth where 2μ is a whole number of blocks, as μ = 4 voxels makes it),
+    // the host's quotient is taken in its own rounding; about 0, both sides make one piece.
     let q = (z1 - z0) * params[13];
-    if (floor(q - eps) != floor(q + eps)) {
-        defer_slice(i);
-        return;
+    var pieces = max(ceil(q), 1.0lf);
+    if (floor(q - eps) != floor(q + eps) && floor(q + eps) >= 1.0lf) {
+        let n = host_pieces(slices[3u * i + 1u], slices[3u * i + 2u]);
+        if (n == 0) {
+            defer_slice(i);
+            return;
+        }
+        pieces = f64(n);
     }
-    let pieces = max(ceil(q), 1.0lf);
     let dz = (z1 - z0) / pieces;
     let n_pieces = i32(pieces);
     // Candidates: the box of the slice's eight corners, widened.
@@ -191,10 +215,15 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) num_wg: v
                     continue;
                 }
                 let depth = dot(cz, centre);
-                // The pieces whose depths could reach the block's: a piece is dz ≥ B/2 deep.
-                let p_lo = max(i32(floor((depth - view_reach - MARGIN_M - z0) / dz)) - 2, 0);
-                let p_hi = min(i32(floor((depth + view_reach + MARGIN_M - z0) / dz)) + 2,
-                    n_pieces - 1);
+                // The pieces whose depths could reach the block's: a piece is dz ≥ B/2 deep
+                // (a single piece may be as thin as zero: it is the only one tested).
+                var p_lo = 0;
+                var p_hi = 0;
+                if (n_pieces > 1) {
+                    p_lo = max(i32(floor((depth - view_reach - MARGIN_M - z0) / dz)) - 2, 0);
+                    p_hi = min(i32(floor((depth + view_reach + MARGIN_M - z0) / dz)) + 2,
+                        n_pieces - 1);
+                }
                 var any_piece = NO;
                 for (var p = p_lo; p <= p_hi; p = p + 1) {
                     let za = z0 + dz * f64(p);

@@ -52,7 +52,7 @@ pub(crate) fn band_block_params(
     let origin = world_from_camera.translation.vector;
     let block_m = grid.block_size_m();
     let base = [0, 1, 2].map(|a| floor_i64(origin[a] / block_m));
-    let mut p = Vec::with_capacity(24);
+    let mut p = Vec::with_capacity(28);
     for c in 0..3 {
         p.extend(rot.column(c).iter().copied());
     }
@@ -61,6 +61,11 @@ pub(crate) fn band_block_params(
     p.extend([k.fx, k.fy, k.cx, k.cy, certainty_margin_m(&origin)]);
     p.extend([TABLE_SLOTS as f64, TABLE_SLOTS_LOG2 as f64]);
     p.extend([slice_capacity as f64, MAX_BOX_BLOCKS]);
+    // μ and B as the host's f64 bits, for the exact piece count.
+    for v in [grid.truncation_m as f64, block_m] {
+        let bits = v.to_bits();
+        p.extend([(bits & 0xffff_ffff) as f64, (bits >> 32) as f64]);
+    }
     (p, base)
 }
 

@@ -180,7 +180,7 @@ pub const FRAME_KEYS: ShaderSource = kernel!(
 /// [`WITH_F64`]).
 pub const BAND_BLOCKS: ShaderSource = kernel!(
     "band_blocks.wgsl",
-    ["shared/dispatch.wgsl"],
+    ["shared/dispatch.wgsl", "shared/exact_f64.wgsl"],
     [Read, Read, Read, ReadWrite, ReadWrite, ReadWrite]
 );
 
