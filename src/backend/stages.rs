@@ -70,6 +70,8 @@ impl GpuStages {
                 &shaders::FRAME_KEYS,
                 &shaders::CLEAR_UPDATED,
                 &shaders::FILL_SLOTS,
+                &shaders::TABLE_SCATTER,
+                &shaders::BAND_SLICES,
                 &shaders::FUSE_LIDAR,
                 &shaders::FUSE_LIDAR_RESIDENT,
             ]);

@@ -205,6 +205,13 @@ pub const DISPARITY_DEPTH: ShaderSource = kernel!(
     [Uniform, Read, ReadWrite]
 );
 
+/// Writes the block table's changed entries, sent as one list.
+pub const TABLE_SCATTER: ShaderSource = kernel!(
+    "table_scatter.wgsl",
+    ["shared/dispatch.wgsl"],
+    [Read, ReadWrite]
+);
+
 /// Writes the empty block into listed pool slots given to new blocks.
 pub const FILL_SLOTS: ShaderSource = kernel!(
     "fill_slots.wgsl",
@@ -642,6 +649,7 @@ pub const ALL: &[ShaderSource] = &[
     DISPARITY_DEPTH,
     CLEAR_UPDATED,
     FILL_SLOTS,
+    TABLE_SCATTER,
     // Stereo.
     TGV_DUAL,
     TGV_PRIMAL,

@@ -124,9 +124,11 @@ fn frames_fused_from_the_device(ctx: denser::gpu::GpuContext) {
         );
         ctx.wait_idle_uncounted().expect("idle");
         let (grows, before) = (dev_map.stats().grows, ctx.traffic());
+        let table_writes = dev_map.stats().table_writes;
         integrate_device_depth_resident(&mut dev_map, &mut dev_layer, &dev, &params, &plan)
             .expect("fuse on the device");
         let t = ctx.traffic().since(before);
+        let table_writes = dev_map.stats().table_writes - table_writes;
         eprintln!("frame {k}: made with {made:?}, fusion {t:?}");
         if k >= 3 && dev_map.stats().grows == grows {
             // Warm: the colour (3 bytes a pixel) and the blocks' offsets go up, not the depths.
@@ -135,6 +137,8 @@ fn frames_fused_from_the_device(ctx: denser::gpu::GpuContext) {
             assert!(t.upload_bytes <= colour + (64 << 10), "{t:?}");
             assert!(t.readback_bytes <= 64 << 10, "{t:?}");
             assert_eq!((t.submits, t.waits, t.buffers_created), (1, 0, 0), "{t:?}");
+            // Its hundreds of scattered table entries in one write, put in place there.
+            assert_eq!(table_writes, 1, "frame {k}");
         }
     }
     assert!(steady >= 2, "{steady} warm frames");

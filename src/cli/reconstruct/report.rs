@@ -144,7 +144,7 @@ impl fmt::Display for Report {
         if let Some(g) = &self.gpu {
             writeln!(
                 f,
-                "GPU tier: pool {} blocks (max {}), peak {} resident, {} uploaded, {} created on the GPU, {} read back, {} spilled to RAM, {} grows, {} oversize frames, {} frames submitted while others were in flight ({} blocks listed for frames in flight)",
+                "GPU tier: pool {} blocks (max {}), peak {} resident, {} uploaded, {} created on the GPU, {} read back, {} spilled to RAM, {} grows, {} oversize frames, {} frames submitted while others were in flight ({} blocks listed for frames in flight), {} table writes",
                 g.capacity_blocks,
                 g.max_blocks,
                 g.peak_resident_blocks,
@@ -155,7 +155,8 @@ impl fmt::Display for Report {
                 g.grows,
                 g.oversize_frames,
                 g.frames_overlapped,
-                g.blocks_listed_in_flight
+                g.blocks_listed_in_flight,
+                g.table_writes
             )?;
             let per = |s: f64| 1e3 * s / g.frames.max(1) as f64;
             writeln!(

@@ -103,6 +103,9 @@ pub struct ResidentStats {
     pub frames_overlapped: u64,
     /// Blocks depth frames listed only because a frame in flight may have created them.
     pub blocks_listed_in_flight: u64,
+    /// Host writes that sent the hash table's changed entries up (a queue write per run of
+    /// neighbouring entries, or one for a frame's changes scattered on the device).
+    pub table_writes: u64,
     /// Seconds listing each frame's blocks on the CPU (band and visible blocks).
     pub list_s: f64,
     /// Seconds making blocks resident (growing, spilling, uploading blocks and table entries).
@@ -241,7 +244,7 @@ impl ResidentMap {
     /// Looks `keys` up in the device's copy of the table (`block_lookup.wgsl`): the GPU's view
     /// of residency, which must equal [`ResidentMap::slot_of`].
     pub fn lookup_on_gpu(&mut self, keys: &[BlockIndex]) -> Result<Vec<Option<u32>>> {
-        self.table.upload(&self.ctx);
+        self.stats.table_writes += self.table.upload(&self.ctx, None)? as u64;
         table::run_lookup(&self.ctx, self.table.buffer(), self.table.host.mask(), keys)
     }
 
@@ -300,7 +303,9 @@ impl ResidentMap {
     /// [`ResidentMap::max_blocks`]) resident: grows or spills ([`policy`]) to free the slots it
     /// needs, uploads the missing blocks (the layer's copy, or empty) and the changed table
     /// entries. The empty blocks are written on the device by a dispatch recorded into
-    /// `encoder` (a frame's, to be submitted with its kernels) or, without one, submitted alone.
+    /// `encoder` (a frame's, to be submitted with its kernels before any other call on this
+    /// map) or, without one, submitted alone; with `encoder`, many scattered table entries go
+    /// up as one list that a dispatch recorded into it puts in place.
     pub(crate) fn make_resident(
         &mut self,
         layer: &mut Layer,
@@ -325,8 +330,9 @@ impl ResidentMap {
             let in_frame: HashSet<BlockIndex> = blocks.iter().copied().collect();
             self.make_room(layer, missing.len(), &in_frame, camera_m)?;
         }
-        self.upload_blocks(layer, &missing, encoder)?;
-        self.table.upload(&self.ctx);
+        let mut encoder = encoder;
+        self.upload_blocks(layer, &missing, encoder.as_deref_mut())?;
+        self.stats.table_writes += self.table.upload(&self.ctx, encoder)? as u64;
         self.stats.residency_s += t.elapsed().as_secs_f64();
         Ok(())
     }

@@ -3,6 +3,7 @@
 //! decides residency) and uploads the entries it changed; kernels resolve block keys through
 //! the device copy (`shaders/block_lookup.wgsl`, twin of [`BlockTable::lookup`]).
 
+use crate::gpu::kept::Kept;
 use crate::gpu::layout::LookupUniforms;
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
@@ -197,7 +198,14 @@ pub(crate) struct DeviceTable {
     /// The host's table (authoritative).
     pub(crate) host: BlockTable,
     buffer: wgpu::Buffer,
+    /// The list of changed entries and the scatter's bind group ([`DeviceTable::upload`]).
+    kept: Kept,
 }
+
+/// Runs of changed positions beyond which an upload with an encoder sends the changes as one
+/// list and scatters them on the device (one queue write, one dispatch) rather than one queue
+/// write per run.
+const SCATTER_RUNS: usize = 16;
 
 impl DeviceTable {
     /// An empty table for `blocks` keys, uploaded whole; later uploads send only changes.
@@ -205,7 +213,11 @@ impl DeviceTable {
         let mut host = BlockTable::for_blocks(blocks);
         let buffer = ctx.storage("block_table", bytemuck::cast_slice(host.entries()));
         host.changed = Some(Vec::new());
-        DeviceTable { host, buffer }
+        DeviceTable {
+            host,
+            buffer,
+            kept: Kept::default(),
+        }
     }
 
     /// The device copy (valid after [`DeviceTable::upload`]).
@@ -213,23 +225,61 @@ impl DeviceTable {
         &self.buffer
     }
 
-    /// Uploads the entries changed since the last upload (everything after a rebuild).
-    pub(crate) fn upload(&mut self, ctx: &GpuContext) {
-        match self.host.take_changes() {
-            None => {
-                self.buffer = ctx.storage("block_table", bytemuck::cast_slice(self.host.entries()));
+    /// Uploads the entries changed since the last upload (everything after a rebuild): a run
+    /// of neighbouring positions in one queue write; with `encoder` (a frame's, submitted after
+    /// this call and before any other upload) and more than [`SCATTER_RUNS`] runs, the changes
+    /// as one list (20 bytes each) that `shaders/table_scatter.wgsl` puts in place, recorded
+    /// first into it. Returns the host's writes (queue writes, or a new buffer) it took.
+    pub(crate) fn upload(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: Option<&mut wgpu::CommandEncoder>,
+    ) -> Result<usize> {
+        let Some(mut positions) = self.host.take_changes() else {
+            self.buffer = ctx.storage("block_table", bytemuck::cast_slice(self.host.entries()));
+            return Ok(1);
+        };
+        positions.sort_unstable();
+        positions.dedup();
+        let runs = super::pool::runs(&positions);
+        match encoder {
+            Some(encoder) if runs.len() > SCATTER_RUNS => {
+                self.scatter(ctx, encoder, &positions)?;
+                Ok(1)
             }
-            Some(mut positions) => {
-                positions.sort_unstable();
-                positions.dedup();
-                // Contiguous runs in one write each.
-                for (k, run) in super::pool::runs(&positions) {
+            _ => {
+                for &(k, run) in &runs {
                     let start = positions[k] as usize;
                     let e = &self.host.entries()[start..start + run];
                     ctx.write_buffer(&self.buffer, start as u64 * 16, bytemuck::cast_slice(e));
                 }
+                Ok(runs.len())
             }
         }
+    }
+
+    /// Records the scatter of the entries at `positions` (distinct) into `encoder`.
+    fn scatter(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        positions: &[u32],
+    ) -> Result<()> {
+        let mut words = Vec::with_capacity(1 + 5 * positions.len());
+        words.push(positions.len() as u32);
+        for &p in positions {
+            words.push(p);
+            words.extend(self.host.entries()[p as usize]);
+        }
+        let kernel = ctx.kernel(&shaders::TABLE_SCATTER)?;
+        let changes = (self.kept).storage_with(ctx, "table_changes", bytemuck::cast_slice(&words));
+        let bind = (self.kept).bind_group(
+            ctx,
+            "table_scatter",
+            &kernel.layout,
+            &[&changes, &self.buffer],
+        );
+        ctx.record_dispatch(encoder, &kernel, &bind, positions.len() as u64)
     }
 }
 
