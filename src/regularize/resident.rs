@@ -64,8 +64,11 @@ pub fn regularize_resident(
     if !fits || !map.resident_blocks().iter().all(|b| layer.contains(b)) {
         return Ok(None);
     }
-    map.make_resident(layer, &blocks, [0.0; 3], None)?;
-    let (listed, stored, omega_voxels) = solve_on_device(map, n as u32, params)?;
+    // The table's changes (blocks brought back up, slots released by the sync) go up with
+    // the solve's submit.
+    let mut encoder = map.context().encoder("tv_resident");
+    map.make_resident(layer, &blocks, [0.0; 3], Some(&mut encoder))?;
+    let (listed, stored, omega_voxels) = solve_on_device(map, n as u32, params, encoder)?;
     for (entry, values) in listed.iter().zip(stored.chunks_exact(VOXELS_PER_BLOCK)) {
         let key = BlockIndex([entry[0] as i32, entry[1] as i32, entry[2] as i32]);
         let block = layer
@@ -84,13 +87,14 @@ pub fn regularize_resident(
     Ok(Some((blocks, stats)))
 }
 
-/// Records and runs the solve over the map's `n` resident blocks (see the module
-/// documentation). Returns each block's table entry (key, slot), the stored values (512 per
-/// block, in the same order) and the number of Ω voxels.
+/// Records the solve over the map's `n` resident blocks into `encoder` (after what it holds)
+/// and runs it (see the module documentation). Returns each block's table entry (key, slot),
+/// the stored values (512 per block, in the same order) and the number of Ω voxels.
 fn solve_on_device(
     map: &mut ResidentMap,
     n: u32,
     params: &TvParams,
+    mut encoder: wgpu::CommandEncoder,
 ) -> Result<(Vec<[u32; 4]>, Vec<i16>, usize)> {
     let capacity = map.stats().capacity_blocks as u64;
     let FrameParts {
@@ -211,7 +215,6 @@ fn solve_on_device(
             &buf_stored,
         ],
     );
-    let mut encoder = ctx.encoder("tv_resident");
     encoder.clear_buffer(&buf_counters, 0, Some(8));
     encoder.clear_buffer(&buf_slot_entry, 0, Some(capacity * 16));
     ctx.record_dispatch(&mut encoder, &slots, &bind_slots, table_mask as u64 + 1)?;
