@@ -47,18 +47,23 @@ fn disparities_of(frame: &DepthFrame) -> DisparityMap {
 /// host's: with the blocks listed on the device (where it has f64) and from the slices.
 #[test]
 fn a_frame_fused_from_its_depths_on_the_device_is_the_hosts() {
+    with_and_without_f64(frames_fused_from_the_device);
+}
+
+/// Runs `check` on the GPU without f64 (bands listed from their slices by the host) and, where
+/// the device has f64, with it (bands listed on the device); nothing without a GPU.
+fn with_and_without_f64(check: impl Fn(Arc<denser::gpu::GpuContext>)) {
     let Some(ctx) = gpu() else { return };
     let f64_too = ctx.has_f64();
-    frames_fused_from_the_device(ctx.without_f64());
+    check(Arc::new(ctx.without_f64()));
     if f64_too {
-        frames_fused_from_the_device(gpu().expect("a GPU"));
+        check(Arc::new(gpu().expect("a GPU")));
     } else {
         crate::common::skip("no f64 on this device: the blocks are listed from the slices");
     }
 }
 
-fn frames_fused_from_the_device(ctx: denser::gpu::GpuContext) {
-    let ctx = Arc::new(ctx);
+fn frames_fused_from_the_device(ctx: Arc<denser::gpu::GpuContext>) {
     let grid = GridParams::paper(0.1);
     let params = DepthFusionParams::default();
     let new_map = || {
@@ -155,12 +160,7 @@ fn frames_fused_from_the_device(ctx: denser::gpu::GpuContext) {
 /// depths (the kept buffers hold a later frame's by then) and planned as the host plans it.
 #[test]
 fn frames_made_ahead_with_larger_bands_plan_as_the_host() {
-    let Some(ctx) = gpu() else { return };
-    let f64_too = ctx.has_f64();
-    frames_made_ahead(Arc::new(ctx.without_f64()));
-    if f64_too {
-        frames_made_ahead(Arc::new(gpu().expect("a GPU")));
-    }
+    with_and_without_f64(frames_made_ahead);
 }
 
 fn frames_made_ahead(ctx: Arc<denser::gpu::GpuContext>) {
@@ -221,12 +221,7 @@ fn frames_made_ahead(ctx: Arc<denser::gpu::GpuContext>) {
 /// is not its camera's size is refused, naming both sizes.
 #[test]
 fn a_host_frame_listed_on_the_device_plans_as_the_host() {
-    let Some(ctx) = gpu() else { return };
-    let f64_too = ctx.has_f64();
-    host_frames_listed(Arc::new(ctx.without_f64()));
-    if f64_too {
-        host_frames_listed(Arc::new(gpu().expect("a GPU")));
-    }
+    with_and_without_f64(host_frames_listed);
 }
 
 fn host_frames_listed(ctx: Arc<denser::gpu::GpuContext>) {
