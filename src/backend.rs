@@ -114,10 +114,16 @@ fn counted<T>(
     work: impl FnOnce() -> T,
 ) -> T {
     let Some(ctx) = ctx else { return work() };
+    *calls += 1;
+    added(ctx, into, work)
+}
+
+/// The GPU traffic of `work` added to `into`, as part of calls counted elsewhere (a depth
+/// frame's upload and band, counted with its fusion).
+fn added<T>(ctx: &GpuContext, into: &mut GpuTraffic, work: impl FnOnce() -> T) -> T {
     let before = ctx.traffic();
     let out = work();
     *into = into.plus(ctx.traffic().since(before));
-    *calls += 1;
     out
 }
 
@@ -318,9 +324,7 @@ impl Backend {
         if frame.matched() {
             return (self.stereo_tally).add(frame.context(), || frame.collect_band());
         }
-        let mut calls = 0;
-        let depth = &mut self.traffic.depth;
-        counted(Some(frame.context()), depth, &mut calls, || {
+        added(frame.context(), &mut self.traffic.depth, || {
             frame.collect_band()
         })
     }
@@ -341,9 +345,8 @@ impl Backend {
             Some(ctx) if DeviceDepthFrame::can_list(&frame, grid, params) => ctx,
             _ => return Ok(Err(frame)),
         };
-        let (kept, mut calls) = (&mut self.host_depths, 0);
-        let depth = &mut self.traffic.depth;
-        counted(Some(&ctx), depth, &mut calls, || {
+        let kept = &mut self.host_depths;
+        added(&ctx, &mut self.traffic.depth, || {
             DeviceDepthFrame::from_depths(&ctx, (grid, params), frame, kept).map(Ok)
         })
     }

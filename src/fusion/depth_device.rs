@@ -232,7 +232,7 @@ impl DeviceDepthFrame {
 
     /// The frame of depths the host holds (a depth camera's, ground truth, a CPU matcher's),
     /// for fusion into `grid` with `params` on `ctx`: its depths uploaded once (4 bytes per
-    /// pixel, into a buffer of `kept`'s pool that the fusion reads), its band slices and (with
+    /// pixel; the frame keeps a copy on the device for the fusion), its band slices and (with
     /// f64) blocks listed on the device and submitted; the band comes back later, as a
     /// matched pair's does, so that the host walks none of its pixels. Any depth values go up
     /// (NaN, ±∞, zero and negative ones are not usable, as on the host). An error where the
