@@ -179,7 +179,16 @@ impl Backend {
     pub fn open(choice: DeviceChoice, options: ResidentOptions) -> Result<Self> {
         let backend = Backend::open_uncompiled(choice, options)?;
         if let Some(ctx) = &backend.gpu {
-            ctx.compile_kernels(&backend.stages.kernels())?;
+            let mut kernels = backend.stages.kernels();
+            // The band's blocks are listed on the device (stereo pairs, host depth frames)
+            // where it has f64.
+            if ctx.has_f64() && (backend.stages.fusion || backend.stages.stereo) {
+                kernels.extend(crate::gpu::shaders::WITH_F64);
+            }
+            // A kernel two stages use (the band's slices) compiled once.
+            kernels.sort_by_key(|k| k.file);
+            kernels.dedup_by_key(|k| k.file);
+            ctx.compile_kernels(&kernels)?;
         }
         Ok(backend)
     }

@@ -89,6 +89,8 @@ impl GpuStages {
         }
         if self.stereo {
             out.extend([
+                &shaders::DISPARITY_DEPTH,
+                &shaders::BAND_SLICES,
                 &shaders::CENSUS,
                 &shaders::CENSUS_COST,
                 &shaders::SGM_PATHS,
