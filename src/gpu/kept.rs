@@ -230,15 +230,6 @@ impl BufferPool {
         label: &'static str,
         (source, bytes): (&wgpu::Buffer, u64),
     ) -> Pooled {
-        let lent = self.lend(ctx, label, bytes);
-        if bytes > 0 {
-            encoder.copy_buffer_to_buffer(source, 0, lent.buffer(), 0, bytes);
-        }
-        lent
-    }
-
-    /// A free buffer of at least `bytes`, else one created.
-    fn lend(&self, ctx: &GpuContext, label: &'static str, bytes: u64) -> Pooled {
         let lent = {
             let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
             let at = free.iter().position(|b| b.size() >= bytes);
@@ -247,11 +238,14 @@ impl BufferPool {
         let buffer = lent.unwrap_or_else(|| {
             ctx.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
-                size: bytes.next_multiple_of(4).max(4),
+                size: bytes.max(4),
                 usage: STORAGE,
                 mapped_at_creation: false,
             })
         });
+        if bytes > 0 {
+            encoder.copy_buffer_to_buffer(source, 0, &buffer, 0, bytes);
+        }
         Pooled {
             buffer,
             pool: self.clone(),
