@@ -302,10 +302,13 @@ impl Backend {
 
     /// [`Backend::fuse_depth`] for a frame whose depths are on the GPU: fused where they are
     /// when this backend fuses on that GPU, else read back (counted) and fused as a host frame.
+    /// The work `next` holds unsubmitted (the following frame's listing,
+    /// [`DeviceDepthFrame::from_depths`]) rides in this frame's submit on that GPU: one submit
+    /// a frame.
     pub fn fuse_device_depth(
         &mut self,
         layer: &mut Layer,
-        frame: &DeviceDepthFrame,
+        (frame, next): (&DeviceDepthFrame, Option<&DeviceDepthFrame>),
         params: &DepthFusionParams,
         plan: &DepthPlan,
     ) -> Result<(TouchedBlocks, FusionStats)> {
@@ -320,10 +323,16 @@ impl Backend {
         };
         let options = (self.resident_options, self.frames_in_flight);
         let resident = Self::resident_map(&mut self.resident, options, &ctx, layer)?;
+        let next = next.filter(|n| Arc::ptr_eq(n.context(), &ctx));
+        let riding = next.and_then(DeviceDepthFrame::take_unsubmitted);
         let t = &mut self.traffic;
-        counted(Some(&ctx), &mut t.depth, &mut t.depth_frames, || {
-            integrate_device_depth_resident(resident, layer, frame, params, plan)
-        })
+        let fused = counted(Some(&ctx), &mut t.depth, &mut t.depth_frames, || {
+            integrate_device_depth_resident(resident, layer, frame, params, (plan, riding))
+        })?;
+        if let Some(next) = next {
+            next.submitted();
+        }
+        Ok(fused)
     }
 
     /// Collects the band of `frame` ([`DeviceDepthFrame::collect_band`]): its readback,
@@ -357,6 +366,14 @@ impl Backend {
         let kept = &mut self.host_depths;
         added(&ctx, &mut self.traffic.depth, || {
             DeviceDepthFrame::from_depths(&ctx, (grid, params), frame, kept).map(Ok)
+        })
+    }
+
+    /// Submits the work a frame from [`Backend::depth_to_device`] still holds (no fusion's
+    /// submit took it), counted as the frame's.
+    pub fn submit_device_depth(&mut self, frame: &DeviceDepthFrame) {
+        added(frame.context(), &mut self.traffic.depth, || {
+            frame.submit_now()
         })
     }
 

@@ -296,9 +296,18 @@ impl Reconstructor {
         match input {
             RangeInput::DeviceDepth(frame) if self.backend.fuses_depth_in_flight(&frame) => {
                 let mut touched = self.finish_lidar()?;
-                if let Some(earlier) = self.pending_depth.replace(frame) {
-                    touched.extend(self.fuse_device_depth_now(&earlier)?);
+                if let Some(earlier) = self.pending_depth.take() {
+                    // Where the device keeps up (the earlier frame's band is back), the frame's
+                    // listing rides in the earlier's fusion submit: one submit a frame. Where it
+                    // is behind, the listing goes first, alone, so that the next call waits for
+                    // it (if at all) and not for the earlier's fusion too.
+                    if !earlier.band_arrived()? {
+                        self.backend.submit_device_depth(&frame);
+                    }
+                    touched.extend(self.fuse_device_depth_now(&earlier, Some(&frame))?);
                 }
+                self.backend.submit_device_depth(&frame);
+                self.pending_depth = Some(frame);
                 Ok(touched)
             }
             input => self.fuse(&input),
@@ -361,7 +370,7 @@ impl Reconstructor {
     /// Fuses the depth frame in flight, if any ([`Reconstructor::fuse_input`]).
     fn finish_pending_depth(&mut self) -> crate::Result<TouchedBlocks> {
         match self.pending_depth.take() {
-            Some(frame) => self.fuse_device_depth_now(&frame),
+            Some(frame) => self.fuse_device_depth_now(&frame, None),
             None => Ok(Vec::new()),
         }
     }
@@ -372,12 +381,17 @@ impl Reconstructor {
     /// [`Reconstructor::fuse_depth`] with the frame's depths.
     pub fn fuse_device_depth(&mut self, frame: &DeviceDepthFrame) -> crate::Result<TouchedBlocks> {
         let mut touched = self.finish_pending_depth()?;
-        touched.extend(self.fuse_device_depth_now(frame)?);
+        touched.extend(self.fuse_device_depth_now(frame, None)?);
         Ok(touched)
     }
 
-    /// [`Reconstructor::fuse_device_depth`] of `frame` alone.
-    fn fuse_device_depth_now(&mut self, frame: &DeviceDepthFrame) -> crate::Result<TouchedBlocks> {
+    /// [`Reconstructor::fuse_device_depth`] of `frame` alone; the work `next` holds unsubmitted
+    /// rides in its submit ([`Backend::fuse_device_depth`]).
+    fn fuse_device_depth_now(
+        &mut self,
+        frame: &DeviceDepthFrame,
+        next: Option<&DeviceDepthFrame>,
+    ) -> crate::Result<TouchedBlocks> {
         // Waiting for a pair's band is waiting for its matching (input time); for a host
         // frame's, for its listing (fusion time).
         let t = Instant::now();
@@ -389,7 +403,9 @@ impl Reconstructor {
         }
         self.fuse_planned(
             |grid, params| frame.plan(grid, params),
-            |backend, layer, params, plan| backend.fuse_device_depth(layer, frame, params, plan),
+            |backend, layer, params, plan| {
+                backend.fuse_device_depth(layer, (frame, next), params, plan)
+            },
         )
     }
 

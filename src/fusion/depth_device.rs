@@ -40,6 +40,10 @@ pub struct DeviceDepthFrame {
     made_for: [u32; 4],
     /// Whether a matcher made the depths on the device (else they came from the host).
     matched: bool,
+    /// The frame's own work (its depths' copy, its band's listing and readback) where it was
+    /// recorded and not yet submitted: [`Self::from_depths`] leaves it for the submit of the
+    /// fusion before it ([`Self::take_unsubmitted`]).
+    unsubmitted: Mutex<Option<wgpu::CommandEncoder>>,
 }
 
 /// What came back of a frame's band, or is on its way.
@@ -223,7 +227,7 @@ impl DeviceDepthFrame {
         let to_depth = disparity_depth_uniforms(pixels, view.0.fx, baseline_m)?;
         let made =
             record_disparity_depth((ctx, &mut kept.kept), &mut encoder, &to_depth, disparity)?;
-        let frame = Self::listed(ctx, encoder, (fusion, band), view, &made, kept)?;
+        let frame = Self::listed(ctx, encoder, (fusion, band), view, (&made, false), kept)?;
         Ok(DeviceDepthFrame {
             matched: true,
             ..frame
@@ -233,8 +237,10 @@ impl DeviceDepthFrame {
     /// The frame of depths the host holds (a depth camera's, ground truth, a CPU matcher's),
     /// for fusion into `grid` with `params` on `ctx`: its depths uploaded once (4 bytes per
     /// pixel; the frame keeps a copy on the device for the fusion), its band slices and (with
-    /// f64) blocks listed on the device and submitted; the band comes back later, as a
-    /// matched pair's does, so that the host walks none of its pixels. Any depth values go up
+    /// f64) blocks listed on the device; the band comes back later, as a matched pair's does,
+    /// so that the host walks none of its pixels. The work is recorded, not submitted: the
+    /// fusion of the frame before takes it into its own submit ([`Self::take_unsubmitted`]),
+    /// or the frame submits it alone when first planned or read ([`Self::submit_now`]). Any depth values go up
     /// (NaN, ±∞, zero and negative ones are not usable, as on the host). An error where the
     /// image is not the camera's size or the device cannot list its band (see
     /// [`Self::can_list`]).
@@ -256,7 +262,7 @@ impl DeviceDepthFrame {
         let sent = kept.kept.storage_with(ctx, "host_depth", data);
         let encoder = ctx.encoder("host_depth_frame");
         let view = (intrinsics, world_from_camera, color);
-        Self::listed(ctx, encoder, (fusion, band), view, &sent, kept)
+        Self::listed(ctx, encoder, (fusion, band), view, (&sent, true), kept)
     }
 
     /// Whether [`Self::from_depths`] takes a frame of `frame`'s size into `grid` with `params`
@@ -270,13 +276,14 @@ impl DeviceDepthFrame {
     /// The frame of the depths `made` (a buffer of `kept`, so that the kernels bind the same
     /// buffers every frame) seen as `view`: its own copy of them (the kernels' buffers serve
     /// the next frame), its band slices and (with f64) band blocks recorded into `encoder` in
-    /// buffers of `kept`, and the band's readback submitted with them through `kept`'s ring.
+    /// buffers of `kept`, and the band's readback through `kept`'s ring: all submitted, or with
+    /// `hold` kept in the frame for a later submit.
     fn listed(
         ctx: &Arc<GpuContext>,
         mut encoder: wgpu::CommandEncoder,
         ((grid, params), band): ((&GridParams, &DepthFusionParams), BandSliceUniforms),
         (intrinsics, world_from_camera, color): CameraView,
-        made: &wgpu::Buffer,
+        (made, hold): (&wgpu::Buffer, bool),
         kept: &mut DeviceDepthKept,
     ) -> Result<Self> {
         let bytes = intrinsics.width as u64 * intrinsics.height as u64 * 4;
@@ -300,12 +307,20 @@ impl DeviceDepthFrame {
             let p = band_block_params(grid, &intrinsics, &world_from_camera, out.capacity());
             let listed = record_band_blocks((ctx, buffers), &mut encoder, (&p.0, p.1), &out)?;
             let words = BandWords::new(listed.clamp(expected));
-            let readback = ring.submit(ctx, encoder, &listed.sources(&out, &words));
+            let readback = ring.record(ctx, &mut encoder, &listed.sources(&out, &words));
             (readback, LateWords::Listed(words, listed.decoder(), p))
         } else {
             let words = SliceWords::new(expected.0.min(out.capacity() as usize));
-            let readback = ring.submit(ctx, encoder, &out.sources(&words));
+            let readback = ring.record(ctx, &mut encoder, &out.sources(&words));
             (readback, LateWords::Slices(words, out.capacity()))
+        };
+        let unsubmitted = match hold {
+            true => Some(encoder),
+            false => {
+                ctx.submit(encoder);
+                readback.submitted();
+                None
+            }
         };
         let band = FrameBand::Late(Box::new(LateBand {
             readback,
@@ -330,6 +345,7 @@ impl DeviceDepthFrame {
             band: Mutex::new(band),
             made_for: made_for(grid, params),
             matched: false,
+            unsubmitted: Mutex::new(unsubmitted),
         })
     }
 
@@ -371,8 +387,46 @@ impl DeviceDepthFrame {
         &self.ctx
     }
 
+    /// The frame's own work where it was recorded and not submitted yet ([`Self::from_depths`]),
+    /// for the caller to submit with its own, then to call [`Self::submitted`].
+    pub(crate) fn take_unsubmitted(&self) -> Option<wgpu::CommandEncoder> {
+        self.unsubmitted
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take()
+    }
+
+    /// After the work [`Self::take_unsubmitted`] gave was submitted: the band's readback is
+    /// asked for.
+    pub(crate) fn submitted(&self) {
+        if let FrameBand::Late(late) = &*self.band.lock().unwrap_or_else(|e| e.into_inner()) {
+            late.readback.submitted();
+        }
+    }
+
+    /// Whether the band is here or its readback has arrived (as of a poll of the device now):
+    /// planning the frame waits for nothing.
+    pub fn band_arrived(&self) -> Result<bool> {
+        self.ctx.poll_finished()?;
+        Ok(
+            match &*self.band.lock().unwrap_or_else(|e| e.into_inner()) {
+                FrameBand::Late(late) => late.readback.is_ready(),
+                _ => true,
+            },
+        )
+    }
+
+    /// Submits the frame's own work where it is still held (no other submit took it).
+    pub fn submit_now(&self) {
+        if let Some(encoder) = self.take_unsubmitted() {
+            self.ctx.submit(encoder);
+            self.submitted();
+        }
+    }
+
     /// The band, collected first where it is still on its way ([`LateBand`]).
     fn band(&self) -> Result<std::sync::MutexGuard<'_, FrameBand>> {
+        self.submit_now();
         let mut band = self.band.lock().unwrap_or_else(|e| e.into_inner());
         if let FrameBand::Late(_) = &*band {
             let FrameBand::Late(late) = std::mem::replace(&mut *band, FrameBand::Failed) else {
@@ -437,6 +491,7 @@ impl DeviceDepthFrame {
 
     /// The frame with its depths read back (counted): what the host would have fused.
     pub fn read_back(&self, ctx: &GpuContext) -> Result<DepthFrame> {
+        self.submit_now();
         Self::read_back_from(ctx, &self.header, self.depth.buffer())
     }
 

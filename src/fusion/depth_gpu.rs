@@ -138,7 +138,7 @@ pub fn integrate_depth_resident(
     params: &DepthFusionParams,
     plan: &DepthPlan,
 ) -> Result<(TouchedBlocks, FusionStats)> {
-    integrate_resident(map, layer, (frame, None), params, plan)
+    integrate_resident(map, layer, (frame, None), params, (plan, None))
 }
 
 /// [`integrate_depth_resident`] for a frame whose depths are on the device (a matcher left
@@ -146,20 +146,19 @@ pub fn integrate_depth_resident(
 /// the device into the fusion's input, so that only its colour goes up. Equal to fusing the
 /// frame's depths from the host (`tests/gpu/device_depth.rs`). A frame too large for the pool
 /// reads its depths back (counted) and goes through [`integrate_depth_gpu`].
+///
+/// `riding`: work recorded for the device and not yet submitted (the next frame's listing,
+/// [`DeviceDepthFrame::take_unsubmitted`]), submitted first in the frame's own submit, or
+/// alone where the frame makes none; submitted in any case once this returns `Ok`.
 pub fn integrate_device_depth_resident(
     map: &mut ResidentMap,
     layer: &mut Layer,
     frame: &DeviceDepthFrame,
     params: &DepthFusionParams,
-    plan: &DepthPlan,
+    (plan, riding): (&DepthPlan, Option<wgpu::CommandEncoder>),
 ) -> Result<(TouchedBlocks, FusionStats)> {
-    integrate_resident(
-        map,
-        layer,
-        (frame.header(), Some(frame.depth_buffer())),
-        params,
-        plan,
-    )
+    let depth = Some(frame.depth_buffer());
+    integrate_resident(map, layer, (frame.header(), depth), params, (plan, riding))
 }
 
 /// The frame's header (the whole frame where `depth` is `None`) and, where its depths are on
@@ -171,21 +170,25 @@ fn integrate_resident(
     layer: &mut Layer,
     (frame, depth): ResidentInput,
     params: &DepthFusionParams,
-    plan: &DepthPlan,
+    (plan, mut riding): (&DepthPlan, Option<wgpu::CommandEncoder>),
 ) -> Result<(TouchedBlocks, FusionStats)> {
     if layer.params() != map.grid() {
         return Err(Error::InvalidArgument(
             "resident GPU map and layer have different grids".into(),
         ));
     }
-    map.begin_in_flight(layer)?;
+    map.begin_in_flight(layer, true)?;
     let t = std::time::Instant::now();
     let blocks = plan.blocks_with(layer, &map.unsettled_blocks(layer));
+    map.release_empty_except(&blocks);
     map.begin_frame(blocks.len(), plan.listing_s + t.elapsed().as_secs_f64());
     if blocks.len() > map.max_blocks() as usize {
         // The frame alone exceeds the largest pool: give its resident blocks back to RAM and
         // fuse it in batches.
         map.note_oversize();
+        if let Some(encoder) = riding.take() {
+            map.context().submit(encoder);
+        }
         tracing::warn!(
             "frame needs {} blocks, more than the GPU pool's {} (raise the GPU memory budget); \
              fusing it in batches",
@@ -216,13 +219,18 @@ fn integrate_resident(
         let first_unsettled = listed.len();
         map.note_listed_in_flight(unsettled.len());
         listed.extend(unsettled);
-        // One submit: the empty blocks' fill, the keys' slots and bases, and the fusion.
-        let mut encoder = map.context().encoder("fuse_depth_resident");
+        // One submit: what rides with it, the empty blocks' fill, the keys' slots and bases,
+        // and the fusion.
+        let mut encoder = riding
+            .take()
+            .unwrap_or_else(|| map.context().encoder("fuse_depth_resident"));
         map.make_resident(layer, &listed, plan.camera_m, Some(&mut encoder))?;
         let t = std::time::Instant::now();
         let frame_parts = (listed, first_unsettled, encoder);
         let inputs_s = run_resident(map, layer, frame_parts, (frame, depth), params, plan)?;
         map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
+    } else if let Some(encoder) = riding.take() {
+        map.context().submit(encoder);
     }
     let (touched, voxel_updates) = map.end_in_flight(layer)?;
     let stats = FusionStats {

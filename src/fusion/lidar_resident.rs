@@ -46,7 +46,7 @@ pub fn integrate_lidar_resident(
         ));
     }
     // A scan's blocks are its rays' alone: they do not depend on what has arrived.
-    map.begin_in_flight(layer)?;
+    map.begin_in_flight(layer, false)?;
     let groups = plan.groups();
     let blocks: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
     map.begin_frame(blocks.len(), 0.0);

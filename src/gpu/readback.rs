@@ -20,10 +20,11 @@ const MIN_RING_BYTES: u64 = 64 << 10;
 
 const RING_NAMES: [&str; RING_LEN] = ["late_readback_0", "late_readback_1", "late_readback_2"];
 
-/// Not yet mapped, mapped, or the mapping failed.
+/// Not yet mapped, mapped, the mapping failed, or the work that fills it not yet submitted.
 const WAITING: u8 = 0;
 const MAPPED: u8 = 1;
 const FAILED: u8 = 2;
+const UNSUBMITTED: u8 = 3;
 
 /// The ring's staging buffers, kept between frames (grown, counted, when a frame needs more).
 #[derive(Debug, Default)]
@@ -58,18 +59,13 @@ impl ReadbackRing {
     pub(crate) fn submit(
         &mut self,
         ctx: &GpuContext,
-        encoder: wgpu::CommandEncoder,
+        mut encoder: wgpu::CommandEncoder,
         buffers: &[(&wgpu::Buffer, usize)],
     ) -> LateReadback {
-        let lens: Vec<usize> = buffers.iter().map(|(_, len)| *len).collect();
-        self.submit_copies(ctx, encoder, &lens, |encoder, staging, parts| {
-            for ((buf, len), (at, _)) in buffers.iter().zip(parts) {
-                let bytes = (*len as u64).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
-                if bytes > 0 {
-                    encoder.copy_buffer_to_buffer(buf, 0, staging, *at, bytes);
-                }
-            }
-        })
+        let readback = self.record(ctx, &mut encoder, buffers);
+        ctx.submit(encoder);
+        readback.submitted();
+        readback
     }
 
     /// As [`ReadbackRing::submit`] with one result: the `runs` of `src` (each `(offset,
@@ -96,13 +92,48 @@ impl ReadbackRing {
         )
     }
 
-    /// Lays results of `lens` bytes out in the next staging buffer, records `copies` into
-    /// `encoder` (given the staging buffer and each result's offset and length), submits it
-    /// and asks for the staging buffer to be mapped.
+    /// As [`ReadbackRing::submit`], but only recorded: the copies go into `encoder`, which the
+    /// caller submits with other work (one submit instead of two), then calls
+    /// [`LateReadback::submitted`]. Collecting it before then is an error, not a wait.
+    pub(crate) fn record(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        buffers: &[(&wgpu::Buffer, usize)],
+    ) -> LateReadback {
+        let lens: Vec<usize> = buffers.iter().map(|(_, len)| *len).collect();
+        self.record_copies(ctx, encoder, &lens, |encoder, staging, parts| {
+            for ((buf, len), (at, _)) in buffers.iter().zip(parts) {
+                let bytes = (*len as u64).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
+                if bytes > 0 {
+                    encoder.copy_buffer_to_buffer(buf, 0, staging, *at, bytes);
+                }
+            }
+        })
+    }
+
+    /// [`ReadbackRing::record_copies`], then `encoder` submitted and the staging buffer asked
+    /// to be mapped.
     fn submit_copies(
         &mut self,
         ctx: &GpuContext,
         mut encoder: wgpu::CommandEncoder,
+        lens: &[usize],
+        copies: impl FnOnce(&mut wgpu::CommandEncoder, &wgpu::Buffer, &[(u64, usize)]),
+    ) -> LateReadback {
+        let readback = self.record_copies(ctx, &mut encoder, lens, copies);
+        ctx.submit(encoder);
+        readback.submitted();
+        readback
+    }
+
+    /// Lays results of `lens` bytes out in the next staging buffer and records `copies` into
+    /// `encoder` (given the staging buffer and each result's offset and length); the readback
+    /// waits for [`LateReadback::submitted`].
+    fn record_copies(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
         lens: &[usize],
         copies: impl FnOnce(&mut wgpu::CommandEncoder, &wgpu::Buffer, &[(u64, usize)]),
     ) -> LateReadback {
@@ -131,20 +162,12 @@ impl ReadbackRing {
             let staging = (self.kept).buffer(ctx, RING_NAMES[slot], bytes, usage);
             (staging, self.held[slot].clone())
         };
-        copies(&mut encoder, &staging, &parts);
-        ctx.submit(encoder);
-        let state = Arc::new(AtomicU8::new(WAITING));
-        let signal = state.clone();
-        staging
-            .slice(..mapped_bytes)
-            .map_async(wgpu::MapMode::Read, move |r| {
-                signal.store(if r.is_ok() { MAPPED } else { FAILED }, Ordering::Release);
-            });
+        copies(encoder, &staging, &parts);
         LateReadback {
             staging,
             parts,
             mapped_bytes,
-            state,
+            state: Arc::new(AtomicU8::new(UNSUBMITTED)),
             collected: false,
             held,
         }
@@ -152,14 +175,34 @@ impl ReadbackRing {
 }
 
 impl LateReadback {
+    /// Asks for the staging buffer to be mapped, once the work that fills it was submitted
+    /// (a readback [`ReadbackRing::record`]ed); nothing the second time.
+    pub(crate) fn submitted(&self) {
+        let state = &self.state;
+        if (state.compare_exchange(UNSUBMITTED, WAITING, Ordering::AcqRel, Ordering::Acquire))
+            .is_err()
+        {
+            return;
+        }
+        let signal = state.clone();
+        (self.staging.slice(..self.mapped_bytes)).map_async(wgpu::MapMode::Read, move |r| {
+            signal.store(if r.is_ok() { MAPPED } else { FAILED }, Ordering::Release);
+        });
+    }
+
     /// Whether the results have arrived (as of the last poll of the device).
     pub(crate) fn is_ready(&self) -> bool {
-        self.state.load(Ordering::Acquire) != WAITING
+        matches!(self.state.load(Ordering::Acquire), MAPPED | FAILED)
     }
 
     /// Copies result `k` into `targets[k]` (each as long as the result), waiting for the device
     /// first (one counted wait) when the results have not arrived.
     pub(crate) fn collect(mut self, ctx: &GpuContext, targets: &mut [&mut [u8]]) -> Result<()> {
+        if self.state.load(Ordering::Acquire) == UNSUBMITTED {
+            return Err(Error::Gpu(
+                "a readback was collected before the work that fills it was submitted".into(),
+            ));
+        }
         if !self.is_ready() {
             ctx.wait()?;
         }
@@ -189,7 +232,7 @@ impl Drop for LateReadback {
     /// A readback dropped uncollected (an error on the way) unmaps its buffer, cancelling a
     /// pending mapping, so that the ring can use the buffer again.
     fn drop(&mut self) {
-        if !self.collected {
+        if !self.collected && self.state.load(Ordering::Acquire) != UNSUBMITTED {
             self.staging.unmap();
         }
         self.held.store(false, Ordering::Release);

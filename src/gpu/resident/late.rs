@@ -15,7 +15,8 @@
 //!
 //! **Collecting** processes frames in order ([`ResidentMap::collect_frames`]): updated blocks
 //! become dirty and the layer learns those it lacks; a block no frame updated is released once
-//! no frame in flight lists it. Everything that reads or pages the map (syncs, flushes, spills,
+//! no frame in flight lists it (collected as a depth frame begins, it stays, empty, until that
+//! frame is listed, which uses it again where its band holds it, rather than making it anew). Everything that reads or pages the map (syncs, flushes, spills,
 //! the TV solve) collects every frame first, waiting where it must (counted).
 
 use super::ResidentMap;
@@ -49,6 +50,13 @@ pub(super) struct InFlight {
     /// What collected frames touched and their voxel updates, until taken.
     touched: TouchedBlocks,
     voxel_updates: usize,
+    /// Whether collecting keeps the blocks no frame updated resident, in `kept_empty`, rather
+    /// than releasing them (while a depth frame begins: see [`InFlight::kept_empty`]).
+    keep_empty: bool,
+    /// Blocks the layer lacks that frames listed and did not update, with their slots, kept
+    /// (empty, as filled) while the next depth frame is listed: those it lists again are used
+    /// as they are, instead of being released and made again ([`ResidentMap::release_empty_except`]).
+    kept_empty: Vec<(BlockIndex, u32)>,
 }
 
 impl ResidentMap {
@@ -152,12 +160,34 @@ impl ResidentMap {
     }
 
     /// Before a frame or scan is listed: collects what has arrived and makes room for it in
-    /// the readback ring.
-    pub(crate) fn begin_in_flight(&mut self, layer: &mut Layer) -> Result<()> {
+    /// the readback ring. With `keep_empty` (a depth frame, which calls
+    /// [`ResidentMap::release_empty_except`] once listed), the blocks collected frames listed
+    /// and did not update (empty, not in the layer) stay resident until then.
+    pub(crate) fn begin_in_flight(&mut self, layer: &mut Layer, keep_empty: bool) -> Result<()> {
+        self.late.keep_empty = keep_empty;
+        let collected = self.begin_collecting(layer);
+        self.late.keep_empty = false;
+        collected
+    }
+
+    fn begin_collecting(&mut self, layer: &mut Layer) -> Result<()> {
         if !self.late.lazy {
             self.collect_frames(layer, false)?;
         }
         self.make_room_in_flight(layer)
+    }
+
+    /// Releases the blocks [`ResidentMap::begin_in_flight`] kept empty but those among
+    /// `blocks` (sorted), which the frame lists again and uses as they are (counted). Call it
+    /// before anything else reads the pool: only the frame that follows may see such blocks.
+    pub(crate) fn release_empty_except(&mut self, blocks: &[BlockIndex]) {
+        for (b, slot) in std::mem::take(&mut self.late.kept_empty) {
+            if blocks.binary_search(&b).is_ok() {
+                self.stats.empty_blocks_kept += 1;
+            } else if self.pool.key(slot) == Some(b) {
+                self.release(slot);
+            }
+        }
     }
 
     /// After a frame or scan was submitted: collects it (waiting) unless frames may stay in
@@ -221,7 +251,11 @@ impl ResidentMap {
                     layer.insert(*b, Block::new_boxed());
                 }
             } else if !in_layer {
-                if !later {
+                if later {
+                    // A later frame in flight lists it: it decides.
+                } else if self.late.keep_empty {
+                    self.late.kept_empty.push((*b, slot));
+                } else {
                     self.release(slot);
                 }
                 continue;

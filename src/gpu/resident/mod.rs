@@ -88,6 +88,9 @@ pub struct ResidentStats {
     pub blocks_uploaded: u64,
     /// Blocks new to the map, written empty into their slots on the GPU (nothing uploaded).
     pub blocks_created: u64,
+    /// Blocks a depth frame listed and left empty that the next frame listed again, kept in
+    /// their slots for it rather than released and created again.
+    pub empty_blocks_kept: u64,
     /// Blocks read back to RAM (syncs, flushes, spills).
     pub blocks_downloaded: u64,
     /// Blocks released to make room (the spill to RAM).
