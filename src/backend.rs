@@ -325,12 +325,13 @@ impl Backend {
         let resident = Self::resident_map(&mut self.resident, options, &ctx, layer)?;
         let next = next.filter(|n| Arc::ptr_eq(n.context(), &ctx));
         let riding = next.and_then(DeviceDepthFrame::take_unsubmitted);
+        let (riding, arm) = riding.map(|held| held.into_parts()).unzip();
         let t = &mut self.traffic;
         let fused = counted(Some(&ctx), &mut t.depth, &mut t.depth_frames, || {
             integrate_device_depth_resident(resident, layer, frame, params, (plan, riding))
         })?;
-        if let Some(next) = next {
-            next.submitted();
+        if let Some(arm) = arm {
+            arm.submitted();
         }
         Ok(fused)
     }
@@ -369,9 +370,12 @@ impl Backend {
         })
     }
 
-    /// Submits the work a frame from [`Backend::depth_to_device`] still holds (no fusion's
-    /// submit took it), counted as the frame's.
+    /// Submits the work a frame on the device still holds (no fusion's submit took it),
+    /// counted as the pair's where a matcher made it, else as the frame's.
     pub fn submit_device_depth(&mut self, frame: &DeviceDepthFrame) {
+        if frame.matched() {
+            return (self.stereo_tally).add(frame.context(), || frame.submit_now());
+        }
         added(frame.context(), &mut self.traffic.depth, || {
             frame.submit_now()
         })

@@ -8,6 +8,11 @@
 //! ([`super::integrate_device_depth_resident`]). The kernels make the CPU's decisions exactly
 //! (the block listing by deciding only what it is certain of and leaving the rest to the
 //! host), so the fused map is the one the host's depths give.
+//!
+//! A frame's work (a matcher's, its depths' copy, its listing and the band's readback) is
+//! recorded and held in the frame: `Reconstructor::fuse_input` has it ride in the submit of the
+//! frame before's fusion where the device keeps up (one submit a frame), or submits it alone;
+//! planning or reading the frame submits what is still held.
 
 use super::band_blocks_gpu::{band_block_params, record_band_blocks, BandDecoder, BandWords};
 use super::band_gpu::{band_slice_uniforms, record_band_slices, BandSliceOutputs, SliceWords};
@@ -19,7 +24,7 @@ use crate::depth::{
 use crate::frame::{DepthFrame, Image, RgbImage};
 use crate::gpu::kept::{BufferPool, Kept, Pooled};
 use crate::gpu::layout::BandSliceUniforms;
-use crate::gpu::readback::{LateReadback, ReadbackRing};
+use crate::gpu::readback::{LateReadback, ReadbackArm, ReadbackRing};
 use crate::gpu::GpuContext;
 use crate::grid::GridParams;
 use crate::Result;
@@ -40,10 +45,38 @@ pub struct DeviceDepthFrame {
     made_for: [u32; 4],
     /// Whether a matcher made the depths on the device (else they came from the host).
     matched: bool,
-    /// The frame's own work (its depths' copy, its band's listing and readback) where it was
-    /// recorded and not yet submitted: [`Self::from_depths`] leaves it for the submit of the
-    /// fusion before it ([`Self::take_unsubmitted`]).
-    unsubmitted: Mutex<Option<wgpu::CommandEncoder>>,
+    /// The frame's own work (a matcher's, its depths' copy, its band's listing and readback)
+    /// until it is submitted: with the fusion before it ([`Self::take_unsubmitted`]), alone
+    /// ([`Self::submit_now`]), or by its [`DeviceDepthKept`] before that makes another frame.
+    unsubmitted: Held,
+}
+
+/// A frame's work recorded and not yet submitted, shared by the frame and the
+/// [`DeviceDepthKept`] it was made with, which submits it before its buffers are written for
+/// another frame.
+type Held = Arc<Mutex<Option<HeldWork>>>;
+
+/// Work recorded for a device and held for a later submit, and what asks for its readback.
+pub(crate) struct HeldWork {
+    ctx: Arc<GpuContext>,
+    encoder: wgpu::CommandEncoder,
+    readback: ReadbackArm,
+}
+
+impl HeldWork {
+    /// The commands, to submit with the caller's, and what to call once they are submitted.
+    pub(crate) fn into_parts(self) -> (wgpu::CommandEncoder, ReadbackArm) {
+        (self.encoder, self.readback)
+    }
+}
+
+/// Submits the work `held` still holds, alone.
+fn submit_held(held: &Held) {
+    let work = held.lock().unwrap_or_else(|e| e.into_inner()).take();
+    if let Some(work) = work {
+        work.ctx.submit(work.encoder);
+        work.readback.submitted();
+    }
 }
 
 /// What came back of a frame's band, or is on its way.
@@ -155,15 +188,34 @@ fn relist_slices(
 /// buffers of frames dropped already (the reader runs ahead of the fusion, so as many are lent
 /// as frames are alive at once), the ring of staging buffers the bands come back through, and
 /// how many blocks (or slices) the last band collected had, which sizes the next readbacks.
-#[derive(Debug, Default)]
+#[derive(Default)]
 pub struct DeviceDepthKept {
     kept: Kept,
     depths: BufferPool,
     ring: ReadbackRing,
     shared: Arc<BandsShared>,
+    /// The work of the last frame made, where it is still held.
+    held: Option<Held>,
+}
+
+impl std::fmt::Debug for DeviceDepthKept {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DeviceDepthKept")
+            .field("shared", &self.shared)
+            .finish_non_exhaustive()
+    }
 }
 
 impl DeviceDepthKept {
+    /// Submits the work of the last frame made where it is still held: before anything writes
+    /// the buffers it reads for another frame (the frames made here do it first; a matcher
+    /// writing its own must call it before).
+    pub fn submit_held(&mut self) {
+        if let Some(held) = self.held.take() {
+            submit_held(&held);
+        }
+    }
+
     /// What the next frame's readback holds of each of the two kinds `last` counts: the last
     /// band's and an eighth more, plus `spare`, as neighbouring frames of a drive make about
     /// as many; before any, `first`. Fewer cost the frame a second listing and wait.
@@ -206,8 +258,9 @@ impl DeviceDepthFrame {
     /// The frame of the disparities `d` (on the device, as a matcher left them) of a stereo
     /// pair `baseline_m` apart, seen as `view` (camera of `d`'s size, pose, colour), for
     /// fusion into `grid` with `params`: depths, band slices and (with f64) band blocks
-    /// recorded after the matcher's work, in buffers of `kept`, and submitted with it; the
-    /// blocks (or slices) come back later, collected when the frame is planned ([`LateBand`]).
+    /// recorded after the matcher's work, in buffers of `kept`, and held with it for a later
+    /// submit, as [`Self::from_depths`] holds its own; the blocks (or slices) come back later,
+    /// collected when the frame is planned ([`LateBand`]).
     pub fn from_on_device(
         d: OnDeviceDisparity,
         fusion: (&GridParams, &DepthFusionParams),
@@ -222,12 +275,13 @@ impl DeviceDepthFrame {
             width: w,
             height: h,
         } = d;
+        kept.submit_held();
         let band = band_uniforms(fusion, &view.0, (w, h))?;
         let pixels = w as usize * h as usize;
         let to_depth = disparity_depth_uniforms(pixels, view.0.fx, baseline_m)?;
         let made =
             record_disparity_depth((ctx, &mut kept.kept), &mut encoder, &to_depth, disparity)?;
-        let frame = Self::listed(ctx, encoder, (fusion, band), view, (&made, false), kept)?;
+        let frame = Self::listed(ctx, encoder, (fusion, band), view, &made, kept)?;
         Ok(DeviceDepthFrame {
             matched: true,
             ..frame
@@ -240,7 +294,8 @@ impl DeviceDepthFrame {
     /// f64) blocks listed on the device; the band comes back later, as a matched pair's does,
     /// so that the host walks none of its pixels. The work is recorded, not submitted: the
     /// fusion of the frame before takes it into its own submit ([`Self::take_unsubmitted`]),
-    /// or the frame submits it alone when first planned or read ([`Self::submit_now`]). Any depth values go up
+    /// or the frame submits it alone when first planned or read ([`Self::submit_now`]). Any
+    /// depth values go up
     /// (NaN, ±∞, zero and negative ones are not usable, as on the host). An error where the
     /// image is not the camera's size or the device cannot list its band (see
     /// [`Self::can_list`]).
@@ -258,11 +313,12 @@ impl DeviceDepthFrame {
         } = frame;
         let band = band_uniforms(fusion, &intrinsics, (depth_m.width, depth_m.height))?;
         ctx.check_binding("the depth map", depth_m.data.len() as u64 * 4)?;
+        kept.submit_held();
         let data = bytemuck::cast_slice(&depth_m.data);
         let sent = kept.kept.storage_with(ctx, "host_depth", data);
         let encoder = ctx.encoder("host_depth_frame");
         let view = (intrinsics, world_from_camera, color);
-        Self::listed(ctx, encoder, (fusion, band), view, (&sent, true), kept)
+        Self::listed(ctx, encoder, (fusion, band), view, &sent, kept)
     }
 
     /// Whether [`Self::from_depths`] takes a frame of `frame`'s size into `grid` with `params`
@@ -276,14 +332,14 @@ impl DeviceDepthFrame {
     /// The frame of the depths `made` (a buffer of `kept`, so that the kernels bind the same
     /// buffers every frame) seen as `view`: its own copy of them (the kernels' buffers serve
     /// the next frame), its band slices and (with f64) band blocks recorded into `encoder` in
-    /// buffers of `kept`, and the band's readback through `kept`'s ring: all submitted, or with
-    /// `hold` kept in the frame for a later submit.
+    /// buffers of `kept`, and the band's readback through `kept`'s ring: all held in the frame
+    /// for a later submit ([`Self::take_unsubmitted`], [`Self::submit_now`]).
     fn listed(
         ctx: &Arc<GpuContext>,
         mut encoder: wgpu::CommandEncoder,
         ((grid, params), band): ((&GridParams, &DepthFusionParams), BandSliceUniforms),
         (intrinsics, world_from_camera, color): CameraView,
-        (made, hold): (&wgpu::Buffer, bool),
+        made: &wgpu::Buffer,
         kept: &mut DeviceDepthKept,
     ) -> Result<Self> {
         let bytes = intrinsics.width as u64 * intrinsics.height as u64 * 4;
@@ -314,14 +370,13 @@ impl DeviceDepthFrame {
             let readback = ring.record(ctx, &mut encoder, &out.sources(&words));
             (readback, LateWords::Slices(words, out.capacity()))
         };
-        let unsubmitted = match hold {
-            true => Some(encoder),
-            false => {
-                ctx.submit(encoder);
-                readback.submitted();
-                None
-            }
-        };
+
+        let unsubmitted = Arc::new(Mutex::new(Some(HeldWork {
+            ctx: ctx.clone(),
+            encoder,
+            readback: readback.arm(),
+        })));
+        kept.held = Some(unsubmitted.clone());
         let band = FrameBand::Late(Box::new(LateBand {
             readback,
             words,
@@ -345,7 +400,7 @@ impl DeviceDepthFrame {
             band: Mutex::new(band),
             made_for: made_for(grid, params),
             matched: false,
-            unsubmitted: Mutex::new(unsubmitted),
+            unsubmitted,
         })
     }
 
@@ -387,21 +442,10 @@ impl DeviceDepthFrame {
         &self.ctx
     }
 
-    /// The frame's own work where it was recorded and not submitted yet ([`Self::from_depths`]),
-    /// for the caller to submit with its own, then to call [`Self::submitted`].
-    pub(crate) fn take_unsubmitted(&self) -> Option<wgpu::CommandEncoder> {
-        self.unsubmitted
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .take()
-    }
-
-    /// After the work [`Self::take_unsubmitted`] gave was submitted: the band's readback is
-    /// asked for.
-    pub(crate) fn submitted(&self) {
-        if let FrameBand::Late(late) = &*self.band.lock().unwrap_or_else(|e| e.into_inner()) {
-            late.readback.submitted();
-        }
+    /// The frame's own work where it is still held, for the caller to submit with its own,
+    /// then to call the readback's [`ReadbackArm::submitted`].
+    pub(crate) fn take_unsubmitted(&self) -> Option<HeldWork> {
+        (self.unsubmitted.lock().unwrap_or_else(|e| e.into_inner())).take()
     }
 
     /// Whether the band is here or its readback has arrived (as of a poll of the device now):
@@ -418,10 +462,7 @@ impl DeviceDepthFrame {
 
     /// Submits the frame's own work where it is still held (no other submit took it).
     pub fn submit_now(&self) {
-        if let Some(encoder) = self.take_unsubmitted() {
-            self.ctx.submit(encoder);
-            self.submitted();
-        }
+        submit_held(&self.unsubmitted);
     }
 
     /// The band, collected first where it is still on its way ([`LateBand`]).

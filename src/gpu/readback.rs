@@ -174,7 +174,16 @@ impl ReadbackRing {
     }
 }
 
-impl LateReadback {
+/// What asks for a recorded readback's staging buffer to be mapped once the work that fills it
+/// was submitted ([`LateReadback::arm`]), for whoever submits that work.
+#[derive(Debug)]
+pub(crate) struct ReadbackArm {
+    staging: wgpu::Buffer,
+    mapped_bytes: u64,
+    state: Arc<AtomicU8>,
+}
+
+impl ReadbackArm {
     /// Asks for the staging buffer to be mapped, once the work that fills it was submitted
     /// (a readback [`ReadbackRing::record`]ed); nothing the second time.
     pub(crate) fn submitted(&self) {
@@ -188,6 +197,22 @@ impl LateReadback {
         (self.staging.slice(..self.mapped_bytes)).map_async(wgpu::MapMode::Read, move |r| {
             signal.store(if r.is_ok() { MAPPED } else { FAILED }, Ordering::Release);
         });
+    }
+}
+
+impl LateReadback {
+    /// What asks for the staging buffer to be mapped ([`ReadbackArm::submitted`]).
+    pub(crate) fn arm(&self) -> ReadbackArm {
+        ReadbackArm {
+            staging: self.staging.clone(),
+            mapped_bytes: self.mapped_bytes,
+            state: self.state.clone(),
+        }
+    }
+
+    /// [`ReadbackArm::submitted`] of this readback.
+    pub(crate) fn submitted(&self) {
+        self.arm().submitted()
     }
 
     /// Whether the results have arrived (as of the last poll of the device).

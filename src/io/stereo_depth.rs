@@ -52,6 +52,8 @@ impl StereoDepth {
             // The colour waits on the host for the fusion.
             let mut made = None;
             let mut kept = self.kept.lock().unwrap_or_else(|e| e.into_inner());
+            // The matcher writes its buffers now: the pair before goes first if still held.
+            kept.submit_held();
             let ran = self.estimator.estimate_on_device(left, right, &mut |d| {
                 let view = view.take().expect("one map per pair");
                 let frame = DeviceDepthFrame::from_on_device(

@@ -201,7 +201,14 @@ fn frames_made_ahead(ctx: Arc<denser::gpu::GpuContext>) {
     );
     let before = ctx.traffic();
     let ahead: Vec<_> = (1..6).map(|k| make(k, false, kept)).collect();
-    assert_eq!(ctx.traffic().since(before).waits, 0, "made without waiting");
+    // Each frame's work held until the next is made (which submits it first); the last's now.
+    kept.submit_held();
+    let made = ctx.traffic().since(before);
+    assert_eq!(
+        (made.submits, made.waits),
+        (5, 0),
+        "made without waiting: {made:?}"
+    );
     let before = ctx.traffic();
     for (k, (host, dev)) in ahead.iter().enumerate() {
         let plan = dev.plan(&grid, &params).expect("plan");
@@ -308,6 +315,32 @@ fn host_frames_listed(ctx: Arc<denser::gpu::GpuContext>) {
             "{} blocks listed",
             band.blocks.len()
         );
+    }
+    // Two frames made before either is planned: the second's upload into the kept buffer
+    // submits the first's held work before it, so each lists its own depths.
+    let mut frames = [street_frame(0.0, 1), street_frame(1.6, 2)];
+    // A street's depths do not change along it: the second street is narrower.
+    frames[1].depth_m.data.iter_mut().for_each(|d| *d *= 0.75);
+    let send = |f: &DepthFrame, kept: &mut DeviceDepthKept| {
+        DeviceDepthFrame::from_depths(&ctx, (&grid, &params), f.clone(), kept).expect("sent up")
+    };
+    let made = [send(&frames[0], kept), send(&frames[1], kept)];
+    for (dev, frame) in made.iter().zip(&frames) {
+        let (plan, host) = (
+            dev.plan(&grid, &params),
+            DepthPlan::new(&grid, frame, &params),
+        );
+        assert!(
+            plan.expect("plan").band == host.band,
+            "made ahead: not the host's band"
+        );
+        let back = dev.read_back(&ctx).expect("read back");
+        assert!(back
+            .depth_m
+            .data
+            .iter()
+            .zip(&frame.depth_m.data)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
     }
     let mut frame = street_frame(0.0, 0);
     frame.depth_m = Image::filled(100, 50, 1.0);
@@ -470,13 +503,13 @@ enum Depths {
 
 /// The stereo input `input` matched with `method` (32 disparities) on the GPU of `ctx` and
 /// fused there, each pair's depths handed on as `depths` says: the map, and the stereo
-/// traffic after each pair.
+/// traffic and the depth frames' after each pair.
 fn fuse_stereo(
     ctx: &Arc<denser::gpu::GpuContext>,
     input: &Path,
     method: denser::depth::StereoMethod,
     depths: Depths,
-) -> (Reconstructor, Vec<GpuTraffic>) {
+) -> (Reconstructor, Vec<(GpuTraffic, GpuTraffic)>) {
     let on_device = depths != Depths::Host;
     use denser::backend::Backend;
     use denser::depth::tgv::HoleFill;
@@ -512,7 +545,8 @@ fn fuse_stereo(
             rec.fuse(&pair).expect("fuse");
             assert_eq!(rec.frames_total(), frames + 1);
         }
-        after_each.push(rec.gpu_traffic().expect("on a GPU").stereo);
+        let traffic = rec.gpu_traffic().expect("on a GPU");
+        after_each.push((traffic.stereo, traffic.depth));
     }
     rec.sync().expect("sync");
     (rec, after_each)
@@ -544,7 +578,7 @@ fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
         assert_same_map(host.layer(), dev.layer(), 300, &format!("{method:?}"));
         // Once three pairs have sized the kept buffers and made the readback's ring: a pair
         // fused by its own call is one submit and one wait (for its band), and creates nothing.
-        let t = after_each[4].since(after_each[2]);
+        let t = after_each[4].0.since(after_each[2].0);
         eprintln!("{method:?}, the last two pairs: {t:?}");
         assert_eq!((t.submits, t.waits), (2, 2), "{method:?}: {t:?}");
         if ctx.has_f64() {
@@ -579,7 +613,9 @@ fn a_stereo_drive_keeps_its_depths_on_the_device_and_makes_the_same_map() {
 
 /// A stereo drive whose pairs are fused a call later, as `reconstruct` fuses them: the map of
 /// the pairs read back, and, where the device keeps up, a warm pair that waits for nothing
-/// (its band collected when the next pair comes), in one submit, creating nothing.
+/// (its band collected when the next pair comes) and costs one submit, its matching and
+/// listing riding in the pair before's fusion (546d416: two, the pair's and the fusion's),
+/// creating nothing.
 #[test]
 fn a_stereo_pair_fused_a_call_later_waits_for_no_band() {
     use denser::depth::StereoMethod;
@@ -591,14 +627,18 @@ fn a_stereo_pair_fused_a_call_later_waits_for_no_band() {
     let (dev, after_each) = fuse_stereo(&ctx, &input, StereoMethod::Sgm, Depths::InFlight);
     assert_same_map(host.layer(), dev.layer(), 300, "in flight");
     // Pairs 4 and 5 read, pairs 3 and 4 collected (the ring's staging buffers made by then).
-    let t = after_each[5].since(after_each[3]);
-    eprintln!("the last two pairs, fused a call later: {t:?}");
+    let (stereo, depth) = (
+        after_each[5].0.since(after_each[3].0),
+        after_each[5].1.since(after_each[3].1),
+    );
+    eprintln!("the last two pairs, fused a call later: {stereo:?}, their fusion {depth:?}");
+    let t = stereo.plus(depth);
     assert_eq!((t.submits, t.waits), (2, 0), "{t:?}");
     assert_eq!((t.buffers_created, t.bind_groups_created), (0, 0), "{t:?}");
     if ctx.has_f64() {
-        assert!(t.readback_bytes <= 2 * (64 << 10), "{t:?}");
+        assert!(stereo.readback_bytes <= 2 * (64 << 10), "{stereo:?}");
     }
-    assert!(t.readback_bytes > 0, "the bands came back: {t:?}");
+    assert!(stereo.readback_bytes > 0, "the bands came back: {stereo:?}");
 }
 
 /// A ROS 2 bag's stereo pairs (`tools/make_input_fixtures.py` writes a synthetic drive's as a
