@@ -51,7 +51,7 @@ pub struct DeviceDepthFrame {
     unsubmitted: Held,
 }
 
-/// A frame's work recorded and not yet submitted, shared by the frame and the
+/// A frame's work recorded and not yet submitted, owned by the frame and seen by the
 /// [`DeviceDepthKept`] it was made with, which submits it before its buffers are written for
 /// another frame.
 type Held = Arc<Mutex<Option<HeldWork>>>;
@@ -194,8 +194,9 @@ pub struct DeviceDepthKept {
     depths: BufferPool,
     ring: ReadbackRing,
     shared: Arc<BandsShared>,
-    /// The work of the last frame made, where it is still held.
-    held: Option<Held>,
+    /// The work of the last frame made, where it is still held (not kept alive here: a frame
+    /// dropped drops its work with it, and nothing of it is submitted later).
+    held: Option<std::sync::Weak<Mutex<Option<HeldWork>>>>,
 }
 
 impl std::fmt::Debug for DeviceDepthKept {
@@ -211,7 +212,7 @@ impl DeviceDepthKept {
     /// the buffers it reads for another frame (the frames made here do it first; a matcher
     /// writing its own must call it before).
     pub fn submit_held(&mut self) {
-        if let Some(held) = self.held.take() {
+        if let Some(held) = self.held.take().and_then(|h| h.upgrade()) {
             submit_held(&held);
         }
     }
@@ -295,9 +296,8 @@ impl DeviceDepthFrame {
     /// so that the host walks none of its pixels. The work is recorded, not submitted: the
     /// fusion of the frame before takes it into its own submit ([`Self::take_unsubmitted`]),
     /// or the frame submits it alone when first planned or read ([`Self::submit_now`]). Any
-    /// depth values go up
-    /// (NaN, ±∞, zero and negative ones are not usable, as on the host). An error where the
-    /// image is not the camera's size or the device cannot list its band (see
+    /// depth values go up (NaN, ±∞, zero and negative ones are not usable, as on the host). An
+    /// error where the image is not the camera's size or the device cannot list its band (see
     /// [`Self::can_list`]).
     pub fn from_depths(
         ctx: &Arc<GpuContext>,
@@ -370,13 +370,12 @@ impl DeviceDepthFrame {
             let readback = ring.record(ctx, &mut encoder, &out.sources(&words));
             (readback, LateWords::Slices(words, out.capacity()))
         };
-
         let unsubmitted = Arc::new(Mutex::new(Some(HeldWork {
             ctx: ctx.clone(),
             encoder,
             readback: readback.arm(),
         })));
-        kept.held = Some(unsubmitted.clone());
+        kept.held = Some(Arc::downgrade(&unsubmitted));
         let band = FrameBand::Late(Box::new(LateBand {
             readback,
             words,

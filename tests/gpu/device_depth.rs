@@ -342,6 +342,19 @@ fn host_frames_listed(ctx: Arc<denser::gpu::GpuContext>) {
             .zip(&frame.depth_m.data)
             .all(|(a, b)| a.to_bits() == b.to_bits()));
     }
+    // A frame dropped before its work was submitted takes the work with it: the frames made
+    // after it, around the readback ring and back to its staging buffer, plan as the host.
+    drop(send(&frames[1], kept));
+    for k in 0..4 {
+        let plan = send(&frames[k % 2], kept)
+            .plan(&grid, &params)
+            .expect("plan");
+        let host = DepthPlan::new(&grid, &frames[k % 2], &params);
+        assert!(
+            plan.band == host.band,
+            "after a dropped frame: not the host's band"
+        );
+    }
     let mut frame = street_frame(0.0, 0);
     frame.depth_m = Image::filled(100, 50, 1.0);
     assert!(!DeviceDepthFrame::can_list(&frame, &grid, &params));
