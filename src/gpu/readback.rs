@@ -63,9 +63,7 @@ impl ReadbackRing {
         buffers: &[(&wgpu::Buffer, usize)],
     ) -> LateReadback {
         let readback = self.record(ctx, &mut encoder, buffers);
-        ctx.submit(encoder);
-        readback.submitted();
-        readback
+        submit_then_map(ctx, encoder, readback)
     }
 
     /// As [`ReadbackRing::submit`] with one result: the `runs` of `src` (each `(offset,
@@ -78,18 +76,16 @@ impl ReadbackRing {
         runs: &[(u64, u64)],
     ) -> LateReadback {
         let total: u64 = runs.iter().map(|(_, bytes)| bytes).sum();
-        self.submit_copies(
-            ctx,
-            encoder,
-            &[total as usize],
-            |encoder, staging, parts| {
-                let mut at = parts[0].0;
-                for &(offset, bytes) in runs {
-                    encoder.copy_buffer_to_buffer(src, offset, staging, at, bytes);
-                    at += bytes;
-                }
-            },
-        )
+        let mut encoder = encoder;
+        let copies = |encoder: &mut wgpu::CommandEncoder, staging: &wgpu::Buffer, parts: &[_]| {
+            let (mut at, _): (u64, usize) = parts[0];
+            for &(offset, bytes) in runs {
+                encoder.copy_buffer_to_buffer(src, offset, staging, at, bytes);
+                at += bytes;
+            }
+        };
+        let readback = self.record_copies(ctx, &mut encoder, &[total as usize], copies);
+        submit_then_map(ctx, encoder, readback)
     }
 
     /// As [`ReadbackRing::submit`], but only recorded: the copies go into `encoder`, which the
@@ -110,21 +106,6 @@ impl ReadbackRing {
                 }
             }
         })
-    }
-
-    /// [`ReadbackRing::record_copies`], then `encoder` submitted and the staging buffer asked
-    /// to be mapped.
-    fn submit_copies(
-        &mut self,
-        ctx: &GpuContext,
-        mut encoder: wgpu::CommandEncoder,
-        lens: &[usize],
-        copies: impl FnOnce(&mut wgpu::CommandEncoder, &wgpu::Buffer, &[(u64, usize)]),
-    ) -> LateReadback {
-        let readback = self.record_copies(ctx, &mut encoder, lens, copies);
-        ctx.submit(encoder);
-        readback.submitted();
-        readback
     }
 
     /// Lays results of `lens` bytes out in the next staging buffer and records `copies` into
@@ -172,6 +153,18 @@ impl ReadbackRing {
             held,
         }
     }
+}
+
+/// Submits `encoder`, which holds `readback`'s copies, and asks for its staging buffer to be
+/// mapped.
+fn submit_then_map(
+    ctx: &GpuContext,
+    encoder: wgpu::CommandEncoder,
+    readback: LateReadback,
+) -> LateReadback {
+    ctx.submit(encoder);
+    readback.submitted();
+    readback
 }
 
 /// What asks for a recorded readback's staging buffer to be mapped once the work that fills it
