@@ -20,12 +20,10 @@
 use crate::depth::tgv::HoleFill;
 use crate::depth::SgmParams;
 use crate::depth::{DisparityEstimator, SgmMatcher, SgmMatcherGpu, StereoMethod, TgvMatcherGpu};
-use crate::frame::{DepthFrame, LidarScan};
+use crate::frame::DepthFrame;
 use crate::fusion::{
-    begin_lidar_listing, finish_lidar_listing, integrate_depth_plan, integrate_depth_resident,
-    integrate_device_depth_resident, integrate_lidar_plan, integrate_lidar_resident,
-    DepthFusionParams, DepthPlan, DeviceDepthFrame, DeviceDepthKept, FusionStats,
-    LidarFusionParams, LidarListings, LidarPlan, PendingLidarPlan,
+    integrate_depth_plan, integrate_depth_resident, integrate_device_depth_resident,
+    DepthFusionParams, DepthPlan, DeviceDepthFrame, DeviceDepthKept, FusionStats, LidarListings,
 };
 use crate::gpu::kept::Kept;
 use crate::gpu::{
@@ -40,6 +38,7 @@ use crate::store::UpperTier;
 use crate::{Error, Result};
 use std::sync::Arc;
 
+mod lidar;
 mod stages;
 pub use stages::{AdapterClass, GpuStages, Stage, StageRecord, RECORDED_FASTER};
 
@@ -418,85 +417,6 @@ impl Backend {
     /// the last call: a frame in flight reports its updates when collected.
     pub fn take_late_voxel_updates(&mut self) -> usize {
         self.resident.as_mut().map_or(0, |r| r.take_collected().1)
-    }
-
-    /// Plans the fusion of LiDAR scan `scan` into `layer`: where the GPU fuses, its blocks
-    /// listed on the GPU (`src/fusion/lidar_listing.rs`, the rays left there for
-    /// [`Backend::fuse_lidar`]), else on the host ([`LidarPlan::new`]); the same plan either
-    /// way. The listing's traffic counts as the scan's.
-    pub fn plan_lidar(
-        &mut self,
-        layer: &Layer,
-        scan: &LidarScan,
-        params: &LidarFusionParams,
-    ) -> Result<LidarPlan> {
-        let pending = self.begin_lidar_plan(layer, scan, params)?;
-        self.finish_lidar_plan(pending)
-    }
-
-    /// Whether [`Backend::begin_lidar_plan`] lists scans on a GPU with their results read back
-    /// late (frames in flight), so that a caller gains by finishing a scan's plan a call later.
-    pub(crate) fn lists_lidar_in_flight(&self) -> bool {
-        self.gpu.is_some() && self.stages.fusion && self.frames_in_flight
-    }
-
-    /// [`Backend::plan_lidar`] begun: where the GPU fuses, the listing submitted and not waited
-    /// for; [`Backend::finish_lidar_plan`] collects it (after any other GPU work, but before
-    /// the next scan's listing: the rays and the table are kept once).
-    pub(crate) fn begin_lidar_plan(
-        &mut self,
-        layer: &Layer,
-        scan: &LidarScan,
-        params: &LidarFusionParams,
-    ) -> Result<PendingLidarPlan> {
-        let grid = layer.params();
-        let Some(ctx) = self.gpu.clone().filter(|_| self.stages.fusion) else {
-            return Ok(PendingLidarPlan::Planned(LidarPlan::new(
-                &grid, scan, params,
-            )));
-        };
-        let options = (self.resident_options, self.frames_in_flight);
-        let resident = Self::resident_map(&mut self.resident, options, &ctx, layer)?;
-        let plan = LidarPlan::rays_only(&grid, scan, params);
-        let listings = &mut self.lidar_listings;
-        let mut calls = 0;
-        counted(Some(&ctx), &mut self.traffic.lidar, &mut calls, || {
-            begin_lidar_listing(resident, listings, plan)
-        })
-    }
-
-    /// The plan [`Backend::begin_lidar_plan`] began (see there).
-    pub(crate) fn finish_lidar_plan(&mut self, pending: PendingLidarPlan) -> Result<LidarPlan> {
-        let listing = match pending {
-            PendingLidarPlan::Planned(plan) => return Ok(plan),
-            PendingLidarPlan::Listing(listing) => *listing,
-        };
-        let ctx = listing.context().clone();
-        let listings = &mut self.lidar_listings;
-        let mut calls = 0;
-        let listed = counted(Some(&ctx), &mut self.traffic.lidar, &mut calls, || {
-            finish_lidar_listing(listings, listing)
-        })?;
-        // A plan the device could not list lists its pairs on the host when asked.
-        Ok(listed.unwrap_or_else(|plan| plan))
-    }
-
-    /// Fuses one LiDAR scan planned by `plan` into `layer` (on a GPU, into the blocks resident
-    /// there, as depth frames are: call [`UpperTier::sync`] before reading the layer whole).
-    pub fn fuse_lidar(
-        &mut self,
-        layer: &mut Layer,
-        plan: &LidarPlan,
-    ) -> Result<(TouchedBlocks, FusionStats)> {
-        let Some(ctx) = self.gpu.clone().filter(|_| self.stages.fusion) else {
-            return Ok(integrate_lidar_plan(layer, plan));
-        };
-        let options = (self.resident_options, self.frames_in_flight);
-        let resident = Self::resident_map(&mut self.resident, options, &ctx, layer)?;
-        let t = &mut self.traffic;
-        counted(Some(&ctx), &mut t.lidar, &mut t.lidar_scans, || {
-            integrate_lidar_resident(resident, layer, plan)
-        })
     }
 
     /// Gives back the buffers the TV solves kept from region to region (sized for the largest

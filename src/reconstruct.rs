@@ -442,6 +442,7 @@ impl Reconstructor {
     /// call (or whatever else comes next: a depth frame, [`Reconstructor::sync`], a mesh), so
     /// that no call waits for its own listing; [`Reconstructor::frames_total`] counts it then.
     pub fn fuse_lidar(&mut self, scan: &LidarScan) -> crate::Result<TouchedBlocks> {
+        self.backend.compile_lidar_kernels()?;
         let mut touched = self.finish_pending_depth()?;
         if !self.backend.lists_lidar_in_flight() {
             let t = Instant::now();
@@ -474,19 +475,12 @@ impl Reconstructor {
         let layer = self.store.layer();
         let params = &self.config.lidar_fusion;
         let pending = (self.backend).begin_lidar_plan(layer, scan, params)?;
-        if pending.ray_count() == 0 && !scan.points_sensor_m.is_empty() {
-            tracing::warn!(
-                "a LiDAR scan of {} points has no return between {} and {} m: nothing fused",
-                scan.points_sensor_m.len(),
-                params.min_range_m,
-                params.max_range_m
-            );
-        }
+        warn_without_returns(&pending, scan, params);
         Ok(pending)
     }
 
     /// Fuses the scan of `pending` (`begun_s` seconds spent beginning it), beginning the plan of
-    /// `next` once the scan's fusion is submitted.
+    /// `next` with the scan's fusion (on a GPU, its listing in the fusion's submit).
     fn fuse_lidar_plan(
         &mut self,
         pending: PendingLidarPlan,
@@ -501,12 +495,14 @@ impl Reconstructor {
             .prepare_blocks(&plan.blocks(), &mut self.backend)?;
         self.timings.paging_s += t.elapsed().as_secs_f64();
         let t = Instant::now();
-        let (touched, stats) = self.backend.fuse_lidar(self.store.layer_mut(), &plan)?;
-        // The next scan's listing queued behind this scan's fusion, which reads the rays and
-        // the table the listing keeps.
-        if let Some(scan) = next {
-            self.pending_lidar = Some(self.begin_lidar(scan)?);
+        let params = &self.config.lidar_fusion;
+        let layer = self.store.layer_mut();
+        let next = next.map(|scan| (scan, params));
+        let (touched, stats, pending) = (self.backend).fuse_lidar_then_begin(layer, &plan, next)?;
+        if let (Some((scan, params)), Some(pending)) = (next, &pending) {
+            warn_without_returns(pending, scan, params);
         }
+        self.pending_lidar = pending;
         self.timings.fusion_s += planned_s + t.elapsed().as_secs_f64();
         self.after_frame(plan.origin_m(), &touched, stats)?;
         Ok(touched)
@@ -646,5 +642,17 @@ impl Reconstructor {
         let mesh = self.backend.mesh(self.store.layer(), field)?;
         self.timings.mesh_s += t.elapsed().as_secs_f64();
         Ok(mesh)
+    }
+}
+
+/// Warns where a scan of points has no return in range (nothing to fuse).
+fn warn_without_returns(pending: &PendingLidarPlan, scan: &LidarScan, params: &LidarFusionParams) {
+    if pending.ray_count() == 0 && !scan.points_sensor_m.is_empty() {
+        tracing::warn!(
+            "a LiDAR scan of {} points has no return between {} and {} m: nothing fused",
+            scan.points_sensor_m.len(),
+            params.min_range_m,
+            params.max_range_m
+        );
     }
 }

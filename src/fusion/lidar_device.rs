@@ -129,16 +129,28 @@ pub(super) fn rays_fit(ctx: &GpuContext, plan: &LidarPlan) -> bool {
     plan.ray_count() as u64 * RAY_F64_BYTES <= ctx.max_binding_bytes()
 }
 
+/// Where a scan's rays on the device come from ([`record_rays`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum RaysFrom {
+    /// A device listing of this scan made them already.
+    Listed,
+    /// Sent up for a device listing: into a buffer of the listing's own, so that a listing
+    /// may share a submit with the fusion of the scan before, whose rays may be sent up too.
+    Listing,
+    /// Sent up for the scan's fusion.
+    Fusion,
+}
+
 /// Uploads the scan's rays (16 bytes each) into `kept`'s buffers and records into `encoder` the
 /// kernel that measures and rotates them (`lidar_rays.wgsl`, reading the scan's words
-/// `buf_scan`); returns the rays' f64 words and their directions. Where `made`, a listing
-/// ([`super::lidar_listing`]) recorded it for this scan already: the kept buffers are returned
-/// as they are, nothing recorded.
+/// `buf_scan`); returns the rays' f64 words and their directions. Where [`RaysFrom::Listed`], a
+/// listing ([`super::lidar_listing`]) recorded it for this scan already: the kept buffers are
+/// returned as they are, nothing recorded.
 pub(super) fn record_rays(
     (ctx, kept, encoder): (&GpuContext, &mut Kept, &mut wgpu::CommandEncoder),
     plan: &LidarPlan,
     (buf_scan, counters): (&wgpu::Buffer, &wgpu::Buffer),
-    made: bool,
+    from: RaysFrom,
 ) -> Result<(wgpu::Buffer, wgpu::Buffer)> {
     let rays = plan.rays();
     ctx.check_binding(
@@ -148,9 +160,11 @@ pub(super) fn record_rays(
     let buf_rays_f64 = kept.scratch(ctx, "lidar_rays_f64", rays.len() as u64 * RAY_F64_BYTES);
     let dir_bytes = (rays.len() * std::mem::size_of::<GpuRayDir>()) as u64;
     let buf_dirs = kept.scratch(ctx, "lidar_ray_dirs", dir_bytes);
-    if made {
-        return Ok((buf_rays_f64, buf_dirs));
-    }
+    let (label, bind_label) = match from {
+        RaysFrom::Listed => return Ok((buf_rays_f64, buf_dirs)),
+        RaysFrom::Listing => ("lidar_listing_rays_in", "lidar_listing_rays"),
+        RaysFrom::Fusion => ("lidar_rays_in", "lidar_rays"),
+    };
     let ray_words: Vec<u32> = rays
         .iter()
         .flat_map(|r| {
@@ -158,10 +172,10 @@ pub(super) fn record_rays(
             [x, y, z, r.gray as u32]
         })
         .collect();
-    let buf_rays = kept.storage_with(ctx, "lidar_rays_in", bytemuck::cast_slice(&ray_words));
+    let buf_rays = kept.storage_with(ctx, label, bytemuck::cast_slice(&ray_words));
     let kernel = ctx.kernel(&shaders::LIDAR_RAYS)?;
     let buffers = [buf_scan, &buf_rays, &buf_rays_f64, &buf_dirs, counters];
-    let bind = kept.bind_group(ctx, "lidar_rays", &kernel.layout, &buffers);
+    let bind = kept.bind_group(ctx, bind_label, &kernel.layout, &buffers);
     ctx.record_dispatch(encoder, &kernel, &bind, rays.len() as u64)?;
     Ok((buf_rays_f64, buf_dirs))
 }
@@ -199,7 +213,10 @@ pub(super) fn record_device_pairs(
         (ctx, &mut *kept, &mut *encoder),
         plan,
         (&buf_scan, counters),
-        listing.is_some(),
+        match listing {
+            Some(_) => RaysFrom::Listed,
+            None => RaysFrom::Fusion,
+        },
     )?;
     let buf_sent = kept.storage_with(ctx, "lidar_sent_keys", bytemuck::cast_slice(&key_words));
     let buf_keys = kept.scratch(ctx, "lidar_block_keys", n as u64 * 16);

@@ -15,13 +15,13 @@
 //! too full, arithmetic the exact f64 cannot do), the kernels count it and the host lists the
 //! scan itself: the same plan either way (`tests/gpu/lidar_listing.rs`).
 
-use super::lidar_device::{record_rays, scan_words, sensor_block};
+use super::lidar_device::{record_rays, scan_words, sensor_block, RaysFrom};
 use super::LidarPlan;
 use crate::gpu::kept::Kept;
 use crate::gpu::readback::{LateReadback, ReadbackRing};
 use crate::gpu::resident::{FrameParts, ResidentMap};
 use crate::gpu::{shaders, ErrorScopes, GpuContext};
-use crate::grid::BlockIndex;
+use crate::grid::{BlockIndex, GridParams};
 use crate::Result;
 use std::sync::Arc;
 
@@ -62,6 +62,8 @@ pub(crate) struct LidarListing {
     readback: LateReadback,
     /// The listing's number (which names the rays it leaves on the device).
     number: u64,
+    /// The entries of its table.
+    entries: u32,
     /// The sensor's block, from which the listed blocks' offsets pack.
     origin: [i32; 3],
     /// The list's entries read back with the counters: sized by the last scan's blocks.
@@ -88,6 +90,12 @@ impl PendingLidarPlan {
     }
 }
 
+/// Whether the device of `ctx` can list the blocks of `plan`: it has rays and they fit one
+/// binding (else the host lists its pairs when asked).
+pub(crate) fn listable(ctx: &GpuContext, plan: &LidarPlan) -> bool {
+    plan.ray_count() > 0 && super::lidar_device::rays_fit(ctx, plan)
+}
+
 /// Records and submits the listing of the blocks of `plan` (its rays alone:
 /// [`LidarPlan::rays_only`]) on the device of `map`, its results read back late (a ring of
 /// staging buffers kept by `listings`: [`finish_lidar_listing`] collects them), the rays left on
@@ -98,19 +106,41 @@ pub(crate) fn begin_lidar_listing(
     listings: &mut LidarListings,
     plan: LidarPlan,
 ) -> Result<PendingLidarPlan> {
-    let rays = plan.ray_count();
-    if rays == 0 || !super::lidar_device::rays_fit(map.context(), &plan) {
+    if !listable(map.context(), &plan) {
         return Ok(PendingLidarPlan::Planned(plan));
     }
     let device = map.context().clone();
     let FrameParts {
         ctx, grid, kept, ..
     } = map.frame_parts();
+    let scope = ErrorScopes::push(&ctx.device);
+    let mut encoder = ctx.encoder("lidar_listing");
+    let listing = record_lidar_listing((&device, grid, kept), listings, plan, &mut encoder)?;
+    ctx.submit(encoder);
+    listing.submitted();
+    scope.pop("listing a LiDAR scan's blocks on the GPU")?;
+    map.set_lidar_rays_of(Some(listing.rays_of()));
+    Ok(PendingLidarPlan::Listing(Box::new(listing)))
+}
+
+/// Records into `encoder` the listing of the blocks of `plan` ([`listable`]) on `device`, with
+/// the copy of its results into the next staging buffer of `listings`' ring: the caller submits
+/// `encoder` (after work that still reads the rays and table of the scan listed before, which
+/// the listing overwrites: a scan's fusion), then calls [`LidarListing::submitted`] and
+/// [`ResidentMap::set_lidar_rays_of`] with [`LidarListing::rays_of`]. What goes up by queue
+/// write (the scan's words and rays) lands in buffers of the listing's own, which no fusion
+/// reads, so it may share a submit with one.
+pub(crate) fn record_lidar_listing(
+    (device, grid, kept): (&Arc<GpuContext>, GridParams, &mut Kept),
+    listings: &mut LidarListings,
+    plan: LidarPlan,
+    encoder: &mut wgpu::CommandEncoder,
+) -> Result<LidarListing> {
+    let ctx = &**device;
+    let rays = plan.ray_count();
     let entries = table_entries(rays, listings.last_blocks);
     let origin = sensor_block(&grid, &plan);
     let words = scan_words((&grid, &plan), [0, 0, entries - 1], (origin, 1, 0));
-    let scope = ErrorScopes::push(&ctx.device);
-    let mut encoder = ctx.encoder("lidar_listing");
     let buf_scan = kept.storage_with(ctx, "lidar_listing_words", bytemuck::cast_slice(&words));
     let buf_counters = kept.scratch(ctx, "lidar_listing_counters", 16);
     let table_bytes = entries as u64 * 8;
@@ -119,41 +149,51 @@ pub(crate) fn begin_lidar_listing(
     encoder.clear_buffer(&buf_counters, 0, Some(16));
     encoder.clear_buffer(&buf_table, 0, Some(table_bytes));
     let (buf_rays_f64, _) = record_rays(
-        (ctx, &mut *kept, &mut encoder),
+        (ctx, &mut *kept, &mut *encoder),
         &plan,
         (&buf_scan, &buf_counters),
-        false,
+        RaysFrom::Listing,
     )?;
     let blocks = ctx.kernel(&shaders::LIDAR_BLOCKS)?;
     let buffers = [&buf_scan, &buf_table, &buf_rays_f64, &buf_counters];
     let bind = kept.bind_group(ctx, "lidar_blocks", &blocks.layout, &buffers);
-    ctx.record_dispatch(&mut encoder, &blocks, &bind, rays as u64)?;
+    ctx.record_dispatch(encoder, &blocks, &bind, rays as u64)?;
     let found = ctx.kernel(&shaders::LIDAR_FOUND)?;
     let buffers = [&buf_scan, &buf_table, &buf_list, &buf_counters];
     let bind = kept.bind_group(ctx, "lidar_found", &found.layout, &buffers);
-    ctx.record_dispatch(&mut encoder, &found, &bind, entries as u64)?;
+    ctx.record_dispatch(encoder, &found, &bind, entries as u64)?;
     // The readback sized by the last scan's blocks, and a quarter more.
     let guess = (listings.last_blocks + listings.last_blocks / 4 + 256).min(entries);
     let parts = [(&buf_counters, 16), (&buf_list, 8 * guess)];
-    let readback = listings.ring.submit(ctx, encoder, &parts);
-    scope.pop("listing a LiDAR scan's blocks on the GPU")?;
+    let readback = listings.ring.record(ctx, encoder, &parts);
     listings.listings += 1;
-    map.set_lidar_rays_of(Some((listings.listings, entries as u32)));
-    Ok(PendingLidarPlan::Listing(Box::new(LidarListing {
+    Ok(LidarListing {
         plan,
-        ctx: device,
+        ctx: device.clone(),
         readback,
         number: listings.listings,
+        entries: entries as u32,
         origin,
         guess,
         list: buf_list,
-    })))
+    })
 }
 
 impl LidarListing {
     /// The device listing the scan.
     pub(crate) fn context(&self) -> &Arc<GpuContext> {
         &self.ctx
+    }
+
+    /// The listing's number and its table's entries, which name the rays and table it leaves
+    /// on the device ([`ResidentMap::set_lidar_rays_of`]).
+    pub(crate) fn rays_of(&self) -> (u64, u32) {
+        (self.number, self.entries)
+    }
+
+    /// Asks for its results to be mapped, once the encoder it was recorded into is submitted.
+    pub(crate) fn submitted(&self) {
+        self.readback.submitted();
     }
 }
 

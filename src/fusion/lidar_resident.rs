@@ -17,6 +17,8 @@
 //! (`tests/gpu/lidar.rs`).
 
 use super::lidar_gpu::{dispatch_order, record_passes, upload_rays, PAIR_BYTES};
+use super::lidar_listing::{listable, record_lidar_listing};
+use super::{begin_lidar_listing, LidarListings, PendingLidarPlan};
 use super::{integrate_lidar_gpu, lidar_device, FusionStats, LidarPlan};
 use crate::gpu::layout::LookupUniforms;
 use crate::gpu::resident::{FrameParts, ResidentMap};
@@ -40,6 +42,26 @@ pub fn integrate_lidar_resident(
     layer: &mut Layer,
     plan: &LidarPlan,
 ) -> Result<(TouchedBlocks, FusionStats)> {
+    let (touched, stats, _) = fuse_lidar_then_list(map, layer, plan, None)?;
+    Ok((touched, stats))
+}
+
+/// The next scan's listing ([`fuse_lidar_then_list`]): the listings' record and the scan's rays
+/// ([`LidarPlan::rays_only`]).
+pub(crate) type NextListing<'a> = (&'a mut LidarListings, LidarPlan);
+
+/// [`integrate_lidar_resident`], then the listing of the next scan, `next`, begun
+/// ([`super::begin_lidar_listing`]): recorded into the scan's fusion submit, after its passes
+/// (which read the rays and table the listing overwrites), so that a scan costs one submit
+/// where it alone cost two; submitted alone where the scan submits nothing of its own (no
+/// blocks, or too many for the pool). Returns also the next scan's pending plan (`None`
+/// without `next`).
+pub(crate) fn fuse_lidar_then_list(
+    map: &mut ResidentMap,
+    layer: &mut Layer,
+    plan: &LidarPlan,
+    next: Option<NextListing<'_>>,
+) -> Result<(TouchedBlocks, FusionStats, Option<PendingLidarPlan>)> {
     if layer.params() != map.grid() {
         return Err(Error::InvalidArgument(
             "resident GPU map and layer have different grids".into(),
@@ -66,7 +88,11 @@ pub fn integrate_lidar_resident(
         let (earlier, updates) = map.take_collected();
         touched.extend(earlier);
         stats.voxel_updates += updates;
-        return Ok((touched, stats));
+        let next = match next {
+            Some((listings, plan)) => Some(begin_lidar_listing(map, listings, plan)?),
+            None => None,
+        };
+        return Ok((touched, stats, next));
     }
     // The rays and table a device listing left on the device for this plan, if any (used
     // once): the listing's table entries.
@@ -74,14 +100,21 @@ pub fn integrate_lidar_resident(
         .take_lidar_rays_of()
         .filter(|l| plan.device_listing() == Some(l.0))
         .map(|l| l.1);
+    let mut next = next;
+    let mut listed = None;
     if !blocks.is_empty() {
-        // One submit: the empty blocks' fill, the lookup and the passes.
+        // One submit: the empty blocks' fill, the lookup, the passes and the next listing.
         map.note_listed_in_flight(0); // a scan lists its rays' blocks alone
         let mut encoder = map.context().encoder("fuse_lidar_resident");
         map.make_resident(layer, &blocks, plan.origin_m(), Some(&mut encoder))?;
         let t = std::time::Instant::now();
-        let inputs_s = run_resident(map, layer, (plan, listing), &groups, encoder)?;
+        let riding = next.take_if(|(_, next)| listable(map.context(), next));
+        let inputs_s;
+        (inputs_s, listed) = run_resident(map, layer, (plan, listing), &groups, encoder, riding)?;
         map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
+    }
+    if let Some((listings, plan)) = next {
+        listed = Some(begin_lidar_listing(map, listings, plan)?);
     }
     let (touched, voxel_updates) = map.end_in_flight(layer)?;
     let stats = FusionStats {
@@ -89,22 +122,25 @@ pub fn integrate_lidar_resident(
         voxel_updates,
         measurements: plan.ray_count(),
     };
-    Ok((touched, stats))
+    Ok((touched, stats, listed))
 }
 
 /// Resolves the plan's blocks (resident, `groups` in block order) to pool slots and applies
 /// their rays there, submitting `encoder` (holding the fill of the scan's new blocks) with
 /// them and the copy of the counters and flags into the readback ring, collected as a depth
-/// frame's are (`src/gpu/resident/late.rs`). Returns the seconds spent preparing and writing
-/// the inputs.
+/// frame's are (`src/gpu/resident/late.rs`), and the listing of `next` ([`listable`]) after
+/// them. Returns the seconds spent preparing and writing the inputs, and the next scan's
+/// listing.
 fn run_resident(
     map: &mut ResidentMap,
     layer: &Layer,
     (plan, listing): (&LidarPlan, Option<u32>),
     groups: &[(BlockIndex, Range<usize>)],
     mut encoder: wgpu::CommandEncoder,
-) -> Result<f64> {
+    next: Option<NextListing<'_>>,
+) -> Result<(f64, Option<PendingLidarPlan>)> {
     let t = std::time::Instant::now();
+    let device = map.context().clone();
     let FrameParts {
         ctx,
         grid,
@@ -190,12 +226,26 @@ fn run_resident(
     let passes = (&counts[..], rays_per_pass);
     let bound = (&*fuse, "fuse_lidar_resident", &buffers[..]);
     record_passes((ctx, &mut encoder, &mut *kept), bound, &grid, passes)?;
-    let inputs_s = t.elapsed().as_secs_f64();
     let results = [(&buf_counters, 8), (&buf_updated, n * 4)];
-    let readback = ring.submit(ctx, encoder, &results);
+    let readback = ring.record(ctx, &mut encoder, &results);
+    let next = match next {
+        Some((listings, next)) => {
+            let parts = (&device, grid, &mut *kept);
+            Some(record_lidar_listing(parts, listings, next, &mut encoder)?)
+        }
+        None => None,
+    };
+    let inputs_s = t.elapsed().as_secs_f64();
+    ctx.submit(encoder);
+    readback.submitted();
+    if let Some(next) = &next {
+        next.submitted();
+    }
     scope.pop("running the resident LiDAR fusion kernel")?;
     // The flags come in dispatch order.
     let blocks = order.iter().map(|&b| groups[b].0).collect();
     map.frame_submitted(layer, blocks, readback);
-    Ok(inputs_s)
+    map.set_lidar_rays_of(next.as_ref().map(|n| n.rays_of()));
+    let next = next.map(|n| PendingLidarPlan::Listing(Box::new(n)));
+    Ok((inputs_s, next))
 }

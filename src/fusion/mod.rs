@@ -59,6 +59,7 @@ pub use lidar_gpu::{block_local_ray, integrate_lidar_gpu, walk_block_ray};
 pub(crate) use lidar_listing::{
     begin_lidar_listing, finish_lidar_listing, LidarListings, PendingLidarPlan,
 };
+pub(crate) use lidar_resident::fuse_lidar_then_list;
 pub use lidar_resident::integrate_lidar_resident;
 
 /// Work counters of one integration call.

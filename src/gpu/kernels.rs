@@ -56,12 +56,21 @@ impl GpuContext {
     }
 
     /// Compiles the kernels of `sources` not compiled yet, each on its own thread (a driver
-    /// compiles pipelines on the calling thread), and waits for them. The first error is
+    /// compiles pipelines on the calling thread), and waits for them (nothing where all are). The first error is
     /// returned; the kernels that compiled stay cached.
     pub fn compile_kernels(&self, sources: &[&ShaderSource]) -> Result<()> {
+        let mut missing = Vec::with_capacity(sources.len());
+        for &src in sources {
+            if self.cached(src)?.is_none() {
+                missing.push(src);
+            }
+        }
+        if missing.is_empty() {
+            return Ok(());
+        }
         let t = Instant::now();
         let results: Vec<Result<()>> = std::thread::scope(|s| {
-            let handles: Vec<_> = sources
+            let handles: Vec<_> = missing
                 .iter()
                 .map(|&src| s.spawn(move || self.kernel_uncounted(src)))
                 .collect();

@@ -177,7 +177,7 @@ impl fmt::Display for Report {
         if let Some(k) = &self.gpu_kernels {
             writeln!(
                 f,
-                "GPU kernels compiled: {} in {:.2} s (a run's stages' kernels together, before its first frame)",
+                "GPU kernels compiled: {} in {:.2} s (a stage's kernels together, before its first frame)",
                 k.kernels, k.seconds
             )?;
         }
