@@ -5,11 +5,13 @@
 //! by its offset from the sensor's block, counting its pairs, and `shaders/lidar_found.wgsl`
 //! lists the table; the host reads back 8 bytes per block (its packed offset and pair count),
 //! sorts them, pages the blocks in and fuses the scan from the rays the device kept
-//! ([`super::integrate_lidar_resident`]). One submit; the results come back through a ring of
-//! staging buffers ([`crate::gpu::readback`]), collected when the scan is fused: a pipelined run
-//! (`Reconstructor::fuse_lidar` with frames in flight) lists scan N+1 while the host finishes
-//! scan N and reads the next one, and waits only where the device has not finished (a second
-//! wait where a scan has more blocks than the last one's readback was sized for).
+//! ([`super::integrate_lidar_resident`]). One submit, or none of its own: a pipelined run
+//! (`Reconstructor::fuse_lidar` with frames in flight) records scan N+1's listing into scan N's
+//! fusion submit ([`record_lidar_listing`], `super::fuse_lidar_then_list`). The results come
+//! back through a ring of staging buffers ([`crate::gpu::readback`]), collected when the scan
+//! is fused, a call later, so the host reads the next scan meanwhile and waits only where the
+//! device has not finished (a second wait where a scan has more blocks than the last one's
+//! readback was sized for).
 //!
 //! Where the device cannot list a scan (a block more than 512 blocks from the sensor's, a table
 //! too full, arithmetic the exact f64 cannot do), the kernels count it and the host lists the
