@@ -56,8 +56,9 @@ impl GpuContext {
     }
 
     /// Compiles the kernels of `sources` not compiled yet, each on its own thread (a driver
-    /// compiles pipelines on the calling thread), and waits for them (nothing where all are). The first error is
-    /// returned; the kernels that compiled stay cached.
+    /// compiles pipelines on the calling thread), and waits for them; where all are compiled,
+    /// nothing (no thread spawned). The first error is returned; the kernels that compiled stay
+    /// cached.
     pub fn compile_kernels(&self, sources: &[&ShaderSource]) -> Result<()> {
         let mut missing = Vec::with_capacity(sources.len());
         for &src in sources {
