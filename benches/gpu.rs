@@ -22,6 +22,12 @@
 //!   or on the GPU (the depths uploaded, the slices made and the blocks listed there, 4 bytes
 //!   per block read back, `band_blocks_on_gpu`; a device with f64 only) and their set made on
 //!   the host (`DeviceBand::blocks`): the host's listing step against the device's.
+//! - `host_share_1241x376/*`: what the host still does per frame of the GPU tier, on the host
+//!   alone (no device needed): a street frame at 10 cm after four frames fused at 1 m steps;
+//!   `visible_blocks` (the layer's allocated blocks in view, `visible_blocks_in`),
+//!   `band_and_visible` (those merged with the band, `DepthPlan::blocks_with`), `frame_keys`
+//!   (the listed blocks packed as 4-byte offsets, `FrameKeys::new`) and `table_lookups` (each
+//!   listed block looked up in the host's mirror of the GPU hash table).
 //! - `marching_cubes/{cpu,gpu}`: the raw field of the fused 5 cm map meshed whole (GPU: the
 //!   samples packed and uploaded, five passes, the mesh read back and joined; the same mesh).
 //! - `marching_cubes/gpu_resident`: the same with the blocks resident on the GPU (the samples
@@ -212,5 +218,54 @@ fn marching_cubes(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, tv, fusion, band_listing, marching_cubes);
+/// The host's share of a resident depth frame on the GPU, with no device: what the host still
+/// does per frame once the band is listed on the device.
+fn host_share(c: &mut Criterion) {
+    use denser::fusion::{DepthPlan, FrameKeys};
+    use denser::gpu::resident::BlockTable;
+    let grid = GridParams::paper(0.1);
+    let params = DepthFusionParams::default();
+    let mut layer = Layer::new(grid);
+    for i in 0..4 {
+        integrate_depth(&mut layer, &street::street_frame(i as f64, i), &params);
+    }
+    let frame = street::street_frame(4.0, 4);
+    let plan = DepthPlan::new(&grid, &frame, &params);
+    let blocks = plan.blocks_with(&layer, &[]);
+    let mut table = BlockTable::for_blocks(layer.block_count() as u32 * 2);
+    for (slot, (b, _)) in layer.iter_unsorted().enumerate() {
+        table.insert(*b, slot as u32);
+    }
+    eprintln!(
+        "layer {} blocks in {} tiles, band {}, listed {}",
+        layer.block_count(),
+        layer.tile_count(),
+        plan.band.len(),
+        blocks.len()
+    );
+    let mut g = c.benchmark_group("host_share_1241x376");
+    g.sample_size(20);
+    g.bench_function("visible_blocks", |b| {
+        b.iter(|| denser::fusion::visible_blocks_in(&layer, &plan.frustum))
+    });
+    g.bench_function("band_and_visible", |b| {
+        b.iter(|| plan.blocks_with(&layer, &[]))
+    });
+    g.bench_function("frame_keys", |b| {
+        b.iter(|| FrameKeys::new(&grid, &plan.geometry, &blocks, blocks.len()).unwrap())
+    });
+    g.bench_function("table_lookups", |b| {
+        b.iter(|| blocks.iter().filter_map(|k| table.lookup(*k)).count())
+    });
+    g.finish();
+}
+
+criterion_group!(
+    benches,
+    tv,
+    fusion,
+    band_listing,
+    marching_cubes,
+    host_share
+);
 criterion_main!(benches);

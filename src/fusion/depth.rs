@@ -4,7 +4,7 @@ use super::band::{list_band, BandListing};
 use super::depth_block::{fuse_block, FramePixels};
 use super::FusionStats;
 use crate::frame::DepthFrame;
-use crate::grid::{BlockIndex, GridParams, Layer, TouchedBlocks};
+use crate::grid::{BlockIndex, GridParams, Layer, TouchedBlocks, TILE_EDGE};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
@@ -137,22 +137,28 @@ pub fn visible_blocks(
     visible_blocks_in(layer, &frustum)
 }
 
-/// [`visible_blocks`] for a frustum already built. Where the frustum's box of blocks
-/// ([`ViewFrustum::block_box`]) holds fewer positions than the layer has blocks (a long drive
-/// in RAM), it looks those positions up; otherwise it tests every block of the layer. Both
-/// give the same blocks.
+/// [`visible_blocks`] for a frustum already built. It searches the layer's occupancy tiles
+/// ([`Layer::occupied_tiles`], a mask of 4³ block positions each) rather than the blocks:
+/// where the frustum's box of blocks ([`ViewFrustum::block_box`]) covers fewer tiles than the
+/// layer holds (a long drive in RAM), it looks the box's tiles up; otherwise it takes the
+/// layer's every tile. Either way a tile whose bounding sphere misses the frustum is skipped
+/// whole, and only the positions of a kept tile that hold a block are tested, one by one, as
+/// [`visible_blocks_by_scan`] tests them: both give the same blocks.
 pub fn visible_blocks_in(layer: &Layer, frustum: &ViewFrustum) -> TouchedBlocks {
     let (first, last) = frustum.block_box(&layer.params());
-    let positions = (0..3).fold(1u128, |n, k| n * (last[k] - first[k] + 1).max(0) as u128);
-    if positions < layer.block_count() as u128 {
-        visible_blocks_in_box(layer, frustum, (first, last))
+    let tiles = box_tiles(first, last);
+    let tile_count = (0..3).fold(1u128, |n, k| {
+        n * (tiles.1[k] as i64 - tiles.0[k] as i64 + 1).max(0) as u128
+    });
+    let from = if tile_count < layer.tile_count() as u128 {
+        TilesFrom::Box(tiles)
     } else {
-        visible_blocks_by_scan(layer, frustum)
-    }
+        TilesFrom::Layer
+    };
+    visible_blocks_in_tiles(layer, frustum, from)
 }
 
-/// [`visible_blocks_in`], testing every block of the layer (what it does for a layer smaller
-/// than the frustum's box of blocks).
+/// [`visible_blocks_in`], testing every block of the layer: the oracle of the tiled search.
 pub fn visible_blocks_by_scan(layer: &Layer, frustum: &ViewFrustum) -> TouchedBlocks {
     let grid = layer.params();
     let all: Vec<BlockIndex> = layer.iter_unsorted().map(|(i, _)| *i).collect();
@@ -164,46 +170,108 @@ pub fn visible_blocks_by_scan(layer: &Layer, frustum: &ViewFrustum) -> TouchedBl
     v
 }
 
-/// Edge of the tiles of block positions [`visible_blocks_in_box`] tests as a whole, blocks.
-const BOX_TILE: i32 = 4;
+/// The tiles (first, last; inclusive) that cover the block positions `first..=last`.
+fn box_tiles(first: [i64; 3], last: [i64; 3]) -> ([i32; 3], [i32; 3]) {
+    let clamp = |v: i64| v.clamp(i32::MIN as i64 / 2, i32::MAX as i64 / 2) as i32;
+    let tile = |v: i64| clamp(v).div_euclid(TILE_EDGE);
+    (first.map(tile), last.map(tile))
+}
 
-/// [`visible_blocks_in`], looking up the positions of the box `(first, last)` (inclusive): tile
-/// by tile of [`BOX_TILE`]³ positions, skipping a tile whose bounding sphere (which holds its
-/// blocks' spheres) misses the frustum, then testing each position against the frustum before
-/// looking it up.
-fn visible_blocks_in_box(
-    layer: &Layer,
-    frustum: &ViewFrustum,
-    (first, last): ([i64; 3], [i64; 3]),
-) -> TouchedBlocks {
+/// Where [`visible_blocks_in_tiles`] takes its candidate tiles from.
+#[derive(Clone, Copy, Debug)]
+enum TilesFrom {
+    /// The tiles of a box (first, last; inclusive), looked up in the layer.
+    Box(([i32; 3], [i32; 3])),
+    /// Every tile of the layer.
+    Layer,
+}
+
+/// The blocks of `layer` that meet `frustum`, sorted, searched tile by tile ([`TilesFrom`]).
+fn visible_blocks_in_tiles(layer: &Layer, frustum: &ViewFrustum, from: TilesFrom) -> TouchedBlocks {
     let grid = layer.params();
     let s = grid.block_size_m();
-    let clamp = |v: i64| v.clamp(i32::MIN as i64 / 2, i32::MAX as i64 / 2) as i32;
-    let (first, last) = (first.map(clamp), last.map(clamp));
-    let tiles = [0, 1, 2].map(|k| (last[k] - first[k]) / BOX_TILE + 1);
-    let tile_radius_m = 0.5 * BOX_TILE as f64 * s * 3f64.sqrt();
-    let mut v: Vec<BlockIndex> = (0..tiles[0] * tiles[1] * tiles[2])
-        .into_par_iter()
-        .flat_map_iter(|t| {
-            let tile = [
-                t % tiles[0],
-                (t / tiles[0]) % tiles[1],
-                t / (tiles[0] * tiles[1]),
-            ];
-            let lo = [0, 1, 2].map(|k| first[k] + tile[k] * BOX_TILE);
-            let hi = [0, 1, 2].map(|k| (lo[k] + BOX_TILE - 1).min(last[k]));
-            let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k] + 1) as f64 * s);
-            let meets = frustum.meets_sphere(centre, tile_radius_m);
-            let (lo, hi) = if meets { (lo, hi) } else { ([0; 3], [-1; 3]) };
-            (lo[0]..=hi[0]).flat_map(move |x| {
-                (lo[1]..=hi[1])
-                    .flat_map(move |y| (lo[2]..=hi[2]).map(move |z| BlockIndex([x, y, z])))
-            })
-        })
-        .filter(|b| frustum.meets_block(&grid, *b) && layer.contains(b))
-        .collect();
-    v.par_sort_unstable();
-    v
+    // A tile's sphere holds its blocks' spheres (a corner block's touches it from inside);
+    // widened a little, so that rounding can never drop a tile a block of which meets the
+    // frustum: the blocks' own test decides.
+    let edge_m = TILE_EDGE as f64 * s;
+    let radius_m = 0.5 * edge_m * 3f64.sqrt() * (1.0 + 1e-9) + 1e-9;
+    // A tile whose centre lies this deep inside every plane holds only blocks whose centres
+    // lie inside (they are at most 1.5·√3 blocks from it), far from where a block's test
+    // (whose sphere reaches √3/2 of a block beyond its centre) could round either way.
+    let inside_m = -(1.5 * s * 3f64.sqrt() * (1.0 + 1e-9) + 1e-9);
+    // The tile's blocks in view, as a mask.
+    let in_view = |(tile, mask): (BlockIndex, u64)| {
+        let centre = tile.0.map(|t| (t as f64 + 0.5) * edge_m);
+        if mask == 0 || !frustum.meets_sphere(centre, radius_m) {
+            return (tile, 0);
+        }
+        if frustum.meets_sphere(centre, inside_m) {
+            return (tile, mask);
+        }
+        let e = TILE_EDGE;
+        let kept = (0..64)
+            .filter(|bit| mask >> bit & 1 == 1)
+            .fold(0u64, |kept, bit| {
+                let r = [bit % e, (bit / e) % e, bit / (e * e)];
+                let b = BlockIndex([0, 1, 2].map(|k| tile.0[k] * e + r[k]));
+                kept | (frustum.meets_block(&grid, b) as u64) << bit
+            });
+        (tile, kept)
+    };
+    // Fewer tiles than this are searched on the calling thread: waking the pool costs more.
+    const ON_ONE_THREAD: usize = 1 << 13;
+    let mut tiles: Vec<(BlockIndex, u64)> = match from {
+        TilesFrom::Layer if layer.tile_count() < ON_ONE_THREAD => {
+            layer.occupied_tiles().map(in_view).collect()
+        }
+        TilesFrom::Layer => {
+            let tiles: Vec<(BlockIndex, u64)> = layer.occupied_tiles().collect();
+            tiles.into_par_iter().map(in_view).collect()
+        }
+        TilesFrom::Box((first, last)) => {
+            let n = [0, 1, 2].map(|k| (last[k] as i64 - first[k] as i64 + 1).max(0));
+            let tile = |t: i64| {
+                let at = [t % n[0], (t / n[0]) % n[1], t / (n[0] * n[1])];
+                let tile = BlockIndex([0, 1, 2].map(|k| first[k] + at[k] as i32));
+                in_view((tile, layer.tile_mask(tile)))
+            };
+            let count = n[0] * n[1] * n[2];
+            if count < ON_ONE_THREAD as i64 {
+                (0..count).map(tile).collect()
+            } else {
+                (0..count).into_par_iter().map(tile).collect()
+            }
+        }
+    };
+    tiles.retain(|(_, mask)| *mask != 0);
+    tiles.sort_unstable();
+    blocks_of_sorted_tiles(&tiles)
+}
+
+/// The blocks that sorted tiles' masks hold, in the blocks' order (x, then y, then z), without
+/// sorting them: for each x-column of tiles, each x; for each of its y-rows of tiles, each y;
+/// then each tile of the row, z by z.
+fn blocks_of_sorted_tiles(tiles: &[(BlockIndex, u64)]) -> TouchedBlocks {
+    let e = TILE_EDGE;
+    let count = tiles.iter().map(|(_, m)| m.count_ones() as usize).sum();
+    let mut out = Vec::with_capacity(count);
+    for column in tiles.chunk_by(|a, b| a.0 .0[0] == b.0 .0[0]) {
+        for rx in 0..e {
+            for row in column.chunk_by(|a, b| a.0 .0[1] == b.0 .0[1]) {
+                for ry in 0..e {
+                    for (tile, mask) in row {
+                        for rz in 0..e {
+                            if mask >> (rx + e * (ry + e * rz)) & 1 == 1 {
+                                let r = [rx, ry, rz];
+                                out.push(BlockIndex([0, 1, 2].map(|k| tile.0[k] * e + r[k])));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    out
 }
 
 /// A depth frame's geometry in the grid, as the f32 quantities the CPU loop and the GPU kernels
@@ -454,9 +522,16 @@ mod tests {
 
     #[test]
     fn the_frustums_box_holds_every_block_in_view() {
-        // Blocks scattered around cameras in many poses: looking the box's positions up finds
-        // exactly the blocks the scan of the layer finds.
-        let grid = GridParams::paper(0.2);
+        // Blocks scattered around cameras in many poses: the tiles' search, of the box's tiles
+        // or of the layer's, finds exactly the blocks the scan of the layer finds; on the finer
+        // grid many tiles lie wholly inside the view, on the coarser few.
+        for voxel_m in [0.2, 0.05] {
+            let seen = blocks_in_view_of_random_poses(GridParams::paper(voxel_m));
+            assert!(seen > 3_000, "{seen} blocks in view at {voxel_m} m");
+        }
+    }
+
+    fn blocks_in_view_of_random_poses(grid: GridParams) -> usize {
         let params = DepthFusionParams {
             max_depth_m: 12.0,
             ..Default::default()
@@ -497,11 +572,15 @@ mod tests {
             };
             let frustum = ViewFrustum::new(&frame, &params, grid.truncation_m as f64);
             let by_scan = visible_blocks_by_scan(&layer, &frustum);
-            let boxed = visible_blocks_in_box(&layer, &frustum, frustum.block_box(&grid));
+            let (first, last) = frustum.block_box(&grid);
+            let from_box = TilesFrom::Box(box_tiles(first, last));
+            let boxed = visible_blocks_in_tiles(&layer, &frustum, from_box);
             assert_eq!(by_scan, boxed, "pose {k}");
+            let tiled = visible_blocks_in_tiles(&layer, &frustum, TilesFrom::Layer);
+            assert_eq!(by_scan, tiled, "pose {k}");
             assert_eq!(visible_blocks_in(&layer, &frustum), by_scan);
             seen += by_scan.len();
         }
-        assert!(seen > 3_000, "{seen} blocks in view");
+        seen
     }
 }

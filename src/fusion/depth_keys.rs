@@ -31,6 +31,7 @@ const WIDE_LIMIT: i32 = 1 << 23;
 
 /// `d` packed into one word ([`OFFSET_BITS`], two's complement), or `None` when a component
 /// does not fit.
+#[inline]
 pub fn pack_offset(d: [i32; 3]) -> Option<u32> {
     let mut word = 0u32;
     let mut shift = 0;
@@ -196,9 +197,12 @@ impl FrameKeys {
     }
 }
 
-/// `b − origin`, per axis.
+/// `b − origin`, per axis (written out: a frame computes thousands, and an array `map` left
+/// out of line by the compiler made `FrameKeys::new` 2.5× slower).
+#[inline]
 fn offset(b: BlockIndex, origin: BlockIndex) -> [i32; 3] {
-    [0, 1, 2].map(|k| b.0[k].wrapping_sub(origin.0[k]))
+    let ([x, y, z], [ox, oy, oz]) = (b.0, origin.0);
+    [x.wrapping_sub(ox), y.wrapping_sub(oy), z.wrapping_sub(oz)]
 }
 
 #[cfg(test)]

@@ -13,6 +13,9 @@ use std::hash::{BuildHasherDefault, Hasher};
 /// RAM bytes of a block's slot in the layer's hash table: its key, the box, one control byte.
 const SLOT_BYTES: usize = std::mem::size_of::<BlockIndex>() + std::mem::size_of::<Box<Block>>() + 1;
 
+/// RAM bytes of an occupancy tile's slot: its key, its mask, one control byte.
+const TILE_SLOT_BYTES: usize = std::mem::size_of::<BlockIndex>() + 8 + 1;
+
 /// RAM bytes of one resident block with its hash slot (regularized field not included), the unit
 /// of every memory budget over resident blocks (the pager's residency, a region's working memory).
 pub const BLOCK_RESIDENT_BYTES: u64 = (std::mem::size_of::<Block>() + SLOT_BYTES) as u64;
@@ -50,11 +53,42 @@ impl Hasher for BlockHasher {
 
 type BlockMap = HashMap<BlockIndex, Box<Block>, BuildHasherDefault<BlockHasher>>;
 
+/// Edge of a layer's occupancy tiles, blocks: [`Layer::occupied_tiles`] holds one 64-bit mask
+/// per tile of 4³ block positions with an allocated block.
+pub const TILE_EDGE: i32 = 4;
+
+/// The tile of block `b` (its coordinates divided by [`TILE_EDGE`], rounded down) and the bit of
+/// `b` in the tile's mask (x fastest).
+#[inline]
+pub fn tile_of(b: BlockIndex) -> (BlockIndex, u64) {
+    let t = b.0.map(|c| c.div_euclid(TILE_EDGE));
+    let r = b.0.map(|c| c.rem_euclid(TILE_EDGE));
+    let bit = r[0] + TILE_EDGE * (r[1] + TILE_EDGE * r[2]);
+    (BlockIndex(t), 1u64 << bit)
+}
+
+/// The blocks of tile `tile` whose bits `mask` holds, in bit order.
+pub fn tile_blocks(tile: BlockIndex, mask: u64) -> impl Iterator<Item = BlockIndex> {
+    let e = TILE_EDGE;
+    (0..64)
+        .filter(move |bit| mask >> bit & 1 == 1)
+        .map(move |bit| {
+            let r = [bit % e, (bit / e) % e, bit / (e * e)];
+            BlockIndex([0, 1, 2].map(|k| tile.0[k] * e + r[k]))
+        })
+}
+
+type TileMap = HashMap<BlockIndex, u64, BuildHasherDefault<BlockHasher>>;
+
 /// A layer of TSDF blocks.
 #[derive(Clone, Debug)]
 pub struct Layer {
     params: GridParams,
     blocks: BlockMap,
+    /// Which positions hold a block, per tile of 4³ positions ([`tile_of`]): kept with
+    /// `blocks` by every method that adds or removes one, so that a search of a region (the
+    /// blocks in a camera's view) skips empty space a tile at a time.
+    tiles: TileMap,
 }
 
 impl Layer {
@@ -63,7 +97,64 @@ impl Layer {
         Layer {
             params,
             blocks: BlockMap::default(),
+            tiles: TileMap::default(),
         }
+    }
+
+    /// Notes a block added at `i`.
+    #[inline]
+    fn occupy(&mut self, i: BlockIndex) {
+        let (tile, bit) = tile_of(i);
+        *self.tiles.entry(tile).or_insert(0) |= bit;
+    }
+
+    /// Notes the block at `i` removed.
+    #[inline]
+    fn vacate(&mut self, i: &BlockIndex) {
+        let (tile, bit) = tile_of(*i);
+        if let Some(mask) = self.tiles.get_mut(&tile) {
+            *mask &= !bit;
+            if *mask == 0 {
+                self.tiles.remove(&tile);
+            }
+        }
+    }
+
+    /// Inserts into the map and the tiles.
+    #[inline]
+    fn put(&mut self, i: BlockIndex, b: Box<Block>) -> Option<Box<Block>> {
+        let old = self.blocks.insert(i, b);
+        if old.is_none() {
+            self.occupy(i);
+        }
+        old
+    }
+
+    /// Removes from the map and the tiles.
+    #[inline]
+    fn take(&mut self, i: &BlockIndex) -> Option<Box<Block>> {
+        let old = self.blocks.remove(i);
+        if old.is_some() {
+            self.vacate(i);
+        }
+        old
+    }
+
+    /// Number of tiles of 4³ block positions holding at least one block.
+    pub fn tile_count(&self) -> usize {
+        self.tiles.len()
+    }
+
+    /// Each tile holding a block, with the mask of its positions that hold one ([`tile_of`],
+    /// [`tile_blocks`]), in arbitrary order.
+    pub fn occupied_tiles(&self) -> impl Iterator<Item = (BlockIndex, u64)> + '_ {
+        self.tiles.iter().map(|(t, m)| (*t, *m))
+    }
+
+    /// The mask of tile `tile`'s positions that hold a block (0 where none does).
+    #[inline]
+    pub fn tile_mask(&self, tile: BlockIndex) -> u64 {
+        self.tiles.get(&tile).copied().unwrap_or(0)
     }
 
     /// Voxel size and truncation.
@@ -95,7 +186,15 @@ impl Layer {
 
     /// The block at `index`, allocating an empty one if needed.
     pub fn get_or_allocate(&mut self, index: BlockIndex) -> &mut Block {
-        self.blocks.entry(index).or_insert_with(Block::new_boxed)
+        use std::collections::hash_map::Entry;
+        match self.blocks.entry(index) {
+            Entry::Occupied(e) => e.into_mut(),
+            Entry::Vacant(e) => {
+                let (tile, bit) = tile_of(index);
+                *self.tiles.entry(tile).or_insert(0) |= bit;
+                e.insert(Block::new_boxed())
+            }
+        }
     }
 
     /// Whether `index` is allocated.
@@ -126,14 +225,14 @@ impl Layer {
     pub fn take_blocks(&mut self, indices: &[BlockIndex]) -> Vec<(BlockIndex, Box<Block>)> {
         indices
             .iter()
-            .map(|&i| (i, self.blocks.remove(&i).unwrap_or_else(Block::new_boxed)))
+            .map(|&i| (i, self.take(&i).unwrap_or_else(Block::new_boxed)))
             .collect()
     }
 
     /// Checks blocks (back) into the layer, replacing any with the same index.
     pub fn put_blocks(&mut self, blocks: impl IntoIterator<Item = (BlockIndex, Box<Block>)>) {
         for (i, b) in blocks {
-            self.blocks.insert(i, b);
+            self.put(i, b);
         }
     }
 
@@ -148,7 +247,7 @@ impl Layer {
         for (i, b) in blocks {
             if b.observed() {
                 kept.push(i);
-                self.blocks.insert(i, b);
+                self.put(i, b);
             }
         }
         kept
@@ -215,10 +314,10 @@ impl Layer {
                 if is_fresh {
                     let (_, b) = fresh.next().expect("one fresh block per fresh result");
                     if keep {
-                        self.blocks.insert(i, b);
+                        self.put(i, b);
                     }
                 } else if !keep {
-                    self.blocks.remove(&i);
+                    self.take(&i);
                 }
                 (i, r, keep)
             })
@@ -227,12 +326,12 @@ impl Layer {
 
     /// Removes and returns one block.
     pub fn remove(&mut self, index: &BlockIndex) -> Option<Box<Block>> {
-        self.blocks.remove(index)
+        self.take(index)
     }
 
     /// Inserts one block, returning the one it replaced.
     pub fn insert(&mut self, index: BlockIndex, block: Box<Block>) -> Option<Box<Block>> {
-        self.blocks.insert(index, block)
+        self.put(index, block)
     }
 
     /// Drops every block's regularized field (e.g. before re-regularizing with other settings).
@@ -242,10 +341,11 @@ impl Layer {
         }
     }
 
-    /// Bytes held in RAM: blocks plus the hash table's slots (key, pointer, control byte).
+    /// Bytes held in RAM: blocks plus the hash tables' slots (blocks: key, pointer, control
+    /// byte; tiles: key, mask, control byte).
     pub fn memory_bytes(&self) -> usize {
         let blocks: usize = self.blocks.values().map(|b| b.heap_bytes()).sum();
-        blocks + self.blocks.capacity() * SLOT_BYTES
+        blocks + self.blocks.capacity() * SLOT_BYTES + self.tiles.capacity() * TILE_SLOT_BYTES
     }
 
     /// RAM bytes per allocated voxel ([`Layer::memory_bytes`] / (blocks · 512)).
@@ -387,5 +487,77 @@ mod tests {
             vec![BlockIndex([0, 0, 0]), BlockIndex([1, 2, 3])]
         );
         assert_eq!(layer.observed_voxel_count(), 1);
+    }
+
+    /// The tiles recomputed from the layer's blocks, sorted.
+    fn tiles_of_blocks(layer: &Layer) -> Vec<(BlockIndex, u64)> {
+        let mut tiles: HashMap<BlockIndex, u64> = HashMap::new();
+        for (i, _) in layer.iter_unsorted() {
+            let (t, bit) = tile_of(*i);
+            *tiles.entry(t).or_default() |= bit;
+        }
+        let mut v: Vec<_> = tiles.into_iter().collect();
+        v.sort_unstable();
+        v
+    }
+
+    #[test]
+    fn occupancy_tiles_follow_every_change_of_the_blocks() {
+        // Every method that adds or removes blocks, on coordinates of both signs: the tiles are
+        // those of the blocks after each step, and each tile's blocks are where its mask says.
+        let mut layer = Layer::new(GridParams::paper(0.1));
+        let mut rng = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = move |n: i32| {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng % n as u64) as i32 - n / 2
+        };
+        let mut some = |count: usize| -> Vec<BlockIndex> {
+            let mut v: Vec<BlockIndex> = (0..count)
+                .map(|_| BlockIndex([next(24), next(24), next(24)]))
+                .collect();
+            v.sort_unstable();
+            v.dedup();
+            v
+        };
+        for step in 0..60 {
+            let keys = some(40);
+            match step % 6 {
+                0 => keys.iter().for_each(|k| {
+                    layer.get_or_allocate(*k);
+                }),
+                1 => keys.iter().for_each(|k| drop(layer.remove(k))),
+                2 => {
+                    let taken = layer.take_blocks(&keys);
+                    assert_eq!(tiles_of_blocks(&layer), sorted_tiles(&layer));
+                    layer.put_blocks(taken.into_iter().step_by(2));
+                }
+                3 => drop(layer.update_in_place(&keys, |i| i.0[0] > 0, |i, _| ((), i.0[1] > 0))),
+                4 => keys
+                    .iter()
+                    .for_each(|k| drop(layer.insert(*k, Block::new_boxed()))),
+                _ => {
+                    let taken = layer.take_blocks(&keys);
+                    layer.put_blocks_observed(taken);
+                }
+            }
+            assert_eq!(tiles_of_blocks(&layer), sorted_tiles(&layer), "step {step}");
+        }
+        assert!(layer.block_count() > 100, "{} blocks", layer.block_count());
+        let mut from_tiles: Vec<BlockIndex> = (layer.occupied_tiles())
+            .flat_map(|(t, m)| tile_blocks(t, m))
+            .collect();
+        from_tiles.sort_unstable();
+        assert_eq!(from_tiles, layer.indices_sorted());
+        for (t, m) in layer.occupied_tiles() {
+            assert_eq!(layer.tile_mask(t), m);
+        }
+    }
+
+    fn sorted_tiles(layer: &Layer) -> Vec<(BlockIndex, u64)> {
+        let mut v: Vec<_> = layer.occupied_tiles().collect();
+        v.sort_unstable();
+        v
     }
 }

@@ -22,5 +22,7 @@ pub use index::{
     floor_i64, linear_index, local_coords, round_i64, BlockIndex, GridParams, VoxelIndex,
     VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
 };
-pub use layer::{BlockHasher, Layer, TouchedBlocks, BLOCK_RESIDENT_BYTES};
+pub use layer::{
+    tile_blocks, tile_of, BlockHasher, Layer, TouchedBlocks, BLOCK_RESIDENT_BYTES, TILE_EDGE,
+};
 pub use residency::{eviction_order, EvictionCandidate};
