@@ -4,7 +4,7 @@ use super::band::{list_band, BandListing};
 use super::depth_block::{fuse_block, FramePixels};
 use super::FusionStats;
 use crate::frame::DepthFrame;
-use crate::grid::{BlockIndex, GridParams, Layer, TouchedBlocks, TILE_EDGE};
+use crate::grid::{tile_blocks, tile_of, BlockIndex, GridParams, Layer, TouchedBlocks, TILE_EDGE};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
@@ -142,8 +142,8 @@ pub fn visible_blocks(
 /// where the frustum's box of blocks ([`ViewFrustum::block_box`]) covers fewer tiles than the
 /// layer holds (a long drive in RAM), it looks the box's tiles up; otherwise it takes the
 /// layer's every tile. Either way a tile whose bounding sphere misses the frustum is skipped
-/// whole, and only the positions of a kept tile that hold a block are tested, one by one, as
-/// [`visible_blocks_by_scan`] tests them: both give the same blocks.
+/// whole, a tile deep inside it is taken whole, and the blocks of the others are tested one by
+/// one, as [`visible_blocks_by_scan`] tests them: both give the same blocks.
 pub fn visible_blocks_in(layer: &Layer, frustum: &ViewFrustum) -> TouchedBlocks {
     let (first, last) = frustum.block_box(&layer.params());
     let tiles = box_tiles(first, last);
@@ -208,14 +208,9 @@ fn visible_blocks_in_tiles(layer: &Layer, frustum: &ViewFrustum, from: TilesFrom
         if frustum.meets_sphere(centre, inside_m) {
             return (tile, mask);
         }
-        let e = TILE_EDGE;
-        let kept = (0..64)
-            .filter(|bit| mask >> bit & 1 == 1)
-            .fold(0u64, |kept, bit| {
-                let r = [bit % e, (bit / e) % e, bit / (e * e)];
-                let b = BlockIndex([0, 1, 2].map(|k| tile.0[k] * e + r[k]));
-                kept | (frustum.meets_block(&grid, b) as u64) << bit
-            });
+        let kept = tile_blocks(tile, mask)
+            .filter(|b| frustum.meets_block(&grid, *b))
+            .fold(0, |kept, b| kept | tile_of(b).1);
         (tile, kept)
     };
     // Fewer tiles than this are searched on the calling thread: waking the pool costs more.
