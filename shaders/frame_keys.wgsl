@@ -5,23 +5,7 @@
 // arithmetic, which no compiler rewrites), then rounded once to the nearest f32. CPU twin:
 // `FrameKeys::base` and `unpack_offset` in src/fusion/depth_keys.rs, equal bit for bit (its
 // module documentation says why the result is the CPU's f64-then-f32 base but for rare
-// rounding ties). Keep `FrameKeyUniforms` in sync with src/gpu/layout.rs. Shared files and
-// bindings: src/gpu/shaders.rs.
-
-struct FrameKeyUniforms {
-    // The origin block's key (xyz); w: words per key (1 packed, 3 wide).
-    origin: vec4<i32>,
-    // Per camera axis c: the origin block's base coordinate, fixed point, three words (xyz).
-    base: array<vec4<u32>, 3>,
-    // [3k + c]: the step of one block along world axis k, camera axis c, fixed point.
-    steps: array<vec4<u32>, 9>,
-    block_count: u32,
-    // Table capacity − 1 (the capacity is a power of two).
-    mask: u32,
-    // Blocks from this index on are fused only where a frame created them (base w = 1).
-    first_unsettled: u32,
-    _pad: u32,
-}
+// rounding ties). Shared files and bindings: src/gpu/shaders.rs.
 
 @group(0) @binding(0) var<uniform> params: FrameKeyUniforms;
 @group(0) @binding(1) var<storage, read> table: array<vec4<u32>>;
@@ -31,20 +15,6 @@ struct FrameKeyUniforms {
 @group(0) @binding(3) var<storage, read_write> slots: array<u32>;
 // Per listed block: its base (xyz) and w = 1 where fused only if a frame created it.
 @group(0) @binding(4) var<storage, read_write> block_base: array<vec4<f32>>;
-
-// Block b's offset from the origin block (x: bits 0–10, y: 11–20, z: 21–31, two's complement).
-fn offset_of(b: u32) -> vec3<i32> {
-    if (params.origin.w == 1) {
-        let w = keys[b];
-        return vec3<i32>(
-            bitcast<i32>(w << 21u) >> 21u,
-            bitcast<i32>(w << 11u) >> 22u,
-            bitcast<i32>(w) >> 21u,
-        );
-    }
-    let k = 3u * b;
-    return bitcast<vec3<i32>>(vec3<u32>(keys[k], keys[k + 1u], keys[k + 2u]));
-}
 
 // A 96-bit two's complement integer as six 16-bit limbs, least significant first (lo: limbs
 // 0–2, hi: 3–5), so that a limb times a 16-bit factor plus a carry fits 32 bits.

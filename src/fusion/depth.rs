@@ -4,7 +4,10 @@ use super::band::{list_band, BandListing};
 use super::depth_block::{fuse_block, FramePixels};
 use super::FusionStats;
 use crate::frame::DepthFrame;
-use crate::grid::{tile_blocks, tile_of, BlockIndex, GridParams, Layer, TouchedBlocks, TILE_EDGE};
+use crate::grid::{
+    tile_bit, tile_block, tile_blocks, tile_of, BlockIndex, GridParams, Layer, TouchedBlocks,
+    TILE_EDGE,
+};
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
@@ -43,12 +46,12 @@ pub(crate) fn usable(d: f32, p: &DepthFusionParams) -> bool {
 /// selects blocks and page in every block fusion could update.
 #[derive(Clone, Copy, Debug)]
 pub struct ViewFrustum {
-    camera_from_world: nalgebra::Isometry3<f64>,
+    pub(crate) camera_from_world: nalgebra::Isometry3<f64>,
     /// Unit inward normals of the side planes (through the camera centre), camera frame.
-    sides: [Vector3<f64>; 4],
+    pub(crate) sides: [Vector3<f64>; 4],
     /// The widened image borders on the plane z = 1: x0, x1, y0, y1.
     borders: [f64; 4],
-    far_m: f64,
+    pub(crate) far_m: f64,
 }
 
 impl ViewFrustum {
@@ -147,9 +150,7 @@ pub fn visible_blocks(
 pub fn visible_blocks_in(layer: &Layer, frustum: &ViewFrustum) -> TouchedBlocks {
     let (first, last) = frustum.block_box(&layer.params());
     let tiles = box_tiles(first, last);
-    let tile_count = (0..3).fold(1u128, |n, k| {
-        n * (tiles.1[k] as i64 - tiles.0[k] as i64 + 1).max(0) as u128
-    });
+    let tile_count = tiles.1.iter().map(|&n| n as u128).product::<u128>();
     let from = if tile_count < layer.tile_count() as u128 {
         TilesFrom::Box(tiles)
     } else {
@@ -170,18 +171,21 @@ pub fn visible_blocks_by_scan(layer: &Layer, frustum: &ViewFrustum) -> TouchedBl
     v
 }
 
-/// The tiles (first, last; inclusive) that cover the block positions `first..=last`.
-fn box_tiles(first: [i64; 3], last: [i64; 3]) -> ([i32; 3], [i32; 3]) {
+/// The tiles that cover the block positions `first..=last`: the first tile and the number of
+/// tiles along each axis (0 where the box is empty).
+fn box_tiles(first: [i64; 3], last: [i64; 3]) -> ([i32; 3], [i64; 3]) {
     let clamp = |v: i64| v.clamp(i32::MIN as i64 / 2, i32::MAX as i64 / 2) as i32;
     let tile = |v: i64| clamp(v).div_euclid(TILE_EDGE);
-    (first.map(tile), last.map(tile))
+    let (first, last) = (first.map(tile), last.map(tile));
+    let n = [0, 1, 2].map(|k| (last[k] as i64 - first[k] as i64 + 1).max(0));
+    (first, n)
 }
 
 /// Where [`visible_blocks_in_tiles`] takes its candidate tiles from.
 #[derive(Clone, Copy, Debug)]
 enum TilesFrom {
-    /// The tiles of a box (first, last; inclusive), looked up in the layer.
-    Box(([i32; 3], [i32; 3])),
+    /// The tiles of a box (the first, and how many along each axis), looked up in the layer.
+    Box(([i32; 3], [i64; 3])),
     /// Every tile of the layer.
     Layer,
 }
@@ -223,8 +227,7 @@ fn visible_blocks_in_tiles(layer: &Layer, frustum: &ViewFrustum, from: TilesFrom
             let tiles: Vec<(BlockIndex, u64)> = layer.occupied_tiles().collect();
             tiles.into_par_iter().map(in_view).collect()
         }
-        TilesFrom::Box((first, last)) => {
-            let n = [0, 1, 2].map(|k| (last[k] as i64 - first[k] as i64 + 1).max(0));
+        TilesFrom::Box((first, n)) => {
             let tile = |t: i64| {
                 let at = [t % n[0], (t / n[0]) % n[1], t / (n[0] * n[1])];
                 let tile = BlockIndex([0, 1, 2].map(|k| first[k] + at[k] as i32));
@@ -256,9 +259,8 @@ fn blocks_of_sorted_tiles(tiles: &[(BlockIndex, u64)]) -> TouchedBlocks {
                 for ry in 0..e {
                     for (tile, mask) in row {
                         for rz in 0..e {
-                            if mask >> (rx + e * (ry + e * rz)) & 1 == 1 {
-                                let r = [rx, ry, rz];
-                                out.push(BlockIndex([0, 1, 2].map(|k| tile.0[k] * e + r[k])));
+                            if mask & tile_bit([rx, ry, rz]) != 0 {
+                                out.push(tile_block(*tile, [rx, ry, rz]));
                             }
                         }
                     }

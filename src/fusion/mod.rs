@@ -32,6 +32,7 @@ mod lidar_gpu;
 mod lidar_listing;
 mod lidar_resident;
 pub mod traverse;
+mod visible_gpu;
 
 pub use band::{
     band_slices, blocks_of_band_slices, depth_frame_blocks, depth_frame_blocks_exact, BandSlice,
@@ -61,6 +62,7 @@ pub(crate) use lidar_listing::{
 };
 pub(crate) use lidar_resident::fuse_lidar_then_list;
 pub use lidar_resident::integrate_lidar_resident;
+pub use visible_gpu::{resident_in_view_on_gpu, visible_words, ResidentInView, MARGIN_PER_M};
 
 /// Work counters of one integration call.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -1,9 +1,8 @@
-//! WGSL sources, assembled from `shaders/` at compile time. WGSL has no `#include`: each kernel is
-//! its shared files (`shaders/shared/`) followed by its own file, concatenated here. Each kernel
-//! is declared once, with [`kernel!`]: its file, its shared files (in order) and the types of its
-//! bindings (in binding order). The host builds the kernel's bind-group layout from that list;
-//! `tests/gpu.rs` checks it, and the sizes of the buffer structs, against what naga reflects
-//! from the shader, and that every `.wgsl` file is part of some kernel.
+//! WGSL sources, assembled from `shaders/` at compile time (WGSL has no `#include`): each kernel,
+//! declared once with [`kernel!`], is its shared files (`shaders/shared/`, in order) followed by
+//! its own file, with the types of its bindings in order, from which the host builds its layout.
+//! `tests/gpu/shaders.rs` checks them, and the sizes of the buffer structs, against what naga
+//! reflects from the shader, and that every `.wgsl` file is part of some kernel.
 
 /// The type of one buffer binding of a kernel (group 0, bindings numbered from 0).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -171,13 +170,31 @@ pub const FRAME_KEYS: ShaderSource = kernel!(
     [
         "shared/dispatch.wgsl",
         "shared/block_hash.wgsl",
-        "shared/table_probe.wgsl"
+        "shared/table_probe.wgsl",
+        "shared/frame_key.wgsl"
     ],
     [Uniform, Read, Read, ReadWrite, ReadWrite]
 );
 
-/// A depth frame's band blocks listed from its slices, one invocation per slice (f64; in
-/// [`WITH_F64`]).
+/// Listed blocks absent from the GPU hash table given slots and inserted (after [`FRAME_KEYS`]).
+pub const TABLE_INSERT: ShaderSource = kernel!(
+    "table_insert.wgsl",
+    [
+        "shared/dispatch.wgsl",
+        "shared/block_hash.wgsl",
+        "shared/frame_key.wgsl"
+    ],
+    [Uniform, ReadWrite, Read, ReadWrite, ReadWrite, ReadWrite]
+);
+
+/// The resident blocks in view, one invocation per entry of the GPU hash table.
+pub const TABLE_VISIBLE: ShaderSource = kernel!(
+    "table_visible.wgsl",
+    ["shared/dispatch.wgsl", "shared/block_hash.wgsl"],
+    [Read, Read, ReadWrite, ReadWrite, ReadWrite]
+);
+
+/// A depth frame's band blocks listed from its slices, per slice (f64; in [`WITH_F64`]).
 pub const BAND_BLOCKS: ShaderSource = kernel!(
     "band_blocks.wgsl",
     ["shared/dispatch.wgsl", "shared/exact_f64.wgsl"],
@@ -435,8 +452,7 @@ pub const COST_WINDOW: ShaderSource = kernel!(
     [Uniform, Read, ReadWrite, ReadWrite]
 );
 
-/// The GPU variational matcher's disparities and their census costs, for the host's
-/// invalidation.
+/// The GPU variational matcher's disparities and their census costs, for the invalidation.
 pub const TGV_COST_AT: ShaderSource = kernel!(
     "tgv_cost_at.wgsl",
     [
@@ -612,8 +628,7 @@ pub const MC_LINK: ShaderSource = kernel!(
     [Uniform, Read, Read, ReadWrite]
 );
 
-/// The kernels that need f64 arithmetic (`wgpu::Features::SHADER_F64`), compiled only where
-/// the device has it ([`crate::gpu::GpuContext::has_f64`]) and not part of [`ALL`].
+/// The kernels that need f64 ([`crate::gpu::GpuContext::has_f64`]), compiled apart from [`ALL`].
 pub const WITH_F64: &[ShaderSource] = &[BAND_BLOCKS, BAND_BLOCKS_KEYS];
 
 /// Every kernel without f64 (one per line, so additions merge cleanly).
@@ -645,6 +660,8 @@ pub const ALL: &[ShaderSource] = &[
     // The GPU hash table and pool.
     BLOCK_LOOKUP,
     FRAME_KEYS,
+    TABLE_INSERT,
+    TABLE_VISIBLE,
     BAND_SLICES,
     DISPARITY_DEPTH,
     CLEAR_UPDATED,
@@ -680,5 +697,4 @@ pub const ALL: &[ShaderSource] = &[
     MC_SCAN,
     MC_ASSIGN,
     MC_LINK,
-    // (new kernels go above this line)
 ];

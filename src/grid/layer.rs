@@ -58,13 +58,29 @@ type BlockMap = HashMap<BlockIndex, Box<Block>, BuildHasherDefault<BlockHasher>>
 pub const TILE_EDGE: i32 = 4;
 
 /// The tile of block `b` (its coordinates divided by [`TILE_EDGE`], rounded down) and the bit of
-/// `b` in the tile's mask (x fastest).
+/// `b` in the tile's mask ([`tile_bit`]).
 #[inline]
 pub fn tile_of(b: BlockIndex) -> (BlockIndex, u64) {
     let t = b.0.map(|c| c.div_euclid(TILE_EDGE));
     let r = b.0.map(|c| c.rem_euclid(TILE_EDGE));
-    let bit = r[0] + TILE_EDGE * (r[1] + TILE_EDGE * r[2]);
-    (BlockIndex(t), 1u64 << bit)
+    (BlockIndex(t), tile_bit(r))
+}
+
+/// The bit, in its tile's mask, of the block at `r` (each in `0..TILE_EDGE`) from the tile's
+/// first block: x fastest, then y, then z. The one statement of the masks' layout.
+#[inline]
+pub fn tile_bit(r: [i32; 3]) -> u64 {
+    1u64 << (r[0] + TILE_EDGE * (r[1] + TILE_EDGE * r[2]))
+}
+
+/// The block at `r` (each in `0..TILE_EDGE`) from the first block of `tile`.
+#[inline]
+pub fn tile_block(tile: BlockIndex, r: [i32; 3]) -> BlockIndex {
+    BlockIndex([
+        tile.0[0] * TILE_EDGE + r[0],
+        tile.0[1] * TILE_EDGE + r[1],
+        tile.0[2] * TILE_EDGE + r[2],
+    ])
 }
 
 /// The blocks of tile `tile` whose bits `mask` holds, in bit order.
@@ -72,13 +88,17 @@ pub fn tile_blocks(tile: BlockIndex, mask: u64) -> impl Iterator<Item = BlockInd
     let e = TILE_EDGE;
     (0..64)
         .filter(move |bit| mask >> bit & 1 == 1)
-        .map(move |bit| {
-            let r = [bit % e, (bit / e) % e, bit / (e * e)];
-            BlockIndex([0, 1, 2].map(|k| tile.0[k] * e + r[k]))
-        })
+        .map(move |bit| tile_block(tile, [bit % e, (bit / e) % e, bit / (e * e)]))
 }
 
 type TileMap = HashMap<BlockIndex, u64, BuildHasherDefault<BlockHasher>>;
+
+/// Sets the bit of block `i` in `tiles`.
+#[inline]
+fn occupy(tiles: &mut TileMap, i: BlockIndex) {
+    let (tile, bit) = tile_of(i);
+    *tiles.entry(tile).or_insert(0) |= bit;
+}
 
 /// A layer of TSDF blocks.
 #[derive(Clone, Debug)]
@@ -104,8 +124,7 @@ impl Layer {
     /// Notes a block added at `i`.
     #[inline]
     fn occupy(&mut self, i: BlockIndex) {
-        let (tile, bit) = tile_of(i);
-        *self.tiles.entry(tile).or_insert(0) |= bit;
+        occupy(&mut self.tiles, i);
     }
 
     /// Notes the block at `i` removed.
@@ -190,8 +209,8 @@ impl Layer {
         match self.blocks.entry(index) {
             Entry::Occupied(e) => e.into_mut(),
             Entry::Vacant(e) => {
-                let (tile, bit) = tile_of(index);
-                *self.tiles.entry(tile).or_insert(0) |= bit;
+                // The entry borrows `blocks`, so the tiles are kept through the field.
+                occupy(&mut self.tiles, index);
                 e.insert(Block::new_boxed())
             }
         }

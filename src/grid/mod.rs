@@ -23,6 +23,7 @@ pub use index::{
     VOXELS_PER_BLOCK, VOXELS_PER_SIDE,
 };
 pub use layer::{
-    tile_blocks, tile_of, BlockHasher, Layer, TouchedBlocks, BLOCK_RESIDENT_BYTES, TILE_EDGE,
+    tile_bit, tile_block, tile_blocks, tile_of, BlockHasher, Layer, TouchedBlocks,
+    BLOCK_RESIDENT_BYTES, TILE_EDGE,
 };
 pub use residency::{eviction_order, EvictionCandidate};

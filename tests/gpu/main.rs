@@ -9,6 +9,7 @@ mod depth_support;
 mod agreement;
 mod band_slices;
 mod compare;
+mod device_alloc;
 mod device_depth;
 mod disparity_depth;
 mod exact_f64;

@@ -4,6 +4,9 @@
 //! - [`table`]: the GPU hash table ([`BlockTable`]) that maps block keys to pool slots; kernels
 //!   resolve keys through its device copy.
 //! - [`pool`]: the slots on the device and the copies between RAM and the pool.
+//! - [`alloc`]: blocks allocated on the device (slots from a free-slot stack there, entries
+//!   claimed by compare-and-swap), which the host learns afterwards and applies to its copies.
+//!   Its kernel and twin are tested; the frame path does not use it yet.
 //! - [`policy`]: growing, and which blocks spill when the pool is full (the same eviction order
 //!   as the RAM pager's, [`crate::grid::eviction_order`]).
 //! - `late`: depth frames and LiDAR scans in flight, whose flags a later frame collects
@@ -33,6 +36,7 @@
 //! After an error the device copy may be partly updated: drop the map without syncing; the layer
 //! holds the state of the last successful sync.
 
+pub mod alloc;
 mod behind;
 mod late;
 mod policy;

@@ -136,6 +136,41 @@ impl BlockTable {
         }
     }
 
+    /// Whether `more` keys can be inserted with the table at most half full (tombstones
+    /// included), without a rebuild: what the host checks before the device inserts
+    /// (`alloc.rs`).
+    pub fn has_room_for(&self, more: usize) -> bool {
+        2 * (self.live + self.tombstones + more) <= self.entries.len()
+    }
+
+    /// The entry `k` would be inserted into: the first empty entry or tombstone of its probe
+    /// sequence (`k` absent, the table not full).
+    pub fn free_entry_for(&self, k: BlockIndex) -> u32 {
+        let mask = self.mask();
+        let mut pos = block_hash(k) & mask;
+        while self.entries[pos as usize][3] < SLOT_TOMBSTONE {
+            pos = (pos + 1) & mask;
+        }
+        pos
+    }
+
+    /// Records `k → slot` at entry `pos`, where the device inserted it (`table_insert.wgsl`):
+    /// the entry must be empty or a tombstone. The change is not sent up again.
+    pub fn insert_at(&mut self, pos: u32, k: BlockIndex, slot: u32) {
+        let e = &mut self.entries[pos as usize];
+        assert!(
+            e[3] >= SLOT_TOMBSTONE,
+            "entry {pos} is taken: the device's table and the host's differ"
+        );
+        debug_assert!(slot < SLOT_TOMBSTONE);
+        if e[3] == SLOT_TOMBSTONE {
+            self.tombstones -= 1;
+        }
+        let w = Self::key_words(k);
+        *e = [w[0], w[1], w[2], slot];
+        self.live += 1;
+    }
+
     /// Removes `k`, returning its slot.
     pub fn remove(&mut self, k: BlockIndex) -> Option<u32> {
         let want = Self::key_words(k);
