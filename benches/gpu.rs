@@ -26,8 +26,11 @@
 //!   alone (no device needed): a street frame at 10 cm after four frames fused at 1 m steps;
 //!   `visible_blocks` (the layer's allocated blocks in view, `visible_blocks_in`),
 //!   `band_and_visible` (those merged with the band, `DepthPlan::blocks_with`), `frame_keys`
-//!   (the listed blocks packed as 4-byte offsets, `FrameKeys::new`) and `table_lookups` (each
-//!   listed block looked up in the host's mirror of the GPU hash table).
+//!   (the listed blocks packed as 4-byte offsets, `FrameKeys::new`), `table_lookups` (each
+//!   listed block looked up in the host's mirror of the GPU hash table), `table_inserts` (the
+//!   listed blocks new to the map inserted into it by the host) and `device_inserts_applied`
+//!   (the same blocks' entries, given by an allocation on the device, applied to it:
+//!   `DeviceAllocation::apply_to`).
 //! - `marching_cubes/{cpu,gpu}`: the raw field of the fused 5 cm map meshed whole (GPU: the
 //!   samples packed and uploaded, five passes, the mesh read back and joined; the same mesh).
 //! - `marching_cubes/gpu_resident`: the same with the blocks resident on the GPU (the samples
@@ -42,7 +45,7 @@ use common::bench_gpu as gpu;
 
 use common::{fuse_depth_gpu, fuse_depth_resident};
 use common::{orbit, vga, Rng, SphereScene};
-use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use criterion::{criterion_group, criterion_main, BatchSize, Criterion, Throughput};
 use denser::fusion::{integrate_depth, DepthFusionParams};
 use denser::gpu::{ResidentMap, ResidentOptions};
 use denser::grid::{GridParams, Layer};
@@ -222,7 +225,9 @@ fn marching_cubes(c: &mut Criterion) {
 /// does per frame once the band is listed on the device.
 fn host_share(c: &mut Criterion) {
     use denser::fusion::{DepthPlan, FrameKeys};
+    use denser::gpu::resident::alloc::allocate_on_cpu;
     use denser::gpu::resident::BlockTable;
+    use denser::grid::BlockIndex;
     let grid = GridParams::paper(0.1);
     let params = DepthFusionParams::default();
     let mut layer = Layer::new(grid);
@@ -256,6 +261,32 @@ fn host_share(c: &mut Criterion) {
     });
     g.bench_function("table_lookups", |b| {
         b.iter(|| blocks.iter().filter_map(|k| table.lookup(*k)).count())
+    });
+    // The listed blocks new to the map: the host inserts them into its table today; with the
+    // allocation on the device, it applies the entries the device gave them.
+    let fresh: Vec<BlockIndex> = (blocks.iter().copied())
+        .filter(|k| table.lookup(*k).is_none())
+        .collect();
+    let first_free = table.len() as u32;
+    let mut free: Vec<u32> = (first_free..first_free + fresh.len() as u32)
+        .rev()
+        .collect();
+    let mut allocated = table.clone();
+    let device = allocate_on_cpu(&mut allocated, &mut free, &fresh, fresh.len());
+    eprintln!("{} listed blocks new to the map", fresh.len());
+    g.bench_function("table_inserts", |b| {
+        b.iter_batched_ref(
+            || table.clone(),
+            |t| (fresh.iter().enumerate()).for_each(|(i, k)| t.insert(*k, first_free + i as u32)),
+            BatchSize::LargeInput,
+        )
+    });
+    g.bench_function("device_inserts_applied", |b| {
+        b.iter_batched_ref(
+            || table.clone(),
+            |t| device.apply_to(t, &fresh),
+            BatchSize::LargeInput,
+        )
     });
     g.finish();
 }

@@ -77,11 +77,13 @@ impl BlockTable {
         (self.entries.len() - 1) as u32
     }
 
+    #[inline]
     fn key_words(k: BlockIndex) -> [u32; 3] {
-        k.0.map(|c| c as u32)
+        [k.0[0] as u32, k.0[1] as u32, k.0[2] as u32]
     }
 
     /// The slot of `k`, probing as `block_lookup.wgsl` does.
+    #[inline]
     pub fn lookup(&self, k: BlockIndex) -> Option<u32> {
         let want = Self::key_words(k);
         let mask = self.mask();
@@ -91,7 +93,8 @@ impl BlockTable {
             if e[3] == SLOT_EMPTY {
                 return None;
             }
-            if e[3] != SLOT_TOMBSTONE && e[..3] == want {
+            // The key as an array, not a slice: compared inline, not through `memcmp`.
+            if [e[0], e[1], e[2]] == want && e[3] != SLOT_TOMBSTONE {
                 return Some(e[3]);
             }
             pos = (pos + 1) & mask;
@@ -181,7 +184,7 @@ impl BlockTable {
             if e[3] == SLOT_EMPTY {
                 return None;
             }
-            if e[3] != SLOT_TOMBSTONE && e[..3] == want {
+            if [e[0], e[1], e[2]] == want && e[3] != SLOT_TOMBSTONE {
                 let slot = e[3];
                 e[3] = SLOT_TOMBSTONE;
                 self.live -= 1;
