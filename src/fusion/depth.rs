@@ -4,6 +4,7 @@ use super::band::{list_band, BandListing};
 use super::depth_block::{fuse_block, FramePixels};
 use super::FusionStats;
 use crate::frame::DepthFrame;
+use crate::gpu::thread_cpu_s;
 use crate::grid::{
     tile_bit, tile_block, tile_blocks, tile_of, BlockIndex, GridParams, Layer, TouchedBlocks,
     TILE_EDGE,
@@ -351,12 +352,15 @@ pub struct DepthPlan {
     pub camera_m: [f64; 3],
     /// Seconds spent listing the band.
     pub listing_s: f64,
+    /// Of the calling thread's CPU time, seconds spent listing the band
+    /// ([`crate::gpu::thread_cpu_s`]).
+    pub listing_cpu_s: f64,
 }
 
 impl DepthPlan {
     /// Lists the band of `frame` on `grid` and its geometry.
     pub fn new(grid: &GridParams, frame: &DepthFrame, params: &DepthFusionParams) -> Self {
-        let t = std::time::Instant::now();
+        let (t, cpu) = (std::time::Instant::now(), thread_cpu_s());
         let BandListing {
             blocks: band,
             usable_pixels: measurements,
@@ -371,6 +375,7 @@ impl DepthPlan {
             measurements,
             camera_m: frame.world_from_camera.translation.vector.into(),
             listing_s,
+            listing_cpu_s: thread_cpu_s() - cpu,
         }
     }
 
@@ -383,7 +388,7 @@ impl DepthPlan {
         params: &DepthFusionParams,
         slices: &super::BandSlices,
     ) -> Self {
-        let t = std::time::Instant::now();
+        let t = (std::time::Instant::now(), thread_cpu_s());
         let (k, pose) = (&frame.intrinsics, &frame.world_from_camera);
         let band = super::blocks_of_band_slices(grid, k, pose, params, slices);
         Self::of_band(grid, frame, params, (band, slices.usable_pixels), t)
@@ -397,19 +402,20 @@ impl DepthPlan {
         params: &DepthFusionParams,
         band: &super::DeviceBand,
     ) -> Self {
-        let t = std::time::Instant::now();
+        let t = (std::time::Instant::now(), thread_cpu_s());
         let (k, pose) = (&frame.intrinsics, &frame.world_from_camera);
         let blocks = band.blocks(grid, k, pose, params);
         Self::of_band(grid, frame, params, (blocks, band.usable_pixels), t)
     }
 
-    /// The plan of `frame` with its band and usable pixels listed already (since `started`).
+    /// The plan of `frame` with its band and usable pixels listed already (since `started`,
+    /// and the thread's CPU time then).
     fn of_band(
         grid: &GridParams,
         frame: &DepthFrame,
         params: &DepthFusionParams,
         (band, measurements): (TouchedBlocks, usize),
-        started: std::time::Instant,
+        (started, started_cpu_s): (std::time::Instant, f64),
     ) -> Self {
         DepthPlan {
             band,
@@ -418,6 +424,7 @@ impl DepthPlan {
             measurements,
             camera_m: frame.world_from_camera.translation.vector.into(),
             listing_s: started.elapsed().as_secs_f64(),
+            listing_cpu_s: thread_cpu_s() - started_cpu_s,
         }
     }
 
@@ -430,19 +437,27 @@ impl DepthPlan {
     /// `layer` had them: blocks a GPU frame still in flight may have created
     /// (`src/gpu/resident/late.rs`; its kernel skips those no frame did create).
     pub fn blocks_with(&self, layer: &Layer, unsettled: &[BlockIndex]) -> TouchedBlocks {
+        let (listed, unsettled) = self.blocks_and_unsettled(layer, unsettled);
+        merge_sorted(&listed, &unsettled)
+    }
+
+    /// [`DepthPlan::blocks_with`] in two sorted lists: [`DepthPlan::blocks`], and the blocks
+    /// of `unsettled` (sorted; blocks `layer` lacks) in view that the band does not hold.
+    pub fn blocks_and_unsettled(
+        &self,
+        layer: &Layer,
+        unsettled: &[BlockIndex],
+    ) -> (TouchedBlocks, TouchedBlocks) {
         let grid = layer.params();
-        let in_view: Vec<BlockIndex> = unsettled
-            .iter()
-            .copied()
-            .filter(|b| self.frustum.meets_block(&grid, *b))
+        let in_view: Vec<BlockIndex> = (unsettled.iter().copied())
+            .filter(|b| self.frustum.meets_block(&grid, *b) && self.band.binary_search(b).is_err())
             .collect();
-        let visible = visible_blocks_in(layer, &self.frustum);
-        merge_sorted(&self.band, &merge_sorted(&visible, &in_view))
+        (self.blocks(layer), in_view)
     }
 }
 
 /// The union of two sorted lists without repeats, sorted (one pass).
-fn merge_sorted(a: &[BlockIndex], b: &[BlockIndex]) -> TouchedBlocks {
+pub(crate) fn merge_sorted(a: &[BlockIndex], b: &[BlockIndex]) -> TouchedBlocks {
     let mut out = Vec::with_capacity(a.len() + b.len());
     let (mut a, mut b) = (a.iter().peekable(), b.iter().peekable());
     loop {

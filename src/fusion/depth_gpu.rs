@@ -17,14 +17,14 @@
 //!
 //! [`integrate_depth_plan`]: super::integrate_depth_plan
 
-use super::depth::{DepthFusionParams, DepthPlan};
+use super::depth::{merge_sorted, DepthFusionParams, DepthPlan};
 use super::depth_device::DeviceDepthFrame;
 use super::depth_keys::FrameKeys;
 use super::FusionStats;
 use crate::frame::DepthFrame;
 use crate::gpu::layout::{apply_updated, pack_block_into, FuseUniforms, GpuVoxel};
 use crate::gpu::resident::{BlockTable, FrameParts, ResidentMap, SLOT_TOMBSTONE};
-use crate::gpu::{shaders, ErrorScopes, GpuContext};
+use crate::gpu::{shaders, thread_cpu_s, ErrorScopes, GpuContext};
 use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::{Error, Result};
 
@@ -165,7 +165,21 @@ pub fn integrate_device_depth_resident(
 /// the device, their buffer.
 type ResidentInput<'a> = (&'a DepthFrame, Option<&'a wgpu::Buffer>);
 
+/// [`fuse_resident`], its host CPU time (and the plan's) counted in the map's statistics.
 fn integrate_resident(
+    map: &mut ResidentMap,
+    layer: &mut Layer,
+    input: ResidentInput,
+    params: &DepthFusionParams,
+    (plan, riding): (&DepthPlan, Option<wgpu::CommandEncoder>),
+) -> Result<(TouchedBlocks, FusionStats)> {
+    let cpu_s = thread_cpu_s();
+    let fused = fuse_resident(map, layer, input, params, (plan, riding));
+    map.add_host_cpu(plan.listing_cpu_s + thread_cpu_s() - cpu_s);
+    fused
+}
+
+fn fuse_resident(
     map: &mut ResidentMap,
     layer: &mut Layer,
     (frame, depth): ResidentInput,
@@ -179,7 +193,10 @@ fn integrate_resident(
     }
     map.begin_in_flight(layer, true)?;
     let t = std::time::Instant::now();
-    let blocks = plan.blocks_with(layer, &map.unsettled_blocks(layer));
+    // Listed and unsettled (neither the band nor the layer has them: listed only because a
+    // frame in flight may have created them).
+    let (mut listed, unsettled) = plan.blocks_and_unsettled(layer, &map.unsettled_blocks(layer));
+    let blocks = merge_sorted(&listed, &unsettled);
     map.release_empty_except(&blocks);
     map.begin_frame(blocks.len(), plan.listing_s + t.elapsed().as_secs_f64());
     if blocks.len() > map.max_blocks() as usize {
@@ -212,10 +229,7 @@ fn integrate_resident(
         return Ok((touched, stats));
     }
     if !blocks.is_empty() {
-        // Listed only because a frame in flight may have created them (neither the band nor
-        // the layer has them): listed last, fused only if one did.
-        let (mut listed, unsettled): (Vec<BlockIndex>, Vec<BlockIndex>) = (blocks.into_iter())
-            .partition(|b| layer.contains(b) || plan.band.binary_search(b).is_ok());
+        // The unsettled blocks listed last, fused only if a frame in flight created them.
         let first_unsettled = listed.len();
         map.note_listed_in_flight(unsettled.len());
         listed.extend(unsettled);

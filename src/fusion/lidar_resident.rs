@@ -22,7 +22,7 @@ use super::{begin_lidar_listing, LidarListings, PendingLidarPlan};
 use super::{integrate_lidar_gpu, lidar_device, FusionStats, LidarPlan};
 use crate::gpu::layout::LookupUniforms;
 use crate::gpu::resident::{FrameParts, ResidentMap};
-use crate::gpu::{shaders, ErrorScopes};
+use crate::gpu::{shaders, thread_cpu_s, ErrorScopes};
 use crate::grid::{BlockIndex, Layer, TouchedBlocks};
 use crate::{Error, Result};
 use std::ops::Range;
@@ -57,6 +57,19 @@ pub(crate) type NextListing<'a> = (&'a mut LidarListings, LidarPlan);
 /// blocks, or too many for the pool). Returns also the next scan's pending plan (`None`
 /// without `next`).
 pub(crate) fn fuse_lidar_then_list(
+    map: &mut ResidentMap,
+    layer: &mut Layer,
+    plan: &LidarPlan,
+    next: Option<NextListing<'_>>,
+) -> Result<(TouchedBlocks, FusionStats, Option<PendingLidarPlan>)> {
+    let cpu_s = thread_cpu_s();
+    let fused = fuse_then_list(map, layer, plan, next);
+    map.add_host_cpu(thread_cpu_s() - cpu_s);
+    fused
+}
+
+/// [`fuse_lidar_then_list`], but for counting its host CPU time.
+fn fuse_then_list(
     map: &mut ResidentMap,
     layer: &mut Layer,
     plan: &LidarPlan,

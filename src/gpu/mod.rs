@@ -34,5 +34,5 @@ pub(crate) use error_scopes::ErrorScopes;
 pub(crate) use kernels::Kernel;
 pub use kernels::KernelCompilation;
 pub use resident::{ResidentMap, ResidentOptions, ResidentStats};
-pub use timing::KernelTime;
+pub use timing::{thread_cpu_s, KernelTime};
 pub use traffic::{GpuTraffic, StageTally};

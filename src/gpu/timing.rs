@@ -2,12 +2,31 @@
 //! (`wgpu::Features::TIMESTAMP_QUERY`): while timing is on, every compute pass
 //! `GpuContext::record_dispatch` records writes a timestamp at its start and end, and each
 //! submit resolves its passes' timestamps and reads them back after it (`GpuContext::submit`).
-//! The GPU's time per kernel is the difference, in the queue's timestamp period. Timing adds a wait per submit, so a timed run is for attributing device
-//! time to kernels, not for wall-clock figures (`denser bench --device gpu` times one extra pass
-//! for it).
+//! The GPU's time per kernel is the difference, in the queue's timestamp period. Timing adds a
+//! wait per submit, so a timed run is for attributing device time to kernels, not for
+//! wall-clock figures (`denser bench --device gpu` times one extra pass for it). The host's
+//! side: [`thread_cpu_s`], the calling thread's own CPU time.
 
 use super::GpuContext;
 use std::collections::BTreeMap;
+
+/// Seconds of CPU time the calling thread has used (`CLOCK_THREAD_CPUTIME_ID`): the host's own
+/// work, to which waiting (for the device, or for the cores a software device's threads hold)
+/// adds nothing. 0 where the platform has no such clock.
+pub fn thread_cpu_s() -> f64 {
+    #[cfg(unix)]
+    {
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: clock_gettime writes only the timespec it is given.
+        if unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0 {
+            return ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64;
+        }
+    }
+    0.0
+}
 
 /// Passes timed per submit; passes beyond it in one submit are counted as untimed.
 pub(crate) const MAX_TIMED_PASSES: u32 = 1024;
@@ -196,5 +215,30 @@ impl GpuContext {
     /// Stops timing kernels and forgets the times.
     pub fn stop_kernel_timing(&self) {
         *self.timer.lock().unwrap_or_else(|e| e.into_inner()) = None;
+    }
+}
+
+#[cfg(all(test, unix))]
+mod thread_cpu_tests {
+    use super::thread_cpu_s;
+    use std::time::{Duration, Instant};
+
+    #[test]
+    fn the_threads_cpu_time_counts_its_work_not_its_sleep() {
+        let before = thread_cpu_s();
+        std::thread::sleep(Duration::from_millis(200));
+        let slept_s = thread_cpu_s() - before;
+        let (before, started) = (thread_cpu_s(), Instant::now());
+        let mut x = 1u64;
+        while started.elapsed() < Duration::from_millis(200) {
+            x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+        }
+        let worked_s = thread_cpu_s() - before;
+        assert!(slept_s < 0.02, "200 ms asleep took {slept_s} s of CPU time");
+        // A busy thread gets at least a quarter of a core on a loaded 2-core machine.
+        assert!(
+            (0.05..0.25).contains(&worked_s),
+            "200 ms busy took {worked_s} s"
+        );
     }
 }

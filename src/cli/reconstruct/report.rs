@@ -162,7 +162,8 @@ impl fmt::Display for Report {
             let per = |s: f64| 1e3 * s / g.frames.max(1) as f64;
             writeln!(
                 f,
-                "GPU tier per frame: listing blocks (CPU) {:.1} ms, residency {:.1} ms, kernels {:.1} ms (inputs {:.1}, submit and wait {:.1}), write-back {:.1} ms",
+                "GPU tier per frame: host CPU {:.2} ms (the fusing thread's own work), listing blocks (CPU) {:.1} ms, residency {:.1} ms, kernels {:.1} ms (inputs {:.1}, submit and wait {:.1}), write-back {:.1} ms",
+                per(g.host_cpu_s),
                 per(g.list_s),
                 per(g.residency_s),
                 per(g.kernel_s),

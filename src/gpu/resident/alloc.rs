@@ -18,6 +18,7 @@
 //! frame needs; a block the kernel leaves without a slot is counted, not guessed.
 
 use super::table::{BlockTable, SLOT_TOMBSTONE};
+use crate::gpu::kept::Kept;
 use crate::gpu::layout::FrameKeyUniforms;
 use crate::gpu::shaders;
 use crate::gpu::{ErrorScopes, GpuContext};
@@ -136,15 +137,17 @@ pub(crate) fn created_bytes(blocks: u64) -> u64 {
     8 + 8 * blocks
 }
 
-/// Records the insertion of `blocks` listed blocks, after `frame_keys.wgsl` (the caller's).
+/// Records the insertion of `blocks` listed blocks, after `frame_keys.wgsl` (the caller's);
+/// the bind group is kept in `kept` between calls over the same buffers.
 pub(crate) fn record_insert(
     ctx: &GpuContext,
-    encoder: &mut wgpu::CommandEncoder,
+    (encoder, kept): (&mut wgpu::CommandEncoder, &mut Kept),
     b: &AllocBuffers,
     blocks: u64,
 ) -> Result<()> {
     let kernel = ctx.kernel(&shaders::TABLE_INSERT)?;
-    let bind = ctx.bind_group(
+    let bind = kept.bind_group(
+        ctx,
         "table_insert",
         &kernel.layout,
         &[b.uniforms, b.table, b.keys, b.slots, b.free, b.created],
@@ -192,7 +195,7 @@ pub fn allocate_on_gpu(
         free: &buf_free,
         created: &buf_created,
     };
-    record_insert(ctx, &mut encoder, &buffers, n)?;
+    record_insert(ctx, (&mut encoder, &mut Kept::default()), &buffers, n)?;
     ctx.submit(encoder);
     scope.pop("allocating blocks on the GPU")?;
     let slots: Vec<u32> = ctx.read_back_as(&buf_slots, n as usize)?;

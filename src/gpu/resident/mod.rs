@@ -124,6 +124,12 @@ pub struct ResidentStats {
     pub inputs_s: f64,
     /// Seconds copying blocks back to RAM (syncs, flushes, spills).
     pub download_s: f64,
+    /// Seconds of the calling thread's CPU time ([`crate::gpu::thread_cpu_s`]) in planning
+    /// depth frames (their band from the device's readback) and in the resident fusion of
+    /// depth frames and LiDAR scans (listing, residency, inputs, submits, collecting earlier
+    /// frames; a LiDAR scan's also the next scan's listing): the host's own share, to which
+    /// waiting for the device or for the cores a software device holds adds nothing.
+    pub host_cpu_s: f64,
 }
 
 /// Blocks resident on the GPU across frames, over a RAM [`Layer`] (see the module
@@ -297,6 +303,11 @@ impl ResidentMap {
     /// Counts a frame too large for the pool (its caller fuses it another way).
     pub(crate) fn note_oversize(&mut self) {
         self.stats.oversize_frames += 1;
+    }
+
+    /// Adds host CPU time ([`ResidentStats::host_cpu_s`]).
+    pub(crate) fn add_host_cpu(&mut self, seconds: f64) {
+        self.stats.host_cpu_s += seconds;
     }
 
     /// Adds kernel time (inputs, dispatches, waiting, flag readback) to the counters, of which
