@@ -128,7 +128,8 @@ pub(crate) struct AllocBuffers<'a> {
     pub slots: &'a wgpu::Buffer,
     /// The free-slot stack ([`free_stack_words`]).
     pub free: &'a wgpu::Buffer,
-    /// Two counters, then two words per listed block (zeroed before the dispatch).
+    /// Two counters (cleared by [`record_insert`]), then two words per inserted block: room
+    /// for every listed block ([`created_bytes`]).
     pub created: &'a wgpu::Buffer,
 }
 
