@@ -7,7 +7,7 @@
 //! the device's entry for entry.
 //!
 //! The free-slot stack on the device is the host's free list as words, `[count, slots…]` with
-//! the top last ([`free_stack_words`]): a block pops the top, as [`super::pool`]'s `occupy`
+//! the top last ([`free_stack_words`]): a block pops the top, as `pool.rs`'s `occupy`
 //! does. Which block gets which slot and entry depends on the order the device runs the
 //! invocations in; [`allocate_on_cpu`] is the twin run in the list's order, equal to the
 //! device's in everything that does not depend on that order (which blocks are inserted, which
