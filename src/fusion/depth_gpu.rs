@@ -196,10 +196,11 @@ fn fuse_resident(
     // Listed and unsettled (neither the band nor the layer has them: listed only because a
     // frame in flight may have created them).
     let (mut listed, unsettled) = plan.blocks_and_unsettled(layer, &map.unsettled_blocks(layer));
-    let blocks = merge_sorted(&listed, &unsettled);
-    map.release_empty_except(&blocks);
-    map.begin_frame(blocks.len(), plan.listing_s + t.elapsed().as_secs_f64());
-    if blocks.len() > map.max_blocks() as usize {
+    map.release_empty_except(&[&listed, &unsettled]);
+    // The two lists are disjoint.
+    let block_count = listed.len() + unsettled.len();
+    map.begin_frame(block_count, plan.listing_s + t.elapsed().as_secs_f64());
+    if block_count > map.max_blocks() as usize {
         // The frame alone exceeds the largest pool: give its resident blocks back to RAM and
         // fuse it in batches.
         map.note_oversize();
@@ -209,10 +210,10 @@ fn fuse_resident(
         tracing::warn!(
             "frame needs {} blocks, more than the GPU pool's {} (raise the GPU memory budget); \
              fusing it in batches",
-            blocks.len(),
+            block_count,
             map.max_blocks()
         );
-        map.flush_blocks(layer, &blocks)?;
+        map.flush_blocks(layer, &merge_sorted(&listed, &unsettled))?;
         let ctx = map.context().clone();
         let read_back;
         let frame = match depth {
@@ -228,7 +229,7 @@ fn fuse_resident(
         stats.voxel_updates += updates;
         return Ok((touched, stats));
     }
-    if !blocks.is_empty() {
+    if block_count > 0 {
         // The unsettled blocks listed last, fused only if a frame in flight created them.
         let first_unsettled = listed.len();
         map.note_listed_in_flight(unsettled.len());

@@ -177,12 +177,13 @@ impl ResidentMap {
         self.make_room_in_flight(layer)
     }
 
-    /// Releases the blocks [`ResidentMap::begin_in_flight`] kept empty but those among
-    /// `blocks` (sorted), which the frame lists again and uses as they are (counted). Call it
-    /// before anything else reads the pool: only the frame that follows may see such blocks.
-    pub(crate) fn release_empty_except(&mut self, blocks: &[BlockIndex]) {
+    /// Releases the blocks [`ResidentMap::begin_in_flight`] kept empty but those among the
+    /// frame's lists `lists` (each sorted), which it lists again and uses as they are
+    /// (counted). Call it before anything else reads the pool: only the frame that follows may
+    /// see such blocks.
+    pub(crate) fn release_empty_except(&mut self, lists: &[&[BlockIndex]]) {
         for (b, slot) in std::mem::take(&mut self.late.kept_empty) {
-            if blocks.binary_search(&b).is_ok() {
+            if lists.iter().any(|l| l.binary_search(&b).is_ok()) {
                 self.stats.empty_blocks_kept += 1;
             } else if self.pool.key(slot) == Some(b) {
                 self.release(slot);

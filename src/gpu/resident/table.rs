@@ -121,22 +121,9 @@ impl BlockTable {
             };
             self.rebuild(capacity);
         }
-        let mask = self.mask();
-        let mut pos = block_hash(k) & mask;
-        loop {
-            let e = &mut self.entries[pos as usize];
-            if e[3] == SLOT_EMPTY || e[3] == SLOT_TOMBSTONE {
-                if e[3] == SLOT_TOMBSTONE {
-                    self.tombstones -= 1;
-                }
-                let w = Self::key_words(k);
-                *e = [w[0], w[1], w[2], slot];
-                self.live += 1;
-                self.note(pos);
-                return;
-            }
-            pos = (pos + 1) & mask;
-        }
+        let pos = self.free_entry_for(k);
+        self.insert_at(pos, k, slot);
+        self.note(pos);
     }
 
     /// Whether `more` keys can be inserted with the table at most half full (tombstones
@@ -157,8 +144,9 @@ impl BlockTable {
         pos
     }
 
-    /// Records `k → slot` at entry `pos`, where the device inserted it (`table_insert.wgsl`):
-    /// the entry must be empty or a tombstone. The change is not sent up again.
+    /// Records `k → slot` at entry `pos` (empty or a tombstone): where [`BlockTable::insert`]
+    /// puts it, or where the device inserted it (`table_insert.wgsl`). The change is not noted
+    /// for the next upload.
     pub fn insert_at(&mut self, pos: u32, k: BlockIndex, slot: u32) {
         let e = &mut self.entries[pos as usize];
         assert!(
