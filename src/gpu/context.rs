@@ -5,6 +5,7 @@
 use super::error_scopes::ErrorScopes;
 use super::timing::{KernelTimer, PASS_BYTES};
 use super::traffic::{bump, GpuTraffic, TrafficCounters};
+use super::upload::UploadRing;
 use crate::{Error, Result};
 use wgpu::util::DeviceExt;
 
@@ -92,9 +93,11 @@ pub struct GpuContext {
     /// Kernels compiled on first use or ahead ([`GpuContext::compile_kernels`]), by file name.
     pub(super) kernels: super::kernels::KernelCache,
     /// What the context has cost so far ([`GpuContext::traffic`]).
-    traffic: TrafficCounters,
+    pub(super) traffic: TrafficCounters,
     /// Kernel timing, while on ([`GpuContext::start_kernel_timing`]).
     pub(super) timer: std::sync::Mutex<Option<KernelTimer>>,
+    /// The writes waiting for the next submit, and the staging memory they are written into.
+    pub(super) uploads: std::sync::Mutex<UploadRing>,
 }
 
 /// Readbacks above this many bytes are copied out of the mapping by several threads: the copy
@@ -141,6 +144,7 @@ impl GpuContext {
             kernels: Default::default(),
             traffic: TrafficCounters::default(),
             timer: Default::default(),
+            uploads: Default::default(),
         }))
     }
 
@@ -397,38 +401,10 @@ impl GpuContext {
         self.device.create_buffer(desc)
     }
 
-    /// Writes `data` into `buffer` at `offset` through the queue (counted as an upload; it
-    /// reaches the device with the next submit).
-    pub(crate) fn write_buffer(&self, buffer: &wgpu::Buffer, offset: u64, data: &[u8]) {
-        bump(&self.traffic.upload_bytes, data.len() as u64);
-        self.queue.write_buffer(buffer, offset, data);
-    }
-
     /// A command encoder labelled `label`.
     pub(crate) fn encoder(&self, label: &str) -> wgpu::CommandEncoder {
         self.device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
-    }
-
-    /// Writes `bytes` bytes at the start of `buffer` through the queue, `fill` writing them
-    /// straight into the queue's staging memory (no copy on the host; counted as an upload; it
-    /// reaches the device with the next submit). `bytes` is rounded up to the copy alignment,
-    /// and `fill` is given exactly `bytes` of it.
-    pub(crate) fn write_filled(
-        &self,
-        buffer: &wgpu::Buffer,
-        bytes: u64,
-        fill: impl FnOnce(wgpu::WriteOnly<'_, [u8]>),
-    ) -> Result<()> {
-        let size = bytes.max(4).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
-        let nonzero = wgpu::BufferSize::new(size).expect("at least 4 bytes");
-        let mut view = self
-            .queue
-            .write_buffer_with(buffer, 0, nonzero)
-            .ok_or_else(|| Error::Gpu(format!("{size} bytes do not fit the buffer written")))?;
-        fill(view.slice(..bytes as usize));
-        bump(&self.traffic.upload_bytes, size);
-        Ok(())
     }
 
     /// Submits one command buffer (counted). While kernel timing is on and the buffer has
@@ -438,7 +414,17 @@ impl GpuContext {
         let mut timer = self.timer.lock().unwrap_or_else(|e| e.into_inner());
         let timed = timer.as_mut().map_or(0, |t| t.resolve_into(&mut encoder));
         bump(&self.traffic.submits, 1);
-        self.queue.submit([encoder.finish()]);
+        // The writes since the last submit first, in the same submit.
+        let mut uploads = self.uploads.lock().unwrap_or_else(|e| e.into_inner());
+        if uploads.has_pending() {
+            let mut copies = self.encoder("uploads");
+            uploads.record(&mut copies);
+            self.queue.submit([copies.finish(), encoder.finish()]);
+            uploads.submitted();
+        } else {
+            self.queue.submit([encoder.finish()]);
+        }
+        drop(uploads);
         if let (Some(t), true) = (timer.as_mut(), timed > 0) {
             self.read_timestamps(t, timed);
         }

@@ -28,6 +28,7 @@ pub mod resident;
 pub mod shaders;
 pub mod timing;
 mod traffic;
+pub mod upload;
 
 pub use context::{DeviceChoice, GpuContext, WORKGROUP_SIZE};
 pub(crate) use error_scopes::ErrorScopes;

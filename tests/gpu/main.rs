@@ -24,3 +24,4 @@ mod stereo;
 mod street;
 mod traffic;
 mod tv_resident;
+mod upload;

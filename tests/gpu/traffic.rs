@@ -441,6 +441,8 @@ fn kernels_are_timed_on_the_device_without_changing_the_counts() {
         ..TvParams::paper(0.1)
     };
     let problem = random_problem(4);
+    // Warm: the context's first write makes its kept staging memory (`src/gpu/upload.rs`).
+    solve_gpu(&ctx, &mut problem.clone(), &params).expect("solve");
     let mut untimed = problem.clone();
     let before = ctx.traffic();
     solve_gpu(&ctx, &mut untimed, &params).expect("solve");
