@@ -51,7 +51,30 @@ impl Hasher for BlockHasher {
     }
 }
 
-type BlockMap = HashMap<BlockIndex, Box<Block>, BuildHasherDefault<BlockHasher>>;
+/// A block's RAM copy: its voxels, or `None` for a block whose voxels were made on the GPU
+/// and are not written back yet ([`Layer::insert_unwritten`]). Such a block reads as a fresh
+/// one ([`Block::new_boxed`]) and counts in [`Layer::memory_bytes`] as one; it gets memory of
+/// its own when first written (the GPU tier's write-back, or any other writer).
+type Stored = Option<Box<Block>>;
+
+type BlockMap = HashMap<BlockIndex, Stored, BuildHasherDefault<BlockHasher>>;
+
+/// What a block without voxels of its own reads as.
+static FRESH: std::sync::LazyLock<Block> = std::sync::LazyLock::new(Block::default);
+
+#[inline]
+fn read(s: &Stored) -> &Block {
+    s.as_deref().unwrap_or(&FRESH)
+}
+
+#[inline]
+fn write(s: &mut Stored) -> &mut Block {
+    s.get_or_insert_with(Block::new_boxed)
+}
+
+fn owned(s: Stored) -> Box<Block> {
+    s.unwrap_or_else(Block::new_boxed)
+}
 
 /// Edge of a layer's occupancy tiles, blocks: [`Layer::occupied_tiles`] holds one 64-bit mask
 /// per tile of 4³ block positions with an allocated block.
@@ -142,11 +165,11 @@ impl Layer {
     /// Inserts into the map and the tiles.
     #[inline]
     fn put(&mut self, i: BlockIndex, b: Box<Block>) -> Option<Box<Block>> {
-        let old = self.blocks.insert(i, b);
+        let old = self.blocks.insert(i, Some(b));
         if old.is_none() {
             self.occupy(i);
         }
-        old
+        old.map(owned)
     }
 
     /// Removes from the map and the tiles.
@@ -156,7 +179,7 @@ impl Layer {
         if old.is_some() {
             self.vacate(i);
         }
-        old
+        old.map(owned)
     }
 
     /// Number of tiles of 4³ block positions holding at least one block.
@@ -188,31 +211,43 @@ impl Layer {
 
     /// Number of voxels in Ω over all blocks.
     pub fn observed_voxel_count(&self) -> usize {
-        self.blocks.values().map(|b| b.observed_count()).sum()
+        (self.blocks.values().flatten())
+            .map(|b| b.observed_count())
+            .sum()
     }
 
     /// The block at `index`, if allocated (and resident).
     #[inline]
     pub fn get(&self, index: &BlockIndex) -> Option<&Block> {
-        self.blocks.get(index).map(|b| &**b)
+        self.blocks.get(index).map(read)
     }
 
     /// The block at `index`, mutably.
     #[inline]
     pub fn get_mut(&mut self, index: &BlockIndex) -> Option<&mut Block> {
-        self.blocks.get_mut(index).map(|b| &mut **b)
+        self.blocks.get_mut(index).map(write)
     }
 
     /// The block at `index`, allocating an empty one if needed.
     pub fn get_or_allocate(&mut self, index: BlockIndex) -> &mut Block {
         use std::collections::hash_map::Entry;
         match self.blocks.entry(index) {
-            Entry::Occupied(e) => e.into_mut(),
+            Entry::Occupied(e) => write(e.into_mut()),
             Entry::Vacant(e) => {
                 // The entry borrows `blocks`, so the tiles are kept through the field.
                 occupy(&mut self.tiles, index);
-                e.insert(Block::new_boxed())
+                write(e.insert(None))
             }
+        }
+    }
+
+    /// Adds the block at `index`, if absent, without voxels of its own until written: a block
+    /// whose voxels are on the GPU (it reads as a fresh block meanwhile; see [`Stored`]).
+    pub fn insert_unwritten(&mut self, index: BlockIndex) {
+        use std::collections::hash_map::Entry;
+        if let Entry::Vacant(e) = self.blocks.entry(index) {
+            e.insert(None);
+            occupy(&mut self.tiles, index);
         }
     }
 
@@ -236,7 +271,7 @@ impl Layer {
 
     /// Iterates over the blocks in arbitrary order.
     pub fn iter_unsorted(&self) -> impl Iterator<Item = (&BlockIndex, &Block)> {
-        self.blocks.iter().map(|(k, v)| (k, &**v))
+        self.blocks.iter().map(|(k, v)| (k, read(v)))
     }
 
     /// Checks the blocks at `indices` out of the layer (allocating missing ones), in the order
@@ -296,7 +331,7 @@ impl Layer {
             .blocks
             .par_iter_mut()
             .filter(|(i, _)| select(i) || required_set.contains(i))
-            .map(|(i, b)| (i.sort_key(), &mut **b))
+            .map(|(i, b)| (i.sort_key(), write(b)))
             .collect();
         picked.par_sort_unstable_by_key(|&(key, _)| key);
         // The required blocks not allocated: the sorted lists merged.
@@ -355,7 +390,7 @@ impl Layer {
 
     /// Drops every block's regularized field (e.g. before re-regularizing with other settings).
     pub fn clear_regularized(&mut self) {
-        for b in self.blocks.values_mut() {
+        for b in self.blocks.values_mut().flatten() {
             b.regularized = None;
         }
     }
@@ -363,7 +398,12 @@ impl Layer {
     /// Bytes held in RAM: blocks plus the hash tables' slots (blocks: key, pointer, control
     /// byte; tiles: key, mask, control byte).
     pub fn memory_bytes(&self) -> usize {
-        let blocks: usize = self.blocks.values().map(|b| b.heap_bytes()).sum();
+        let blocks: usize = (self.blocks.values())
+            .map(|b| {
+                b.as_ref()
+                    .map_or(std::mem::size_of::<Block>(), |b| b.heap_bytes())
+            })
+            .sum();
         blocks + self.blocks.capacity() * SLOT_BYTES + self.tiles.capacity() * TILE_SLOT_BYTES
     }
 
@@ -411,6 +451,58 @@ impl<'a> SortedSet<'a> {
 mod tests {
     use super::*;
     use std::hash::BuildHasher;
+
+    #[test]
+    fn a_block_not_written_yet_reads_and_counts_as_a_fresh_one() {
+        use crate::grid::{encode_tsdf, OMEGA_BIT};
+        let params = GridParams::paper(0.1);
+        let (a, b, c) = (
+            BlockIndex([0, 0, 0]),
+            BlockIndex([1, -2, 3]),
+            BlockIndex([9, 9, 9]),
+        );
+        let mut lazy = Layer::new(params);
+        let mut eager = Layer::new(params);
+        for i in [a, b] {
+            lazy.insert_unwritten(i);
+            eager.insert(i, Block::new_boxed());
+        }
+        lazy.get_or_allocate(c)
+            .store_fused(5, encode_tsdf(0.25), 3 | OMEGA_BIT, [1, 2, 3]);
+        eager
+            .get_or_allocate(c)
+            .store_fused(5, encode_tsdf(0.25), 3 | OMEGA_BIT, [1, 2, 3]);
+        // Adding again keeps what is there.
+        lazy.insert_unwritten(c);
+        let fresh = Block::default();
+        for l in [&lazy, &eager] {
+            assert_eq!(l.block_count(), 3);
+            assert_eq!(l.observed_voxel_count(), 1);
+            assert_eq!(l.get(&b).map(|x| x.tsdf), Some(fresh.tsdf));
+            assert_eq!(l.get(&b).map(|x| x.weight_omega), Some(fresh.weight_omega));
+            assert_eq!(l.tile_mask(tile_of(b).0), tile_of(b).1);
+        }
+        assert_eq!(lazy.memory_bytes(), eager.memory_bytes());
+        assert_eq!(lazy.indices_sorted(), eager.indices_sorted());
+        // Written: voxels of its own.
+        lazy.get_mut(&a)
+            .unwrap()
+            .store_fused(7, encode_tsdf(-0.5), 2 | OMEGA_BIT, [4, 5, 6]);
+        assert_eq!(lazy.get(&a).unwrap().voxel(7).weight, 2);
+        assert_eq!(
+            lazy.get(&b).unwrap().voxel(7).weight,
+            0,
+            "b still reads fresh"
+        );
+        // Taken out and updated in place like any other.
+        assert_eq!(lazy.remove(&b).map(|x| x.tsdf), Some(fresh.tsdf));
+        lazy.insert_unwritten(b);
+        let updated = lazy.update_in_place(&[], |_| true, |_, blk| (blk.observed_count(), true));
+        let counts: Vec<usize> = updated.iter().map(|u| u.1).collect();
+        assert_eq!(counts, [1, 0, 1], "{updated:?}");
+        lazy.clear_regularized();
+        assert_eq!(lazy.block_count(), 3);
+    }
 
     #[test]
     fn hash_separates_neighbours() {

@@ -21,7 +21,7 @@
 
 use super::ResidentMap;
 use crate::gpu::readback::{LateReadback, RING_LEN};
-use crate::grid::{Block, BlockIndex, Layer, TouchedBlocks};
+use crate::grid::{BlockIndex, Layer, TouchedBlocks};
 use crate::{Error, Result};
 use std::collections::{HashMap, HashSet, VecDeque};
 
@@ -249,7 +249,8 @@ impl ResidentMap {
             if up != 0 {
                 self.pool.mark_dirty(slot);
                 if !in_layer {
-                    layer.insert(*b, Block::new_boxed());
+                    // Its voxels are on the device: RAM holds them once written back.
+                    layer.insert_unwritten(*b);
                 }
             } else if !in_layer {
                 if later {
