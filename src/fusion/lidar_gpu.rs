@@ -355,7 +355,7 @@ pub(super) fn dispatch_order(
 }
 
 /// A storage buffer `name` with `bytes` bytes written by `fill` straight into the memory that
-/// goes up: `kept`'s buffer when given (through the queue's staging memory), else a new one
+/// goes up: `kept`'s buffer when given (through the kept staging memory), else a new one
 /// (mapped at creation).
 fn filled(
     (ctx, kept): (&GpuContext, &mut Option<&mut Kept>),

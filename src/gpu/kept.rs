@@ -65,7 +65,7 @@ impl Kept {
     }
 
     /// The kept storage buffer `name` with `bytes` bytes at its start written by `fill` straight
-    /// into the queue's staging memory ([`GpuContext::write_filled`]).
+    /// into the kept staging memory ([`GpuContext::write_filled`]).
     pub(crate) fn storage_filled(
         &mut self,
         ctx: &GpuContext,

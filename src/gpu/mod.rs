@@ -11,6 +11,8 @@
 //!   Vulkan, counts as one). [`DeviceChoice`] is the `--device auto|cpu|gpu` policy.
 //! - [`shaders`]: every kernel declared once (file, shared files, bindings), assembled at compile
 //!   time; [`layout`]: the `#[repr(C)]` buffer structs with their WGSL twins.
+//! - [`upload`]: every queue write goes through kept, mapped staging chunks that the next
+//!   submit copies from, so a write makes no staging buffer of its own.
 //! - [`resident`]: the GPU tier of the map: blocks resident in a device pool between frames,
 //!   found through a GPU hash table, written back to RAM on demand.
 //!
