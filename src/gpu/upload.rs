@@ -1,5 +1,5 @@
-//! Uploads through kept staging buffers. Every write of [`GpuContext::write_buffer`] and
-//! [`GpuContext::write_filled`] goes into a chunk of host-visible memory that stays mapped
+//! Uploads through kept staging buffers. Every write of `GpuContext::write_buffer` and
+//! `GpuContext::write_filled` goes into a chunk of host-visible memory that stays mapped
 //! between frames, and the next submit copies it to its target on the device, before its own
 //! commands (the queue writes' order and timing: what is written between two submits reaches
 //! the device with the second, in the order written). Once the device has finished with a chunk
@@ -14,9 +14,6 @@
 //! power of two. Every chunk is a buffer created (counted). Chunks are kept up to
 //! [`KEPT_BYTES`] in all; a write past that (a large TV solve's inputs) gets a chunk of its own
 //! that is dropped once submitted, as the queue's staging buffer would be.
-//!
-//! [`GpuContext::write_buffer`]: super::GpuContext::write_buffer
-//! [`GpuContext::write_filled`]: super::GpuContext::write_filled
 
 use super::context::GpuContext;
 use super::readback::RING_LEN;
@@ -245,8 +242,8 @@ impl GpuContext {
 }
 
 /// What a test writes through the kept staging memory: `bytes` (a multiple of 4) at an offset
-/// ([`GpuContext::write_buffer`]), or any number of bytes at the start, padded with zeros to a
-/// multiple of 4 ([`GpuContext::write_filled`]).
+/// (`GpuContext::write_buffer`), or any number of bytes at the start, padded with zeros to a
+/// multiple of 4 (`GpuContext::write_filled`).
 #[derive(Clone, Debug)]
 pub enum TestWrite {
     At(u64, Vec<u8>),

@@ -242,7 +242,7 @@ impl Layer {
     }
 
     /// Adds the block at `index`, if absent, without voxels of its own until written: a block
-    /// whose voxels are on the GPU (it reads as a fresh block meanwhile; see [`Stored`]).
+    /// whose voxels are on the GPU (it reads as a fresh block meanwhile).
     pub fn insert_unwritten(&mut self, index: BlockIndex) {
         use std::collections::hash_map::Entry;
         if let Entry::Vacant(e) = self.blocks.entry(index) {
