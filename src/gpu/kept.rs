@@ -60,7 +60,7 @@ impl Kept {
         data: &[u8],
     ) -> wgpu::Buffer {
         let b = self.buffer(ctx, name, data.len() as u64, STORAGE);
-        write_padded(ctx, &b, data);
+        ctx.write_buffer(&b, 0, data);
         b
     }
 
@@ -87,7 +87,7 @@ impl Kept {
     ) -> wgpu::Buffer {
         let usage = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
         let b = self.buffer(ctx, name, data.len() as u64, usage);
-        write_padded(ctx, &b, data);
+        ctx.write_buffer(&b, 0, data);
         b
     }
 
@@ -189,20 +189,6 @@ impl UniformTable {
 const STORAGE: wgpu::BufferUsages = wgpu::BufferUsages::STORAGE
     .union(wgpu::BufferUsages::COPY_SRC)
     .union(wgpu::BufferUsages::COPY_DST);
-
-/// Writes `data` at the start of `buffer`, padded with zeros to the copy alignment.
-fn write_padded(ctx: &GpuContext, buffer: &wgpu::Buffer, data: &[u8]) {
-    let align = wgpu::COPY_BUFFER_ALIGNMENT as usize;
-    if data.len().is_multiple_of(align) {
-        if !data.is_empty() {
-            ctx.write_buffer(buffer, 0, data);
-        }
-        return;
-    }
-    let mut padded = data.to_vec();
-    padded.resize(data.len().next_multiple_of(align), 0);
-    ctx.write_buffer(buffer, 0, &padded);
-}
 
 /// Buffers lent to holders that outlive a call (a depth frame read ahead of its fusion) and
 /// handed back when the holder drops them ([`Pooled`]), so that a steady stream of holders

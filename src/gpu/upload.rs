@@ -85,6 +85,9 @@ impl UploadRing {
         fill: impl FnOnce(wgpu::WriteOnly<'_, [u8]>),
     ) {
         debug_assert!(size % wgpu::COPY_BUFFER_ALIGNMENT == 0 && filled as u64 <= size);
+        if size == 0 {
+            return;
+        }
         if self.chunks.is_empty() {
             for _ in 0..FIRST_CHUNKS {
                 self.make_chunk(ctx, CHUNK_BYTES);
@@ -92,18 +95,22 @@ impl UploadRing {
         }
         let mut fill = Some(fill);
         loop {
-            self.chunks
-                .retain(|c| c.state.load(Ordering::Acquire) != FAILED);
-            let k = self.open_with_room(size).unwrap_or_else(|| {
+            (self.chunks).retain(|c| c.state.load(Ordering::Acquire) != FAILED);
+            let (k, made) = match self.open_with_room(size) {
+                Some(k) => (k, false),
                 // Chunks the device finished with since the last look are mapped by a poll
                 // (where polling fails the device is lost, and the next wait says so).
-                let _ = ctx.poll_finished();
-                (self.open_with_room(size)).unwrap_or_else(|| self.make_chunk(ctx, size))
-            });
+                None => match (ctx.poll_finished().ok()).and_then(|_| self.open_with_room(size)) {
+                    Some(k) => (k, false),
+                    None => (self.make_chunk(ctx, size), true),
+                },
+            };
             let chunk = &mut self.chunks[k];
             let from = chunk.cursor;
             let view = chunk.buffer.slice(from..from + size).get_mapped_range_mut();
             let Ok(mut view) = view else {
+                // A chunk mapped at its creation always maps (else wgpu broke its contract).
+                assert!(!made, "a new upload chunk could not be written: {view:?}");
                 // Not mapped after all: never used again, and the write goes to another.
                 tracing::warn!("an upload chunk could not be written: {view:?}");
                 chunk.state.store(FAILED, Ordering::Release);
@@ -196,15 +203,16 @@ impl UploadRing {
 }
 
 impl GpuContext {
-    /// Writes `data` (a multiple of 4 bytes) into `buffer` at `offset` through the kept staging
-    /// memory (counted as an upload; it reaches the device with the next submit, before its
-    /// commands: `src/gpu/upload.rs`).
+    /// Writes `data` into `buffer` at `offset`, padded with zeros to a multiple of 4 bytes,
+    /// through the kept staging memory (counted as an upload, padding included; it reaches the
+    /// device with the next submit, before its commands: `src/gpu/upload.rs`). Nothing where
+    /// `data` is empty.
     pub(crate) fn write_buffer(&self, buffer: &wgpu::Buffer, offset: u64, data: &[u8]) {
         let size = (data.len() as u64).next_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT);
         self.write_staged((buffer, offset), (size, data.len()), |mut out| {
             out.copy_from_slice(data)
         });
-        bump(&self.traffic.upload_bytes, data.len() as u64);
+        bump(&self.traffic.upload_bytes, size);
     }
 
     /// `size` bytes at `at` in `to` through the kept staging memory, the first `filled` written
@@ -241,9 +249,9 @@ impl GpuContext {
     }
 }
 
-/// What a test writes through the kept staging memory: `bytes` (a multiple of 4) at an offset
-/// (`GpuContext::write_buffer`), or any number of bytes at the start, padded with zeros to a
-/// multiple of 4 (`GpuContext::write_filled`).
+/// What a test writes through the kept staging memory: `bytes` at an offset, padded with zeros
+/// to a multiple of 4 (`GpuContext::write_buffer`), or at the start, padded likewise but to
+/// at least 4 bytes (`GpuContext::write_filled`).
 #[derive(Clone, Debug)]
 pub enum TestWrite {
     At(u64, Vec<u8>),

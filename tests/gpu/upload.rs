@@ -12,7 +12,9 @@ fn applied(size: u64, rounds: &[Vec<TestWrite>]) -> Vec<u8> {
     for w in rounds.iter().flatten() {
         match w {
             TestWrite::At(at, bytes) => {
-                out[*at as usize..*at as usize + bytes.len()].copy_from_slice(bytes)
+                let at = *at as usize;
+                out[at..at + bytes.len()].copy_from_slice(bytes);
+                out[at + bytes.len()..at + bytes.len().next_multiple_of(4)].fill(0);
             }
             TestWrite::Filled(bytes) => {
                 out[..bytes.len()].copy_from_slice(bytes);
@@ -50,6 +52,9 @@ fn writes_through_kept_staging_memory_land_in_the_order_written() {
         }
         rounds.push(round);
     }
+    // Nothing, and a write not a multiple of 4 bytes (padded with zeros, counted padded).
+    rounds[5].push(TestWrite::At(8, Vec::new()));
+    rounds[7].push(TestWrite::At(4096, random_bytes(&mut rng, 5)));
     let before = ctx.traffic();
     let got = written_through_ring(&ctx, size, &rounds, 3).expect("written");
     let t = ctx.traffic().since(before);
@@ -61,7 +66,7 @@ fn writes_through_kept_staging_memory_land_in_the_order_written() {
     );
     let sent: u64 = (rounds.iter().flatten())
         .map(|w| match w {
-            TestWrite::At(_, b) => b.len() as u64,
+            TestWrite::At(_, b) => b.len().next_multiple_of(4) as u64,
             TestWrite::Filled(b) => b.len().max(4).next_multiple_of(4) as u64,
         })
         .sum();
