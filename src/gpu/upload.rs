@@ -289,6 +289,8 @@ pub fn written_through_ring(
 /// The chunks of kept staging memory `ctx` holds, and their bytes.
 pub fn kept_chunks(ctx: &GpuContext) -> (usize, u64) {
     let ring = ctx.uploads.lock().unwrap_or_else(|e| e.into_inner());
-    let kept = ring.chunks.iter().filter(|c| c.kept);
-    (kept.clone().count(), kept.map(|c| c.buffer.size()).sum())
+    (
+        ring.chunks.iter().filter(|c| c.kept).count(),
+        ring.kept_bytes(),
+    )
 }
