@@ -11,8 +11,8 @@
 @group(0) @binding(7) var<storage, read_write> block_updated: array<atomic<u32>>;
 // Per pool slot: 1 once a depth frame updated its block (cleared by fill_slots.wgsl when the
 // slot is given to a new block). A listed block whose base has w != 0 (listed only because a
-// frame still in flight may have created it, src/gpu/resident/late.rs) is fused only if so:
-// the CPU lists such a block only once it exists.
+// frame still in flight may have created it, src/gpu/resident/late.rs) is fused only if so
+// (and skipped where the table lacks it): the CPU lists such a block only once it exists.
 @group(0) @binding(8) var<storage, read_write> slot_exists: array<atomic<u32>>;
 
 @compute @workgroup_size(64)
@@ -28,13 +28,16 @@ fn main(
     let b = g / 512u;
     let i = g % 512u;
     let slot = slots[b];
+    let unsettled = block_base[b].w != 0.0;
     if (slot >= SLOT_TOMBSTONE) {
-        if (i == 0u) {
+        // An unsettled block no table holds was made by no frame (the host collected the
+        // frames that listed it and released it): nothing to fuse. Any other is an error.
+        if (i == 0u && !unsettled) {
             atomicAdd(&counters[1], 1u);
         }
         return;
     }
-    if (block_base[b].w != 0.0 && atomicLoad(&slot_exists[slot]) == 0u) {
+    if (unsettled && atomicLoad(&slot_exists[slot]) == 0u) {
         return;
     }
     if (fuse_voxel(b, i, slot * 512u + i)) {

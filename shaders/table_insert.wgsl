@@ -21,7 +21,7 @@
 // The free-slot stack: [0] how many slots it holds, [1..=count] the slots, the top last.
 @group(0) @binding(4) var<storage, read_write> free: array<atomic<u32>>;
 // [0] blocks inserted, [1] blocks left without a slot (the stack ran out, or no entry was
-// found); from [2]: per inserted block, its index in the list and its entry.
+// found); from [2]: per inserted block, its index in the list, its entry and its slot.
 @group(0) @binding(5) var<storage, read_write> created: array<atomic<u32>>;
 
 // Probes one invocation tries before it gives up (a half-full table needs a handful).
@@ -61,8 +61,9 @@ fn main(
                 atomicStore(&table[4u * pos + 2u], k.z);
                 slots[b] = slot;
                 let i = atomicAdd(&created[0], 1u);
-                atomicStore(&created[2u + 2u * i], b);
-                atomicStore(&created[3u + 2u * i], pos);
+                atomicStore(&created[2u + 3u * i], b);
+                atomicStore(&created[3u + 3u * i], pos);
+                atomicStore(&created[4u + 3u * i], slot);
                 return;
             }
             if (r.old_value == seen) {

@@ -23,6 +23,7 @@ use super::depth_keys::FrameKeys;
 use super::FusionStats;
 use crate::frame::DepthFrame;
 use crate::gpu::layout::{apply_updated, pack_block_into, FuseUniforms, GpuVoxel};
+use crate::gpu::resident::alloc::{created_bytes, free_stack_words, record_insert, AllocBuffers};
 use crate::gpu::resident::{BlockTable, FrameParts, ResidentMap, SLOT_TOMBSTONE};
 use crate::gpu::{shaders, thread_cpu_s, ErrorScopes, GpuContext};
 use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
@@ -239,9 +240,16 @@ fn fuse_resident(
         let mut encoder = riding
             .take()
             .unwrap_or_else(|| map.context().encoder("fuse_depth_resident"));
-        map.make_resident(layer, &listed, plan.camera_m, Some(&mut encoder))?;
+        let frame_blocks = (&listed[..], first_unsettled);
+        let reserved =
+            map.make_resident_for_frame(layer, frame_blocks, plan.camera_m, &mut encoder)?;
         let t = std::time::Instant::now();
-        let frame_parts = (listed, first_unsettled, encoder);
+        let frame_parts = FrameBlocks {
+            blocks: listed,
+            first_unsettled,
+            reserved,
+            encoder,
+        };
         let inputs_s = run_resident(map, layer, frame_parts, (frame, depth), params, plan)?;
         map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
     } else if let Some(encoder) = riding.take() {
@@ -256,30 +264,48 @@ fn fuse_resident(
     Ok((touched, stats))
 }
 
-/// Resolves `blocks` (resident) to slots on the GPU, fuses the frame into them and submits
-/// `encoder` (holding the fill of the frame's new blocks) with them and the copy of the
-/// counters and flags into the readback ring; returns the seconds spent preparing and writing
-/// the inputs.
+/// A frame's listed blocks and what its submit carries.
+struct FrameBlocks {
+    /// The listed blocks; those from `first_unsettled` on (neither the band nor the layer has
+    /// them: listed because a frame in flight may have created them) carry `w = 1` in their
+    /// bases, and the kernel fuses them only if a frame did.
+    blocks: Vec<BlockIndex>,
+    first_unsettled: usize,
+    /// The free slots the device gives the frame's new blocks
+    /// ([`ResidentMap::make_resident_for_frame`]), the top last.
+    reserved: Vec<u32>,
+    /// Holds the writes of the frame's new blocks' slots and the table's changed entries.
+    encoder: wgpu::CommandEncoder,
+}
+
+/// Resolves the frame's blocks to slots on the GPU, inserts its new blocks there, fuses the
+/// frame into them and submits the encoder with them and the copy of the counters, flags and
+/// insertions into the readback ring; returns the seconds spent preparing and writing the
+/// inputs.
 ///
 /// Per frame: the blocks' packed offsets from the frame's origin block (4 bytes per block,
-/// [`FrameKeys`]; 12 where a block lies beyond the packed range), the depth image (4 bytes per
-/// pixel), the colour image (3 bytes per pixel, when fused) and the uniforms are written into
-/// buffers the map keeps; the fill of new blocks, the keys' slots and bases
-/// (`frame_keys.wgsl`), the fusion and the copy of the counters and flags (4 bytes per block)
-/// into a staging buffer of the ring are one submit, and nothing waits for it. No buffer or
-/// bind group is created once the kept ones have grown to the frames' size.
-///
-/// The blocks from `first_unsettled` on (neither the band nor the layer has them: listed
-/// because a frame in flight may have created them) carry `w = 1` in their bases: the kernel
-/// fuses them only if a frame did.
+/// [`FrameKeys`]; 12 where a block lies beyond the packed range), the free-slot stack (4 bytes
+/// per new block), the depth image (4 bytes per pixel), the colour image (3 bytes per pixel,
+/// when fused) and the uniforms are written into buffers the map keeps; the fill of the
+/// reserved slots, the keys' slots and bases (`frame_keys.wgsl`), the insertion of new blocks
+/// (`table_insert.wgsl`), the fusion and the copy of the counters, flags (4 bytes per block)
+/// and insertions (12 bytes per new block) into a staging buffer of the ring are one submit,
+/// and nothing waits for it. No buffer or bind group is created once the kept ones have grown
+/// to the frames' size.
 fn run_resident(
     map: &mut ResidentMap,
     layer: &Layer,
-    (blocks, first_unsettled, mut encoder): (Vec<BlockIndex>, usize, wgpu::CommandEncoder),
+    frame_blocks: FrameBlocks,
     (frame, depth): ResidentInput,
     params: &DepthFusionParams,
     plan: &DepthPlan,
 ) -> Result<f64> {
+    let FrameBlocks {
+        blocks,
+        first_unsettled,
+        reserved,
+        mut encoder,
+    } = frame_blocks;
     let t = std::time::Instant::now();
     let FrameParts {
         ctx,
@@ -353,12 +379,32 @@ fn run_resident(
     encoder.clear_buffer(&buf_counters, 0, Some(16));
     encoder.clear_buffer(&buf_updated, 0, Some((n * 4).next_multiple_of(4)));
     ctx.record_dispatch(&mut encoder, &frame_keys, &bind_keys, n)?;
+    let mut results = vec![(&buf_counters, 8), (&buf_updated, n as usize * 4)];
+    let buf_created;
+    if !reserved.is_empty() {
+        let k = reserved.len() as u64;
+        let buf_free = kept.storage_with(
+            ctx,
+            "free_slots",
+            bytemuck::cast_slice(&free_stack_words(&reserved)),
+        );
+        buf_created = kept.scratch(ctx, "created_blocks", created_bytes(k));
+        let buffers = AllocBuffers {
+            uniforms: &buf_key_uniforms,
+            table,
+            keys: &buf_keys,
+            slots: &buf_slots,
+            free: &buf_free,
+            created: &buf_created,
+        };
+        record_insert(ctx, (&mut encoder, &mut *kept), &buffers, n)?;
+        results.push((&buf_created, created_bytes(k) as usize));
+    }
     ctx.record_dispatch(&mut encoder, &fuse, &bind_fuse, voxel_count)?;
     let inputs_s = t.elapsed().as_secs_f64();
-    let results = [(&buf_counters, 8), (&buf_updated, n as usize * 4)];
     let readback = ring.submit(ctx, encoder, &results);
     scope.pop("running the resident fusion kernel")?;
-    map.frame_submitted(layer, blocks, readback);
+    map.frame_submitted(layer, (blocks, reserved), readback);
     Ok(inputs_s)
 }
 

@@ -257,7 +257,7 @@ fn run_resident(
     scope.pop("running the resident LiDAR fusion kernel")?;
     // The flags come in dispatch order.
     let blocks = order.iter().map(|&b| groups[b].0).collect();
-    map.frame_submitted(layer, blocks, readback);
+    map.frame_submitted(layer, (blocks, Vec::new()), readback);
     map.set_lidar_rays_of(next.as_ref().map(|n| n.rays_of()));
     let next = next.map(|n| PendingLidarPlan::Listing(Box::new(n)));
     Ok((inputs_s, next))

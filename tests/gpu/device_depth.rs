@@ -143,8 +143,9 @@ fn frames_fused_from_the_device(ctx: Arc<denser::gpu::GpuContext>) {
             assert!(t.upload_bytes <= colour + (64 << 10), "{t:?}");
             assert!(t.readback_bytes <= 64 << 10, "{t:?}");
             assert_eq!((t.submits, t.waits, t.buffers_created), (1, 0, 0), "{t:?}");
-            // Its hundreds of scattered table entries in one write, put in place there.
-            assert_eq!(table_writes, 1, "frame {k}");
+            // Its hundreds of new blocks inserted on the device: the host writes at most the
+            // released blocks' entries, in one write put in place there.
+            assert!(table_writes <= 1, "frame {k}: {table_writes} table writes");
         }
     }
     assert!(steady >= 2, "{steady} warm frames");

@@ -6,7 +6,7 @@ use crate::common::{fuse_depth_resident, gpu, Rng, SphereScene};
 use crate::compare::orbit_frames;
 use denser::frame::{DepthFrame, LidarScan};
 use denser::fusion::{integrate_lidar_resident, DepthFusionParams, LidarFusionParams, LidarPlan};
-use denser::gpu::resident::SLOT_BYTES;
+use denser::gpu::resident::{SLOT_BYTES, SLOT_TOMBSTONE};
 use denser::gpu::{GpuContext, ResidentMap, ResidentOptions, ResidentStats};
 use denser::grid::{GridParams, Layer};
 use std::sync::Arc;
@@ -42,7 +42,17 @@ fn fuse(
     }
     map.sync(&mut layer).expect("sync");
     assert_eq!(map.frames_in_flight(), 0);
-    updates += map.take_collected().1; // the frames the sync collected
+    // The frames the sync collected.
+    updates += map.take_collected().1;
+    // The frames' new blocks were inserted on the device, in entries and slots of its choosing:
+    // the host learnt every one, and its table equals the device's entry for entry.
+    let (on_host, on_gpu) = map.table_entries_on_host_and_gpu().expect("tables");
+    assert!(
+        on_host == on_gpu,
+        "the host's table and the device's differ"
+    );
+    let live = on_host.iter().filter(|e| e[3] < SLOT_TOMBSTONE).count();
+    assert_eq!(live, map.stats().resident_blocks);
     (layer, map.stats(), updates)
 }
 
@@ -64,6 +74,10 @@ fn frames_in_flight_leave_the_map_of_frames_that_wait() {
     let (waited, s0, updates0) = fuse(&ctx, &frames, roomy, (false, 0));
     eprintln!("each frame waits: {s0:?}");
     assert_eq!(s0.frames_overlapped, 0);
+    // The device inserted every new block, in a slot the host had reserved for it: with no
+    // frame in flight the host knows every block, so it reserved exactly as many.
+    assert!(s0.blocks_created > 0 && s0.blocks_uploaded == 0, "{s0:?}");
+    assert_eq!(s0.slots_reserved, s0.blocks_created);
     // Frames submitted back to back: a frame lists blocks its predecessors, still in flight,
     // may have created (the kernel fuses those only where one did).
     let (flying, s1, updates1) = fuse(&ctx, &frames, roomy, (true, 0));
@@ -74,6 +88,9 @@ fn frames_in_flight_leave_the_map_of_frames_that_wait() {
     );
     assert!(s1.frames_overlapped > 0, "{s1:?}");
     assert!(s1.blocks_listed_in_flight > 0, "{s1:?}");
+    // A frame listed while its predecessors were in flight reserved slots for blocks they had
+    // inserted already; the device gave those blocks none, and the host took the slots back.
+    assert!(s1.slots_reserved > s1.blocks_created, "{s1:?}");
     // Released blocks: the map holds as many as the waiting run's.
     assert_eq!(s1.resident_blocks, s0.resident_blocks);
     // Every frame's updates were counted once, by a later frame or the sync.

@@ -112,7 +112,9 @@ fn a_resident_depth_frame_after_warm_up_creates_no_buffer_and_uploads_no_new_blo
         let t = ctx.traffic().since(before);
         let stats = rec.resident_stats().expect("resident");
         let uploaded_blocks = stats.blocks_uploaded - before_stats.blocks_uploaded;
+        // Created: the frame before's new blocks, learnt as this frame began (`late.rs`).
         let created_blocks = stats.blocks_created - before_stats.blocks_created;
+        let reserved = stats.slots_reserved - before_stats.slots_reserved;
         let listed = stats.largest_frame_blocks as u64;
         let pixels = f.depth_m.data.len() as u64;
         eprintln!(
@@ -124,13 +126,15 @@ fn a_resident_depth_frame_after_warm_up_creates_no_buffer_and_uploads_no_new_blo
             continue; // a grown pool or table is a new buffer: not the steady state
         }
         checked += 1;
-        created_somewhere |= created_blocks > 0;
-        // One submit: new blocks are written empty on the device (one more dispatch), the
-        // table's changed entries put in place there where they are scattered (one more),
-        // then the lookup and the fusion. No wait: the frame's flags come back with a later
-        // frame (`src/gpu/resident/late.rs`). The table's changes take one host write, or a
-        // few where they lie in a few runs.
-        let fills = (created_blocks > 0) as u64;
+        created_somewhere |= created_blocks > 0 && reserved > 0;
+        // One submit: the slots reserved for new blocks are written empty on the device (one
+        // more dispatch), the table's changed entries put in place there where they are
+        // scattered (one more), then the lookup, the new blocks' insertion (one more) and the
+        // fusion. No wait: the frame's flags and insertions come back with a later frame
+        // (`src/gpu/resident/late.rs`). The table's changes (the released blocks': the new
+        // ones are inserted on the device) take one host write, or a few where they lie in a
+        // few runs.
+        let fills = 2 * (reserved > 0) as u64;
         let table_writes = stats.table_writes - before_stats.table_writes;
         assert_eq!(t.buffers_created, 0, "{t:?}");
         assert_eq!(t.bind_groups_created, 0, "{t:?}");
@@ -143,12 +147,12 @@ fn a_resident_depth_frame_after_warm_up_creates_no_buffer_and_uploads_no_new_blo
             "{table_writes} table writes"
         );
         // Up: the depth and colour images (4 and 3 bytes per pixel), a packed offset per listed
-        // block (4 bytes), the blocks coming back from RAM, a slot number per new block, table
-        // entries and uniforms.
+        // block (4 bytes), the blocks coming back from RAM, two slot numbers per reserved slot
+        // (the fill's list and the device's stack), table entries and uniforms.
         assert!(f.color.is_some());
         let images = 7 * pixels;
         let up_bound =
-            images + 4 * listed + SLOT_BYTES * uploaded_blocks + 4 * created_blocks + (64 << 10);
+            images + 4 * listed + SLOT_BYTES * uploaded_blocks + 8 * reserved + (64 << 10);
         assert!(
             t.upload_bytes <= up_bound,
             "{} > {up_bound}",
@@ -158,8 +162,12 @@ fn a_resident_depth_frame_after_warm_up_creates_no_buffer_and_uploads_no_new_blo
         if uploaded_blocks == 0 {
             assert!(t.upload_bytes <= images + (64 << 10), "{t:?}");
         }
-        // Down: the frame before's counters and one flag per block it listed; no block.
-        assert!(t.readback_bytes <= 4 * listed + 16, "{t:?}");
+        // Down: the frame before's counters, one flag per block it listed and its insertions
+        // (12 bytes each, and two counters); no block.
+        assert!(
+            t.readback_bytes <= 4 * listed + 16 + 12 * created_blocks + 8,
+            "{t:?}"
+        );
     }
     assert!(checked >= 6, "{checked} steady frames");
     assert!(created_somewhere, "no steady frame created a block");
@@ -223,10 +231,11 @@ fn a_sync_reads_dirty_blocks_back_and_uploads_nothing() {
     let stats = rec.resident_stats().expect("resident");
     let dirty = stats.resident_blocks as u64;
     eprintln!("sync of ≤ {dirty} blocks: {t:?}");
-    // The frames still in flight (at most the ring's three) are collected first: their flags
-    // and counters, and one wait. Then the blocks come down once; their marks are cleared on
-    // the device (a slot list and uniforms go up, not the blocks).
-    let flags = 3 * (4 * stats.largest_frame_blocks as u64 + 8);
+    // The frames still in flight (at most the ring's three) are collected first: their flags,
+    // insertions (at most one per listed block) and counters, and one wait. Then the blocks
+    // come down once; their marks are cleared on the device (a slot list and uniforms go up,
+    // not the blocks).
+    let flags = 3 * (16 * stats.largest_frame_blocks as u64 + 16);
     assert!(
         t.readback_bytes > 0 && t.readback_bytes <= dirty * SLOT_BYTES + flags,
         "{t:?}"

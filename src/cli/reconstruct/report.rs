@@ -144,12 +144,14 @@ impl fmt::Display for Report {
         if let Some(g) = &self.gpu {
             writeln!(
                 f,
-                "GPU tier: pool {} blocks (max {}), peak {} resident, {} uploaded, {} created on the GPU ({} kept empty for the next frame), {} read back, {} spilled to RAM, {} grows, {} oversize frames, {} frames submitted while others were in flight ({} blocks listed for frames in flight), {} table writes",
+                "GPU tier: pool {} blocks (max {}), peak {} resident, {} uploaded, {} created on the GPU ({} inserted there, into {} slots reserved for them; {} kept empty for the next frame), {} read back, {} spilled to RAM, {} grows, {} oversize frames, {} frames submitted while others were in flight ({} blocks listed for frames in flight), {} table writes",
                 g.capacity_blocks,
                 g.max_blocks,
                 g.peak_resident_blocks,
                 g.blocks_uploaded,
                 g.blocks_created,
+                g.blocks_inserted_on_gpu,
+                g.slots_reserved,
                 g.empty_blocks_kept,
                 g.blocks_downloaded,
                 g.blocks_spilled,

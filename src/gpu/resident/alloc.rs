@@ -16,6 +16,13 @@
 //! The host keeps the table at most half full with every listed block inserted
 //! ([`BlockTable::has_room_for`]) before it records an allocation, and the stack as long as the
 //! frame needs; a block the kernel leaves without a slot is counted, not guessed.
+//!
+//! A depth frame's new blocks are allocated here (`src/fusion/depth_gpu.rs`,
+//! [`super::ResidentMap::make_resident_for_frame`]): the stack is the free slots the host
+//! reserved for them, written empty in the same submit, and the insertions (index, entry, slot;
+//! [`insertions`]) come back with the frame's flags and are applied when it is collected
+//! (`late.rs`), the slots the device did not take (blocks a frame in flight had inserted)
+//! given back.
 
 use super::table::{BlockTable, SLOT_TOMBSTONE};
 use crate::gpu::kept::Kept;
@@ -47,16 +54,14 @@ pub struct DeviceAllocation {
 impl DeviceAllocation {
     /// From the kernel's per-block slots and its `created` words.
     pub fn from_words(slots: &[u32], created: &[u32]) -> Self {
-        let count = created[0] as usize;
+        let (left_without, inserted) = insertions(created);
         DeviceAllocation {
             slots: slots
                 .iter()
                 .map(|&s| (s < SLOT_TOMBSTONE).then_some(s))
                 .collect(),
-            created: (0..count)
-                .map(|i| (created[2 + 2 * i], created[3 + 2 * i]))
-                .collect(),
-            left_without: created[1],
+            created: inserted.iter().map(|&[i, pos, _]| (i, pos)).collect(),
+            left_without,
         }
     }
 
@@ -128,14 +133,25 @@ pub(crate) struct AllocBuffers<'a> {
     pub slots: &'a wgpu::Buffer,
     /// The free-slot stack ([`free_stack_words`]).
     pub free: &'a wgpu::Buffer,
-    /// Two counters (cleared by [`record_insert`]), then two words per inserted block: room
-    /// for every listed block ([`created_bytes`]).
+    /// Two counters (cleared by [`record_insert`]), then three words per inserted block (its
+    /// index in the list, its entry, its slot): room for as many blocks as the stack holds
+    /// ([`created_bytes`]).
     pub created: &'a wgpu::Buffer,
 }
 
-/// Bytes of the `created` buffer of `blocks` listed blocks.
+/// Bytes of the `created` buffer for at most `blocks` insertions.
 pub(crate) fn created_bytes(blocks: u64) -> u64 {
-    8 + 8 * blocks
+    8 + 12 * blocks
+}
+
+/// The insertions of a `created` buffer's words ([`AllocBuffers::created`]): the blocks left
+/// without a slot, and per inserted block its index in the list, its entry and its slot.
+pub(crate) fn insertions(created: &[u32]) -> (u32, Vec<[u32; 3]>) {
+    let count = created[0] as usize;
+    let triples = (0..count)
+        .map(|i| [created[2 + 3 * i], created[3 + 3 * i], created[4 + 3 * i]])
+        .collect();
+    (created[1], triples)
 }
 
 /// Records the insertion of `blocks` listed blocks, after `frame_keys.wgsl` (the caller's);
@@ -200,7 +216,7 @@ pub fn allocate_on_gpu(
     ctx.submit(encoder);
     scope.pop("allocating blocks on the GPU")?;
     let slots: Vec<u32> = ctx.read_back_as(&buf_slots, n as usize)?;
-    let created: Vec<u32> = ctx.read_back_as(&buf_created, 2 + 2 * n as usize)?;
+    let created: Vec<u32> = ctx.read_back_as(&buf_created, 2 + 3 * n as usize)?;
     let entries: Vec<[u32; 4]> = ctx.read_back_as(&buf_table, table.capacity())?;
     let top: Vec<u32> = ctx.read_back_as(&buf_free, 1)?;
     Ok((

@@ -13,12 +13,20 @@
 //! fusion kernel and cleared when a slot is given to a new block). So a frame's result does
 //! not depend on when its predecessors were collected.
 //!
-//! **Collecting** processes frames in order ([`ResidentMap::collect_frames`]): updated blocks
+//! Nor has the host's table learnt the blocks a depth frame in flight inserted on the device
+//! (`alloc.rs`): a later frame that lists one of them again reserves a slot for it, which the
+//! device does not take (its lookup finds the block), and the host inserts nothing itself while
+//! such insertions are in flight.
+//!
+//! **Collecting** processes frames in order ([`ResidentMap::collect_frames`]): a frame's
+//! insertions on the device are applied to the host's table and pool first; updated blocks
 //! become dirty and the layer learns those it lacks; a block no frame updated is released once
 //! no frame in flight lists it (collected as a depth frame begins, it stays, empty, until that
-//! frame is listed, which uses it again where its band holds it, rather than making it anew). Everything that reads or pages the map (syncs, flushes, spills,
-//! the TV solve) collects every frame first, waiting where it must (counted).
+//! frame is listed, which uses it again where its band holds it, rather than making it anew).
+//! Everything that reads or pages the map (syncs, flushes, spills, the TV solve) collects every
+//! frame first, waiting where it must (counted).
 
+use super::alloc::{created_bytes, insertions};
 use super::ResidentMap;
 use crate::gpu::readback::{LateReadback, RING_LEN};
 use crate::grid::{BlockIndex, Layer, TouchedBlocks};
@@ -33,6 +41,9 @@ pub(super) struct FrameInFlight {
     /// Per listed block: whether the layer lacked it when the frame was submitted (it then
     /// counts in [`InFlight::unsettled`] until the frame is collected).
     lacked: Vec<bool>,
+    /// The free slots reserved for the blocks the device inserts (`alloc.rs`), the top last;
+    /// its insertions come back after the flags.
+    reserved: Vec<u32>,
     readback: LateReadback,
 }
 
@@ -42,6 +53,8 @@ pub(super) struct InFlight {
     frames: VecDeque<FrameInFlight>,
     /// Blocks the layer lacked when a frame in flight listed them, with how many such frames.
     unsettled: HashMap<BlockIndex, u32>,
+    /// Slots reserved for insertions on the device by frames in flight.
+    reserved: usize,
     /// Whether frames may stay in flight after their call returns.
     pub(super) enabled: bool,
     /// Whether a frame or scan first collects the frames whose results have arrived (else
@@ -94,13 +107,21 @@ impl ResidentMap {
         v
     }
 
-    /// Records a submitted frame of `blocks` whose flags and counters come back in `readback`.
+    /// Slots reserved for insertions on the device by frames in flight: while there are any,
+    /// the device's table holds entries the host's lacks.
+    pub(crate) fn reserved_slots(&self) -> usize {
+        self.late.reserved
+    }
+
+    /// Records a submitted frame of `blocks` whose flags and counters come back in `readback`,
+    /// then (with `reserved`, the free-slot stack its insertions took from) the insertions.
     pub(crate) fn frame_submitted(
         &mut self,
         layer: &Layer,
-        blocks: Vec<BlockIndex>,
+        (blocks, reserved): (Vec<BlockIndex>, Vec<u32>),
         readback: LateReadback,
     ) {
+        self.late.reserved += reserved.len();
         let lacked: Vec<bool> = blocks.iter().map(|b| !layer.contains(b)).collect();
         for (b, _) in blocks.iter().zip(&lacked).filter(|(_, l)| **l) {
             *self.late.unsettled.entry(*b).or_default() += 1;
@@ -109,6 +130,7 @@ impl ResidentMap {
             frame: self.frame,
             blocks,
             lacked,
+            reserved,
             readback,
         });
     }
@@ -227,13 +249,18 @@ impl ResidentMap {
         let n = f.blocks.len();
         let mut counts = [0u32; 2];
         let mut flags: Vec<u32> = bytemuck::zeroed_vec(n);
-        f.readback.collect(
-            &self.ctx,
-            &mut [
-                bytemuck::cast_slice_mut(&mut counts),
-                bytemuck::cast_slice_mut(&mut flags),
-            ],
-        )?;
+        let mut created: Vec<u32> = match f.reserved.len() {
+            0 => Vec::new(),
+            k => bytemuck::zeroed_vec(created_bytes(k as u64) as usize / 4),
+        };
+        let mut results = vec![
+            bytemuck::cast_slice_mut(&mut counts),
+            bytemuck::cast_slice_mut(&mut flags),
+        ];
+        if !created.is_empty() {
+            results.push(bytemuck::cast_slice_mut(&mut created));
+        }
+        f.readback.collect(&self.ctx, &mut results)?;
         if counts[1] != 0 {
             return Err(Error::Gpu(format!(
                 "the GPU could not resolve {} of {n} resident blocks (or make a LiDAR scan's walks \
@@ -241,10 +268,18 @@ impl ResidentMap {
                 counts[1]
             )));
         }
+        if !created.is_empty() {
+            self.learn_insertions((&f.blocks, &f.reserved, f.frame), &created)?;
+        }
         let start = self.late.touched.len();
         for ((b, &up), &lacked) in f.blocks.iter().zip(&flags).zip(&f.lacked) {
             let later = lacked && self.unlist(*b);
-            let slot = self.table.host.lookup(*b).expect("resident");
+            let Some(slot) = self.table.host.lookup(*b) else {
+                // Listed only because a frame in flight may have made it; none did, and it was
+                // released before this frame ran (`fuse_depth_resident.wgsl` skipped it).
+                debug_assert!(lacked && up == 0, "a listed block is not resident");
+                continue;
+            };
             let in_layer = layer.contains(b);
             if up != 0 {
                 self.pool.mark_dirty(slot);
@@ -270,6 +305,36 @@ impl ResidentMap {
         self.late.voxel_updates += counts[0] as usize;
         self.stats.peak_resident_blocks =
             self.stats.peak_resident_blocks.max(self.table.host.len());
+        Ok(())
+    }
+
+    /// Applies a frame's insertions on the device (its `created` words, `alloc.rs`: indices into
+    /// its `blocks`) to the host's table and pool, and gives back the slots `reserved` for them
+    /// that the device did not take (the stack's bottom).
+    fn learn_insertions(
+        &mut self,
+        (blocks, reserved, frame): (&[BlockIndex], &[u32], u64),
+        created: &[u32],
+    ) -> Result<()> {
+        let (left_without, inserted) = insertions(created);
+        let k = reserved.len();
+        if left_without != 0 || inserted.len() > k {
+            return Err(Error::Gpu(format!(
+                "the GPU left {left_without} new blocks without a slot ({} inserted, {k} slots \
+                 reserved)",
+                inserted.len()
+            )));
+        }
+        for &[i, pos, slot] in &inserted {
+            let key = blocks[i as usize];
+            debug_assert!(reserved[k - inserted.len()..].contains(&slot));
+            self.table.host.insert_at(pos, key, slot);
+            self.pool.occupy_reserved(slot, key, frame);
+        }
+        self.pool.unreserve(&reserved[..k - inserted.len()]);
+        self.late.reserved -= k;
+        self.stats.blocks_created += inserted.len() as u64;
+        self.stats.blocks_inserted_on_gpu += inserted.len() as u64;
         Ok(())
     }
 

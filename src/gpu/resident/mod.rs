@@ -5,8 +5,11 @@
 //!   resolve keys through its device copy.
 //! - [`pool`]: the slots on the device and the copies between RAM and the pool.
 //! - [`alloc`]: blocks allocated on the device (slots from a free-slot stack there, entries
-//!   claimed by compare-and-swap), which the host learns afterwards and applies to its copies.
-//!   Its kernel and twin are tested; the frame path does not use it yet.
+//!   claimed by compare-and-swap), which the host learns afterwards and applies to its copies:
+//!   a depth frame's new blocks ([`ResidentMap::make_resident_for_frame`]; the host reserves
+//!   their slots and learns which block took which slot and entry when the frame is collected).
+//!   While such insertions are in flight the device's table holds entries the host's lacks, so
+//!   the host inserts nothing itself (it collects first).
 //! - [`policy`]: growing, and which blocks spill when the pool is full (the same eviction order
 //!   as the RAM pager's, [`crate::grid::eviction_order`]).
 //! - `late`: depth frames and LiDAR scans in flight, whose flags a later frame collects
@@ -57,6 +60,9 @@ use std::collections::HashSet;
 use std::sync::Arc;
 use table::DeviceTable;
 
+/// A hash table's entries: per entry the key (x, y, z as `u32`) and the slot.
+pub type TableEntries = Vec<[u32; 4]>;
+
 /// Size limits of a [`ResidentMap`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ResidentOptions {
@@ -90,8 +96,14 @@ pub struct ResidentStats {
     pub frames: u64,
     /// Blocks uploaded from RAM.
     pub blocks_uploaded: u64,
-    /// Blocks new to the map, written empty into their slots on the GPU (nothing uploaded).
+    /// Blocks new to the map, written empty into their slots on the GPU (nothing uploaded);
+    /// those a depth frame inserted on the device are counted when it is collected.
     pub blocks_created: u64,
+    /// Of `blocks_created`: those depth frames inserted on the device (`alloc.rs`).
+    pub blocks_inserted_on_gpu: u64,
+    /// Free slots reserved for the new blocks depth frames insert on the device (`alloc.rs`);
+    /// those a frame in flight had inserted already take none, and are given back.
+    pub slots_reserved: u64,
     /// Blocks a depth frame listed and left empty that the next frame listed again, kept in
     /// their slots for it rather than released and created again.
     pub empty_blocks_kept: u64,
@@ -261,6 +273,15 @@ impl ResidentMap {
         table::run_lookup(&self.ctx, self.table.buffer(), self.table.host.mask(), keys)
     }
 
+    /// The host's table and the device's, read back (counted) once the host's changes went
+    /// up: equal entry for entry when no frame in flight inserted blocks on the device.
+    pub fn table_entries_on_host_and_gpu(&mut self) -> Result<(TableEntries, TableEntries)> {
+        self.stats.table_writes += self.table.upload(&self.ctx, None)? as u64;
+        let on_host = self.table.host.entries().to_vec();
+        let on_gpu = self.ctx.read_back_as(self.table.buffer(), on_host.len())?;
+        Ok((on_host, on_gpu))
+    }
+
     /// What a frame's kernels need at once.
     pub(crate) fn frame_parts(&mut self) -> FrameParts<'_> {
         FrameParts {
@@ -331,28 +352,96 @@ impl ResidentMap {
         camera_m: [f64; 3],
         encoder: Option<&mut wgpu::CommandEncoder>,
     ) -> Result<()> {
+        let reserved = self.make_resident_inner(layer, (blocks, None), camera_m, encoder)?;
+        debug_assert!(reserved.is_empty());
+        Ok(())
+    }
+
+    /// [`ResidentMap::make_resident`] for a depth frame whose kernels allocate its new blocks
+    /// on the device (`alloc.rs`, recorded after the frame's lookup): the blocks before
+    /// `first_unsettled` that neither the host's table nor the layer holds are not inserted
+    /// here; as many free slots are reserved for them, written empty into `encoder`, and
+    /// returned as the device's free-slot stack (the top last). The host learns which block
+    /// took which slot and entry when the frame is collected (`late.rs`). Blocks from
+    /// `first_unsettled` on that the host's table lacks were inserted on the device by a frame
+    /// in flight.
+    pub(crate) fn make_resident_for_frame(
+        &mut self,
+        layer: &mut Layer,
+        (blocks, first_unsettled): (&[BlockIndex], usize),
+        camera_m: [f64; 3],
+        encoder: &mut wgpu::CommandEncoder,
+    ) -> Result<Vec<u32>> {
+        let listed = (blocks, Some(first_unsettled));
+        self.make_resident_inner(layer, listed, camera_m, Some(encoder))
+    }
+
+    fn make_resident_inner(
+        &mut self,
+        layer: &mut Layer,
+        (blocks, device_inserts): (&[BlockIndex], Option<usize>),
+        camera_m: [f64; 3],
+        encoder: Option<&mut wgpu::CommandEncoder>,
+    ) -> Result<Vec<u32>> {
         let t = std::time::Instant::now();
-        let missing: Vec<BlockIndex> = blocks
-            .iter()
-            .copied()
-            .filter(|b| self.table.host.lookup(*b).is_none())
-            .collect();
-        if self.pool.free_count() < missing.len() && self.frames_in_flight() > 0 {
-            // Growing or spilling needs the host to know every block: collect the frames in
-            // flight, then look again (a block they listed and no frame updated is released
-            // and comes back empty, which is what it held).
-            self.collect_frames(layer, true)?;
-            return self.make_resident(layer, blocks, camera_m, encoder);
+        // Uploaded (the host inserts them), and new ones the device inserts.
+        let (mut missing, mut fresh) = (Vec::new(), 0usize);
+        for (i, b) in blocks.iter().enumerate() {
+            if self.table.host.lookup(*b).is_some() {
+                continue;
+            }
+            match device_inserts {
+                Some(first_unsettled) if !layer.contains(b) => {
+                    fresh += (i < first_unsettled) as usize
+                }
+                _ => missing.push(*b),
+            }
         }
-        if self.pool.free_count() < missing.len() {
+        let need = missing.len() + fresh;
+        let pending = self.reserved_slots();
+        let collect = (pending > 0 && !missing.is_empty())
+            || self.pool.free_count() < need
+            || !self.table.host.has_room_for(pending + need);
+        if collect && self.frames_in_flight() > 0 {
+            // The host inserts only into a table it knows whole (the device's insertions
+            // collected), and growing or spilling needs the host to know every block: collect
+            // the frames in flight, then look again (a block they listed and no frame updated
+            // is released and comes back empty, which is what it held).
+            tracing::debug!(
+                "collecting {} frames in flight: {} blocks from RAM ({pending} slots reserved), \
+                 {need} slots needed ({} free), table {}/{} entries",
+                self.frames_in_flight(),
+                missing.len(),
+                self.pool.free_count(),
+                self.table.host.len(),
+                self.table.host.capacity()
+            );
+            self.collect_frames(layer, true)?;
+            return self.make_resident_inner(layer, (blocks, device_inserts), camera_m, encoder);
+        }
+        if self.pool.free_count() < need {
             let in_frame: HashSet<BlockIndex> = blocks.iter().copied().collect();
-            self.make_room(layer, missing.len(), &in_frame, camera_m)?;
+            self.make_room(layer, need, &in_frame, camera_m)?;
+        }
+        if !self.table.host.has_room_for(need) {
+            let entries = self
+                .table
+                .host
+                .capacity()
+                .max(4 * (self.table.host.len() + need));
+            self.table.host.rebuild(entries);
         }
         let mut encoder = encoder;
         self.upload_blocks(layer, &missing, encoder.as_deref_mut())?;
+        let reserved = self.pool.reserve(fresh);
+        self.stats.slots_reserved += reserved.len() as u64;
+        if !reserved.is_empty() {
+            self.pool
+                .fill(&self.ctx, &reserved, empty_voxel(), encoder.as_deref_mut())?;
+        }
         self.stats.table_writes += self.table.upload(&self.ctx, encoder)? as u64;
         self.stats.residency_s += t.elapsed().as_secs_f64();
-        Ok(())
+        Ok(reserved)
     }
 
     /// Frees `need` slots: grows the pool, then spills blocks outside `in_frame` to RAM.
@@ -422,11 +511,7 @@ impl ResidentMap {
             self.table.host.insert(*b, slot);
         }
         self.pool.write_slots(&self.ctx, &slots, &data);
-        // Every voxel of an empty block packs alike.
-        let mut empty = Vec::with_capacity(VOXELS_PER_BLOCK);
-        pack_block_into(&Block::default(), &mut empty);
-        debug_assert!(empty.iter().all(|v| *v == empty[0]));
-        self.pool.fill(&self.ctx, &fresh, empty[0], encoder)?;
+        self.pool.fill(&self.ctx, &fresh, empty_voxel(), encoder)?;
         self.stats.blocks_uploaded += slots.len() as u64;
         self.stats.blocks_created += fresh.len() as u64;
         Ok(())
@@ -493,4 +578,12 @@ impl ResidentMap {
         let slots: Vec<u32> = self.pool.occupied().map(|(s, _, _)| s).collect();
         self.write_back(layer, &slots, true)
     }
+}
+
+/// The voxel every voxel of an empty block packs to.
+fn empty_voxel() -> GpuVoxel {
+    let mut empty = Vec::with_capacity(VOXELS_PER_BLOCK);
+    pack_block_into(&Block::default(), &mut empty);
+    debug_assert!(empty.iter().all(|v| *v == empty[0]));
+    empty[0]
 }

@@ -139,6 +139,26 @@ impl BlockPool {
         Some(slot)
     }
 
+    /// Takes the top `count` free slots (at most the free ones) for the device to give to
+    /// blocks it inserts (`alloc.rs`), in the list's order, the top last: the device's stack.
+    pub(crate) fn reserve(&mut self, count: usize) -> Vec<u32> {
+        let keep = self.free.len().saturating_sub(count);
+        self.free.split_off(keep)
+    }
+
+    /// Gives reserved `slot` to `key` (clean, used in `frame`): the device inserted it there.
+    pub(crate) fn occupy_reserved(&mut self, slot: u32, key: BlockIndex, frame: u64) {
+        debug_assert!(self.slot_key[slot as usize].is_none());
+        self.slot_key[slot as usize] = Some(key);
+        self.dirty[slot as usize] = false;
+        self.last_used[slot as usize] = frame;
+    }
+
+    /// Gives back reserved slots the device did not take, in their order (the top last).
+    pub(crate) fn unreserve(&mut self, slots: &[u32]) {
+        self.free.extend_from_slice(slots);
+    }
+
     /// Gives `slot` back; returns the block it held.
     pub(crate) fn release(&mut self, slot: u32) -> Option<BlockIndex> {
         let key = self.slot_key[slot as usize].take()?;
