@@ -364,7 +364,7 @@ impl ResidentMap {
     /// returned as the device's free-slot stack (the top last). The host learns which block
     /// took which slot and entry when the frame is collected (`late.rs`). Blocks from
     /// `first_unsettled` on that the host's table lacks were inserted on the device by a frame
-    /// in flight.
+    /// in flight, or released since, made by no frame (the fusion kernel skips them).
     pub(crate) fn make_resident_for_frame(
         &mut self,
         layer: &mut Layer,
