@@ -23,7 +23,9 @@ use super::depth_keys::FrameKeys;
 use super::FusionStats;
 use crate::frame::DepthFrame;
 use crate::gpu::layout::{apply_updated, pack_block_into, FuseUniforms, GpuVoxel};
-use crate::gpu::resident::alloc::{created_bytes, free_stack_words, record_insert, AllocBuffers};
+use crate::gpu::resident::alloc::{
+    created_bytes, free_stack_words, record_insert, record_lookup_once, AllocBuffers,
+};
 use crate::gpu::resident::{BlockTable, FrameParts, ResidentMap, SLOT_TOMBSTONE};
 use crate::gpu::{shaders, thread_cpu_s, ErrorScopes, GpuContext};
 use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
@@ -426,24 +428,12 @@ pub fn frame_keys_on_gpu(
     if n == 0 {
         return Ok((Vec::new(), Vec::new()));
     }
-    let kernel = ctx.kernel(&shaders::FRAME_KEYS)?;
     let scope = ErrorScopes::push(&ctx.device);
-    let buf_uniforms = ctx.uniform("frame_key_uniforms", bytemuck::bytes_of(&uniforms));
-    let buf_table = ctx.storage("block_table", bytemuck::cast_slice(table.entries()));
-    let buf_keys = ctx.storage("frame_keys", bytemuck::cast_slice(keys.words()));
-    let buf_slots = ctx.storage_zeroed("lookup_slots", n as u64 * 4);
-    let buf_bases = ctx.storage_zeroed("fuse_block_base", n as u64 * 16);
-    let bind = ctx.bind_group(
-        "frame_keys",
-        &kernel.layout,
-        &[&buf_uniforms, &buf_table, &buf_keys, &buf_slots, &buf_bases],
-    );
-    let mut encoder = ctx.encoder("frame_keys");
-    ctx.record_dispatch(&mut encoder, &kernel, &bind, n as u64)?;
+    let (lookup, encoder) = record_lookup_once(ctx, uniforms, table, keys.words())?;
     ctx.submit(encoder);
     scope.pop("resolving a frame's keys on the GPU")?;
-    let slots: Vec<u32> = ctx.read_back_as(&buf_slots, n)?;
-    let bases: Vec<[f32; 4]> = ctx.read_back_as(&buf_bases, n)?;
+    let slots: Vec<u32> = ctx.read_back_as(&lookup.slots, n)?;
+    let bases: Vec<[f32; 4]> = ctx.read_back_as(&lookup.bases, n)?;
     let slots = (slots.into_iter())
         .map(|s| (s < SLOT_TOMBSTONE).then_some(s))
         .collect();

@@ -177,6 +177,46 @@ pub(crate) fn record_insert(
 /// count afterwards (a count past the stack's length means blocks found it empty).
 pub type AllocatedOnGpu = (DeviceAllocation, Vec<[u32; 4]>, u32);
 
+/// The buffers of a lookup run once over copies uploaded whole ([`record_lookup_once`]).
+pub(crate) struct LookupOnce {
+    pub uniforms: wgpu::Buffer,
+    pub table: wgpu::Buffer,
+    pub keys: wgpu::Buffer,
+    /// Per listed block: its slot, `SLOT_EMPTY` where absent.
+    pub slots: wgpu::Buffer,
+    /// Per listed block: its base (xyz; w = 1 from the first unsettled block on).
+    pub bases: wgpu::Buffer,
+}
+
+/// Uploads `uniforms`, `table` whole and the listed blocks' `key_words`, and records
+/// `frame_keys.wgsl` over them into a new encoder: the start of the kernels' tests against
+/// their twins ([`allocate_on_gpu`], [`crate::fusion::frame_keys_on_gpu`]). Call it inside an
+/// error scope.
+pub(crate) fn record_lookup_once(
+    ctx: &GpuContext,
+    uniforms: FrameKeyUniforms,
+    table: &BlockTable,
+    key_words: &[u32],
+) -> Result<(LookupOnce, wgpu::CommandEncoder)> {
+    let n = uniforms.block_count as u64;
+    let kernel = ctx.kernel(&shaders::FRAME_KEYS)?;
+    let b = LookupOnce {
+        uniforms: ctx.uniform("frame_key_uniforms", bytemuck::bytes_of(&uniforms)),
+        table: ctx.storage("block_table", bytemuck::cast_slice(table.entries())),
+        keys: ctx.storage("frame_keys", bytemuck::cast_slice(key_words)),
+        slots: ctx.storage_zeroed("lookup_slots", n.max(1) * 4),
+        bases: ctx.storage_zeroed("fuse_block_base", n.max(1) * 16),
+    };
+    let bind = ctx.bind_group(
+        "frame_keys",
+        &kernel.layout,
+        &[&b.uniforms, &b.table, &b.keys, &b.slots, &b.bases],
+    );
+    let mut encoder = ctx.encoder("frame_keys");
+    ctx.record_dispatch(&mut encoder, &kernel, &bind, n)?;
+    Ok((b, encoder))
+}
+
 /// Looks the listed blocks up (`frame_keys.wgsl`) and allocates the absent ones
 /// (`table_insert.wgsl`) on the device, in one submit, against copies of `table` and of the
 /// free list `free` uploaded whole. For tests of the kernels against [`allocate_on_cpu`].
@@ -188,36 +228,24 @@ pub fn allocate_on_gpu(
     key_words: &[u32],
 ) -> Result<AllocatedOnGpu> {
     let n = uniforms.block_count as u64;
-    let find = ctx.kernel(&shaders::FRAME_KEYS)?;
     let scope = ErrorScopes::push(&ctx.device);
-    let buf_uniforms = ctx.uniform("frame_key_uniforms", bytemuck::bytes_of(&uniforms));
-    let buf_table = ctx.storage("block_table", bytemuck::cast_slice(table.entries()));
-    let buf_keys = ctx.storage("frame_keys", bytemuck::cast_slice(key_words));
-    let buf_slots = ctx.storage_zeroed("lookup_slots", n.max(1) * 4);
-    let buf_bases = ctx.storage_zeroed("fuse_block_base", n.max(1) * 16);
+    let (lookup, mut encoder) = record_lookup_once(ctx, uniforms, table, key_words)?;
     let buf_free = ctx.storage("free_slots", bytemuck::cast_slice(&free_stack_words(free)));
     let buf_created = ctx.storage_zeroed("created_blocks", created_bytes(n));
-    let bind = ctx.bind_group(
-        "frame_keys",
-        &find.layout,
-        &[&buf_uniforms, &buf_table, &buf_keys, &buf_slots, &buf_bases],
-    );
-    let mut encoder = ctx.encoder("allocate_on_gpu");
-    ctx.record_dispatch(&mut encoder, &find, &bind, n)?;
     let buffers = AllocBuffers {
-        uniforms: &buf_uniforms,
-        table: &buf_table,
-        keys: &buf_keys,
-        slots: &buf_slots,
+        uniforms: &lookup.uniforms,
+        table: &lookup.table,
+        keys: &lookup.keys,
+        slots: &lookup.slots,
         free: &buf_free,
         created: &buf_created,
     };
     record_insert(ctx, (&mut encoder, &mut Kept::default()), &buffers, n)?;
     ctx.submit(encoder);
     scope.pop("allocating blocks on the GPU")?;
-    let slots: Vec<u32> = ctx.read_back_as(&buf_slots, n as usize)?;
+    let slots: Vec<u32> = ctx.read_back_as(&lookup.slots, n as usize)?;
     let created: Vec<u32> = ctx.read_back_as(&buf_created, 2 + 3 * n as usize)?;
-    let entries: Vec<[u32; 4]> = ctx.read_back_as(&buf_table, table.capacity())?;
+    let entries: Vec<[u32; 4]> = ctx.read_back_as(&lookup.table, table.capacity())?;
     let top: Vec<u32> = ctx.read_back_as(&buf_free, 1)?;
     Ok((
         DeviceAllocation::from_words(&slots, &created),

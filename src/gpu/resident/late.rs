@@ -316,15 +316,14 @@ impl ResidentMap {
         (blocks, reserved, frame): (&[BlockIndex], &[u32], u64),
         created: &[u32],
     ) -> Result<()> {
-        let (left_without, inserted) = insertions(created);
-        let k = reserved.len();
-        if left_without != 0 || inserted.len() > k {
+        let (k, count, left_without) = (reserved.len(), created[0] as usize, created[1]);
+        if left_without != 0 || count > k {
             return Err(Error::Gpu(format!(
-                "the GPU left {left_without} new blocks without a slot ({} inserted, {k} slots \
-                 reserved)",
-                inserted.len()
+                "the GPU left {left_without} new blocks without a slot ({count} inserted, {k} \
+                 slots reserved)"
             )));
         }
+        let (_, inserted) = insertions(created);
         for &[i, pos, slot] in &inserted {
             let key = blocks[i as usize];
             debug_assert!(reserved[k - inserted.len()..].contains(&slot));
