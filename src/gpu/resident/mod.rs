@@ -199,7 +199,7 @@ impl ResidentMap {
         let capacity = options.initial_blocks.clamp(1, max_blocks);
         let scope = crate::gpu::ErrorScopes::push(&ctx.device);
         let pool = BlockPool::new(&ctx, capacity)?;
-        let table = DeviceTable::new(&ctx, max_blocks.min(capacity.saturating_mul(2)));
+        let table = DeviceTable::new(&ctx, table_entries(capacity));
         scope.pop("allocating the GPU block pool")?;
         Ok(ResidentMap {
             ctx,
@@ -455,7 +455,7 @@ impl ResidentMap {
         if let Some(capacity) = policy::grown_capacity(&self.pool, need, self.max_blocks) {
             let old = self.pool.capacity();
             self.pool.grow(&self.ctx, capacity)?;
-            self.table.host.rebuild(2 * capacity as usize);
+            self.table.host.rebuild(table_entries(capacity));
             self.stats.grows += 1;
             self.stats.capacity_blocks = capacity;
             tracing::info!(
@@ -578,6 +578,13 @@ impl ResidentMap {
         let slots: Vec<u32> = self.pool.occupied().map(|(s, _, _)| s).collect();
         self.write_back(layer, &slots, true)
     }
+}
+
+/// Entries of the hash table of a pool of `capacity` slots: four per slot, so that a full pool
+/// leaves the table a quarter full, with room for the tombstones of released blocks and for
+/// the insertions of frames in flight before the host must collect them to rebuild it.
+fn table_entries(capacity: u32) -> usize {
+    4 * capacity as usize
 }
 
 /// The voxel every voxel of an empty block packs to.

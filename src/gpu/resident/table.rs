@@ -234,9 +234,10 @@ pub(crate) struct DeviceTable {
 const SCATTER_RUNS: usize = 16;
 
 impl DeviceTable {
-    /// An empty table for `blocks` keys, uploaded whole; later uploads send only changes.
-    pub(crate) fn new(ctx: &GpuContext, blocks: u32) -> Self {
-        let mut host = BlockTable::for_blocks(blocks);
+    /// An empty table of at least `entries` entries, uploaded whole; later uploads send only
+    /// changes.
+    pub(crate) fn new(ctx: &GpuContext, entries: usize) -> Self {
+        let mut host = BlockTable::for_blocks((entries / 2) as u32);
         let buffer = ctx.storage("block_table", bytemuck::cast_slice(host.entries()));
         host.changed = Some(Vec::new());
         DeviceTable {
