@@ -424,11 +424,8 @@ impl ResidentMap {
             self.make_room(layer, need, &in_frame, camera_m)?;
         }
         if !self.table.host.has_room_for(need) {
-            let entries = self
-                .table
-                .host
-                .capacity()
-                .max(4 * (self.table.host.len() + need));
+            // Tombstones fill it: rebuilt at the pool's size (the slots hold every block).
+            let entries = table_entries(self.pool.capacity()).max(self.table.host.capacity());
             self.table.host.rebuild(entries);
         }
         let mut encoder = encoder;
