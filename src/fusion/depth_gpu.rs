@@ -26,7 +26,7 @@ use crate::gpu::layout::{apply_updated, pack_block_into, FuseUniforms, GpuVoxel}
 use crate::gpu::resident::alloc::{
     created_bytes, free_stack_words, record_insert, record_lookup_once, AllocBuffers,
 };
-use crate::gpu::resident::{BlockTable, FrameParts, ResidentMap, SLOT_TOMBSTONE};
+use crate::gpu::resident::{BlockTable, FrameParts, FramePlacement, ResidentMap, SLOT_TOMBSTONE};
 use crate::gpu::{shaders, thread_cpu_s, ErrorScopes, GpuContext};
 use crate::grid::{Block, BlockIndex, GridParams, Layer, TouchedBlocks, VOXELS_PER_BLOCK};
 use crate::{Error, Result};
@@ -243,13 +243,13 @@ fn fuse_resident(
             .take()
             .unwrap_or_else(|| map.context().encoder("fuse_depth_resident"));
         let frame_blocks = (&listed[..], first_unsettled);
-        let reserved =
+        let placed =
             map.make_resident_for_frame(layer, frame_blocks, plan.camera_m, &mut encoder)?;
         let t = std::time::Instant::now();
         let frame_parts = FrameBlocks {
             blocks: listed,
             first_unsettled,
-            reserved,
+            placed,
             encoder,
         };
         let inputs_s = run_resident(map, layer, frame_parts, (frame, depth), params, plan)?;
@@ -273,9 +273,9 @@ struct FrameBlocks {
     /// bases, and the kernel fuses them only if a frame did.
     blocks: Vec<BlockIndex>,
     first_unsettled: usize,
-    /// The free slots the device gives the frame's new blocks
-    /// ([`ResidentMap::make_resident_for_frame`]), the top last.
-    reserved: Vec<u32>,
+    /// The blocks' slots where the host's table has them, and the free slots the device gives
+    /// the frame's new blocks, the top last ([`ResidentMap::make_resident_for_frame`]).
+    placed: FramePlacement,
     /// Holds the writes of the frame's new blocks' slots and the table's changed entries.
     encoder: wgpu::CommandEncoder,
 }
@@ -305,9 +305,10 @@ fn run_resident(
     let FrameBlocks {
         blocks,
         first_unsettled,
-        reserved,
+        placed,
         mut encoder,
     } = frame_blocks;
+    let reserved = &placed.reserved;
     let t = std::time::Instant::now();
     let FrameParts {
         ctx,
@@ -388,7 +389,7 @@ fn run_resident(
         let buf_free = kept.storage_with(
             ctx,
             "free_slots",
-            bytemuck::cast_slice(&free_stack_words(&reserved)),
+            bytemuck::cast_slice(&free_stack_words(reserved)),
         );
         buf_created = kept.scratch(ctx, "created_blocks", created_bytes(k));
         let buffers = AllocBuffers {
@@ -406,7 +407,7 @@ fn run_resident(
     let inputs_s = t.elapsed().as_secs_f64();
     let readback = ring.submit(ctx, encoder, &results);
     scope.pop("running the resident fusion kernel")?;
-    map.frame_submitted(layer, (blocks, reserved), readback);
+    map.frame_submitted(layer, (blocks, placed), readback);
     Ok(inputs_s)
 }
 

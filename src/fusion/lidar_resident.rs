@@ -257,7 +257,8 @@ fn run_resident(
     scope.pop("running the resident LiDAR fusion kernel")?;
     // The flags come in dispatch order.
     let blocks = order.iter().map(|&b| groups[b].0).collect();
-    map.frame_submitted(layer, (blocks, Vec::new()), readback);
+    // Every block is in the host's table (make_resident): looked up as it is recorded.
+    map.frame_submitted(layer, (blocks, Default::default()), readback);
     map.set_lidar_rays_of(next.as_ref().map(|n| n.rays_of()));
     let next = next.map(|n| PendingLidarPlan::Listing(Box::new(n)));
     Ok((inputs_s, next))

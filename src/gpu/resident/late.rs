@@ -27,17 +27,24 @@
 //! frame first, waiting where it must (counted).
 
 use super::alloc::{created_bytes, insertions};
-use super::ResidentMap;
+use super::table::PROBES_AHEAD;
+use super::{FramePlacement, ResidentMap, SLOT_EMPTY};
 use crate::gpu::readback::{LateReadback, RING_LEN};
-use crate::grid::{BlockIndex, Layer, TouchedBlocks};
+use crate::grid::{BlockHasher, BlockIndex, Layer, TouchedBlocks};
 use crate::{Error, Result};
 use std::collections::{HashMap, HashSet, VecDeque};
+use std::hash::BuildHasherDefault;
 
 /// A frame whose results are on their way back.
 #[derive(Debug)]
 pub(super) struct FrameInFlight {
     frame: u64,
     blocks: Vec<BlockIndex>,
+    /// Per listed block: its slot when the frame was submitted, or `SLOT_EMPTY` where the
+    /// host's table lacked it (until the collect learns the frame's insertions). A block a
+    /// frame in flight lists keeps its slot until the frame is collected: blocks leave the pool
+    /// only once every frame listing them is collected.
+    slots: Vec<u32>,
     /// Per listed block: whether the layer lacked it when the frame was submitted (it then
     /// counts in [`InFlight::unsettled`] until the frame is collected).
     lacked: Vec<bool>,
@@ -52,7 +59,7 @@ pub(super) struct FrameInFlight {
 pub(super) struct InFlight {
     frames: VecDeque<FrameInFlight>,
     /// Blocks the layer lacked when a frame in flight listed them, with how many such frames.
-    unsettled: HashMap<BlockIndex, u32>,
+    unsettled: HashMap<BlockIndex, u32, BuildHasherDefault<BlockHasher>>,
     /// Slots reserved for insertions on the device by frames in flight.
     reserved: usize,
     /// Whether frames may stay in flight after their call returns.
@@ -68,7 +75,8 @@ pub(super) struct InFlight {
     keep_empty: bool,
     /// Blocks the layer lacks that frames listed and did not update, with their slots, kept
     /// (empty, as filled) while the next depth frame is listed: those it lists again are used
-    /// as they are, instead of being released and made again ([`ResidentMap::release_empty_except`]).
+    /// as they are, instead of being released and made again
+    /// ([`ResidentMap::release_empty_except`]).
     kept_empty: Vec<(BlockIndex, u32)>,
 }
 
@@ -114,21 +122,43 @@ impl ResidentMap {
     }
 
     /// Records a submitted frame of `blocks` whose flags and counters come back in `readback`,
-    /// then (with `reserved`, the free-slot stack its insertions took from) the insertions.
+    /// then (with `placed.reserved`, the free-slot stack its insertions took from) the
+    /// insertions. `placed.slots`: each block's slot, as
+    /// [`ResidentMap::make_resident_for_frame`] gives them; empty where every block is in the
+    /// host's table (a LiDAR scan's: looked up here).
     pub(crate) fn frame_submitted(
         &mut self,
         layer: &Layer,
-        (blocks, reserved): (Vec<BlockIndex>, Vec<u32>),
+        (blocks, placed): (Vec<BlockIndex>, FramePlacement),
         readback: LateReadback,
     ) {
+        let FramePlacement {
+            mut slots,
+            reserved,
+        } = placed;
+        if slots.is_empty() {
+            slots = self.table.host.lookup_all(&blocks);
+        }
         self.late.reserved += reserved.len();
-        let lacked: Vec<bool> = blocks.iter().map(|b| !layer.contains(b)).collect();
+        // A block the host's table lacks is one the layer lacks too (make_resident_for_frame
+        // uploads every other); the pool knows of the others whether the layer holds them.
+        let lacked: Vec<bool> = (blocks.iter().zip(&slots).enumerate())
+            .map(|(i, (b, &slot))| {
+                if let Some(&ahead) = slots.get(i + PROBES_AHEAD) {
+                    self.pool.prefetch(ahead);
+                }
+                let lacked = slot == SLOT_EMPTY || !self.pool.in_layer(slot);
+                debug_assert_eq!(lacked, !layer.contains(b), "{b:?} in slot {slot}");
+                lacked
+            })
+            .collect();
         for (b, _) in blocks.iter().zip(&lacked).filter(|(_, l)| **l) {
             *self.late.unsettled.entry(*b).or_default() += 1;
         }
         self.late.frames.push_back(FrameInFlight {
             frame: self.frame,
             blocks,
+            slots,
             lacked,
             reserved,
             readback,
@@ -245,7 +275,7 @@ impl ResidentMap {
         (touched, std::mem::take(&mut self.late.voxel_updates))
     }
 
-    fn collect(&mut self, layer: &mut Layer, f: FrameInFlight) -> Result<()> {
+    fn collect(&mut self, layer: &mut Layer, mut f: FrameInFlight) -> Result<()> {
         let n = f.blocks.len();
         let mut counts = [0u32; 2];
         let mut flags: Vec<u32> = bytemuck::zeroed_vec(n);
@@ -269,23 +299,38 @@ impl ResidentMap {
             )));
         }
         if !created.is_empty() {
-            self.learn_insertions((&f.blocks, &f.reserved, f.frame), &created)?;
+            self.learn_insertions((&f.blocks, &mut f.slots), (&f.reserved, f.frame), &created)?;
         }
         let start = self.late.touched.len();
-        for ((b, &up), &lacked) in f.blocks.iter().zip(&flags).zip(&f.lacked) {
+        for (i, (((b, &up), &lacked), &slot)) in (f.blocks.iter().zip(&flags).zip(&f.lacked))
+            .zip(&f.slots)
+            .enumerate()
+        {
+            if let Some(&ahead) = f.slots.get(i + PROBES_AHEAD) {
+                self.pool.prefetch(ahead);
+            }
             let later = lacked && self.unlist(*b);
-            let Some(slot) = self.table.host.lookup(*b) else {
+            // Not placed at submit and not inserted by this frame: inserted by a frame
+            // collected since, or by none.
+            let slot = match slot {
+                SLOT_EMPTY => self.table.host.lookup(*b),
+                slot => Some(slot),
+            };
+            debug_assert_eq!(slot, self.table.host.lookup(*b), "{b:?}");
+            let Some(slot) = slot else {
                 // Listed only because a frame in flight may have made it; none did, and it was
                 // released before this frame ran (`fuse_depth_resident.wgsl` skipped it).
                 debug_assert!(lacked && up == 0, "a listed block is not resident");
                 continue;
             };
-            let in_layer = layer.contains(b);
+            let in_layer = self.pool.in_layer(slot);
+            debug_assert_eq!(in_layer, layer.contains(b), "{b:?} in slot {slot}");
             if up != 0 {
                 self.pool.mark_dirty(slot);
                 if !in_layer {
                     // Its voxels are on the device: RAM holds them once written back.
                     layer.insert_unwritten(*b);
+                    self.pool.mark_in_layer(slot);
                 }
             } else if !in_layer {
                 if later {
@@ -300,8 +345,10 @@ impl ResidentMap {
             self.late.touched.push(*b);
             self.pool.touch(slot, f.frame);
         }
-        // A scan lists its blocks in dispatch order: each frame's touched blocks sorted.
-        self.late.touched[start..].sort_unstable();
+        // Each frame's touched blocks sorted. A depth frame's come in two sorted runs (listed,
+        // then unsettled), which the run-detecting stable sort merges in one pass; a scan lists
+        // its blocks in dispatch order.
+        self.late.touched[start..].sort();
         self.late.voxel_updates += counts[0] as usize;
         self.stats.peak_resident_blocks =
             self.stats.peak_resident_blocks.max(self.table.host.len());
@@ -309,11 +356,12 @@ impl ResidentMap {
     }
 
     /// Applies a frame's insertions on the device (its `created` words, `alloc.rs`: indices into
-    /// its `blocks`) to the host's table and pool, and gives back the slots `reserved` for them
-    /// that the device did not take (the stack's bottom).
+    /// its `blocks`) to the host's table and pool and to the frame's `slots`, and gives back
+    /// the slots `reserved` for them that the device did not take (the stack's bottom).
     fn learn_insertions(
         &mut self,
-        (blocks, reserved, frame): (&[BlockIndex], &[u32], u64),
+        (blocks, slots): (&[BlockIndex], &mut [u32]),
+        (reserved, frame): (&[u32], u64),
         created: &[u32],
     ) -> Result<()> {
         let (k, count, left_without) = (reserved.len(), created[0] as usize, created[1]);
@@ -329,6 +377,7 @@ impl ResidentMap {
             debug_assert!(reserved[k - inserted.len()..].contains(&slot));
             self.table.host.insert_at(pos, key, slot);
             self.pool.occupy_reserved(slot, key, frame);
+            slots[i as usize] = slot;
         }
         self.pool.unreserve(&reserved[..k - inserted.len()]);
         self.late.reserved -= k;

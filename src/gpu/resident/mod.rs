@@ -63,6 +63,18 @@ use table::DeviceTable;
 /// A hash table's entries: per entry the key (x, y, z as `u32`) and the slot.
 pub type TableEntries = Vec<[u32; 4]>;
 
+/// Where a depth frame's listed blocks are as it is submitted
+/// ([`ResidentMap::make_resident_for_frame`]).
+#[derive(Debug, Default)]
+pub(crate) struct FramePlacement {
+    /// Per listed block, its slot in the host's table, or [`SLOT_EMPTY`] where the host's
+    /// table lacks it (the device inserts it, or a frame in flight did): the collect reads a
+    /// block's slot here rather than probing the table again (`late.rs`).
+    pub slots: Vec<u32>,
+    /// The free slots reserved for the blocks the device inserts, the top last.
+    pub reserved: Vec<u32>,
+}
+
 /// Size limits of a [`ResidentMap`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ResidentOptions {
@@ -352,8 +364,8 @@ impl ResidentMap {
         camera_m: [f64; 3],
         encoder: Option<&mut wgpu::CommandEncoder>,
     ) -> Result<()> {
-        let reserved = self.make_resident_inner(layer, (blocks, None), camera_m, encoder)?;
-        debug_assert!(reserved.is_empty());
+        let placed = self.make_resident_inner(layer, (blocks, None), camera_m, encoder)?;
+        debug_assert!(placed.reserved.is_empty());
         Ok(())
     }
 
@@ -361,17 +373,18 @@ impl ResidentMap {
     /// on the device (`alloc.rs`, recorded after the frame's lookup): the blocks before
     /// `first_unsettled` that neither the host's table nor the layer holds are not inserted
     /// here; as many free slots are reserved for them, written empty into `encoder`, and
-    /// returned as the device's free-slot stack (the top last). The host learns which block
-    /// took which slot and entry when the frame is collected (`late.rs`). Blocks from
-    /// `first_unsettled` on that the host's table lacks were inserted on the device by a frame
-    /// in flight, or released since, made by no frame (the fusion kernel skips them).
+    /// returned as the device's free-slot stack (the top last), with each block's slot where
+    /// the host's table has it ([`FramePlacement`]). The host learns which block took which
+    /// slot and entry when the frame is collected (`late.rs`). Blocks from `first_unsettled`
+    /// on that the host's table lacks were inserted on the device by a frame in flight, or
+    /// released since, made by no frame (the fusion kernel skips them).
     pub(crate) fn make_resident_for_frame(
         &mut self,
         layer: &mut Layer,
         (blocks, first_unsettled): (&[BlockIndex], usize),
         camera_m: [f64; 3],
         encoder: &mut wgpu::CommandEncoder,
-    ) -> Result<Vec<u32>> {
+    ) -> Result<FramePlacement> {
         let listed = (blocks, Some(first_unsettled));
         self.make_resident_inner(layer, listed, camera_m, Some(encoder))
     }
@@ -382,19 +395,24 @@ impl ResidentMap {
         (blocks, device_inserts): (&[BlockIndex], Option<usize>),
         camera_m: [f64; 3],
         encoder: Option<&mut wgpu::CommandEncoder>,
-    ) -> Result<Vec<u32>> {
+    ) -> Result<FramePlacement> {
         let t = std::time::Instant::now();
-        // Uploaded (the host inserts them), and new ones the device inserts.
-        let (mut missing, mut fresh) = (Vec::new(), 0usize);
+        // Each block's slot, one probe of the host's table; of the others, those uploaded (the
+        // host inserts them, at `missing_at` in `blocks`), and new ones the device inserts.
+        let mut slots = self.table.host.lookup_all(blocks);
+        let (mut missing, mut missing_at, mut fresh) = (Vec::new(), Vec::new(), 0usize);
         for (i, b) in blocks.iter().enumerate() {
-            if self.table.host.lookup(*b).is_some() {
+            if slots[i] != SLOT_EMPTY {
                 continue;
             }
             match device_inserts {
                 Some(first_unsettled) if !layer.contains(b) => {
                     fresh += (i < first_unsettled) as usize
                 }
-                _ => missing.push(*b),
+                _ => {
+                    missing.push(*b);
+                    missing_at.push(i);
+                }
             }
         }
         let need = missing.len() + fresh;
@@ -429,7 +447,10 @@ impl ResidentMap {
             self.table.host.rebuild(entries);
         }
         let mut encoder = encoder;
-        self.upload_blocks(layer, &missing, encoder.as_deref_mut())?;
+        let uploaded = self.upload_blocks(layer, &missing, encoder.as_deref_mut())?;
+        for (i, slot) in missing_at.into_iter().zip(uploaded) {
+            slots[i] = slot;
+        }
         let reserved = self.pool.reserve(fresh);
         self.stats.slots_reserved += reserved.len() as u64;
         if !reserved.is_empty() {
@@ -438,7 +459,7 @@ impl ResidentMap {
         }
         self.stats.table_writes += self.table.upload(&self.ctx, encoder)? as u64;
         self.stats.residency_s += t.elapsed().as_secs_f64();
-        Ok(reserved)
+        Ok(FramePlacement { slots, reserved })
     }
 
     /// Frees `need` slots: grows the pool, then spills blocks outside `in_frame` to RAM.
@@ -484,21 +505,22 @@ impl ResidentMap {
     }
 
     /// Uploads `blocks` (absent from the pool, with room made) into free slots: the layer's
-    /// copy, or an empty block.
+    /// copy, or an empty block. Returns their slots, in `blocks` order.
     fn upload_blocks(
         &mut self,
         layer: &Layer,
         blocks: &[BlockIndex],
         encoder: Option<&mut wgpu::CommandEncoder>,
-    ) -> Result<()> {
+    ) -> Result<Vec<u32>> {
         if blocks.is_empty() {
-            return Ok(());
+            return Ok(Vec::new());
         }
         let mut data: Vec<GpuVoxel> = Vec::with_capacity(blocks.len() * VOXELS_PER_BLOCK);
-        let (mut slots, mut fresh) = (Vec::new(), Vec::new());
+        let (mut placed, mut slots, mut fresh) = (Vec::new(), Vec::new(), Vec::new());
         for b in blocks {
-            let slot = self.pool.occupy(*b, self.frame).expect("room was made");
-            match layer.get(b) {
+            let copy = layer.get(b);
+            let slot = (self.pool.occupy(*b, self.frame, copy.is_some())).expect("room was made");
+            match copy {
                 Some(block) => {
                     pack_block_into(block, &mut data);
                     slots.push(slot);
@@ -506,12 +528,13 @@ impl ResidentMap {
                 None => fresh.push(slot),
             }
             self.table.host.insert(*b, slot);
+            placed.push(slot);
         }
         self.pool.write_slots(&self.ctx, &slots, &data);
         self.pool.fill(&self.ctx, &fresh, empty_voxel(), encoder)?;
         self.stats.blocks_uploaded += slots.len() as u64;
         self.stats.blocks_created += fresh.len() as u64;
-        Ok(())
+        Ok(placed)
     }
 
     /// The occupied slots among `slots` whose blocks hold updates not yet copied to RAM.
@@ -532,6 +555,7 @@ impl ResidentMap {
                 let key = self.pool.key(slot).expect("resident");
                 apply_updated(layer.get_or_allocate(key), vox);
                 self.pool.mark_clean(slot);
+                self.pool.mark_in_layer(slot);
             }
             self.stats.blocks_downloaded += dirty.len() as u64;
             if !release {

@@ -1,6 +1,7 @@
 //! The block pool: one storage buffer of block slots (512 [`GpuVoxel`]s, 4 KiB each) and the
-//! host's record of each slot (its block, whether the GPU changed it since the last write-back,
-//! the frame that last used it), with the copies between RAM and the pool. It decides nothing:
+//! host's record of each slot ([`SlotRecord`]: its block, whether the RAM layer holds it,
+//! whether the GPU changed it since the last write-back, the frame that last used it), with the
+//! copies between RAM and the pool. It decides nothing:
 //! the resident map ([`super::ResidentMap`]) chooses what to upload, and [`super::policy`] what
 //! to spill.
 
@@ -15,6 +16,35 @@ use crate::Result;
 /// Bytes of one block slot in the pool.
 pub const SLOT_BYTES: u64 = (VOXELS_PER_BLOCK * std::mem::size_of::<GpuVoxel>()) as u64;
 
+/// The host's record of one slot: 32 bytes, so that a frame's bookkeeping reads one cache line
+/// per block, not one per field.
+#[derive(Clone, Copy, Debug, Default)]
+struct SlotRecord {
+    /// The block it holds.
+    key: Option<BlockIndex>,
+    /// The frame that last used it (the spill order).
+    last_used: u64,
+    /// Whether it holds changes not yet written back to RAM.
+    dirty: bool,
+    /// Whether the RAM layer holds its block (a copy, or a shadow the write-back fills): false
+    /// for a block made on the GPU that no frame has updated yet. The twin of
+    /// `layer.contains(key)` while the block is resident, since every change of the layer's
+    /// blocks while resident goes through the map (blocks leave RAM only after they leave the
+    /// pool); `late.rs` asserts it in debug builds.
+    in_layer: bool,
+}
+
+impl SlotRecord {
+    fn occupied(key: BlockIndex, last_used: u64, in_layer: bool) -> Self {
+        SlotRecord {
+            key: Some(key),
+            last_used,
+            dirty: false,
+            in_layer,
+        }
+    }
+}
+
 /// Slots on the device and the host's record of them.
 pub(crate) struct BlockPool {
     buffer: wgpu::Buffer,
@@ -22,10 +52,8 @@ pub(crate) struct BlockPool {
     /// to it (`resident/late.rs`), 4 bytes each.
     exists: wgpu::Buffer,
     capacity: u32,
-    slot_key: Vec<Option<BlockIndex>>,
+    slots: Vec<SlotRecord>,
     free: Vec<u32>,
-    dirty: Vec<bool>,
-    last_used: Vec<u64>,
     /// The gather, staging and slot-list buffers of the copies, kept between calls.
     kept: Kept,
 }
@@ -37,10 +65,8 @@ impl BlockPool {
             buffer: Self::buffer(ctx, capacity)?,
             exists: Self::exists_buffer(ctx, capacity),
             capacity,
-            slot_key: vec![None; capacity as usize],
+            slots: vec![SlotRecord::default(); capacity as usize],
             free: (0..capacity).rev().collect(),
-            dirty: vec![false; capacity as usize],
-            last_used: vec![0; capacity as usize],
             kept: Kept::default(),
         })
     }
@@ -92,50 +118,65 @@ impl BlockPool {
 
     /// The block in `slot`, if any.
     pub(crate) fn key(&self, slot: u32) -> Option<BlockIndex> {
-        self.slot_key[slot as usize]
+        self.slots[slot as usize].key
     }
 
     /// Occupied slots with their blocks and last use, in slot order.
     pub(crate) fn occupied(&self) -> impl Iterator<Item = (u32, BlockIndex, u64)> + '_ {
-        self.slot_key
-            .iter()
-            .enumerate()
-            .filter_map(|(s, k)| k.map(|k| (s as u32, k, self.last_used[s])))
+        (self.slots.iter().enumerate())
+            .filter_map(|(s, r)| r.key.map(|k| (s as u32, k, r.last_used)))
     }
 
     /// Whether `slot` holds changes not yet written back to RAM.
     pub(crate) fn is_dirty(&self, slot: u32) -> bool {
-        self.dirty[slot as usize]
+        self.slots[slot as usize].dirty
     }
 
     /// Slots holding changes not yet written back, in slot order.
     pub(crate) fn dirty_slots(&self) -> Vec<u32> {
         (0..self.capacity)
-            .filter(|&s| self.dirty[s as usize])
+            .filter(|&s| self.slots[s as usize].dirty)
             .collect()
     }
 
     /// Records that the GPU changed `slot` (it will be written back).
     pub(crate) fn mark_dirty(&mut self, slot: u32) {
-        self.dirty[slot as usize] = true;
+        self.slots[slot as usize].dirty = true;
     }
 
     /// Records that `slot` now equals its RAM copy.
     pub(crate) fn mark_clean(&mut self, slot: u32) {
-        self.dirty[slot as usize] = false;
+        self.slots[slot as usize].dirty = false;
+    }
+
+    /// Asks the CPU to fetch `slot`'s record into the cache, where `slot` is a slot (a loop
+    /// over a frame's slots calls it for the slot it reads some iterations later).
+    pub(crate) fn prefetch(&self, slot: u32) {
+        if let Some(record) = self.slots.get(slot as usize) {
+            super::table::prefetch(record);
+        }
+    }
+
+    /// Whether the RAM layer holds the block in `slot` ([`SlotRecord::in_layer`]).
+    pub(crate) fn in_layer(&self, slot: u32) -> bool {
+        self.slots[slot as usize].in_layer
+    }
+
+    /// Records that the RAM layer now holds the block in `slot`.
+    pub(crate) fn mark_in_layer(&mut self, slot: u32) {
+        self.slots[slot as usize].in_layer = true;
     }
 
     /// Records a use of `slot` in frame `frame`.
     pub(crate) fn touch(&mut self, slot: u32, frame: u64) {
-        self.last_used[slot as usize] = frame;
+        self.slots[slot as usize].last_used = frame;
     }
 
-    /// Takes a free slot for `key` (clean, used in `frame`); `None` when the pool is full.
-    pub(crate) fn occupy(&mut self, key: BlockIndex, frame: u64) -> Option<u32> {
+    /// Takes a free slot for `key` (clean, used in `frame`; `in_layer`: whether the RAM layer
+    /// holds it); `None` when the pool is full.
+    pub(crate) fn occupy(&mut self, key: BlockIndex, frame: u64, in_layer: bool) -> Option<u32> {
         let slot = self.free.pop()?;
-        self.slot_key[slot as usize] = Some(key);
-        self.dirty[slot as usize] = false;
-        self.last_used[slot as usize] = frame;
+        self.slots[slot as usize] = SlotRecord::occupied(key, frame, in_layer);
         Some(slot)
     }
 
@@ -146,12 +187,11 @@ impl BlockPool {
         self.free.split_off(keep)
     }
 
-    /// Gives reserved `slot` to `key` (clean, used in `frame`): the device inserted it there.
+    /// Gives reserved `slot` to `key` (clean, used in `frame`, not in the RAM layer): the
+    /// device inserted it there.
     pub(crate) fn occupy_reserved(&mut self, slot: u32, key: BlockIndex, frame: u64) {
-        debug_assert!(self.slot_key[slot as usize].is_none());
-        self.slot_key[slot as usize] = Some(key);
-        self.dirty[slot as usize] = false;
-        self.last_used[slot as usize] = frame;
+        debug_assert!(self.slots[slot as usize].key.is_none());
+        self.slots[slot as usize] = SlotRecord::occupied(key, frame, false);
     }
 
     /// Gives back reserved slots the device did not take, in their order (the top last).
@@ -161,8 +201,8 @@ impl BlockPool {
 
     /// Gives `slot` back; returns the block it held.
     pub(crate) fn release(&mut self, slot: u32) -> Option<BlockIndex> {
-        let key = self.slot_key[slot as usize].take()?;
-        self.dirty[slot as usize] = false;
+        let key = self.slots[slot as usize].key?;
+        self.slots[slot as usize] = SlotRecord::default();
         self.free.push(slot);
         Some(key)
     }
@@ -195,9 +235,7 @@ impl BlockPool {
         self.exists = exists;
         let old = self.capacity;
         self.capacity = capacity;
-        self.slot_key.resize(capacity as usize, None);
-        self.dirty.resize(capacity as usize, false);
-        self.last_used.resize(capacity as usize, 0);
+        self.slots.resize(capacity as usize, SlotRecord::default());
         let mut free: Vec<u32> = (old..capacity).rev().collect();
         free.append(&mut self.free);
         self.free = free;

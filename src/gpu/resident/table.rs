@@ -35,6 +35,24 @@ pub fn block_hash(k: BlockIndex) -> u32 {
     mix32(b ^ k.0[2] as u32)
 }
 
+/// How many keys ahead [`BlockTable::lookup_all`] fetches home entries into the cache: enough
+/// misses in flight to cover a memory access, few enough to stay in the first-level cache.
+pub(super) const PROBES_AHEAD: usize = 16;
+
+/// Asks the CPU to fetch the cache line of `item` (a hint: no effect on any result).
+#[inline(always)]
+pub(super) fn prefetch<T>(item: &T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: SSE is part of the x86_64 baseline, and a prefetch neither reads into the program
+    // nor faults, whatever the address.
+    unsafe {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        _mm_prefetch::<_MM_HINT_T0>((item as *const T).cast());
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = item;
+}
+
 /// The host's copy of the GPU block hash table (see the module documentation).
 #[derive(Clone, Debug)]
 pub struct BlockTable {
@@ -85,9 +103,38 @@ impl BlockTable {
     /// The slot of `k`, probing as `block_lookup.wgsl` does.
     #[inline]
     pub fn lookup(&self, k: BlockIndex) -> Option<u32> {
+        self.lookup_from(block_hash(k) & self.mask(), k)
+    }
+
+    /// The slots of `keys` ([`BlockTable::lookup`]; [`SLOT_EMPTY`] where absent). A frame's
+    /// keys land all over the table, so each probe would wait on memory: the home entries of
+    /// the keys [`PROBES_AHEAD`] further on are fetched into the cache meanwhile.
+    pub fn lookup_all(&self, keys: &[BlockIndex]) -> Vec<u32> {
+        let mask = self.mask();
+        let home = |k: &BlockIndex| (block_hash(*k) & mask) as usize;
+        for k in keys.iter().take(PROBES_AHEAD) {
+            prefetch(&self.entries[home(k)]);
+        }
+        let ahead = keys
+            .iter()
+            .skip(PROBES_AHEAD)
+            .map(Some)
+            .chain(std::iter::repeat(None));
+        (keys.iter().zip(ahead))
+            .map(|(k, next)| {
+                if let Some(next) = next {
+                    prefetch(&self.entries[home(next)]);
+                }
+                self.lookup_from(home(k) as u32, *k).unwrap_or(SLOT_EMPTY)
+            })
+            .collect()
+    }
+
+    /// [`BlockTable::lookup`] of `k` from its home entry `pos`.
+    #[inline]
+    fn lookup_from(&self, mut pos: u32, k: BlockIndex) -> Option<u32> {
         let want = Self::key_words(k);
         let mask = self.mask();
-        let mut pos = block_hash(k) & mask;
         for _ in 0..self.entries.len() {
             let e = self.entries[pos as usize];
             if e[3] == SLOT_EMPTY {
