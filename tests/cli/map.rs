@@ -96,9 +96,11 @@ fn killed_reconstruction_resumes_to_the_same_map() {
         "{reference}"
     );
 
-    // Kill runs at growing delays until one dies after a checkpoint but before the end.
+    // Kill a run (SIGKILL, no warning) as soon as its commit mark shows a checkpoint short of
+    // the end: watching the mark, not a clock, makes the kill land mid-run on any machine.
+    let total = reference["frames_committed"].as_u64().expect("frames");
     let mut resumed_once = false;
-    for delay_ms in [300u64, 600, 900, 1300, 1800, 2500, 3500] {
+    for attempt in 0..3 {
         let _ = std::fs::remove_dir_all(d.join("killed"));
         let mut child = bin()
             .args(reconstruct_args("killed", "killed_out"))
@@ -107,17 +109,35 @@ fn killed_reconstruction_resumes_to_the_same_map() {
             .stderr(std::process::Stdio::null())
             .spawn()
             .expect("spawn");
-        std::thread::sleep(std::time::Duration::from_millis(delay_ms));
-        let _ = Command::new("kill")
-            .args(["-9", &child.id().to_string()])
-            .status();
-        let status = child.wait().expect("wait");
+        let mark = d.join("killed").join("last-commit");
+        let started = std::time::Instant::now();
+        let status = loop {
+            if let Some(status) = child.try_wait().expect("try_wait") {
+                break status; // the run ended before a mid-run commit was seen
+            }
+            let frames = std::fs::read_to_string(&mark).ok().and_then(|t| {
+                t.lines()
+                    .find_map(|l| l.strip_prefix("frames_committed "))
+                    .and_then(|v| v.trim().parse::<u64>().ok())
+            });
+            if frames.is_some_and(|f| f > 0 && f < total)
+                || started.elapsed() > std::time::Duration::from_secs(600)
+            {
+                let _ = Command::new("kill")
+                    .args(["-9", &child.id().to_string()])
+                    .status();
+                break child.wait().expect("wait");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        };
         if status.success() {
-            break; // too slow a kill: the run finished
+            eprintln!("attempt {attempt}: the run finished before the kill landed; again");
+            continue;
         }
-        if !d.join("killed/manifest.dmf").exists() {
-            continue; // killed before the first commit: nothing to resume
-        }
+        assert!(
+            d.join("killed/manifest.dmf").exists(),
+            "killed after a commit mark, yet no manifest"
+        );
         // The killed map opens and every committed chunk is intact.
         let j = map_json("killed", d);
         let committed = j["frames_committed"].as_u64().expect("frames");

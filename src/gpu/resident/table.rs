@@ -454,6 +454,20 @@ mod tests {
             assert_eq!(t.lookup(*k), Some(*s));
         }
         assert_eq!(t.lookup(BlockIndex([1000, 0, 0])), None);
+        // The batched, prefetching probe gives what one probe per key gives, absent keys too,
+        // in the order asked (more keys than the prefetch distance, so both phases run).
+        let mut keys: Vec<BlockIndex> = truth.keys().copied().collect();
+        keys.extend((0..40).map(|i| BlockIndex([1000 + i, -i, 7])));
+        let third = keys.len() / 3;
+        keys.rotate_left(third);
+        let one_by_one: Vec<u32> = keys
+            .iter()
+            .map(|k| t.lookup(*k).unwrap_or(SLOT_EMPTY))
+            .collect();
+        assert!(keys.len() > 2 * PROBES_AHEAD);
+        assert_eq!(t.lookup_all(&keys), one_by_one);
+        assert_eq!(one_by_one.iter().filter(|s| **s == SLOT_EMPTY).count(), 40);
+        assert!(t.lookup_all(&[]).is_empty());
     }
 
     #[test]
