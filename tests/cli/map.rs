@@ -109,17 +109,14 @@ fn killed_reconstruction_resumes_to_the_same_map() {
             .stderr(std::process::Stdio::null())
             .spawn()
             .expect("spawn");
-        let mark = d.join("killed").join("last-commit");
+        let files = denser::map::files::LocalFiles::new(&d.join("killed"));
         let started = std::time::Instant::now();
         let status = loop {
             if let Some(status) = child.try_wait().expect("try_wait") {
                 break status; // the run ended before a mid-run commit was seen
             }
-            let frames = std::fs::read_to_string(&mark).ok().and_then(|t| {
-                t.lines()
-                    .find_map(|l| l.strip_prefix("frames_committed "))
-                    .and_then(|v| v.trim().parse::<u64>().ok())
-            });
+            let mark = denser::map::store::read_commit_mark_frames(&files);
+            let frames = mark.ok().flatten().and_then(|(_, _, frames)| frames);
             if frames.is_some_and(|f| f > 0 && f < total)
                 || started.elapsed() > std::time::Duration::from_secs(600)
             {
