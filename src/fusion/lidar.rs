@@ -34,8 +34,6 @@ pub(crate) struct Ray {
     pub(crate) range_m: f64,
     /// Intensity as a grey level (the colour every voxel it updates is averaged towards).
     pub(crate) gray: u8,
-    /// The return in the sensor's frame, metres, as scanned (`dir` is its rotated direction).
-    pub(crate) point_sensor_m: [f32; 3],
 }
 
 /// The truncation band `[max(r − μ, 0), r + μ]` of a return at range `range_m`, metres along
@@ -45,28 +43,68 @@ pub(crate) fn band_m(range_m: f64, truncation_m: f64) -> (f64, f64) {
     ((range_m - truncation_m).max(0.0), range_m + truncation_m)
 }
 
-fn rays(scan: &LidarScan, params: &LidarFusionParams) -> Vec<Ray> {
+/// A usable return as it goes up to a device (16 bytes: [`LidarPlan::sent_rays`]): its point
+/// as scanned and its grey level, from which [`Ray`] follows ([`SentRay::ray`]).
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub(crate) struct SentRay {
+    /// The return in the sensor's frame, metres, as scanned.
+    pub(crate) point_sensor_m: [f32; 3],
+    /// Its grey level (0–255).
+    pub(crate) gray: u32,
+}
+
+impl SentRay {
+    /// The ray of this return under `rotation` (world from sensor), with its range `range_m`
+    /// (`|point|`, as [`usable`] measured it): the same f64 operations wherever it is made.
+    fn ray(&self, rotation: &nalgebra::UnitQuaternion<f64>, range_m: f64) -> Ray {
+        let p = self.point_sensor_m;
+        let v = nalgebra::Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        Ray {
+            dir: rotation.transform_vector(&(v / range_m)).into(),
+            range_m,
+            gray: self.gray as u8,
+        }
+    }
+}
+
+/// The return `p` with intensity `i` and its range, where usable (finite, within the limits).
+#[inline]
+fn usable(p: &[f32; 3], i: f32, params: &LidarFusionParams) -> Option<(SentRay, f64)> {
+    let v = nalgebra::Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+    let r = v.norm();
+    if !r.is_finite() || r < params.min_range_m as f64 || r > params.max_range_m as f64 {
+        return None;
+    }
+    let gray = (i.clamp(0.0, 1.0) * 255.0).round() as u8;
+    let sent = SentRay {
+        point_sensor_m: *p,
+        gray: gray as u32,
+    };
+    Some((sent, r))
+}
+
+/// The usable returns of `scan`, in scan order, as they go up; with their rays where `with_rays`
+/// (what the host's walks need; a device makes its own from the returns).
+fn sent_rays(
+    scan: &LidarScan,
+    params: &LidarFusionParams,
+    with_rays: bool,
+) -> (Vec<SentRay>, Option<Vec<Ray>>) {
     let rot = scan.world_from_sensor.rotation;
-    scan.points_sensor_m
+    let usable = scan
+        .points_sensor_m
         .par_iter()
         .enumerate()
         .filter_map(|(k, p)| {
             let i = scan.intensity.get(k).copied().unwrap_or(0.0);
-            let v = nalgebra::Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-            let r = v.norm();
-            if !r.is_finite() || r < params.min_range_m as f64 || r > params.max_range_m as f64 {
-                return None;
-            }
-            let d = rot.transform_vector(&(v / r));
-            let gray = (i.clamp(0.0, 1.0) * 255.0).round() as u8;
-            Some(Ray {
-                dir: d.into(),
-                range_m: r,
-                gray,
-                point_sensor_m: *p,
-            })
-        })
-        .collect()
+            usable(p, i, params)
+        });
+    if !with_rays {
+        return (usable.map(|(sent, _)| sent).collect(), None);
+    }
+    let (sent, rays) = usable.map(|(sent, r)| (sent, sent.ray(&rot, r))).unzip();
+    (sent, Some(rays))
 }
 
 /// (block, ray) pairs for every block a ray's band crosses, sorted by block then ray.
@@ -113,7 +151,9 @@ pub fn lidar_scan_blocks(
     params: &LidarFusionParams,
 ) -> TouchedBlocks {
     let origin: [f64; 3] = scan.world_from_sensor.translation.vector.into();
-    let mut blocks: Vec<BlockIndex> = block_ray_pairs(grid, origin, &rays(scan, params))
+    let (_, rays) = sent_rays(scan, params, true);
+    let rays = rays.expect("asked for");
+    let mut blocks: Vec<BlockIndex> = block_ray_pairs(grid, origin, &rays)
         .into_iter()
         .map(|(b, _)| b)
         .collect();
@@ -136,12 +176,18 @@ pub fn integrate_lidar(
 /// [`integrate_lidar_plan`] applies. A pager builds it first to page in [`LidarPlan::blocks`].
 /// The host lists the pairs ([`LidarPlan::new`]), or a GPU lists the blocks and counts their
 /// pairs ([`crate::Backend::plan_lidar`], [`LidarPlan::with_listed_blocks`]); the pairs are
-/// then listed on the host only where something asks for them ([`LidarPlan::pairs`]).
+/// then listed on the host only where something asks for them ([`LidarPlan::pairs`]). The usable
+/// returns are kept as they go up to a device (16 bytes each, [`LidarPlan::sent_rays`]); their
+/// directions in the world frame are made by the host only where it walks them
+/// ([`LidarPlan::rays`]: at once by [`LidarPlan::new`]).
 pub struct LidarPlan {
     grid: GridParams,
     origin: [f64; 3],
     rotation_ijkw: [f64; 4],
-    rays: Vec<Ray>,
+    /// The usable returns as they go up to a device.
+    sent: Vec<SentRay>,
+    /// Their rays: made at once by [`LidarPlan::new`], else on first use by the host.
+    rays: OnceLock<Vec<Ray>>,
     /// Sorted by block then ray: made at once by [`LidarPlan::new`], else on first use.
     pairs: OnceLock<Vec<(BlockIndex, u32)>>,
     /// The blocks (sorted) and their pair counts, where a device listed them.
@@ -153,24 +199,37 @@ pub struct LidarPlan {
 impl LidarPlan {
     /// Lists the rays and band blocks of `scan` on `grid`.
     pub fn new(grid: &GridParams, scan: &LidarScan, params: &LidarFusionParams) -> Self {
-        let plan = Self::rays_only(grid, scan, params);
-        let pairs = block_ray_pairs(grid, plan.origin, &plan.rays);
+        let plan = Self::with_returns(grid, scan, params, true);
+        let pairs = block_ray_pairs(grid, plan.origin, plan.rays());
         plan.pairs.set(pairs).expect("a new plan has no pairs");
         plan
     }
 
-    /// The rays of `scan`, its blocks not listed yet.
+    /// The usable returns of `scan` as they go up to a device, its blocks not listed yet and
+    /// its rays made only where the host asks for them ([`LidarPlan::rays`]).
     pub(crate) fn rays_only(
         grid: &GridParams,
         scan: &LidarScan,
         params: &LidarFusionParams,
     ) -> Self {
+        Self::with_returns(grid, scan, params, false)
+    }
+
+    /// The plan of `scan`'s usable returns, with their rays made at once where `with_rays`.
+    fn with_returns(
+        grid: &GridParams,
+        scan: &LidarScan,
+        params: &LidarFusionParams,
+        with_rays: bool,
+    ) -> Self {
         let q = &scan.world_from_sensor.rotation.coords;
+        let (sent, rays) = sent_rays(scan, params, with_rays);
         LidarPlan {
             grid: *grid,
             origin: scan.world_from_sensor.translation.vector.into(),
             rotation_ijkw: [q[0], q[1], q[2], q[3]],
-            rays: rays(scan, params),
+            sent,
+            rays: rays.map(OnceLock::from).unwrap_or_default(),
             pairs: OnceLock::new(),
             listed: None,
             device_listing: None,
@@ -229,7 +288,7 @@ impl LidarPlan {
 
     /// Number of usable rays (returns within the range limits).
     pub fn ray_count(&self) -> usize {
-        self.rays.len()
+        self.sent.len()
     }
 
     /// Number of (block, ray) pairs: the block-ray work items of an integration.
@@ -245,16 +304,37 @@ impl LidarPlan {
         self.groups().iter().map(|g| g.1.len()).collect()
     }
 
-    /// The usable rays, in scan order.
+    /// The usable rays, in scan order (made from the returns on first use where a device
+    /// lists and fuses the scan: the host never needs them then).
     pub(crate) fn rays(&self) -> &[Ray] {
-        &self.rays
+        self.rays.get_or_init(|| {
+            let [i, j, k, w] = self.rotation_ijkw;
+            let q = nalgebra::Quaternion::new(w, i, j, k);
+            let rot = nalgebra::UnitQuaternion::new_unchecked(q);
+            (self.sent.par_iter())
+                .map(|s| {
+                    let p = s.point_sensor_m.map(|c| c as f64);
+                    s.ray(&rot, nalgebra::Vector3::from(p).norm())
+                })
+                .collect()
+        })
+    }
+
+    /// The usable returns as they go up to a device (16 bytes each), in scan order.
+    pub(crate) fn sent_rays(&self) -> &[SentRay] {
+        &self.sent
+    }
+
+    /// Whether the host has made the rays' directions ([`LidarPlan::rays`]).
+    pub fn host_made_rays(&self) -> bool {
+        self.rays.get().is_some()
     }
 
     /// The (block, ray) pairs, sorted by block then ray (listed on the host on first use where
     /// a device listed the blocks).
     pub(crate) fn pairs(&self) -> &[(BlockIndex, u32)] {
         self.pairs
-            .get_or_init(|| block_ray_pairs(&self.grid, self.origin, &self.rays))
+            .get_or_init(|| block_ray_pairs(&self.grid, self.origin, self.rays()))
     }
 
     /// The pairs grouped by block: each block (sorted) with its range in [`LidarPlan::pairs`]
@@ -294,7 +374,7 @@ impl LidarPlan {
 pub fn integrate_lidar_plan(layer: &mut Layer, plan: &LidarPlan) -> (TouchedBlocks, FusionStats) {
     let grid = layer.params();
     let origin = plan.origin;
-    let rays = &plan.rays;
+    let rays = plan.rays();
     let pairs = plan.pairs();
     let groups = plan.groups();
     let indices: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();
@@ -333,7 +413,7 @@ pub fn integrate_lidar_reference(
 ) -> (TouchedBlocks, FusionStats) {
     let grid = layer.params();
     let origin = plan.origin;
-    let rays = &plan.rays;
+    let rays = plan.rays();
     let pairs = plan.pairs();
     let groups = plan.groups();
     let indices: Vec<BlockIndex> = groups.iter().map(|g| g.0).collect();

@@ -152,7 +152,7 @@ pub(super) fn record_rays(
     (buf_scan, counters): (&wgpu::Buffer, &wgpu::Buffer),
     from: RaysFrom,
 ) -> Result<(wgpu::Buffer, wgpu::Buffer)> {
-    let rays = plan.rays();
+    let rays = plan.sent_rays();
     ctx.check_binding(
         "LiDAR rays (16 bytes per ray)",
         rays.len() as u64 * RAY_IN_BYTES,
@@ -165,15 +165,8 @@ pub(super) fn record_rays(
         RaysFrom::Listing => ("lidar_listing_rays_in", "lidar_listing_rays"),
         RaysFrom::Fusion => ("lidar_rays_in", "lidar_rays"),
     };
-    // Written straight into the memory that goes up (no host copy of 16 bytes a ray).
-    let bytes = rays.len() as u64 * RAY_IN_BYTES;
-    let buf_rays = kept.storage_filled(ctx, label, bytes, |out| {
-        let (words, _) = out.into_chunks::<16>();
-        words.write_iter(rays.iter().map(|r| {
-            let [x, y, z] = r.point_sensor_m.map(f32::to_bits);
-            bytemuck::cast::<[u32; 4], [u8; 16]>([x, y, z, r.gray as u32])
-        }));
-    })?;
+    // The plan keeps them as they go up: one copy into the memory that goes up.
+    let buf_rays = kept.storage_with(ctx, label, bytemuck::cast_slice(rays));
     let kernel = ctx.kernel(&shaders::LIDAR_RAYS)?;
     let buffers = [buf_scan, &buf_rays, &buf_rays_f64, &buf_dirs, counters];
     let bind = kept.bind_group(ctx, bind_label, &kernel.layout, &buffers);

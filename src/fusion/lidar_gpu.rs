@@ -341,15 +341,22 @@ pub(super) fn dispatch_order(
     groups: &[(BlockIndex, Range<usize>)],
     blocks: Range<usize>,
 ) -> (Vec<usize>, Vec<u32>) {
-    let count = |b: usize| groups[b].1.len();
-    let mut order: Vec<usize> = blocks.collect();
-    order.sort_by_key(|&b| std::cmp::Reverse(count(b)));
-    let mut offsets = Vec::with_capacity(order.len() + 1);
+    // One u64 per block: its count complemented, then its index; distinct, so the unstable
+    // sort keeps equal counts in block order, as a stable sort by decreasing count would.
+    let mut keys: Vec<u64> = blocks
+        .map(|b| (!(groups[b].1.len() as u32) as u64) << 32 | b as u64)
+        .collect();
+    keys.sort_unstable();
+    let mut offsets = Vec::with_capacity(keys.len() + 1);
     let mut total = 0u32;
-    for &b in &order {
-        offsets.push(total);
-        total += count(b) as u32;
-    }
+    let order = keys
+        .iter()
+        .map(|&key| {
+            offsets.push(total);
+            total += !((key >> 32) as u32);
+            key as u32 as usize
+        })
+        .collect();
     offsets.push(total);
     (order, offsets)
 }
@@ -589,5 +596,32 @@ mod tests {
         }
         assert!(compared > 1000, "{compared}");
         assert_eq!(differing, 0, "{differing} of {compared} block walks differ");
+    }
+
+    /// The dispatch order is the stable sort by decreasing pair count (ties in block order),
+    /// with each block's first pair, over any range of the blocks.
+    #[test]
+    fn dispatch_order_is_the_stable_sort_by_decreasing_pairs() {
+        let counts = [3usize, 0, 7, 3, 1, 7, 7, 2, 0, 3];
+        let mut start = 0;
+        let groups: Vec<(BlockIndex, Range<usize>)> = (counts.iter().enumerate())
+            .map(|(k, &n)| {
+                start += n;
+                (BlockIndex([k as i32, 0, 0]), start - n..start)
+            })
+            .collect();
+        for range in [0..counts.len(), 2..8, 4..4] {
+            let mut want: Vec<usize> = range.clone().collect();
+            want.sort_by_key(|&b| std::cmp::Reverse(counts[b]));
+            let mut offsets = vec![0u32];
+            for &b in &want {
+                offsets.push(offsets.last().unwrap() + counts[b] as u32);
+            }
+            assert_eq!(
+                dispatch_order(&groups, range.clone()),
+                (want, offsets),
+                "{range:?}"
+            );
+        }
     }
 }

@@ -1,10 +1,10 @@
 //! A LiDAR scan's blocks listed on the GPU (`Backend::plan_lidar`,
 //! `src/fusion/lidar_listing.rs`: `shaders/lidar_blocks.wgsl` and `lidar_found.wgsl`) against
 //! the host's listing (`LidarPlan::new`): the same blocks and pair counts; the scans fused from
-//! such plans equal those fused from the host's, the host never walking a ray; what a scan
-//! costs, listing and fusion together, once warm; and a `Reconstructor` that lists each scan
-//! while the host goes on (frames in flight) leaves the map of one that waits, waiting for
-//! nothing itself. Skips where no GPU adapter exists.
+//! such plans equal those fused from the host's, the host never walking a ray nor making its
+//! direction; what a scan costs, listing and fusion together, once warm; and a `Reconstructor`
+//! that lists each scan while the host goes on (frames in flight) leaves the map of one that
+//! waits, waiting for nothing itself. Skips where no GPU adapter exists.
 
 use crate::common::gpu;
 use crate::compare::orbit_frames;
@@ -67,6 +67,7 @@ fn device_listed_lidar_plans_equal_the_hosts() {
             let what = format!("scan {k}, offset {offset:?}");
             assert_same_plan(&what, &device, &LidarPlan::new(&grid, scan, &PARAMS));
             assert!(!device.host_walked(), "{what}: the host walked");
+            assert!(!device.host_made_rays(), "{what}: the host made the rays");
             checked.0 += device.blocks().len();
             checked.1 += device.pair_count();
         }
@@ -123,6 +124,7 @@ fn device_listed_scans_fuse_as_host_listed_ones_and_cost_their_rays() {
         let (t, _) = backend.fuse_lidar(&mut layer, &plan).expect("fusion");
         let traffic = ctx.traffic().since(before);
         assert!(plan.listed_on_device() && !plan.host_walked(), "scan {k}");
+        assert!(!plan.host_made_rays(), "scan {k}: the host made the rays");
         touched.push(t);
         let (rays, blocks) = (plan.ray_count() as u64, plan.blocks().len() as u64);
         eprintln!("scan {k}: {rays} rays, {blocks} blocks: {traffic:?}");
