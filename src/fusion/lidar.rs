@@ -55,13 +55,19 @@ pub(crate) struct SentRay {
 }
 
 impl SentRay {
+    /// The return's point in f64, sensor frame, metres.
+    #[inline]
+    fn point_m(&self) -> nalgebra::Vector3<f64> {
+        nalgebra::Vector3::from(self.point_sensor_m.map(|c| c as f64))
+    }
+
     /// The ray of this return under `rotation` (world from sensor), with its range `range_m`
     /// (`|point|`, as [`usable`] measured it): the same f64 operations wherever it is made.
     fn ray(&self, rotation: &nalgebra::UnitQuaternion<f64>, range_m: f64) -> Ray {
-        let p = self.point_sensor_m;
-        let v = nalgebra::Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
         Ray {
-            dir: rotation.transform_vector(&(v / range_m)).into(),
+            dir: rotation
+                .transform_vector(&(self.point_m() / range_m))
+                .into(),
             range_m,
             gray: self.gray as u8,
         }
@@ -71,16 +77,14 @@ impl SentRay {
 /// The return `p` with intensity `i` and its range, where usable (finite, within the limits).
 #[inline]
 fn usable(p: &[f32; 3], i: f32, params: &LidarFusionParams) -> Option<(SentRay, f64)> {
-    let v = nalgebra::Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-    let r = v.norm();
+    let sent = SentRay {
+        point_sensor_m: *p,
+        gray: (i.clamp(0.0, 1.0) * 255.0).round() as u8 as u32,
+    };
+    let r = sent.point_m().norm();
     if !r.is_finite() || r < params.min_range_m as f64 || r > params.max_range_m as f64 {
         return None;
     }
-    let gray = (i.clamp(0.0, 1.0) * 255.0).round() as u8;
-    let sent = SentRay {
-        point_sensor_m: *p,
-        gray: gray as u32,
-    };
     Some((sent, r))
 }
 
@@ -150,15 +154,7 @@ pub fn lidar_scan_blocks(
     scan: &LidarScan,
     params: &LidarFusionParams,
 ) -> TouchedBlocks {
-    let origin: [f64; 3] = scan.world_from_sensor.translation.vector.into();
-    let (_, rays) = sent_rays(scan, params, true);
-    let rays = rays.expect("asked for");
-    let mut blocks: Vec<BlockIndex> = block_ray_pairs(grid, origin, &rays)
-        .into_iter()
-        .map(|(b, _)| b)
-        .collect();
-    blocks.dedup();
-    blocks
+    LidarPlan::new(grid, scan, params).blocks()
 }
 
 /// Fuses one LiDAR scan into `layer`; returns the touched blocks (sorted) and work counters.
@@ -183,7 +179,8 @@ pub fn integrate_lidar(
 pub struct LidarPlan {
     grid: GridParams,
     origin: [f64; 3],
-    rotation_ijkw: [f64; 4],
+    /// World from sensor.
+    rotation: nalgebra::UnitQuaternion<f64>,
     /// The usable returns as they go up to a device.
     sent: Vec<SentRay>,
     /// Their rays: made at once by [`LidarPlan::new`], else on first use by the host.
@@ -222,12 +219,11 @@ impl LidarPlan {
         params: &LidarFusionParams,
         with_rays: bool,
     ) -> Self {
-        let q = &scan.world_from_sensor.rotation.coords;
         let (sent, rays) = sent_rays(scan, params, with_rays);
         LidarPlan {
             grid: *grid,
             origin: scan.world_from_sensor.translation.vector.into(),
-            rotation_ijkw: [q[0], q[1], q[2], q[3]],
+            rotation: scan.world_from_sensor.rotation,
             sent,
             rays: rays.map(OnceLock::from).unwrap_or_default(),
             pairs: OnceLock::new(),
@@ -283,7 +279,8 @@ impl LidarPlan {
 
     /// The sensor's rotation, world from sensor: a unit quaternion (i, j, k, w).
     pub fn rotation_ijkw(&self) -> [f64; 4] {
-        self.rotation_ijkw
+        let q = &self.rotation.coords;
+        [q[0], q[1], q[2], q[3]]
     }
 
     /// Number of usable rays (returns within the range limits).
@@ -308,14 +305,8 @@ impl LidarPlan {
     /// lists and fuses the scan: the host never needs them then).
     pub(crate) fn rays(&self) -> &[Ray] {
         self.rays.get_or_init(|| {
-            let [i, j, k, w] = self.rotation_ijkw;
-            let q = nalgebra::Quaternion::new(w, i, j, k);
-            let rot = nalgebra::UnitQuaternion::new_unchecked(q);
             (self.sent.par_iter())
-                .map(|s| {
-                    let p = s.point_sensor_m.map(|c| c as f64);
-                    s.ray(&rot, nalgebra::Vector3::from(p).norm())
-                })
+                .map(|s| s.ray(&self.rotation, s.point_m().norm()))
                 .collect()
         })
     }
