@@ -21,6 +21,10 @@ FRAMES = {
     "finish_lidar_listing": r"finish_lidar_listing",
     "Reconstructor::fuse_lidar (main)": r"Reconstructor::fuse_lidar\b",
     "make_chunk (staging made once)": r"make_chunk",
+    "make_resident_inner": r"make_resident_inner",
+    "table upload": r"DeviceTable::upload",
+    "collect (late)": r"resident::late::<impl denser::gpu::resident::ResidentMap>::collect\b",
+    "learn_insertions": r"learn_insertions",
 }
 
 

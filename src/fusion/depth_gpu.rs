@@ -400,7 +400,12 @@ fn run_resident(
             free: &buf_free,
             created: &buf_created,
         };
-        record_insert(ctx, (&mut encoder, &mut *kept), &buffers, n)?;
+        record_insert(
+            ctx,
+            (&mut encoder, &mut *kept),
+            ("table_insert", &buffers),
+            n,
+        )?;
         results.push((&buf_created, created_bytes(k) as usize));
     }
     ctx.record_dispatch(&mut encoder, &fuse, &bind_fuse, voxel_count)?;

@@ -43,13 +43,18 @@ const RAY_IN_BYTES: u64 = 16;
 /// Where the device made the scan's walks: the pairs (in dispatch order, as the fusion kernel
 /// reads them), the rays' directions and grey levels, the listed blocks' positions and first
 /// pairs (in dispatch order, for the lookup and the passes), and the rays each pass applies
-/// per block.
+/// per block; and the listed blocks as they went up (`sent`, in dispatch order), with the
+/// block they count from and the words per block (`sent_origin`: xyz and w, as
+/// [`crate::gpu::layout::FrameKeyUniforms::origin`] reads them), from which
+/// `table_insert.wgsl` inserts the new ones.
 pub(super) struct DevicePairs {
     pub(super) pairs: wgpu::Buffer,
     pub(super) dirs: wgpu::Buffer,
     pub(super) keys: wgpu::Buffer,
     pub(super) offsets: wgpu::Buffer,
     pub(super) rays_per_pass: u32,
+    pub(super) sent: wgpu::Buffer,
+    pub(super) sent_origin: [i32; 4],
 }
 
 /// The sensor's block, from which the listed blocks' offsets count.
@@ -333,6 +338,12 @@ pub(super) fn record_device_pairs(
         keys: buf_keys,
         offsets: buf_offsets,
         rays_per_pass: (LOOP_BUDGET / (MAX_WALK_STEPS + 1)).max(1),
+        sent: buf_sent,
+        // Three words are a block's position itself, counted from block (0, 0, 0).
+        sent_origin: match width {
+            1 => [origin[0], origin[1], origin[2], 1],
+            _ => [0, 0, 0, 3],
+        },
     })
 }
 

@@ -8,21 +8,27 @@
 //! point and grey level, sent by the listing where the device listed the scan's blocks,
 //! `lidar_listing.rs`, and kept there) and the listed blocks (4 bytes each: an offset from the
 //! sensor's block), from which the device lists and orders the (block, ray) pairs and makes the
-//! walks the host would prepare, bit for bit (`lidar_device.rs`); a scan whose rays exceed one
-//! binding, or one of whose blocks has more pairs than a kernel invocation reads, sends the
-//! host's walks instead (16 bytes per ray, 28 per pair).
+//! walks the host would prepare, bit for bit (`lidar_device.rs`), and inserts the scan's new
+//! blocks into its hash table, slots from a free-slot stack the host reserved (4 bytes per new
+//! block; `src/gpu/resident/alloc.rs`, as a depth frame's), which the host learns when the scan
+//! is collected. A scan whose rays exceed one binding, or one of whose blocks has more pairs
+//! than a kernel invocation reads, sends the host's walks instead (16 bytes per ray, 28 per
+//! pair), its new blocks inserted by the host.
 //!
 //! The result equals the per-call kernel's bit for bit (the same f32 operations on the same
 //! values, in the same order per block), so it keeps its relation to the CPU's walk
 //! (`tests/gpu/lidar.rs`).
 
+use super::lidar_device::DevicePairs;
 use super::lidar_gpu::{dispatch_order, record_passes, upload_rays, PAIR_BYTES};
 use super::lidar_listing::{listable, record_lidar_listing};
 use super::{begin_lidar_listing, LidarListings, PendingLidarPlan};
 use super::{integrate_lidar_gpu, lidar_device, FusionStats, LidarPlan};
-use crate::gpu::layout::LookupUniforms;
-use crate::gpu::resident::{FrameParts, ResidentMap};
-use crate::gpu::{shaders, thread_cpu_s, ErrorScopes};
+use crate::gpu::kept::Kept;
+use crate::gpu::layout::{FrameKeyUniforms, LookupUniforms};
+use crate::gpu::resident::alloc::{created_bytes, free_stack_words, record_insert, AllocBuffers};
+use crate::gpu::resident::{FrameParts, FramePlacement, ResidentMap};
+use crate::gpu::{shaders, thread_cpu_s, ErrorScopes, GpuContext};
 use crate::grid::{BlockIndex, Layer, TouchedBlocks};
 use crate::{Error, Result};
 use std::ops::Range;
@@ -116,14 +122,30 @@ fn fuse_then_list(
     let mut next = next;
     let mut listed = None;
     if !blocks.is_empty() {
-        // One submit: the empty blocks' fill, the lookup, the passes and the next listing.
+        // One submit: the empty blocks' fill, the lookup, the new blocks' insertion, the passes
+        // and the next listing.
         map.note_listed_in_flight(0); // a scan lists its rays' blocks alone
         let mut encoder = map.context().encoder("fuse_lidar_resident");
-        map.make_resident(layer, &blocks, plan.origin_m(), Some(&mut encoder))?;
+        // Where the device makes the pairs, it inserts the scan's new blocks too (it has their
+        // keys): the host reserves their slots. Else the host inserts them.
+        let on_device = lidar_device::fits(map.context(), plan, &groups);
+        let placed = if on_device {
+            let listed = (&blocks[..], blocks.len());
+            map.make_resident_for_frame(layer, listed, plan.origin_m(), &mut encoder)?
+        } else {
+            map.make_resident(layer, &blocks, plan.origin_m(), Some(&mut encoder))?;
+            FramePlacement::default()
+        };
         let t = std::time::Instant::now();
         let riding = next.take_if(|(_, next)| listable(map.context(), next));
+        let scan = ScanBlocks {
+            groups: &groups,
+            on_device,
+            placed,
+            encoder,
+        };
         let inputs_s;
-        (inputs_s, listed) = run_resident(map, layer, (plan, listing), &groups, encoder, riding)?;
+        (inputs_s, listed) = run_resident(map, layer, (plan, listing), scan, riding)?;
         map.add_kernel_time(t.elapsed().as_secs_f64(), inputs_s);
     }
     if let Some((listings, plan)) = next {
@@ -138,21 +160,41 @@ fn fuse_then_list(
     Ok((touched, stats, listed))
 }
 
-/// Resolves the plan's blocks (resident, `groups` in block order) to pool slots and applies
-/// their rays there, submitting `encoder` (holding the fill of the scan's new blocks) with
-/// them and the copy of the counters and flags into the readback ring, collected as a depth
-/// frame's are (`src/gpu/resident/late.rs`), and the listing of `next` ([`listable`]) after
-/// them. Returns the seconds spent preparing and writing the inputs, and the next scan's
-/// listing.
+/// A scan's blocks as its submit begins.
+struct ScanBlocks<'a> {
+    /// The plan's blocks, in block order, with their pairs.
+    groups: &'a [(BlockIndex, Range<usize>)],
+    /// Whether the device makes the pairs ([`lidar_device::fits`]) and inserts the new blocks.
+    on_device: bool,
+    /// Each block's slot where the host's table has it and the free slots reserved for the
+    /// blocks the device inserts ([`ResidentMap::make_resident_for_frame`]); empty where the
+    /// host inserted them ([`ResidentMap::make_resident`]).
+    placed: FramePlacement,
+    /// Holds the fill of the scan's new blocks and the table's changed entries.
+    encoder: wgpu::CommandEncoder,
+}
+
+/// Resolves the plan's blocks to pool slots, inserts its new blocks on the device (where
+/// `scan.placed` reserved slots for them: `table_insert.wgsl` over the keys the listed blocks
+/// went up as, `src/gpu/resident/alloc.rs`) and applies their rays there, submitting the
+/// encoder with them and the copy of the counters, flags and insertions into the readback
+/// ring, collected as a depth frame's are (`src/gpu/resident/late.rs`), and the listing of
+/// `next` ([`listable`]) after them. Returns the seconds spent preparing and writing the
+/// inputs, and the next scan's listing.
 fn run_resident(
     map: &mut ResidentMap,
     layer: &Layer,
     (plan, listing): (&LidarPlan, Option<u32>),
-    groups: &[(BlockIndex, Range<usize>)],
-    mut encoder: wgpu::CommandEncoder,
+    scan: ScanBlocks,
     next: Option<NextListing<'_>>,
 ) -> Result<(f64, Option<PendingLidarPlan>)> {
     let t = std::time::Instant::now();
+    let ScanBlocks {
+        groups,
+        on_device,
+        placed,
+        mut encoder,
+    } = scan;
     let device = map.context().clone();
     let FrameParts {
         ctx,
@@ -185,7 +227,7 @@ fn run_resident(
     encoder.clear_buffer(&buf_updated, 0, Some(n as u64 * 4));
     // The pairs listed and their walks made on the device where its rays fit one binding (the
     // blocks' positions and first pairs made there too), else prepared here.
-    let (made, buf_keys, buf_offsets) = if lidar_device::fits(ctx, plan, groups) {
+    let (made, buf_keys, buf_offsets) = if on_device {
         let made = lidar_device::record_device_pairs(
             (ctx, &mut *kept, &mut encoder),
             (&grid, plan),
@@ -218,6 +260,18 @@ fn run_resident(
         &[&buf_lookup, table, &buf_keys, &buf_slots],
     );
     ctx.record_dispatch(&mut encoder, &lookup, &bind_lookup, n as u64)?;
+    let buf_created = match &made {
+        Some(made) if !placed.reserved.is_empty() => {
+            let inserting = (n as u32, &placed.reserved[..], &buf_slots);
+            Some(record_insertions(
+                (ctx, &mut *kept, &mut encoder),
+                made,
+                (table, mask),
+                inserting,
+            )?)
+        }
+        _ => None,
+    };
     let (buf_pairs, buf_dirs, rays_per_pass) = match made {
         Some(made) => (made.pairs, made.dirs, made.rays_per_pass),
         None => {
@@ -239,7 +293,10 @@ fn run_resident(
     let passes = (&counts[..], rays_per_pass);
     let bound = (&*fuse, "fuse_lidar_resident", &buffers[..]);
     record_passes((ctx, &mut encoder, &mut *kept), bound, &grid, passes)?;
-    let results = [(&buf_counters, 8), (&buf_updated, n * 4)];
+    let mut results = vec![(&buf_counters, 8), (&buf_updated, n * 4)];
+    if let Some((created, bytes)) = &buf_created {
+        results.push((created, *bytes as usize));
+    }
     let readback = ring.record(ctx, &mut encoder, &results);
     let next = match next {
         Some((listings, next)) => {
@@ -255,11 +312,54 @@ fn run_resident(
         next.submitted();
     }
     scope.pop("running the resident LiDAR fusion kernel")?;
-    // The flags come in dispatch order.
+    // The flags and insertions come in dispatch order.
     let blocks = order.iter().map(|&b| groups[b].0).collect();
-    // Every block is in the host's table (make_resident): looked up as it is recorded.
-    map.frame_submitted(layer, (blocks, Default::default()), readback);
+    // Where the host inserted every block (make_resident), looked up as it is recorded.
+    let placed = match placed.slots.is_empty() {
+        true => placed,
+        false => FramePlacement {
+            slots: order.iter().map(|&b| placed.slots[b]).collect(),
+            reserved: placed.reserved,
+        },
+    };
+    map.frame_submitted(layer, (blocks, placed), readback);
     map.set_lidar_rays_of(next.as_ref().map(|n| n.rays_of()));
     let next = next.map(|n| PendingLidarPlan::Listing(Box::new(n)));
     Ok((inputs_s, next))
+}
+
+/// Records the insertion of the scan's new blocks into the device's table (`table_insert.wgsl`,
+/// after `block_lookup.wgsl` has written each of the `n` listed blocks' slots into `slots`) from
+/// the keys they went up as (`made`), slots taken from the free-slot stack `reserved`.
+/// Returns the buffer of its insertions and their bytes, for the scan's readback.
+fn record_insertions(
+    (ctx, kept, encoder): (&GpuContext, &mut Kept, &mut wgpu::CommandEncoder),
+    made: &DevicePairs,
+    (table, mask): (&wgpu::Buffer, u32),
+    (n, reserved, slots): (u32, &[u32], &wgpu::Buffer),
+) -> Result<(wgpu::Buffer, u64)> {
+    let uniforms = FrameKeyUniforms {
+        origin: made.sent_origin,
+        block_count: n,
+        mask,
+        first_unsettled: n,
+        ..Default::default()
+    };
+    let bytes = created_bytes(reserved.len() as u64);
+    let free = free_stack_words(reserved);
+    let buffers = AllocBuffers {
+        uniforms: &kept.uniform_with(ctx, "lidar_insert_uniforms", bytemuck::bytes_of(&uniforms)),
+        table,
+        keys: &made.sent,
+        slots,
+        free: &kept.storage_with(ctx, "lidar_free_slots", bytemuck::cast_slice(&free)),
+        created: &kept.scratch(ctx, "lidar_created_blocks", bytes),
+    };
+    record_insert(
+        ctx,
+        (encoder, kept),
+        ("lidar_table_insert", &buffers),
+        n as u64,
+    )?;
+    Ok((buffers.created.clone(), bytes))
 }

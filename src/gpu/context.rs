@@ -257,7 +257,7 @@ impl GpuContext {
         } else {
             data
         };
-        bump(&self.traffic.buffers_created, 1);
+        self.note_created(label, contents.len() as u64);
         bump(&self.traffic.upload_bytes, contents.len() as u64);
         self.device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -344,6 +344,7 @@ impl GpuContext {
         buffers: &[&wgpu::Buffer],
     ) -> wgpu::BindGroup {
         bump(&self.traffic.bind_groups_created, 1);
+        tracing::trace!(label, "GPU bind group created");
         let entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
             .enumerate()
@@ -385,7 +386,7 @@ impl GpuContext {
 
     /// A uniform buffer holding `data`.
     pub(crate) fn uniform(&self, label: &str, data: &[u8]) -> wgpu::Buffer {
-        bump(&self.traffic.buffers_created, 1);
+        self.note_created(label, data.len() as u64);
         bump(&self.traffic.upload_bytes, data.len() as u64);
         self.device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -395,9 +396,16 @@ impl GpuContext {
             })
     }
 
+    /// Counts a buffer created, and names it in the trace log (`RUST_LOG=denser::gpu=trace`
+    /// shows which buffers a run makes past warm-up).
+    fn note_created(&self, label: &str, bytes: u64) {
+        bump(&self.traffic.buffers_created, 1);
+        tracing::trace!(label, bytes, "GPU buffer created");
+    }
+
     /// A buffer as `desc` describes it (counted).
     pub(crate) fn create_buffer(&self, desc: &wgpu::BufferDescriptor) -> wgpu::Buffer {
-        bump(&self.traffic.buffers_created, 1);
+        self.note_created(desc.label.unwrap_or("unlabelled"), desc.size);
         self.device.create_buffer(desc)
     }
 

@@ -565,6 +565,10 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
     let (grown, touched, s1, traffic) = fuse_resident(&ctx, grid, &scans, roomy);
     eprintln!("grow only: {s1:?}");
     assert!(s1.grows >= 1 && s1.blocks_spilled == 0 && s1.oversize_frames == 0);
+    // Every new block was inserted into the table on the device, none by the host (before
+    // 2026-12-02: all by the host, which uploaded the table's changed entries).
+    let inserted = (s1.blocks_inserted_on_gpu, s1.blocks_created);
+    assert!(inserted.0 > 1000 && inserted.0 == inserted.1, "{s1:?}");
     assert_eq!(touched, per_call_touched, "touched blocks per scan");
     assert_layers_identical("resident vs per call", &per_call, &grown);
     // The second round's scans find their blocks resident: up go each ray once (16 bytes: its
@@ -605,6 +609,10 @@ fn resident_lidar_equals_the_per_call_kernel_through_grows_spills_and_oversize_s
     let (spilled, touched, s2, _) = fuse_resident(&ctx, grid, &scans, tight);
     eprintln!("tight pool: {s2:?}");
     assert!(s2.blocks_spilled > 0 && s2.oversize_frames == 0, "{s2:?}");
+    // Blocks that come back from RAM are uploaded, and inserted by the host.
+    let inserted = (s2.blocks_inserted_on_gpu, s2.blocks_created);
+    assert!(inserted.0 > 1000 && inserted.0 == inserted.1, "{s2:?}");
+    assert!(s2.blocks_uploaded > 0, "{s2:?}");
     assert_eq!(touched, per_call_touched);
     assert_layers_identical("spilled vs per call", &per_call, &spilled);
     let smallest = touched.iter().map(|t| t.len()).min().unwrap_or(0) as u64;

@@ -22,7 +22,10 @@
 //! reserved for them, written empty in the same submit, and the insertions (index, entry, slot;
 //! [`insertions`]) come back with the frame's flags and are applied when it is collected
 //! (`late.rs`), the slots the device did not take (blocks a frame in flight had inserted)
-//! given back.
+//! given back. A LiDAR scan's new blocks are allocated the same way where the device makes its
+//! (block, ray) pairs (`src/fusion/lidar_resident.rs`): the insertion reads the keys its
+//! listed blocks went up as (offsets from the sensor's block, packed as a depth frame's) after
+//! `block_lookup.wgsl` has looked them up.
 
 use super::table::{BlockTable, SLOT_TOMBSTONE};
 use crate::gpu::kept::Kept;
@@ -154,18 +157,19 @@ pub(crate) fn insertions(created: &[u32]) -> (u32, Vec<[u32; 3]>) {
     (created[1], triples)
 }
 
-/// Records the insertion of `blocks` listed blocks, after `frame_keys.wgsl` (the caller's);
-/// the bind group is kept in `kept` between calls over the same buffers.
+/// Records the insertion of `blocks` listed blocks, after their lookup (the caller's:
+/// `frame_keys.wgsl` for a depth frame, `block_lookup.wgsl` for a LiDAR scan); the bind group
+/// is kept in `kept` as `name` between calls over the same buffers.
 pub(crate) fn record_insert(
     ctx: &GpuContext,
     (encoder, kept): (&mut wgpu::CommandEncoder, &mut Kept),
-    b: &AllocBuffers,
+    (name, b): (&'static str, &AllocBuffers),
     blocks: u64,
 ) -> Result<()> {
     let kernel = ctx.kernel(&shaders::TABLE_INSERT)?;
     let bind = kept.bind_group(
         ctx,
-        "table_insert",
+        name,
         &kernel.layout,
         &[b.uniforms, b.table, b.keys, b.slots, b.free, b.created],
     );
@@ -240,7 +244,12 @@ pub fn allocate_on_gpu(
         free: &buf_free,
         created: &buf_created,
     };
-    record_insert(ctx, (&mut encoder, &mut Kept::default()), &buffers, n)?;
+    record_insert(
+        ctx,
+        (&mut encoder, &mut Kept::default()),
+        ("table_insert", &buffers),
+        n,
+    )?;
     ctx.submit(encoder);
     scope.pop("allocating blocks on the GPU")?;
     let slots: Vec<u32> = ctx.read_back_as(&lookup.slots, n as usize)?;

@@ -6,8 +6,9 @@
 //! - [`pool`]: the slots on the device and the copies between RAM and the pool.
 //! - [`alloc`]: blocks allocated on the device (slots from a free-slot stack there, entries
 //!   claimed by compare-and-swap), which the host learns afterwards and applies to its copies:
-//!   a depth frame's new blocks ([`ResidentMap::make_resident_for_frame`]; the host reserves
-//!   their slots and learns which block took which slot and entry when the frame is collected).
+//!   a depth frame's new blocks, and a LiDAR scan's where the device makes its pairs
+//!   ([`ResidentMap::make_resident_for_frame`]; the host reserves their slots and learns which
+//!   block took which slot and entry when the frame or scan is collected).
 //!   While such insertions are in flight the device's table holds entries the host's lacks, so
 //!   the host inserts nothing itself (it collects first).
 //! - [`policy`]: growing, and which blocks spill when the pool is full (the same eviction order
@@ -109,12 +110,15 @@ pub struct ResidentStats {
     /// Blocks uploaded from RAM.
     pub blocks_uploaded: u64,
     /// Blocks new to the map, written empty into their slots on the GPU (nothing uploaded);
-    /// those a depth frame inserted on the device are counted when it is collected.
+    /// those a depth frame or LiDAR scan inserted on the device are counted when it is
+    /// collected.
     pub blocks_created: u64,
-    /// Of `blocks_created`: those depth frames inserted on the device (`alloc.rs`).
+    /// Of `blocks_created`: those depth frames and LiDAR scans inserted on the device
+    /// (`alloc.rs`).
     pub blocks_inserted_on_gpu: u64,
-    /// Free slots reserved for the new blocks depth frames insert on the device (`alloc.rs`);
-    /// those a frame in flight had inserted already take none, and are given back.
+    /// Free slots reserved for the new blocks depth frames and LiDAR scans insert on the device
+    /// (`alloc.rs`); those a frame in flight had inserted already take none, and are given
+    /// back.
     pub slots_reserved: u64,
     /// Blocks a depth frame listed and left empty that the next frame listed again, kept in
     /// their slots for it rather than released and created again.
