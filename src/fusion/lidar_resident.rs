@@ -312,15 +312,13 @@ fn run_resident(
         next.submitted();
     }
     scope.pop("running the resident LiDAR fusion kernel")?;
-    // The flags and insertions come in dispatch order.
-    let blocks = order.iter().map(|&b| groups[b].0).collect();
-    // Where the host inserted every block (make_resident), looked up as it is recorded.
-    let placed = match placed.slots.is_empty() {
-        true => placed,
-        false => FramePlacement {
-            slots: order.iter().map(|&b| placed.slots[b]).collect(),
-            reserved: placed.reserved,
-        },
+    // The blocks in block order (the order they are touched in), the flags and insertions in
+    // dispatch order; where the host inserted every block (make_resident, `placed.slots`
+    // empty), their slots are looked up as it is recorded.
+    let blocks = groups.iter().map(|g| g.0).collect();
+    let placed = FramePlacement {
+        dispatch: order.iter().map(|&b| b as u32).collect(),
+        ..placed
     };
     map.frame_submitted(layer, (blocks, placed), readback);
     map.set_lidar_rays_of(next.as_ref().map(|n| n.rays_of()));

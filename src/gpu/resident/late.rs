@@ -51,6 +51,9 @@ pub(super) struct FrameInFlight {
     /// The free slots reserved for the blocks the device inserts (`alloc.rs`), the top last;
     /// its insertions come back after the flags.
     reserved: Vec<u32>,
+    /// Per result (flag, insertion), its block's index in `blocks`, where they differ
+    /// ([`FramePlacement::dispatch`]).
+    dispatch: Vec<u32>,
     readback: LateReadback,
 }
 
@@ -135,6 +138,7 @@ impl ResidentMap {
         let FramePlacement {
             mut slots,
             reserved,
+            dispatch,
         } = placed;
         if slots.is_empty() {
             slots = self.table.host.lookup_all(&blocks);
@@ -161,6 +165,7 @@ impl ResidentMap {
             slots,
             lacked,
             reserved,
+            dispatch,
             readback,
         });
     }
@@ -298,6 +303,12 @@ impl ResidentMap {
                 counts[1]
             )));
         }
+        if !f.dispatch.is_empty() {
+            flags = in_list_order(&flags, &f.dispatch);
+            for i in 0..created.first().map_or(0, |&c| c as usize) {
+                created[2 + 3 * i] = f.dispatch[created[2 + 3 * i] as usize];
+            }
+        }
         if !created.is_empty() {
             self.learn_insertions((&f.blocks, &mut f.slots), (&f.reserved, f.frame), &created)?;
         }
@@ -346,8 +357,8 @@ impl ResidentMap {
             self.pool.touch(slot, f.frame);
         }
         // Each frame's touched blocks sorted. A depth frame's come in two sorted runs (listed,
-        // then unsettled), which the run-detecting stable sort merges in one pass; a scan lists
-        // its blocks in dispatch order.
+        // then unsettled), which the run-detecting stable sort merges in one pass; a scan's in
+        // one (its results put in its list's order above).
         self.late.touched[start..].sort();
         self.late.voxel_updates += counts[0] as usize;
         self.stats.peak_resident_blocks =
@@ -400,4 +411,14 @@ impl ResidentMap {
             }
         }
     }
+}
+
+/// `results` (one per listed block, in dispatch order) in the list's order: result `d` is block
+/// `dispatch[d]`'s.
+fn in_list_order(results: &[u32], dispatch: &[u32]) -> Vec<u32> {
+    let mut out = vec![0; results.len()];
+    for (&r, &i) in results.iter().zip(dispatch) {
+        out[i as usize] = r;
+    }
+    out
 }

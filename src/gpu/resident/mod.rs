@@ -74,6 +74,10 @@ pub(crate) struct FramePlacement {
     pub slots: Vec<u32>,
     /// The free slots reserved for the blocks the device inserts, the top last.
     pub reserved: Vec<u32>,
+    /// Where the kernels' results (flags, insertions) come in another order than the listed
+    /// blocks' (a LiDAR scan's, in dispatch order): per result, its block's index in the list;
+    /// empty where they come in the list's order.
+    pub dispatch: Vec<u32>,
 }
 
 /// Size limits of a [`ResidentMap`].
@@ -463,7 +467,11 @@ impl ResidentMap {
         }
         self.stats.table_writes += self.table.upload(&self.ctx, encoder)? as u64;
         self.stats.residency_s += t.elapsed().as_secs_f64();
-        Ok(FramePlacement { slots, reserved })
+        Ok(FramePlacement {
+            slots,
+            reserved,
+            dispatch: Vec::new(),
+        })
     }
 
     /// Frees `need` slots: grows the pool, then spills blocks outside `in_frame` to RAM.
