@@ -305,12 +305,10 @@ impl ResidentMap {
         }
         if !f.dispatch.is_empty() {
             flags = in_list_order(&flags, &f.dispatch);
-            for i in 0..created.first().map_or(0, |&c| c as usize) {
-                created[2 + 3 * i] = f.dispatch[created[2 + 3 * i] as usize];
-            }
         }
         if !created.is_empty() {
-            self.learn_insertions((&f.blocks, &mut f.slots), (&f.reserved, f.frame), &created)?;
+            let listed = (&f.blocks[..], &mut f.slots[..], &f.dispatch[..]);
+            self.learn_insertions(listed, (&f.reserved, f.frame), &created)?;
         }
         let start = self.late.touched.len();
         for (i, (((b, &up), &lacked), &slot)) in (f.blocks.iter().zip(&flags).zip(&f.lacked))
@@ -367,11 +365,12 @@ impl ResidentMap {
     }
 
     /// Applies a frame's insertions on the device (its `created` words, `alloc.rs`: indices into
-    /// its `blocks`) to the host's table and pool and to the frame's `slots`, and gives back
-    /// the slots `reserved` for them that the device did not take (the stack's bottom).
+    /// its `blocks`, or into `dispatch` where not empty, which maps them to `blocks`) to the
+    /// host's table and pool and to the frame's `slots`, and gives back the slots `reserved`
+    /// for them that the device did not take (the stack's bottom).
     fn learn_insertions(
         &mut self,
-        (blocks, slots): (&[BlockIndex], &mut [u32]),
+        (blocks, slots, dispatch): (&[BlockIndex], &mut [u32], &[u32]),
         (reserved, frame): (&[u32], u64),
         created: &[u32],
     ) -> Result<()> {
@@ -384,6 +383,7 @@ impl ResidentMap {
         }
         let (_, inserted) = insertions(created);
         for &[i, pos, slot] in &inserted {
+            let i = dispatch.get(i as usize).map_or(i, |&b| b);
             let key = blocks[i as usize];
             debug_assert!(reserved[k - inserted.len()..].contains(&slot));
             self.table.host.insert_at(pos, key, slot);
