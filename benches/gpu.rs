@@ -50,7 +50,7 @@ use denser::fusion::{integrate_depth, DepthFusionParams};
 use denser::gpu::{ResidentMap, ResidentOptions};
 use denser::grid::{GridParams, Layer};
 use denser::mesh::SampleSource;
-use denser::mesh::{extract_mesh_gpu, extract_mesh_gpu_from, extract_mesh_keyed, Field};
+use denser::mesh::{extract_mesh_gpu, extract_mesh_gpu_from, extract_mesh_keyed, Field, GpuMesher};
 use denser::regularize::{regularize_resident, solve_gpu};
 use denser::regularize::{TvParams, TvProblem};
 use std::sync::Arc;
@@ -210,11 +210,26 @@ fn marching_cubes(c: &mut Criterion) {
             b.iter(|| extract_mesh_gpu(&ctx, &layer, Field::Raw, None).expect("GPU"))
         });
         let ctx = Arc::new(ctx);
+        // A mesher keeping its buffers from mesh to mesh, as `reconstruct` and `export` mesh.
+        let mesher = GpuMesher::new(ctx.clone());
+        g.bench_function("gpu_kept", |b| {
+            b.iter(|| {
+                mesher
+                    .mesh(&layer, Field::Raw, None, SampleSource::Layer)
+                    .expect("GPU")
+            })
+        });
         let (map, layer) = resident(ctx.clone(), &layer);
         g.bench_function("gpu_resident", |b| {
             b.iter(|| {
                 let source = SampleSource::Resident(&map);
                 extract_mesh_gpu_from(&ctx, &layer, Field::Raw, None, source).expect("GPU")
+            })
+        });
+        g.bench_function("gpu_resident_kept", |b| {
+            b.iter(|| {
+                let source = SampleSource::Resident(&map);
+                mesher.mesh(&layer, Field::Raw, None, source).expect("GPU")
             })
         });
     }

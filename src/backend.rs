@@ -30,7 +30,7 @@ use crate::gpu::{
     DeviceChoice, GpuContext, GpuTraffic, ResidentMap, ResidentOptions, ResidentStats, StageTally,
 };
 use crate::grid::{BlockIndex, GridParams, Layer, TouchedBlocks};
-use crate::mesh::{extract_mesh, extract_mesh_gpu_from, Field, Mesh, SampleSource};
+use crate::mesh::{extract_mesh, Field, GpuMesher, Mesh, SampleSource};
 use crate::regularize::{
     regularize_resident, solve_gpu_kept, CpuSolver, RegularizeStats, TvParams, TvProblem, TvSolver,
 };
@@ -98,6 +98,8 @@ pub struct Backend {
     stereo_tally: StageTally,
     /// The TV solves' buffers, kept from region to region ([`Backend::release_tv_buffers`]).
     tv_kept: Kept,
+    /// The GPU mesher, its buffers kept from mesh to mesh (made at the first mesh).
+    mesher: Option<GpuMesher>,
     /// What listing LiDAR scans on the GPU keeps between scans ([`Backend::plan_lidar`]).
     lidar_listings: LidarListings,
     /// What listing host depth frames on the GPU keeps between frames
@@ -149,6 +151,7 @@ impl Backend {
             traffic: StageTraffic::default(),
             stereo_tally: StageTally::default(),
             tv_kept: Kept::default(),
+            mesher: None,
             lidar_listings: LidarListings::default(),
             host_depths: DeviceDepthKept::default(),
         }
@@ -541,9 +544,12 @@ impl UpperTier for Backend {
             .resident
             .as_ref()
             .map_or(SampleSource::Layer, SampleSource::Resident);
+        let mesher = (self.mesher).get_or_insert_with(|| GpuMesher::new(ctx.clone()));
         let t = &mut self.traffic;
         counted(Some(&ctx), &mut t.mesh, &mut t.meshes, || {
-            extract_mesh_gpu_from(&ctx, layer, field, None, source).map(|(mesh, _)| mesh)
+            mesher
+                .mesh(layer, field, None, source)
+                .map(|(mesh, _)| mesh)
         })
     }
 }

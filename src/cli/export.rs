@@ -211,7 +211,7 @@ pub(crate) fn run(a: Args) -> Result<Outcome> {
     let device = super::DeviceArgs { device: a.device };
     let backend = device.backend().context("opening the device")?;
     if let Some(ctx) = backend.mesh_context() {
-        options.mesher = export::Mesher::Gpu(ctx.clone());
+        options.mesher = export::Mesher::gpu(ctx.clone());
         notes.push(format!("meshing the chunks on {}", ctx.name()));
     }
     options.bbox = a.bbox.as_deref().map(Bbox::parse).transpose()?;

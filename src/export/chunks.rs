@@ -9,7 +9,7 @@ use crate::gpu::GpuContext;
 use crate::grid::{BlockIndex, Layer};
 use crate::map::store::MapStore;
 use crate::map::ChunkIndex;
-use crate::mesh::{extract_mesh_gpu, extract_mesh_keyed, EdgeKey, Field, Mesh};
+use crate::mesh::{extract_mesh_keyed, EdgeKey, Field, GpuMesher, Mesh, SampleSource};
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
@@ -21,16 +21,21 @@ pub enum Mesher {
     /// The CPU mesher.
     #[default]
     Cpu,
-    /// Marching cubes on this GPU.
-    Gpu(Arc<GpuContext>),
+    /// Marching cubes on a GPU, its buffers kept from chunk to chunk.
+    Gpu(GpuMesher),
 }
 
 impl Mesher {
+    /// Marching cubes on `ctx`.
+    pub fn gpu(ctx: Arc<GpuContext>) -> Self {
+        Mesher::Gpu(GpuMesher::new(ctx))
+    }
+
     /// The device in words ("CPU" or the adapter).
     pub fn device_name(&self) -> String {
         match self {
             Mesher::Cpu => "CPU".to_string(),
-            Mesher::Gpu(ctx) => ctx.name(),
+            Mesher::Gpu(mesher) => mesher.context().name(),
         }
     }
 }
@@ -139,7 +144,7 @@ pub fn mesh_chunk(
     }
     let (m, keys) = match mesher {
         Mesher::Cpu => extract_mesh_keyed(&layer, field, Some(&own)),
-        Mesher::Gpu(ctx) => extract_mesh_gpu(ctx, &layer, field, Some(&own))?,
+        Mesher::Gpu(mesher) => mesher.mesh(&layer, field, Some(&own), SampleSource::Layer)?,
     };
     Ok((m, keys, own.len()))
 }

@@ -308,15 +308,8 @@ impl GpuContext {
         pieces: usize,
         fill: impl Fn(usize, &mut [u8; N]) + Sync,
     ) -> Result<wgpu::Buffer> {
-        use rayon::prelude::*;
         self.storage_filled(label, (pieces * N) as u64, |out| {
-            let (slots, _) = out.into_chunks::<N>();
-            let slots: Vec<_> = slots.into_iter().collect();
-            slots.into_par_iter().enumerate().for_each(|(k, slot)| {
-                let mut piece = [0u8; N];
-                fill(k, &mut piece);
-                slot.write(piece);
-            });
+            fill_by_piece(out, true, fill)
         })
     }
 
@@ -647,6 +640,28 @@ fn copy_into(dst: &mut [u8], src: &[u8]) {
     dst.par_chunks_mut(1 << 20)
         .zip(src.par_chunks(1 << 20))
         .for_each(|(d, s)| d.copy_from_slice(s));
+}
+
+/// Writes `out` in pieces of `N` bytes, piece `k` by `fill(k, piece)` (each piece is given
+/// exactly `N` bytes to write), on every core where `parallel`.
+pub(crate) fn fill_by_piece<const N: usize>(
+    out: wgpu::WriteOnly<'_, [u8]>,
+    parallel: bool,
+    fill: impl Fn(usize, &mut [u8; N]) + Sync,
+) {
+    use rayon::prelude::*;
+    let (slots, _) = out.into_chunks::<N>();
+    let write = |(k, slot): (usize, wgpu::WriteOnly<'_, [u8; N]>)| {
+        let mut piece = [0u8; N];
+        fill(k, &mut piece);
+        slot.write(piece);
+    };
+    if parallel {
+        let slots: Vec<_> = slots.into_iter().collect();
+        slots.into_par_iter().enumerate().for_each(write);
+    } else {
+        slots.into_iter().enumerate().for_each(write);
+    }
 }
 
 #[cfg(test)]

@@ -78,6 +78,23 @@ impl Kept {
         Ok(b)
     }
 
+    /// The kept storage buffer `name` holding `pieces` pieces of `N` bytes, piece `k` written by
+    /// `fill(k, piece)` straight into the kept staging memory: on every core, unless the caller
+    /// is a thread of the pool already (the staging memory is locked while `fill` runs, and a
+    /// pool thread waiting there for its pieces could take up a job that writes to it too).
+    pub(crate) fn storage_by_piece<const N: usize>(
+        &mut self,
+        ctx: &GpuContext,
+        name: &'static str,
+        pieces: usize,
+        fill: impl Fn(usize, &mut [u8; N]) + Sync,
+    ) -> crate::Result<wgpu::Buffer> {
+        let parallel = rayon::current_thread_index().is_none();
+        self.storage_filled(ctx, name, (pieces * N) as u64, |out| {
+            super::context::fill_by_piece(out, parallel, fill)
+        })
+    }
+
     /// The kept uniform buffer `name` holding `data`.
     pub(crate) fn uniform_with(
         &mut self,

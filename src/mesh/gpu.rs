@@ -17,12 +17,19 @@
 //!    first corner, so vertices are numbered in order of first use, the CPU's order;
 //! 5. `mc_link`: each corner's vertex number.
 //!
+//! A [`GpuMesher`] keeps its buffers and bind groups from mesh to mesh (`src/gpu/kept.rs`), so
+//! a mesh of no more blocks and triangles than an earlier one creates none (but the bind group
+//! over a GPU tier's pool, which a grow replaces). A batch costs a submit and a wait for its
+//! count (the samples made from the pool in the same submit), and each of its parts two more:
+//! the mesh, then its vertices. [`extract_mesh_gpu`] is one mesh with a mesher of its own.
+//!
 //! Nothing depends on the order the invocations run in, so the result is deterministic. Where a
 //! layer does not fit one storage binding, it goes in batches of blocks (and a batch's
-//! triangles in parts); the parts' vertices are merged on the host in order, as the CPU merges
-//! its blocks', looking up only the vertices two blocks can share (those on an edge whose lower
-//! corner lies on a block's low face).
+//! triangles in parts); the parts' vertices are merged on the host in order (`gpu_merge.rs`),
+//! as the CPU merges its blocks', looking up only the vertices two blocks can share (those on
+//! an edge whose lower corner lies on a block's low face).
 
+use super::gpu_merge::Merge;
 use super::gpu_samples::{device_samples, SampleSource};
 use super::marching_cubes::{EdgeKey, Field};
 use super::tables::triangle_table;
@@ -30,11 +37,12 @@ use super::Mesh;
 use crate::gpu::kept::Kept;
 use crate::gpu::layout::{pack_rgb, McUniforms};
 use crate::gpu::{shaders, ErrorScopes, GpuContext, Kernel};
-use crate::grid::{decode_tsdf, BlockIndex, Layer, VoxelIndex, VOXELS_PER_BLOCK, VOXELS_PER_SIDE};
+use crate::grid::{decode_tsdf, BlockIndex, Layer, VOXELS_PER_BLOCK, VOXELS_PER_SIDE};
 use crate::Result;
 use rayon::prelude::*;
 use std::collections::HashMap;
 use std::ops::Range;
+use std::sync::{Arc, Mutex};
 
 /// How far a GPU vertex may lie from the CPU's, in voxels, on top of one unit in the last place
 /// of the coordinate: the edge parameter `fa / (fa − fb)` is a division, which WGSL allows to
@@ -74,6 +82,79 @@ pub fn extract_mesh_gpu_from(
     blocks: Option<&[BlockIndex]>,
     source: SampleSource,
 ) -> Result<(Mesh, Vec<EdgeKey>)> {
+    mesh_with(ctx, &mut Scratch::default(), (layer, source), field, blocks)
+}
+
+/// The GPU mesher ([`extract_mesh_gpu_from`]) with the buffers and bind groups it keeps from
+/// mesh to mesh: after the first, a mesh of no more blocks and triangles creates none, and the
+/// triangle table stays on the device. Clones share what is kept; meshes made at once (an
+/// export's chunks, on every core) each take a set of their own, so as many sets are kept as
+/// meshes ran at once, each as large as the largest mesh it made.
+#[derive(Clone)]
+pub struct GpuMesher {
+    ctx: Arc<GpuContext>,
+    sets: Arc<Mutex<Vec<Scratch>>>,
+}
+
+impl std::fmt::Debug for GpuMesher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuMesher")
+            .field("device", &self.ctx.name())
+            .finish()
+    }
+}
+
+impl GpuMesher {
+    /// A mesher on `ctx`, keeping nothing yet.
+    pub fn new(ctx: Arc<GpuContext>) -> Self {
+        GpuMesher {
+            ctx,
+            sets: Default::default(),
+        }
+    }
+
+    /// The GPU it meshes on.
+    pub fn context(&self) -> &Arc<GpuContext> {
+        &self.ctx
+    }
+
+    /// [`extract_mesh_gpu_from`] over the kept buffers (a set of its own where other meshes are
+    /// being made at once). After an error the set it used is dropped.
+    pub fn mesh(
+        &self,
+        layer: &Layer,
+        field: Field,
+        blocks: Option<&[BlockIndex]>,
+        source: SampleSource,
+    ) -> Result<(Mesh, Vec<EdgeKey>)> {
+        let sets = || self.sets.lock().unwrap_or_else(|e| e.into_inner());
+        let mut set = sets().pop().unwrap_or_default();
+        let mesh = mesh_with(&self.ctx, &mut set, (layer, source), field, blocks)?;
+        sets().push(set);
+        Ok(mesh)
+    }
+
+    /// Gives back every kept buffer (the device memory they hold).
+    pub fn release(&self) {
+        self.sets.lock().unwrap_or_else(|e| e.into_inner()).clear();
+    }
+}
+
+/// What a [`GpuMesher`] keeps for one mesh at a time: the buffers and bind groups of its
+/// batches and parts, and the triangle table on the device.
+#[derive(Default)]
+struct Scratch {
+    kept: Kept,
+    table: Option<wgpu::Buffer>,
+}
+
+fn mesh_with(
+    ctx: &GpuContext,
+    scratch: &mut Scratch,
+    (layer, source): (&Layer, SampleSource),
+    field: Field,
+    blocks: Option<&[BlockIndex]>,
+) -> Result<(Mesh, Vec<EdgeKey>)> {
     let mut list: Vec<BlockIndex> = match blocks {
         Some(b) => {
             let mut v = b.to_vec();
@@ -86,7 +167,11 @@ pub fn extract_mesh_gpu_from(
     // A block that is not allocated has no valid corner 0 in any cube: no triangles.
     list.retain(|b| layer.get(b).is_some());
     let mut phases = Phases::default();
-    let (table, stride) = table_words();
+    let (words, stride) = table_words();
+    let table = (scratch.table)
+        .get_or_insert_with(|| ctx.storage("mc_table", bytemuck::cast_slice(&words)))
+        .clone();
+    let kept = &mut scratch.kept;
     let mut merge = Merge::default();
     let cap = ctx.max_binding_bytes();
     let mut start = 0;
@@ -94,15 +179,19 @@ pub fn extract_mesh_gpu_from(
         let upload = timed(&mut phases.plan_s, || plan_batch(layer, &list, start, cap));
         let end = start + upload.meshed;
         merge.more_to_come |= end < list.len();
+        // The samples made on the device go in the count's submit.
+        let mut encoder = ctx.encoder("mc_count");
         let batch = timed(&mut phases.upload_s, || {
-            Batch::upload(ctx, (layer, source), field, &upload, (&table, stride))
+            let to = (&mut *kept, &mut encoder);
+            Batch::upload(ctx, to, (layer, source), field, &upload, (&table, stride))
         })?;
-        let counts = timed(&mut phases.count_s, || batch.count(ctx))?;
+        let counts = timed(&mut phases.count_s, || batch.count(ctx, kept, encoder))?;
         let parts = plan_parts(&counts, cap);
         merge.more_to_come |= parts.len() > 1;
         for part in parts {
-            let (vertices, triangles) =
-                timed(&mut phases.mesh_s, || batch.mesh_part(ctx, part, &counts))?;
+            let (vertices, triangles) = timed(&mut phases.mesh_s, || {
+                batch.mesh_part(ctx, kept, part, &counts)
+            })?;
             timed(&mut phases.merge_s, || {
                 merge.add(&upload.places, &vertices, &triangles)
             });
@@ -241,16 +330,18 @@ fn table_entries(corners: u64) -> u64 {
     (corners + 1).next_power_of_two()
 }
 
-/// The samples of `places` packed on the host from `layer` straight into the upload's mapping,
-/// a block per task: 8 bytes per voxel, the field's value, then the colour with [`VALID_BIT`].
+/// The samples of `places` packed on the host from `layer` straight into the kept staging
+/// memory, a block per task: 8 bytes per voxel, the field's value, then the colour with
+/// [`VALID_BIT`].
 fn host_samples(
     ctx: &GpuContext,
-    layer: &Layer,
-    field: Field,
+    kept: &mut Kept,
+    (layer, field): (&Layer, Field),
     places: &[BlockIndex],
 ) -> Result<wgpu::Buffer> {
     ctx.check_binding("marching-cubes samples", places.len() as u64 * SAMPLE_BYTES)?;
-    ctx.storage_by_piece::<{ SAMPLE_BYTES as usize }>("mc_samples", places.len(), |k, dst| {
+    let pieces = places.len();
+    kept.storage_by_piece::<{ SAMPLE_BYTES as usize }>(ctx, "mc_samples", pieces, |k, dst| {
         let block = layer
             .get(&places[k])
             .expect("an uploaded block is allocated");
@@ -268,30 +359,38 @@ fn host_samples(
     })
 }
 
-/// A batch's blocks on the device.
+/// A batch's blocks on the device, in kept buffers.
 struct Batch {
     uniforms: McUniforms,
     samples: wgpu::Buffer,
     neighbours: wgpu::Buffer,
     table: wgpu::Buffer,
     centres: wgpu::Buffer,
-    kept: std::cell::RefCell<Kept>,
 }
 
 impl Batch {
+    /// The batch's inputs written into kept buffers (reaching the device with the next
+    /// submit), the samples made on the device recorded into `encoder` where `source` holds
+    /// every place.
     fn upload(
         ctx: &GpuContext,
+        (kept, encoder): (&mut Kept, &mut wgpu::CommandEncoder),
         (layer, source): (&Layer, SampleSource),
         field: Field,
         upload: &Upload,
-        (table, stride): (&[u32], u32),
+        (table, stride): (&wgpu::Buffer, u32),
     ) -> Result<Batch> {
         let grid = layer.params();
         let samples = match source.slots(&upload.places) {
-            Some((pool, slots)) => {
-                device_samples(ctx, layer, field, &upload.places, (pool, &slots))?
-            }
-            None => host_samples(ctx, layer, field, &upload.places)?,
+            Some((pool, slots)) => device_samples(
+                ctx,
+                (&mut *kept, encoder),
+                layer,
+                field,
+                &upload.places,
+                (pool, &slots),
+            )?,
+            None => host_samples(ctx, kept, (layer, field), &upload.places)?,
         };
         let centres: Vec<[f32; 24]> = upload
             .places
@@ -307,6 +406,7 @@ impl Batch {
                 centres
             })
             .collect();
+        let neighbours = bytemuck::cast_slice(&upload.neighbours);
         Ok(Batch {
             uniforms: McUniforms {
                 blocks: upload.meshed as u32,
@@ -318,39 +418,38 @@ impl Batch {
                 pad: [0; 2],
             },
             samples,
-            neighbours: ctx.storage("mc_neighbours", bytemuck::cast_slice(&upload.neighbours)),
-            table: ctx.storage("mc_table", bytemuck::cast_slice(table)),
-            centres: ctx.storage("mc_centres", bytemuck::cast_slice(&centres)),
-            kept: Default::default(),
+            neighbours: kept.storage_with(ctx, "mc_neighbours", neighbours),
+            table: table.clone(),
+            centres: kept.storage_with(ctx, "mc_centres", bytemuck::cast_slice(&centres)),
         })
     }
 
-    /// Pass 1: the triangles of each meshed block.
-    fn count(&self, ctx: &GpuContext) -> Result<Vec<u32>> {
+    /// Pass 1 (after what `encoder` holds): the triangles of each meshed block.
+    fn count(
+        &self,
+        ctx: &GpuContext,
+        kept: &mut Kept,
+        mut encoder: wgpu::CommandEncoder,
+    ) -> Result<Vec<u32>> {
         let blocks = self.uniforms.blocks as usize;
         let kernel = ctx.kernel(&shaders::MC_COUNT)?;
         let scope = ErrorScopes::push(&ctx.device);
-        let uniforms = ctx.uniform("mc_uniforms", bytemuck::bytes_of(&self.uniforms));
-        let counts = ctx.storage_zeroed("mc_block_counts", 4 * blocks as u64);
-        let bind = ctx.bind_group(
-            "mc_count",
-            &kernel.layout,
-            &[
-                &uniforms,
-                &self.samples,
-                &self.neighbours,
-                &self.table,
-                &counts,
-            ],
-        );
-        let mut encoder = encoder(ctx, "mc_count");
+        let uniforms =
+            kept.uniform_with(ctx, "mc_count_uniforms", bytemuck::bytes_of(&self.uniforms));
+        let counts = kept.scratch(ctx, "mc_block_counts", 4 * blocks as u64);
+        encoder.clear_buffer(&counts, 0, Some(4 * blocks as u64));
+        let buffers = [
+            &uniforms,
+            &self.samples,
+            &self.neighbours,
+            &self.table,
+            &counts,
+        ];
+        let bind = kept.bind_group(ctx, "mc_count", &kernel.layout, &buffers);
         ctx.record_dispatch(&mut encoder, &kernel, &bind, 64 * blocks as u64)?;
         let mut out = vec![0u32; blocks];
-        ctx.submit_and_read_back(
-            encoder,
-            &mut self.kept.borrow_mut(),
-            &mut [(&counts, bytemuck::cast_slice_mut(&mut out))],
-        )?;
+        let results = &mut [(&counts, bytemuck::cast_slice_mut(&mut out))];
+        ctx.submit_and_read_back(encoder, kept, results)?;
         scope.pop("counting marching-cubes triangles")?;
         Ok(out)
     }
@@ -360,6 +459,7 @@ impl Batch {
     fn mesh_part(
         &self,
         ctx: &GpuContext,
+        kept: &mut Kept,
         part: Range<usize>,
         counts: &[u32],
     ) -> Result<(Vec<[u32; 5]>, Vec<u32>)> {
@@ -392,145 +492,63 @@ impl Batch {
             k(&shaders::MC_LINK)?,
         );
         let scope = ErrorScopes::push(&ctx.device);
-        let u = ctx.uniform("mc_uniforms", bytemuck::bytes_of(&uniforms));
-        let base = ctx.storage("mc_tri_base", bytemuck::cast_slice(&tri_base));
-        let hash = ctx.storage_zeroed("mc_hash", ENTRY_BYTES * entries);
-        let corner_buf = ctx.storage_zeroed("mc_corners", CORNER_BYTES * corners);
-        let block_vertices = ctx.storage_zeroed("mc_block_vertices", 4 * blocks as u64);
-        let vertex_base = ctx.storage_zeroed("mc_vertex_base", 4 * (blocks as u64 + 1));
-        // At most one vertex per corner.
-        let vertices = ctx.storage_zeroed("mc_vertices", CORNER_BYTES * corners);
-        let tris = ctx.storage_zeroed("mc_triangles", 4 * corners);
-        let (s, n, t, c) = (&self.samples, &self.neighbours, &self.table, &self.centres);
-        let mut encoder = encoder(ctx, "marching_cubes");
-        let groups = 64 * blocks as u64;
-        let mut dispatch = |name: &str, kernel: &Kernel, buffers: &[&wgpu::Buffer], n: u64| {
-            let bind = ctx.bind_group(name, &kernel.layout, buffers);
-            ctx.record_dispatch(&mut encoder, kernel, &bind, n)
+        let mut encoder = ctx.encoder("marching_cubes");
+        let u = kept.uniform_with(ctx, "mc_uniforms", bytemuck::bytes_of(&uniforms));
+        let base = kept.storage_with(ctx, "mc_tri_base", bytemuck::cast_slice(&tri_base));
+        // The hash table's and the blocks' vertex counts start at zero (the kernels add to
+        // them); the rest is written whole before it is read.
+        let mut zeroed = |name, bytes| {
+            let b = kept.scratch(ctx, name, bytes);
+            encoder.clear_buffer(&b, 0, Some(bytes));
+            b
         };
-        dispatch(
-            "mc_emit",
-            &emit,
-            &[&u, s, n, t, c, &base, &hash, &corner_buf],
-            groups,
-        )?;
-        dispatch(
-            "mc_first",
-            &first,
-            &[&u, &base, &hash, &corner_buf, &block_vertices],
-            groups,
-        )?;
-        dispatch("mc_scan", &scan, &[&u, &block_vertices, &vertex_base], 64)?;
+        let hash = zeroed("mc_hash", ENTRY_BYTES * entries);
+        let block_vertices = zeroed("mc_block_vertices", 4 * blocks as u64);
+        let corner_buf = kept.scratch(ctx, "mc_corners", CORNER_BYTES * corners);
+        let vertex_base = kept.scratch(ctx, "mc_vertex_base", 4 * (blocks as u64 + 1));
+        // At most one vertex per corner.
+        let vertices = kept.scratch(ctx, "mc_vertices", CORNER_BYTES * corners);
+        let tris = kept.scratch(ctx, "mc_triangles", 4 * corners);
+        let (s, n, t, c) = (&self.samples, &self.neighbours, &self.table, &self.centres);
+        let groups = 64 * blocks as u64;
         let assigned = [&u, &base, &vertex_base, &hash, &corner_buf, &vertices];
-        dispatch("mc_assign", &assign, &assigned, groups)?;
-        dispatch("mc_link", &link, &[&u, &hash, &corner_buf, &tris], corners)?;
+        let passes: [(&'static str, &Kernel, &[&wgpu::Buffer], u64); 5] = [
+            (
+                "mc_emit",
+                &emit,
+                &[&u, s, n, t, c, &base, &hash, &corner_buf],
+                groups,
+            ),
+            (
+                "mc_first",
+                &first,
+                &[&u, &base, &hash, &corner_buf, &block_vertices],
+                groups,
+            ),
+            ("mc_scan", &scan, &[&u, &block_vertices, &vertex_base], 64),
+            ("mc_assign", &assign, &assigned, groups),
+            ("mc_link", &link, &[&u, &hash, &corner_buf, &tris], corners),
+        ];
+        for (name, kernel, buffers, invocations) in passes {
+            let bind = kept.bind_group(ctx, name, &kernel.layout, buffers);
+            ctx.record_dispatch(&mut encoder, kernel, &bind, invocations)?;
+        }
         let mut triangle_words = vec![0u32; corners as usize];
         let mut bases = vec![0u32; blocks + 1];
         ctx.submit_and_read_back(
             encoder,
-            &mut self.kept.borrow_mut(),
+            kept,
             &mut [
                 (&tris, bytemuck::cast_slice_mut(&mut triangle_words)),
                 (&vertex_base, bytemuck::cast_slice_mut(&mut bases)),
             ],
         )?;
-        let vertex_count = bases[blocks] as usize;
-        let out: Vec<[u32; 5]> = ctx.read_back_as(&vertices, vertex_count)?;
+        let mut out: Vec<[u32; 5]> = bytemuck::zeroed_vec(bases[blocks] as usize);
+        let results = &mut [(&vertices, bytemuck::cast_slice_mut(&mut out))];
+        ctx.submit_and_read_back(ctx.encoder("mc_vertices"), kept, results)?;
         scope.pop("meshing on the GPU")?;
         Ok((out, triangle_words))
     }
-}
-
-fn encoder(ctx: &GpuContext, label: &str) -> wgpu::CommandEncoder {
-    ctx.device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) })
-}
-
-/// The parts' vertices and triangles joined in order, as the CPU joins its blocks'.
-#[derive(Default)]
-struct Merge {
-    mesh: Mesh,
-    keys: Vec<EdgeKey>,
-    /// Whether more than one part makes the mesh (known before the first part is added).
-    more_to_come: bool,
-    /// The vertices two blocks can share, by edge, once more than one part makes the mesh.
-    shared: HashMap<EdgeKey, u32>,
-}
-
-impl Merge {
-    fn add(&mut self, places: &[BlockIndex], vertices: &[[u32; 5]], triangles: &[u32]) {
-        let decoded: Vec<(EdgeKey, bool)> = vertices
-            .par_iter()
-            .map(|v| edge_key(places, v[4]))
-            .collect();
-        let position = |v: &[u32; 5]| [0, 1, 2].map(|i| f32::from_bits(v[i]));
-        let color = |v: &[u32; 5]| [0, 8, 16].map(|s| (v[3] >> s) as u8);
-        if !self.more_to_come {
-            // One part makes the mesh: its vertices are the mesh's, in order.
-            let base = self.mesh.positions_m.len() as u32;
-            let positions: Vec<[f32; 3]> = vertices.par_iter().map(position).collect();
-            let colors: Vec<[u8; 3]> = vertices.par_iter().map(color).collect();
-            let keys: Vec<EdgeKey> = decoded.into_par_iter().map(|(key, _)| key).collect();
-            let tris: Vec<[u32; 3]> = triangles
-                .par_chunks_exact(3)
-                .map(|t| [base + t[0], base + t[1], base + t[2]])
-                .collect();
-            append(&mut self.mesh.positions_m, positions);
-            append(&mut self.mesh.colors, colors);
-            append(&mut self.keys, keys);
-            append(&mut self.mesh.triangles, tris);
-            return;
-        }
-        let remap: Vec<u32> = vertices
-            .iter()
-            .zip(decoded)
-            .map(|(v, (key, shareable))| {
-                let mesh = &mut self.mesh;
-                let keys = &mut self.keys;
-                let mut push = || {
-                    mesh.positions_m.push(position(v));
-                    mesh.colors.push(color(v));
-                    keys.push(key);
-                    (mesh.positions_m.len() - 1) as u32
-                };
-                if shareable {
-                    *self.shared.entry(key).or_insert_with(push)
-                } else {
-                    push()
-                }
-            })
-            .collect();
-        self.mesh
-            .triangles
-            .extend(triangles.chunks_exact(3).map(|t| {
-                [
-                    remap[t[0] as usize],
-                    remap[t[1] as usize],
-                    remap[t[2] as usize],
-                ]
-            }));
-    }
-}
-
-/// `more` appended to `v` (moved in whole where `v` is empty).
-fn append<T>(v: &mut Vec<T>, more: Vec<T>) {
-    if v.is_empty() {
-        *v = more;
-    } else {
-        v.extend(more);
-    }
-}
-
-/// The edge key of a device key `(place · 512 + voxel) · 3 + axis`, and whether cubes of two
-/// blocks can name the edge (its lower corner on a low face of its block).
-fn edge_key(places: &[BlockIndex], key: u32) -> (EdgeKey, bool) {
-    let axis = (key % 3) as u8;
-    let voxel = (key / 3) as usize % VOXELS_PER_BLOCK;
-    let place = (key / 3) as usize / VOXELS_PER_BLOCK;
-    let side = VOXELS_PER_SIDE;
-    let (x, y, z) = (voxel % side, (voxel / side) % side, voxel / (side * side));
-    let v: VoxelIndex = places[place].voxel(x, y, z);
-    ((v, axis), x == 0 || y == 0 || z == 0)
 }
 
 #[cfg(test)]
@@ -561,22 +579,6 @@ mod tests {
         // 1 KiB: at most 17 triangles a part; the blocks of 700 and 1200 alone.
         let small: Vec<Range<usize>> = vec![0..2, 2..3, 3..6, 6..7, 7..8];
         assert_eq!(plan_parts(&counts, 1 << 10), small);
-    }
-
-    #[test]
-    fn device_keys_decode_to_the_cpu_keys() {
-        let places = [BlockIndex([3, -2, 7]), BlockIndex([-1, 0, 0])];
-        for (place, (x, y, z), axis) in [
-            (0usize, (0, 5, 7), 2u32),
-            (1, (7, 7, 7), 0),
-            (1, (3, 4, 5), 1),
-        ] {
-            let voxel = x + 8 * (y + 8 * z);
-            let key = ((place * 512 + voxel) * 3) as u32 + axis;
-            let (k, shareable) = edge_key(&places, key);
-            assert_eq!(k, (places[place].voxel(x, y, z), axis as u8));
-            assert_eq!(shareable, x == 0 || y == 0 || z == 0);
-        }
     }
 
     #[test]

@@ -6,8 +6,9 @@
 //! layer and the pool agree, as they do after [`ResidentMap::sync`].
 
 use super::marching_cubes::Field;
+use crate::gpu::kept::Kept;
 use crate::gpu::layout::McSampleUniforms;
-use crate::gpu::{shaders, ErrorScopes, GpuContext, ResidentMap};
+use crate::gpu::{shaders, GpuContext, ResidentMap};
 use crate::grid::{BlockIndex, Layer, VOXELS_PER_BLOCK};
 use crate::Result;
 
@@ -37,9 +38,10 @@ impl<'a> SampleSource<'a> {
 }
 
 /// The samples of `places` (resident at `slots` of `pool`) made on the device: one dispatch,
-/// submitted before the passes that read them.
+/// recorded into `encoder` before the passes that read them, over buffers kept in `kept`.
 pub(super) fn device_samples(
     ctx: &GpuContext,
+    (kept, encoder): (&mut Kept, &mut wgpu::CommandEncoder),
     layer: &Layer,
     field: Field,
     places: &[BlockIndex],
@@ -53,10 +55,10 @@ pub(super) fn device_samples(
         regularized: (field == Field::Regularized) as u32,
         pad: [0; 2],
     };
-    let scope = ErrorScopes::push(&ctx.device);
     let values = match field {
-        // The stored i16 of each voxel, packed straight into the upload's mapping.
-        Field::Regularized => ctx.storage_by_piece::<{ 2 * VOXELS_PER_BLOCK }>(
+        // The stored i16 of each voxel, packed straight into the kept staging memory.
+        Field::Regularized => kept.storage_by_piece::<{ 2 * VOXELS_PER_BLOCK }>(
+            ctx,
             "mc_values",
             places.len(),
             |k, dst| {
@@ -67,20 +69,19 @@ pub(super) fn device_samples(
                 }
             },
         )?,
-        Field::Raw => ctx.storage_zeroed("mc_values", 4),
+        Field::Raw => kept.scratch(ctx, "mc_values", 4),
     };
-    let samples = ctx.storage_zeroed("mc_samples", voxels * 8);
+    let samples = kept.scratch(ctx, "mc_samples", voxels * 8);
     let buffers = [
-        &ctx.uniform("mc_sample_uniforms", bytemuck::bytes_of(&uniforms)),
-        &ctx.storage("mc_place_slot", bytemuck::cast_slice(slots)),
+        &kept.uniform_with(ctx, "mc_sample_uniforms", bytemuck::bytes_of(&uniforms)),
+        &kept.storage_with(ctx, "mc_place_slot", bytemuck::cast_slice(slots)),
         pool,
         &values,
         &samples,
     ];
+    // Not kept: the pool is the GPU tier's, which a grow replaces, and a kept bind group would
+    // hold the old one until the next mesh.
     let bind = ctx.bind_group("mc_samples", &kernel.layout, &buffers);
-    let mut encoder = ctx.encoder("mc_samples");
-    ctx.record_dispatch(&mut encoder, &kernel, &bind, voxels)?;
-    ctx.submit(encoder);
-    scope.pop("making the marching-cubes samples from the GPU pool")?;
+    ctx.record_dispatch(encoder, &kernel, &bind, voxels)?;
     Ok(samples)
 }

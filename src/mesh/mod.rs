@@ -2,11 +2,12 @@
 //! mesh and point types that exporters write.
 
 mod gpu;
+mod gpu_merge;
 mod gpu_samples;
 mod marching_cubes;
 pub mod tables;
 
-pub use gpu::{extract_mesh_gpu, extract_mesh_gpu_from, POSITION_TOLERANCE_VOXELS};
+pub use gpu::{extract_mesh_gpu, extract_mesh_gpu_from, GpuMesher, POSITION_TOLERANCE_VOXELS};
 pub use gpu_samples::SampleSource;
 pub use marching_cubes::{extract_mesh, extract_mesh_keyed, EdgeKey, Field};
 

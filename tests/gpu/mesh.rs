@@ -10,8 +10,9 @@ use denser::gpu::GpuContext;
 use denser::grid::{BlockIndex, GridParams, Layer, OMEGA_BIT, VOXELS_PER_BLOCK};
 use denser::io::ply::read_mesh_ply;
 use denser::map::store::MapStore;
+use denser::mesh::SampleSource;
 use denser::mesh::POSITION_TOLERANCE_VOXELS;
-use denser::mesh::{extract_mesh_gpu, extract_mesh_keyed, EdgeKey, Field, Mesh};
+use denser::mesh::{extract_mesh_gpu, extract_mesh_keyed, EdgeKey, Field, GpuMesher, Mesh};
 use denser::regularize::{regularize_layer, TvParams};
 
 const GRID: GridParams = GridParams {
@@ -153,6 +154,55 @@ fn gpu_marching_cubes_traffic_is_the_samples_up_and_the_mesh_down() {
 }
 
 #[test]
+fn a_kept_mesher_creates_no_buffer_after_its_first_mesh() {
+    // Issue 34's kept buffers: a `GpuMesher`'s meshes after its first, of no more blocks and
+    // triangles (the raw field's mesh is the larger here), create no buffer and no bind group
+    // (the triangle table stays on the device), in three submits and three waits, and are the
+    // meshes a mesher of their own makes.
+    let Some(ctx) = gpu() else { return };
+    let ctx = std::sync::Arc::new(ctx);
+    let layer = scene();
+    let mesher = GpuMesher::new(ctx.clone());
+    let before = ctx.traffic();
+    let first = mesher.mesh(&layer, Field::Raw, None, SampleSource::Layer);
+    let warm_up = ctx.traffic().since(before);
+    assert!(warm_up.buffers_created >= 12, "{warm_up:?}");
+    let all = layer.indices_sorted();
+    let some = &all[..all.len() / 3];
+    for (field, blocks) in [
+        (Field::Raw, None),
+        (Field::Regularized, None),
+        (Field::Raw, Some(some)),
+    ] {
+        let before = ctx.traffic();
+        let kept = mesher
+            .mesh(&layer, field, blocks, SampleSource::Layer)
+            .expect("kept");
+        let t = ctx.traffic().since(before);
+        eprintln!(
+            "{field:?}, {} blocks: {t:?}",
+            blocks.map_or(all.len(), <[_]>::len)
+        );
+        assert_eq!((t.buffers_created, t.bind_groups_created), (0, 0), "{t:?}");
+        assert_eq!((t.submits, t.waits), (3, 3), "{t:?}");
+        let own = extract_mesh_gpu(&ctx, &layer, field, blocks).expect("own");
+        assert!(!own.0.triangles.is_empty());
+        assert_eq!(kept, own, "{field:?}");
+    }
+    assert_eq!(
+        first.expect("first"),
+        extract_mesh_gpu(&ctx, &layer, Field::Raw, None).unwrap()
+    );
+    // Given back: the next mesh makes its buffers again.
+    mesher.release();
+    let before = ctx.traffic();
+    mesher
+        .mesh(&layer, Field::Raw, None, SampleSource::Layer)
+        .expect("after release");
+    assert!(ctx.traffic().since(before).buffers_created >= 12);
+}
+
+#[test]
 fn export_meshes_the_chunks_on_the_gpu_as_on_the_cpu() {
     // `export --device gpu`: every chunk meshed by the GPU twin, then stitched as the CPU's
     // chunks are. The same vertices (positions within the tolerance) and the same triangles;
@@ -175,7 +225,7 @@ fn export_meshes_the_chunks_on_the_gpu_as_on_the_cpu() {
     let mut options = ExportOptions::new(Field::Raw);
     let cpu_path = tmp.path().join("cpu.ply");
     let cpu = export_with(&store, &options, &ExportTarget::Mesh(cpu_path.clone())).expect("CPU");
-    options.mesher = Mesher::Gpu(ctx.clone());
+    options.mesher = Mesher::gpu(ctx.clone());
     let gpu_path = tmp.path().join("gpu.ply");
     let before = ctx.traffic();
     let on_gpu = export_with(&store, &options, &ExportTarget::Mesh(gpu_path.clone())).expect("GPU");

@@ -13,7 +13,7 @@ use denser::backend::Backend;
 use denser::fusion::DepthFusionParams;
 use denser::gpu::{ResidentMap, ResidentOptions};
 use denser::grid::{BlockIndex, GridParams, Layer, VOXELS_PER_BLOCK};
-use denser::mesh::{extract_mesh_gpu, extract_mesh_gpu_from, Field, SampleSource};
+use denser::mesh::{extract_mesh_gpu, extract_mesh_gpu_from, Field, GpuMesher, SampleSource};
 use denser::regularize::{regularize_layer, regularize_layer_gpu, regularize_resident, TvParams};
 use std::sync::Arc;
 
@@ -213,6 +213,21 @@ fn marching_cubes_from_the_resident_pool_equals_the_uploaded_samples() {
             "{t:?}"
         );
     }
+    // A kept mesher (issue 34): its meshes from the pool after its first create no buffer,
+    // only the bind group over the pool (not kept: a grow of the tier replaces the pool).
+    let mesher = GpuMesher::new(ctx.clone());
+    let source = SampleSource::Resident(&map);
+    let first = mesher
+        .mesh(&layer, Field::Regularized, None, source)
+        .expect("first");
+    let before = ctx.traffic();
+    let again = mesher
+        .mesh(&layer, Field::Regularized, None, source)
+        .expect("again");
+    let t = ctx.traffic().since(before);
+    assert_eq!(again, first);
+    let created = (t.buffers_created, t.bind_groups_created);
+    assert_eq!((created, t.submits, t.waits), ((0, 1), 3, 3), "{t:?}");
     // One block back in RAM only: its batch's samples are packed on the host, the same mesh.
     let first = layer.indices_sorted()[0];
     map.flush_blocks(&mut layer, &[first]).expect("flush");
